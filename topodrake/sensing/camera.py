@@ -49,73 +49,91 @@ def _plane_texel(tex_grid, fine, textures, px, py):
     return tid, tv, tu
 
 
-@nb.njit(cache=True, parallel=True, fastmath=True)
-def _render(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine, textures,
-            poses, width, height, fx, cx, cy, fwd, cam_h, max_depth, want_rgb,
-            rgb_out, depth_out):
-    n = poses.shape[0]
+@nb.njit(cache=True, fastmath=True)
+def _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine, textures,
+                 poses, k, xn, yn, fwd, cam_h, max_depth, want_rgb, rgb_out, depth_out):
+    """Render image ``k`` of the batch (one column ray, then the rows)."""
+    width = xn.shape[0]
+    height = yn.shape[0]
     wall_h = grid[5]
     scale = TEXELS / TILE_M
-    xn = np.empty(width)
+    ct = math.cos(poses[k, 2])
+    st = math.sin(poses[k, 2])
+    ox = poses[k, 0] + fwd * ct
+    oy = poses[k, 1] + fwd * st
     for j in range(width):
-        xn[j] = (j - cx) / fx
-    yn = np.empty(height)
-    for i in range(height):
-        yn[i] = (i - cy) / fx
-    for k in nb.prange(n):
-        ct = math.cos(poses[k, 2])
-        st = math.sin(poses[k, 2])
-        ox = poses[k, 0] + fwd * ct
-        oy = poses[k, 1] + fwd * st
-        for j in range(width):
-            dx = ct + xn[j] * st
-            dy = st - xn[j] * ct
-            inv_norm = 1.0 / math.sqrt(dx * dx + dy * dy)
-            t, f, s = cast(faces, cell_start, cell_faces, grid, ox, oy, dx, dy, max_depth)
-            if f >= 0:
-                u = faces[f, 4] + s * faces[f, 5]
-                tu = int(math.floor(u * scale)) % TEXELS
-                tid = int(faces[f, 7])
-                wall_shade = faces[f, 6] * math.exp(-FOG * t / inv_norm)
-            for i in range(height):
-                y = yn[i]
-                z = cam_h - y * t if f >= 0 else (cam_h - y * 1e9)
-                if f >= 0 and 0.0 <= z <= wall_h:
-                    if want_rgb:
-                        tv = int(math.floor(z * scale)) % TEXELS
-                        for ch in range(3):
-                            v = textures[tid, tv, tu, ch] * wall_shade
-                            rgb_out[k, i, j, ch] = min(255, int(v * 255.0 + 0.5))
-                    else:
-                        depth_out[k, i, j] = t
-                    continue
-                if y > 1e-12:   # below the horizon: floor
-                    tp = cam_h / y
-                    tex_grid = floor_tex
-                elif y < -1e-12:  # above: ceiling
-                    tp = (cam_h - wall_h) / y
-                    tex_grid = ceil_tex
-                else:
-                    tp = math.inf
-                    tex_grid = floor_tex
-                if not want_rgb:
-                    depth_out[k, i, j] = tp if tp <= max_depth else math.inf
-                    continue
-                if tp > max_depth:
+        dx = ct + xn[j] * st
+        dy = st - xn[j] * ct
+        inv_norm = 1.0 / math.sqrt(dx * dx + dy * dy)
+        t, f, s = cast(faces, cell_start, cell_faces, grid, ox, oy, dx, dy, max_depth)
+        if f >= 0:
+            u = faces[f, 4] + s * faces[f, 5]
+            tu = int(math.floor(u * scale)) % TEXELS
+            tid = int(faces[f, 7])
+            wall_shade = faces[f, 6] * math.exp(-FOG * t / inv_norm)
+        for i in range(height):
+            y = yn[i]
+            z = cam_h - y * t if f >= 0 else (cam_h - y * 1e9)
+            if f >= 0 and 0.0 <= z <= wall_h:
+                if want_rgb:
+                    tv = int(math.floor(z * scale)) % TEXELS
                     for ch in range(3):
-                        rgb_out[k, i, j, ch] = int(SKY[ch] * 255.0 * math.exp(-FOG * max_depth))
-                    continue
-                px = ox + tp * dx
-                py = oy + tp * dy
-                tid2, tv, tu2 = _plane_texel(tex_grid, fine, textures, px, py)
-                shade = math.exp(-FOG * tp / inv_norm)
-                if tid2 < 0:
-                    for ch in range(3):
-                        rgb_out[k, i, j, ch] = int(SKY[ch] * 255.0 * shade)
-                else:
-                    for ch in range(3):
-                        v = textures[tid2, tv, tu2, ch] * shade
+                        v = textures[tid, tv, tu, ch] * wall_shade
                         rgb_out[k, i, j, ch] = min(255, int(v * 255.0 + 0.5))
+                else:
+                    depth_out[k, i, j] = t
+                continue
+            if y > 1e-12:   # below the horizon: floor
+                tp = cam_h / y
+                tex_grid = floor_tex
+            elif y < -1e-12:  # above: ceiling
+                tp = (cam_h - wall_h) / y
+                tex_grid = ceil_tex
+            else:
+                tp = math.inf
+                tex_grid = floor_tex
+            if not want_rgb:
+                depth_out[k, i, j] = tp if tp <= max_depth else math.inf
+                continue
+            if tp > max_depth:
+                for ch in range(3):
+                    rgb_out[k, i, j, ch] = int(SKY[ch] * 255.0 * math.exp(-FOG * max_depth))
+                continue
+            px = ox + tp * dx
+            py = oy + tp * dy
+            tid2, tv, tu2 = _plane_texel(tex_grid, fine, textures, px, py)
+            shade = math.exp(-FOG * tp / inv_norm)
+            if tid2 < 0:
+                for ch in range(3):
+                    rgb_out[k, i, j, ch] = int(SKY[ch] * 255.0 * shade)
+            else:
+                for ch in range(3):
+                    v = textures[tid2, tv, tu2, ch] * shade
+                    rgb_out[k, i, j, ch] = min(255, int(v * 255.0 + 0.5))
+
+
+# Small batches (a Drake sensor renders one image) run serially: starting the
+# thread pool costs more than the image. Two explicit loops, not a factory,
+# so numba's on-disk cache keeps them apart.
+@nb.njit(cache=True)
+def _render_serial(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine, textures,
+                   poses, xn, yn, fwd, cam_h, max_depth, want_rgb, rgb_out, depth_out):
+    for k in range(poses.shape[0]):
+        _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine,
+                     textures, poses, k, xn, yn, fwd, cam_h, max_depth, want_rgb,
+                     rgb_out, depth_out)
+
+
+@nb.njit(cache=True, parallel=True)
+def _render_parallel(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine, textures,
+                     poses, xn, yn, fwd, cam_h, max_depth, want_rgb, rgb_out, depth_out):
+    for k in nb.prange(poses.shape[0]):
+        _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine,
+                     textures, poses, k, xn, yn, fwd, cam_h, max_depth, want_rgb,
+                     rgb_out, depth_out)
+
+
+from topodrake.sensing.raycast import SERIAL_BELOW  # noqa: E402
 
 
 class Camera:
@@ -125,6 +143,9 @@ class Camera:
         self.world = world
         self.config = config or CameraConfig()
         self._scene = scene_of(world).packed()
+        c = self.config
+        self._xn = (np.arange(c.width) - c.cx) / c.fx
+        self._yn = (np.arange(c.height) - c.cy) / c.fx
 
     def _run(self, poses, want_rgb: bool):
         c = self.config
@@ -132,8 +153,9 @@ class Camera:
         n = len(poses)
         rgb = np.empty((n, c.height, c.width, 3) if want_rgb else (1, 1, 1, 3), np.uint8)
         depth = np.empty((1, 1, 1) if want_rgb else (n, c.height, c.width), np.float32)
-        _render(*self._scene, poses, c.width, c.height, c.fx, c.cx, c.cy, c.forward_m,
-                c.height_m, c.max_depth_m, want_rgb, rgb, depth)
+        kernel = _render_serial if n < SERIAL_BELOW else _render_parallel
+        kernel(*self._scene, poses, self._xn, self._yn, c.forward_m, c.height_m,
+               c.max_depth_m, want_rgb, rgb, depth)
         return rgb if want_rgb else depth
 
     def render(self, poses) -> np.ndarray:

@@ -94,21 +94,37 @@ def cast(faces, cell_start, cell_faces, grid, ox, oy, dx, dy, tmax):
     return best_t, best_f, best_s
 
 
-@nb.njit(cache=True, parallel=True, fastmath=True)
+@nb.njit(cache=True, fastmath=True)
+def _fan_row(faces, cell_start, cell_faces, grid, origins, headings, offsets, tmax, i, out):
+    for j in range(offsets.shape[0]):
+        a = headings[i] + offsets[j]
+        t, f, s = cast(faces, cell_start, cell_faces, grid, origins[i, 0], origins[i, 1],
+                       math.cos(a), math.sin(a), tmax)
+        out[i, j] = t
+
+
+@nb.njit(cache=True)
+def _fan_serial(faces, cell_start, cell_faces, grid, origins, headings, offsets, tmax, out):
+    for i in range(origins.shape[0]):
+        _fan_row(faces, cell_start, cell_faces, grid, origins, headings, offsets, tmax, i, out)
+
+
+@nb.njit(cache=True, parallel=True)
+def _fan_parallel(faces, cell_start, cell_faces, grid, origins, headings, offsets, tmax, out):
+    for i in nb.prange(origins.shape[0]):
+        _fan_row(faces, cell_start, cell_faces, grid, origins, headings, offsets, tmax, i, out)
+
+
+#: Batches smaller than this run on one thread (thread start-up costs more).
+SERIAL_BELOW = 8
+
+
 def cast_fan(faces, cell_start, cell_faces, grid, origins, headings, offsets, tmax):
-    """Unit-direction rays: origins (N, 2), headings (N,), offsets (B,) -> (N, B) distances
-    (``inf`` for no hit within ``tmax``)."""
-    n = origins.shape[0]
-    b = offsets.shape[0]
-    out = np.empty((n, b), np.float32)
-    for i in nb.prange(n):
-        ox = origins[i, 0]
-        oy = origins[i, 1]
-        for j in range(b):
-            a = headings[i] + offsets[j]
-            t, f, s = cast(faces, cell_start, cell_faces, grid, ox, oy,
-                           math.cos(a), math.sin(a), tmax)
-            out[i, j] = t
+    """Unit-direction rays: origins (N, 2), headings (N,), offsets (B,) -> (N, B) float32
+    distances (``inf`` for no hit within ``tmax``)."""
+    out = np.empty((origins.shape[0], offsets.shape[0]), np.float32)
+    kernel = _fan_serial if origins.shape[0] < SERIAL_BELOW else _fan_parallel
+    kernel(faces, cell_start, cell_faces, grid, origins, headings, offsets, tmax, out)
     return out
 
 

@@ -1,0 +1,86 @@
+"""RmpController and ExpertWaypoints."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from topodrake.control import controls_toward
+from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints
+from topodrake.rmp import RmpConfig
+from topodrake.sensing.config import LidarConfig
+from topodrake.vehicle import VehicleConfig
+
+
+class RmpController(LeafSystem):
+    """Inputs ``state`` (held car state), ``waypoint`` (world xy), ``ranges``
+    (held lidar); output ``controls``. Direct feedthrough of held signals, so
+    the controls are constant over each control period and evaluated once."""
+
+    def __init__(self, lidar: LidarConfig | None = None, rmp: RmpConfig | None = None,
+                 vehicle: VehicleConfig | None = None):
+        super().__init__()
+        self.lidar = lidar or LidarConfig()
+        self.rmp = rmp or RmpConfig()
+        self.vehicle = vehicle or VehicleConfig()
+        self.state_port = self.DeclareVectorInputPort("state", 5)
+        self.waypoint_port = self.DeclareVectorInputPort("waypoint", 2)
+        self.ranges_port = self.DeclareVectorInputPort("ranges", self.lidar.beams)
+        # Depends on the held inputs only (not time or continuous state), so it
+        # is computed once per control period, not at every integrator stage.
+        self.controls_port = self.DeclareVectorOutputPort(
+            "controls", 2, self._calc, prerequisites_of_calc={
+                self.input_port_ticket(p.get_index())
+                for p in (self.state_port, self.waypoint_port, self.ranges_port)})
+
+    def _calc(self, context, output):
+        u = controls_toward(self.state_port.Eval(context)[None],
+                            self.waypoint_port.Eval(context)[None],
+                            self.ranges_port.Eval(context)[None],
+                            self.lidar, self.rmp, self.vehicle)
+        output.SetFromVector(u[0])
+
+
+class ExpertWaypoints(LeafSystem):
+    """A* from the car's initial pose to the ``goal`` parameter (planned at
+    initialization, kept in abstract state), then at 10 Hz the farthest
+    visible path point within the lookahead. Output ``waypoint`` (world xy)."""
+
+    def __init__(self, world, goal=(0.0, 0.0), config: ExpertConfig | None = None,
+                 period: float = 0.1):
+        super().__init__()
+        self.world = world
+        self.config = config or ExpertConfig()
+        self.pose_port = self.DeclareVectorInputPort("pose", 3)
+        self.goal_index = self.DeclareNumericParameter(BasicVector(np.asarray(goal, float)[:2]))
+        self.path_index = self.DeclareAbstractState(
+            AbstractValue.Make(PackedPaths.pack([np.zeros((1, 2))])))
+        # Discrete state: progress index along the path, waypoint x, y.
+        self.wp_index = self.DeclareDiscreteState(3)
+        self.waypoint_port = self.DeclareVectorOutputPort(
+            "waypoint", 2, self._output, prerequisites_of_calc={self.xd_ticket()})
+        self.DeclareInitializationUnrestrictedUpdateEvent(self._plan)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+
+    def set_goal(self, context, goal) -> None:
+        context.get_mutable_numeric_parameter(self.goal_index).SetFromVector(
+            np.asarray(goal, float)[:2])
+
+    def _plan(self, context, state):
+        pose = self.pose_port.Eval(context)
+        goal = context.get_numeric_parameter(self.goal_index).CopyToVector()
+        path = self.world.astar(pose, goal)
+        state.get_mutable_abstract_state(self.path_index).set_value(PackedPaths.pack([path]))
+        state.get_mutable_discrete_state(self.wp_index).SetFromVector([0.0, *path[0]])
+
+    def _update(self, context, discrete_state):
+        packed = context.get_abstract_state(self.path_index).get_value()
+        pose = self.pose_port.Eval(context)
+        progress = int(context.get_discrete_state(self.wp_index).get_value()[0])
+        wp, prog = expert_waypoints(self.world.grid, packed, np.array([progress]),
+                                    pose[None, :2], self.config)
+        discrete_state.set_value(self.wp_index, np.array([prog[0], *wp[0]], float))
+
+    def _output(self, context, output):
+        output.SetFromVector(context.get_discrete_state(self.wp_index).get_value()[1:])

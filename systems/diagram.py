@@ -1,0 +1,84 @@
+"""Builders that wire the LeafSystems into named Drake Diagrams."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput, RandomSource, ZeroOrderHold
+from pydrake.common import RandomDistribution
+
+from topodrake.systems.car import ActuationNoise, CarPlant
+from topodrake.systems.control import ExpertWaypoints, RmpController
+from topodrake.systems.scenario import Scenario
+from topodrake.systems.sensors import CameraSensor, LidarSensor
+
+
+@dataclass
+class ExpertDiagram:
+    """The built diagram and handles to the systems a run needs."""
+
+    diagram: object
+    car: CarPlant
+    expert: ExpertWaypoints
+    pose_logger: object
+    world: object
+    scenario: Scenario
+
+
+def build_expert_diagram(scenario: Scenario, world=None, meshcat=None) -> ExpertDiagram:
+    """CarPlant + Lidar/Camera + ExpertWaypoints + RmpController + ActuationNoise.
+
+    ::
+
+        CarPlant --pose--> LidarSensor, CameraSensor, ExpertWaypoints
+        CarPlant --state--> ZeroOrderHold --> RmpController
+        ExpertWaypoints --waypoint--> RmpController <--ranges-- LidarSensor
+        RmpController --> ActuationNoise <-- RandomSource;  ActuationNoise --> CarPlant
+
+    Exported outputs: ``pose``, ``state``, ``waypoint``, ``ranges``,
+    ``controls`` and (when the camera is enabled) ``image``.
+    """
+    from topodrake.world import load_world
+
+    world = world or load_world(scenario.world)
+    dt = scenario.vehicle.dt
+    b = DiagramBuilder()
+    car = b.AddNamedSystem("car", CarPlant(scenario.vehicle))
+    hold = b.AddNamedSystem("state_hold", ZeroOrderHold(dt, 5))
+    lidar = b.AddNamedSystem("lidar", LidarSensor(world, scenario.lidar, dt))
+    expert = b.AddNamedSystem("expert", ExpertWaypoints(world, config=scenario.expert, period=dt))
+    rmp = b.AddNamedSystem("rmp", RmpController(scenario.lidar, scenario.rmp, scenario.vehicle))
+    noise = b.AddNamedSystem("actuation_noise", ActuationNoise(scenario.noise_std))
+    rand = b.AddNamedSystem("noise_source", RandomSource(RandomDistribution.kGaussian, 2, dt))
+    b.Connect(car.state_port, hold.get_input_port())
+    b.Connect(car.pose_port, lidar.pose_port)
+    b.Connect(car.pose_port, expert.pose_port)
+    b.Connect(hold.get_output_port(), rmp.state_port)
+    b.Connect(expert.waypoint_port, rmp.waypoint_port)
+    b.Connect(lidar.ranges_port, rmp.ranges_port)
+    b.Connect(rmp.controls_port, noise.controls_port)
+    b.Connect(rand.get_output_port(), noise.noise_port)
+    b.Connect(noise.output_port, car.controls_port)
+    b.ExportOutput(car.pose_port, "pose")
+    b.ExportOutput(car.state_port, "state")
+    b.ExportOutput(expert.waypoint_port, "waypoint")
+    b.ExportOutput(lidar.ranges_port, "ranges")
+    b.ExportOutput(noise.output_port, "controls")
+    if scenario.camera_enabled:
+        camera = b.AddNamedSystem("camera", CameraSensor(world, scenario.camera, dt))
+        b.Connect(car.pose_port, camera.pose_port)
+        b.ExportOutput(camera.image_port, "image")
+    if meshcat is not None:
+        from topodrake.systems.visualization import MeshcatCar
+        from topodrake.world.scenegraph import add_meshcat_world
+
+        add_meshcat_world(meshcat, world)
+        viz = b.AddNamedSystem("meshcat_car", MeshcatCar(meshcat, dt))
+        b.Connect(car.pose_port, viz.pose_port)
+        b.Connect(lidar.ranges_port, viz.ranges_port)
+    logger = LogVectorOutput(car.pose_port, b, dt)
+    logger.set_name("pose_log")
+    diagram = b.Build()
+    diagram.set_name("topodrake_expert")
+    return ExpertDiagram(diagram, car, expert, logger, world, scenario)
