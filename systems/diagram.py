@@ -22,6 +22,7 @@ class ExpertDiagram:
     car: CarPlant
     expert: ExpertWaypoints
     pose_logger: object
+    noise_logger: object
     world: object
     scenario: Scenario
 
@@ -79,6 +80,8 @@ def build_expert_diagram(scenario: Scenario, world=None, meshcat=None) -> Expert
         b.Connect(lidar.ranges_port, viz.ranges_port)
     logger = LogVectorOutput(car.pose_port, b, dt)
     logger.set_name("pose_log")
+    noise_logger = LogVectorOutput(rand.get_output_port(), b, dt)
+    noise_logger.set_name("noise_log")
     diagram = b.Build()
     diagram.set_name("topodrake_expert")
-    return ExpertDiagram(diagram, car, expert, logger, world, scenario)
+    return ExpertDiagram(diagram, car, expert, logger, noise_logger, world, scenario)

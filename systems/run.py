@@ -20,7 +20,8 @@ class RunResult:
     timeout: bool
     time_s: float
     distance_to_goal_m: float
-    poses: np.ndarray = field(repr=False)   # (K, 3) at 10 Hz
+    poses: np.ndarray = field(repr=False)   # (K + 1, 3) at 10 Hz
+    noise: np.ndarray = field(repr=False)   # (K, 2) standard normals applied in each step
     wall_time_s: float = 0.0
 
     @property
@@ -63,6 +64,7 @@ class ExpertRunner:
         car_ctx.SetContinuousState(np.array([*start[:3], 0.0, 0.0]))
         b.expert.set_goal(b.expert.GetMyMutableContextFromRoot(context), goal)
         b.pose_logger.FindMutableLog(context).Clear()
+        b.noise_logger.FindMutableLog(context).Clear()
         tol = sc.goal_tolerance_m
         vehicle = sc.vehicle
         clearance = world.grid.clearance_at
@@ -89,7 +91,14 @@ class ExpertRunner:
         dist = float(np.hypot(x[0] - goal[0], x[1] - goal[1]))
         return RunResult(flags["success"], flags["collision"],
                          not (flags["success"] or flags["collision"]),
-                         float(context.get_time()), dist, poses, wall)
+                         float(context.get_time()), dist, poses,
+                         self._applied_noise(context), wall)
+
+    def _applied_noise(self, context) -> np.ndarray:
+        # Publish events run at the end of a step, so the sample logged at
+        # t_k+1 is the one held during step k; the first entry (t = 0) is the
+        # value before the first update.
+        return self.built.noise_logger.FindLog(context).data().T[1:].copy()
 
 
 def run_scenario(scenario, meshcat=None) -> RunResult:

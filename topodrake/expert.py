@@ -60,14 +60,15 @@ def line_free(free, ox, oy, res, x0, y0, x1, y1):
 
 
 @nb.njit(cache=True)
-def _expert(free, ox, oy, res, points, offsets, arclen, progress, positions,
+def _expert(free, ox, oy, res, points, offsets, arclen, cars, progress, positions,
             lookahead, search_ahead, out_wp, out_progress):
     for i in range(positions.shape[0]):
-        lo = offsets[i]
-        hi = offsets[i + 1]
+        car = cars[i]
+        lo = offsets[car]
+        hi = offsets[car + 1]
         px = positions[i, 0]
         py = positions[i, 1]
-        p = max(lo, min(progress[i], hi - 1))
+        p = max(lo, min(progress[car], hi - 1))
         best = p
         best_d = math.inf
         j = p
@@ -90,14 +91,18 @@ def _expert(free, ox, oy, res, points, offsets, arclen, progress, positions,
 
 
 def expert_waypoints(grid, paths: PackedPaths, progress: np.ndarray, positions: np.ndarray,
-                     config: ExpertConfig = ExpertConfig()) -> tuple[np.ndarray, np.ndarray]:
-    """World-frame waypoints (N, 2) and updated progress indices (N,) (absolute
-    indices into ``paths.points``; start each car at ``paths.offsets[:-1]``)."""
+                     config: ExpertConfig = ExpertConfig(),
+                     cars: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """World-frame waypoints (M, 2) and updated progress (M,) for ``cars`` (M,)
+    (default: all), whose positions (M, 2) are given. ``progress`` (N,) holds
+    absolute indices into ``paths.points``; start each car at
+    ``paths.offsets[:-1]``."""
     n = len(positions)
+    cars = np.arange(n) if cars is None else np.asarray(cars, np.int64)
     wp = np.empty((n, 2))
     prog = np.empty(n, np.int64)
     _expert(grid.free_space, grid.origin[0], grid.origin[1], grid.resolution,
-            paths.points, paths.offsets, paths.arclen, np.asarray(progress, np.int64),
+            paths.points, paths.offsets, paths.arclen, cars, np.asarray(progress, np.int64),
             np.ascontiguousarray(positions[:, :2], np.float64), config.lookahead_m,
             config.search_ahead_m, wp, prog)
     return wp, prog
