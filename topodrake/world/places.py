@@ -15,12 +15,14 @@ from topodrake.world.grid import OccupancyGrid
 
 
 def choose_places(grid: OccupancyGrid, n: int = 10, seed: int = 0,
-                  min_clearance: float = 0.5) -> np.ndarray:
+                  min_clearance: float = 0.9) -> np.ndarray:
     """(n, 3) places ``x, y, heading`` spread over ``grid.reachable``."""
     reach = grid.reachable
-    cells = np.argwhere(reach & (grid.clearance >= min_clearance))
-    if len(cells) < n:
-        cells = np.argwhere(reach)
+    # Prefer open spots (room centres, not corners); relax on cramped maps.
+    for clearance in (min_clearance, 0.5 * min_clearance, 0.0):
+        cells = np.argwhere(reach & (grid.clearance >= clearance))
+        if len(cells) >= 20 * n:
+            break
     if len(cells) < n:
         raise TopodrakeError(f"only {len(cells)} free cells: cannot place {n} places")
     xy = grid.to_world(cells)

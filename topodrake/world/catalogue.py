@@ -1,0 +1,60 @@
+"""The named world catalogue and the one loader for every world source.
+
+``load_world(spec)`` takes
+
+* a catalogue name: 12 training houses ``train-00`` .. ``train-11`` and 5 test
+  houses ``test-0`` .. ``test-4``, procedural houses with fixed seeds (the
+  training and test houses are different floor plans, like the paper's
+  training and test scenes);
+* a ROS map_server map, a path ending ``.yaml`` / ``.yml``;
+* a HouseExpo floor plan, a path ending ``.json``.
+
+Catalogue houses are generated on first use and cached in the process (about
+0.1-0.4 s each); the cached :class:`World` is shared, so treat it as read-only.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from topodrake.errors import TopodrakeError
+from topodrake.world.world import World
+
+#: name -> seed of :func:`topodrake.world.houses.generate_house`. Fixed: the
+#: free areas (m^2) are pinned by ``tests/test_houses.py``; all lie in 200-460.
+CATALOGUE: dict[str, int] = {
+    **{f"train-{i:02d}": 1000 + i for i in range(12)},
+    **{f"test-{i}": 2000 + i for i in range(5)},
+}
+
+
+def catalogue_names() -> list[str]:
+    """The catalogue's names: training houses, then test houses."""
+    return list(CATALOGUE)
+
+
+@lru_cache(maxsize=None)
+def _catalogue_world(name: str) -> World:
+    from topodrake.world.houses import generate_house
+    return generate_house(CATALOGUE[name], name)
+
+
+def load_world(spec: str) -> World:
+    """A world from a catalogue name, a ROS map YAML or a HouseExpo JSON."""
+    spec = str(spec)
+    if spec in CATALOGUE:
+        return _catalogue_world(spec)
+    suffix = Path(spec).suffix.lower()
+    if suffix in (".yaml", ".yml", ".json"):
+        path = Path(spec)
+        if not path.is_file():
+            raise TopodrakeError(f"map file {spec} does not exist")
+        if suffix == ".json":
+            from topodrake.world.houseexpo import load_houseexpo
+            return load_houseexpo(path)
+        from topodrake.world.rosmap import load_ros_map
+        return load_ros_map(path)
+    raise TopodrakeError(
+        f"unknown world {spec!r}: use a catalogue name ({', '.join(CATALOGUE)}), "
+        f"a ROS map .yaml or a HouseExpo .json file")
