@@ -25,11 +25,33 @@ def _print_result(result: dict, as_json: bool) -> None:
 
 
 def cmd_demo(args) -> None:
-    from topodrake.demo import render_house_demo
+    from topodrake.demo import run_demo
 
-    files = render_house_demo(args.world, args.out)
-    for what, path in files.items():
+    result = run_demo(args.world, args.start_place, args.goal_place, args.out, args.seed,
+                      args.noise, args.meshcat)
+    for what, path in result["files"].items():
         print(f"wrote {what}: {path}")
+    print(json.dumps(result["summary"]))
+
+
+def cmd_drive(args) -> None:
+    from topodrake.systems.run import run_scenario
+    from topodrake.systems.scenario import load_scenario
+
+    result = run_scenario(load_scenario(args.scenario))
+    print(json.dumps(result.summary()))
+
+
+def cmd_collect(args) -> None:
+    from topodrake.demonstrations import CollectConfig, collect, load_demos
+
+    config = CollectConfig(protocol=args.protocol, count=args.count, seed=args.seed,
+                           noise_std=args.noise, chunk_size=args.chunk_size)
+    out = collect(args.world, args.out, config, progress=not args.quiet)
+    manifest, drives = load_demos(out)
+    ok = sum(d.success for d in drives)
+    print(f"{out}: {len(drives)} drives, {ok} successful, "
+          f"{sum(len(d.controls) for d in drives)} control steps")
 
 
 def cmd_world_list(args) -> None:
@@ -76,6 +98,12 @@ def cmd_world_plot(args) -> None:
     print(f"wrote {args.out}")
 
 
+def cmd_bench_expert(args) -> None:
+    from topodrake.bench import bench_expert
+
+    _print_result(bench_expert(args.pairs, args.seed, args.batch), args.json)
+
+
 def cmd_bench_sensors(args) -> None:
     from topodrake.bench import bench_sensors
 
@@ -86,10 +114,31 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="topodrake", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
 
-    demo = sub.add_parser("demo", help="render a house: plan, camera and lidar views")
+    demo = sub.add_parser("demo", help="the expert drives between two places in the Drake diagram")
     demo.add_argument("--world", default="test-0")
+    demo.add_argument("--start-place", type=int, default=0)
+    demo.add_argument("--goal-place", type=int, default=5)
+    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--noise", type=float, default=0.33, help="actuation noise std (0 = off)")
+    demo.add_argument("--meshcat", action="store_true", help="also save a Meshcat HTML recording")
     demo.add_argument("--out", default="out/demo", help="output folder")
     demo.set_defaults(func=cmd_demo)
+
+    drive = sub.add_parser("drive", help="run one expert scenario from a YAML file")
+    drive.add_argument("scenario", help="Scenario YAML (see topodrake.systems.scenario)")
+    drive.set_defaults(func=cmd_drive)
+
+    col = sub.add_parser("collect", help="generate expert demonstrations (resumable)")
+    col.add_argument("world", help="catalogue name or map YAML/JSON")
+    col.add_argument("--out", required=True, help="output folder")
+    col.add_argument("--protocol", choices=["pairs", "random"], default="pairs",
+                     help="pairs: all ordered pairs of the 10 places; random: --count pairs")
+    col.add_argument("--count", type=int, default=100)
+    col.add_argument("--seed", type=int, default=0)
+    col.add_argument("--noise", type=float, default=0.0)
+    col.add_argument("--chunk-size", type=int, default=32)
+    col.add_argument("--quiet", action="store_true")
+    col.set_defaults(func=cmd_collect)
 
     world = sub.add_parser("world", help="list, inspect and plot worlds")
     wsub = world.add_subparsers(dest="world_command", required=True)
@@ -116,6 +165,12 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--seed", type=int, default=0)
     bs.add_argument("--json", action="store_true")
     bs.set_defaults(func=cmd_bench_sensors)
+    be = bsub.add_parser("expert", help="expert success, Drake real-time factor, batched speed, parity")
+    be.add_argument("--pairs", type=int, default=500)
+    be.add_argument("--batch", type=int, default=256)
+    be.add_argument("--seed", type=int, default=0)
+    be.add_argument("--json", action="store_true")
+    be.set_defaults(func=cmd_bench_expert)
     return p
 
 

@@ -51,7 +51,8 @@ def _plane_texel(tex_grid, fine, textures, px, py):
 
 @nb.njit(cache=True, fastmath=True)
 def _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine, textures,
-                 poses, k, xn, yn, fwd, cam_h, max_depth, want_rgb, rgb_out, depth_out):
+                 poses, k, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb, rgb_out,
+                 depth_out):
     """Render image ``k`` of the batch (one column ray, then the rows)."""
     width = xn.shape[0]
     height = yn.shape[0]
@@ -102,7 +103,7 @@ def _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine,
             px = ox + tp * dx
             py = oy + tp * dy
             tid2, tv, tu2 = _plane_texel(tex_grid, fine, textures, px, py)
-            shade = math.exp(-FOG * tp / inv_norm)
+            shade = plane_shade[i, j]
             if tid2 < 0:
                 for ch in range(3):
                     rgb_out[k, i, j, ch] = int(SKY[ch] * 255.0 * shade)
@@ -117,19 +118,21 @@ def _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine,
 # so numba's on-disk cache keeps them apart.
 @nb.njit(cache=True)
 def _render_serial(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine, textures,
-                   poses, xn, yn, fwd, cam_h, max_depth, want_rgb, rgb_out, depth_out):
+                   poses, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb, rgb_out,
+                     depth_out):
     for k in range(poses.shape[0]):
         _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine,
-                     textures, poses, k, xn, yn, fwd, cam_h, max_depth, want_rgb,
+                     textures, poses, k, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb,
                      rgb_out, depth_out)
 
 
 @nb.njit(cache=True, parallel=True)
 def _render_parallel(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine, textures,
-                     poses, xn, yn, fwd, cam_h, max_depth, want_rgb, rgb_out, depth_out):
+                     poses, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb, rgb_out,
+                     depth_out):
     for k in nb.prange(poses.shape[0]):
         _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine,
-                     textures, poses, k, xn, yn, fwd, cam_h, max_depth, want_rgb,
+                     textures, poses, k, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb,
                      rgb_out, depth_out)
 
 
@@ -146,6 +149,13 @@ class Camera:
         c = self.config
         self._xn = (np.arange(c.width) - c.cx) / c.fx
         self._yn = (np.arange(c.height) - c.cy) / c.fx
+        # Fog on floor and ceiling pixels does not depend on the pose: the
+        # plane distance of a pixel is fixed by its row and column.
+        with np.errstate(divide="ignore"):
+            wall_h = world.wall_height
+            plane_t = np.where(self._yn > 0, c.height_m / self._yn, (c.height_m - wall_h) / self._yn)
+        ray_len = np.sqrt(1.0 + self._xn ** 2)
+        self._plane_shade = np.exp(-FOG * plane_t[:, None] * ray_len[None, :])
 
     def _run(self, poses, want_rgb: bool):
         c = self.config
@@ -154,7 +164,7 @@ class Camera:
         rgb = np.empty((n, c.height, c.width, 3) if want_rgb else (1, 1, 1, 3), np.uint8)
         depth = np.empty((1, 1, 1) if want_rgb else (n, c.height, c.width), np.float32)
         kernel = _render_serial if n < SERIAL_BELOW else _render_parallel
-        kernel(*self._scene, poses, self._xn, self._yn, c.forward_m, c.height_m,
+        kernel(*self._scene, poses, self._xn, self._yn, self._plane_shade, c.forward_m, c.height_m,
                c.max_depth_m, want_rgb, rgb, depth)
         return rgb if want_rgb else depth
 
