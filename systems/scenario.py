@@ -14,6 +14,8 @@ Example YAML (every key optional)::
 
 from __future__ import annotations
 
+import dataclasses
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -65,6 +67,25 @@ class Scenario:
             pose = world.places[place].copy()
         world.check_pose(pose, what)
         return pose[:size]
+
+
+def _resolve_field_types(cls, seen=None) -> None:
+    """Replace string annotations (``from __future__ import annotations``) by
+    the types themselves, in ``cls`` and every nested config dataclass:
+    pydrake's ``yaml_load_typed`` reads ``dataclasses.fields(...).type``
+    and does not evaluate strings."""
+    seen = set() if seen is None else seen
+    if cls in seen:
+        return
+    seen.add(cls)
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        f.type = hints[f.name]
+        if dataclasses.is_dataclass(f.type):
+            _resolve_field_types(f.type, seen)
+
+
+_resolve_field_types(Scenario)
 
 
 def load_scenario(path) -> Scenario:
