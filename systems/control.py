@@ -7,9 +7,12 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from topodrake.control import controls_toward
-from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints
+from topodrake.expert import (MEMORY_SIZE, ExpertConfig, PackedPaths, expert_waypoints,
+                              initial_memory)
 from topodrake.rmp import RmpConfig
 from topodrake.sensing.config import LidarConfig
+from topodrake.sensing.lidar import Lidar
+from topodrake.sensing.scene import scene_of
 from topodrake.vehicle import VehicleConfig
 
 
@@ -44,20 +47,32 @@ class RmpController(LeafSystem):
 
 class ExpertWaypoints(LeafSystem):
     """A* from the car's initial pose to the ``goal`` parameter (planned at
-    initialization, kept in abstract state), then at 10 Hz the farthest
-    visible path point within the lookahead. Output ``waypoint`` (world xy)."""
+    initialization, kept in abstract state), then at 10 Hz the expert's
+    waypoint (:func:`topodrake.expert.expert_waypoints`, the function the
+    batched engine calls). Output ``waypoint`` (world xy).
+
+    Discrete state: ``[progress, waypoint x, waypoint y, memory...]`` with
+    the expert's per-car memory (:data:`topodrake.expert.MEMORY_COLUMNS`).
+    The expert sees the lidar scan of the pose (from its own
+    :class:`~topodrake.sensing.lidar.Lidar`, the function the LidarSensor
+    calls, so the same ranges). ``lidar``, ``rmp`` and ``vehicle`` are what
+    the expert's prediction models; pass the ones the diagram's sensor,
+    controller and car use."""
 
     def __init__(self, world, goal=(0.0, 0.0), config: ExpertConfig | None = None,
-                 period: float = 0.1):
+                 period: float = 0.1, lidar: LidarConfig | None = None,
+                 rmp: RmpConfig | None = None, vehicle: VehicleConfig | None = None):
         super().__init__()
         self.world = world
         self.config = config or ExpertConfig()
+        self.lidar = Lidar(world, lidar or LidarConfig())
+        self.rmp = rmp or RmpConfig()
+        self.vehicle = vehicle or VehicleConfig()
         self.pose_port = self.DeclareVectorInputPort("pose", 3)
         self.goal_index = self.DeclareNumericParameter(BasicVector(np.asarray(goal, float)[:2]))
         self.path_index = self.DeclareAbstractState(
             AbstractValue.Make(PackedPaths.pack([np.zeros((1, 2))])))
-        # Discrete state: progress index along the path, waypoint x, y.
-        self.wp_index = self.DeclareDiscreteState(3)
+        self.wp_index = self.DeclareDiscreteState(3 + MEMORY_SIZE)
         self.waypoint_port = self.DeclareVectorOutputPort(
             "waypoint", 2, self._output, prerequisites_of_calc={self.xd_ticket()})
         self.DeclareInitializationUnrestrictedUpdateEvent(self._plan)
@@ -72,15 +87,20 @@ class ExpertWaypoints(LeafSystem):
         goal = context.get_numeric_parameter(self.goal_index).CopyToVector()
         path = self.world.astar(pose, goal)
         state.get_mutable_abstract_state(self.path_index).set_value(PackedPaths.pack([path]))
-        state.get_mutable_discrete_state(self.wp_index).SetFromVector([0.0, *path[0]])
+        state.get_mutable_discrete_state(self.wp_index).SetFromVector(
+            [0.0, *path[0], *initial_memory(pose[None, :3])[0]])
 
     def _update(self, context, discrete_state):
         packed = context.get_abstract_state(self.path_index).get_value()
         pose = self.pose_port.Eval(context)
-        progress = int(context.get_discrete_state(self.wp_index).get_value()[0])
-        wp, prog = expert_waypoints(self.world.grid, packed, np.array([progress]),
-                                    pose[None, :2], self.config)
-        discrete_state.set_value(self.wp_index, np.array([prog[0], *wp[0]], float))
+        held = context.get_discrete_state(self.wp_index).get_value()
+        memory = np.array(held[3:])[None]
+        ranges = self.lidar.scan(pose[None, :3])
+        wp, prog = expert_waypoints(self.world.grid, packed, np.array([int(held[0])]),
+                                    pose[None, :3], self.config, memory=memory, ranges=ranges,
+                                    lidar=self.lidar.config, scene=scene_of(self.world),
+                                    rmp=self.rmp, vehicle=self.vehicle)
+        discrete_state.set_value(self.wp_index, np.array([prog[0], *wp[0], *memory[0]]))
 
     def _output(self, context, output):
-        output.SetFromVector(context.get_discrete_state(self.wp_index).get_value()[1:])
+        output.SetFromVector(context.get_discrete_state(self.wp_index).get_value()[1:3])

@@ -14,10 +14,7 @@ Example YAML (every key optional)::
 
 from __future__ import annotations
 
-import dataclasses
-import typing
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -25,6 +22,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.expert import ExpertConfig
 from topodrake.rmp import RmpConfig
 from topodrake.sensing.config import CameraConfig, LidarConfig
+from topodrake.typed_yaml import load_typed
 from topodrake.vehicle import VehicleConfig
 
 
@@ -69,34 +67,6 @@ class Scenario:
         return pose[:size]
 
 
-def _resolve_field_types(cls, seen=None) -> None:
-    """Replace string annotations (``from __future__ import annotations``) by
-    the types themselves, in ``cls`` and every nested config dataclass:
-    pydrake's ``yaml_load_typed`` reads ``dataclasses.fields(...).type``
-    and does not evaluate strings."""
-    seen = set() if seen is None else seen
-    if cls in seen:
-        return
-    seen.add(cls)
-    hints = typing.get_type_hints(cls)
-    for f in dataclasses.fields(cls):
-        f.type = hints[f.name]
-        if dataclasses.is_dataclass(f.type):
-            _resolve_field_types(f.type, seen)
-
-
-_resolve_field_types(Scenario)
-
-
 def load_scenario(path) -> Scenario:
     """Read a Scenario YAML; a bad file gives a one-line TopodrakeError."""
-    from pydrake.common.yaml import yaml_load_typed
-
-    path = Path(path)
-    if not path.is_file():
-        raise TopodrakeError(f"scenario file {path} does not exist")
-    try:
-        return yaml_load_typed(schema=Scenario, filename=str(path))
-    except Exception as e:  # pydrake raises RuntimeError with a multi-line message
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise TopodrakeError(f"scenario {path}: {first}") from None
+    return load_typed(Scenario, path, "scenario")

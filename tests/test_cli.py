@@ -121,3 +121,14 @@ def test_bad_scenarios(capsys, tmp_path, text, words):
 def test_missing_scenario_file(capsys, tmp_path):
     code, _, err = run(capsys, "drive", str(tmp_path / "nope.yaml"))
     assert_one_line_error(code, err, "nope.yaml")
+
+
+def test_demo_writes_plan_camera_strip_and_meshcat_recording(capsys, tmp_path):
+    code, out, _ = run(capsys, "demo", "--out", str(tmp_path), "--meshcat")
+    assert code == 0
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["outcome"] == "success" and summary["distance_to_goal_m"] < 0.27
+    for name in ("plan.png", "camera.png"):
+        assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
+    html = (tmp_path / "meshcat.html").read_text()
+    assert "<html" in html.lower() and len(html) > 10_000

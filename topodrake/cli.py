@@ -156,6 +156,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also draw the A* path from place I to place J")
     wp.set_defaults(func=cmd_world_plot)
 
+    from topodrake.learning.cli import add_bench_parser, add_train_parser
+
+    add_train_parser(sub)
+
     bench = sub.add_parser("bench", help="benchmarks that print the issues' figures")
     bsub = bench.add_subparsers(dest="bench_command", required=True)
     bs = bsub.add_parser("sensors", help="camera/lidar throughput, VTK, depth parity")
@@ -171,6 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--seed", type=int, default=0)
     be.add_argument("--json", action="store_true")
     be.set_defaults(func=cmd_bench_expert)
+    add_bench_parser(bsub)
     return p
 
 

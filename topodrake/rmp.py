@@ -279,6 +279,8 @@ class RmpConfig:
     steer_jacobian_scale: float = 1.0
     steer_servo_gain: float = 5.0
     steer_servo_metric: float = 0.01
+    obstacle_speed_ramp: float = 0.2
+    obstacle_rest_weight: float = 0.1
     include_bias: bool = True
     ridge: float = 1e-9
 
@@ -286,7 +288,7 @@ class RmpConfig:
 # Layout of the packed parameter vector handed to the kernel.
 _P_KG, _P_CG, _P_EPS, _P_GM, _P_KR, _P_CO, _P_SO, _P_MS, _P_MD, _P_MO, _P_KH, _P_CH, \
     _P_HM, _P_MINWP, _P_JS, _P_BIAS, _P_RIDGE, _P_L, _P_R, _P_VMIN, _P_VMAX, _P_DLIM, \
-    _P_AMAX, _P_SMAX, _P_SSG, _P_SSM, _P_COUNT = range(27)
+    _P_AMAX, _P_SMAX, _P_SSG, _P_SSM, _P_ORAMP, _P_OREST, _P_COUNT = range(29)
 # Columns of the per-point table: x, y, goal flag, obstacle flag, obstacle
 # gain, combined gain, heading flag, heading direction (x, y).
 _PT_COLS = 9
@@ -334,6 +336,8 @@ def _pack(cfg: RmpConfig, veh: VehicleConfig) -> tuple[np.ndarray, np.ndarray]:
         cfg.steer_jacobian_scale, float(cfg.include_bias), cfg.ridge]
     prm[_P_SSG] = cfg.steer_servo_gain
     prm[_P_SSM] = cfg.steer_servo_metric
+    prm[_P_ORAMP] = cfg.obstacle_speed_ramp
+    prm[_P_OREST] = cfg.obstacle_rest_weight
     prm[[_P_L, _P_R, _P_VMIN, _P_VMAX, _P_DLIM, _P_AMAX, _P_SMAX]] = [
         veh.wheelbase, radius, veh.min_speed, veh.speed_cap, veh.steer_limit,
         veh.accel_limit, veh.steer_rate_limit]
@@ -344,6 +348,15 @@ def _pack(cfg: RmpConfig, veh: VehicleConfig) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ====================================================================== policy pieces
+
+def obstacle_speed_gate(v: np.ndarray, cfg: RmpConfig) -> np.ndarray:
+    """Factor on every obstacle metric at (saturated) speed ``v``."""
+    v = np.abs(np.asarray(v, dtype=np.float64))
+    if cfg.obstacle_speed_ramp <= 0.0:
+        return np.ones_like(v)
+    return np.minimum(1.0, cfg.obstacle_rest_weight
+                      + (1.0 - cfg.obstacle_rest_weight) * v / cfg.obstacle_speed_ramp)
+
 
 def obstacle_metric_weight(d: np.ndarray, cfg: RmpConfig) -> np.ndarray:
     """Obstacle metric weight ``w(d) = m_o exp(-k_w (d - d_0))``."""
@@ -431,7 +444,9 @@ def _rmp_controls_numpy(state, wp, obs, mask, cfg: RmpConfig, veh: VehicleConfig
             d / cfg.obstacle_length + 0.001)
         obs_on = np.zeros(p, bool)
         obs_on[cfg.obstacle_points] = True
-        wgt = obstacle_metric_weight(d, cfg) * (mask[:, None, :] & obs_on[None, :, None])
+        v_sat = np.clip(state[:, V], veh.min_speed, veh.speed_cap)
+        gate = obstacle_speed_gate(v_sat, cfg)[:, None, None]
+        wgt = gate * obstacle_metric_weight(d, cfg) * (mask[:, None, :] & obs_on[None, :, None])
         M_obs = wgt[..., None, None] * u[..., :, None] * u[..., None, :]
         a_obs = s[..., None] * u
         f_obs, M_obs = to_natural(a_obs, M_obs)
@@ -470,119 +485,142 @@ def _solve2(m11, m12, m22, f1, f2, ridge):
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True)
-def _rmp_kernel(state, wp, obs, mask, prm, pts, out):
-    n_cars = state.shape[0]
+def _obstacle_gate(v, ramp, rest):
+    if ramp <= 0.0:
+        return 1.0
+    return min(1.0, rest + (1.0 - rest) * abs(v) / ramp)
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True)
+def rmp_car_controls(v_raw, steer_raw, wx, wy, obs, mask, prm, pts):
+    """Controls ``(a, sigma)`` of one car: speed ``v_raw``, steering
+    ``steer_raw``, car-frame waypoint ``(wx, wy)``, obstacle points ``obs``
+    (B, 2) with ``mask`` (B,). ``prm, pts`` from :func:`packed_params`.
+
+    The per-car body of the batched kernel; the A* expert also calls it
+    (with no obstacles) to predict the closed loop."""
     n_pts = pts.shape[0]
-    n_obs = obs.shape[1]
+    n_obs = obs.shape[0]
     L = prm[_P_L]
     ridge = prm[_P_RIDGE]
     minwp = prm[_P_MINWP]
-    for k in range(n_cars):
-        v = min(max(state[k, 3], prm[_P_VMIN]), prm[_P_VMAX])
-        t = np.tan(min(max(state[k, 4], -prm[_P_DLIM]), prm[_P_DLIM]))
-        w = v * t / L
-        ds = prm[_P_JS] * v * (1.0 + t * t) / L
-        wx = wp[k, 0]
-        wy = wp[k, 1]
-        has_wp = np.isfinite(wx) and np.isfinite(wy)
-        if not has_wp:
-            wx = 0.0
-            wy = 0.0
-        elif minwp > 0.0:
-            nw = np.sqrt(wx * wx + wy * wy)
-            if nw < minwp and nw > 1e-9:
-                wx *= minwp / nw
-                wy *= minwp / nw
-        A11 = 0.0
-        A12 = 0.0
-        A22 = 0.0
-        B1 = 0.0
-        B2 = 0.0
-        for i in range(n_pts):
-            px = pts[i, 0]
-            py = pts[i, 1]
-            xd = v - w * py
-            yd = w * px
-            m11 = 0.0
-            m12 = 0.0
-            m22 = 0.0
-            f1 = 0.0
-            f2 = 0.0
-            if pts[i, 2] != 0.0:
-                ax = -prm[_P_CG] * xd
-                ay = -prm[_P_CG] * yd
-                if has_wp:
-                    rx = wx - px
-                    ry = wy - py
-                    nr = np.sqrt(rx * rx + ry * ry) + prm[_P_EPS]
-                    ax += prm[_P_KG] * rx / nr
-                    ay += prm[_P_KG] * ry / nr
-                gm = prm[_P_GM]
-                m11 += gm
-                m22 += gm
-                f1 += gm * ax
-                f2 += gm * ay
-            if pts[i, 6] != 0.0:
-                lat = (wy if has_wp else 0.0) - prm[_P_CH] * w
-                hs = prm[_P_KH] * lat * prm[_P_R]
-                hm = prm[_P_HM]
-                m11 += hm
-                m22 += hm
-                f1 += hm * hs * pts[i, 7]
-                f2 += hm * hs * pts[i, 8]
-            if pts[i, 3] != 0.0:
-                og = pts[i, 4]
-                for j in range(n_obs):
-                    if not mask[k, j]:
-                        continue
-                    rx = obs[k, j, 0] - px
-                    ry = obs[k, j, 1] - py
-                    d = max(np.sqrt(rx * rx + ry * ry), 1e-6)
-                    ux = rx / d
-                    uy = ry / d
-                    proj = ux * xd + uy * yd
-                    s = -og * (prm[_P_KR] + prm[_P_CO] * proj) / (d / prm[_P_SO] + 0.001)
-                    wgt = prm[_P_MS] * np.exp(-prm[_P_MD] * (d - prm[_P_MO]))
-                    m11 += wgt * ux * ux
-                    m12 += wgt * ux * uy
-                    m22 += wgt * uy * uy
-                    # f = (w u u^T)(s u) = w s u
-                    f1 += wgt * s * ux
-                    f2 += wgt * s * uy
-            if m11 == 0.0 and m22 == 0.0:
-                continue
-            a1, a2 = _solve2(m11, m12, m22, f1, f2, ridge)
-            a1 *= pts[i, 5]
-            a2 *= pts[i, 5]
-            j11 = 1.0 - py * t / L
-            j12 = -py * ds
-            j21 = px * t / L
-            j22 = px * ds
-            if prm[_P_BIAS] != 0.0:
-                a1 -= -w * w * px
-                a2 -= v * w - w * w * py
-            # rows of J^T M
-            c11 = j11 * m11 + j21 * m12
-            c12 = j11 * m12 + j21 * m22
-            c21 = j12 * m11 + j22 * m12
-            c22 = j12 * m12 + j22 * m22
-            B1 += c11 * a1 + c12 * a2
-            B2 += c21 * a1 + c22 * a2
-            A11 += c11 * j11 + c12 * j21
-            A12 += c11 * j12 + c12 * j22
-            A22 += c21 * j12 + c22 * j22
-        # steering servo toward the pure-pursuit steering angle (q-space RMP)
-        if has_wp and prm[_P_SSM] > 0.0:
-            n2 = wx * wx + wy * wy
-            if n2 > 1e-12:
-                dstar = np.arctan(2.0 * L * wy / n2)
-                dstar = min(max(dstar, -prm[_P_DLIM]), prm[_P_DLIM])
-                delta = min(max(state[k, 4], -prm[_P_DLIM]), prm[_P_DLIM])
-                A22 += prm[_P_SSM]
-                B2 += prm[_P_SSM] * prm[_P_SSG] * (dstar - delta)
-        u1, u2 = _solve2(A11, A12, A22, B1, B2, ridge)
-        out[k, 0] = min(max(u1, -prm[_P_AMAX]), prm[_P_AMAX])
-        out[k, 1] = min(max(u2, -prm[_P_SMAX]), prm[_P_SMAX])
+    v = min(max(v_raw, prm[_P_VMIN]), prm[_P_VMAX])
+    t = np.tan(min(max(steer_raw, -prm[_P_DLIM]), prm[_P_DLIM]))
+    w = v * t / L
+    ds = prm[_P_JS] * v * (1.0 + t * t) / L
+    gate = _obstacle_gate(v, prm[_P_ORAMP], prm[_P_OREST])
+    has_wp = np.isfinite(wx) and np.isfinite(wy)
+    if not has_wp:
+        wx = 0.0
+        wy = 0.0
+    elif minwp > 0.0:
+        nw = np.sqrt(wx * wx + wy * wy)
+        if nw < minwp and nw > 1e-9:
+            wx *= minwp / nw
+            wy *= minwp / nw
+    A11 = 0.0
+    A12 = 0.0
+    A22 = 0.0
+    B1 = 0.0
+    B2 = 0.0
+    for i in range(n_pts):
+        px = pts[i, 0]
+        py = pts[i, 1]
+        xd = v - w * py
+        yd = w * px
+        m11 = 0.0
+        m12 = 0.0
+        m22 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        if pts[i, 2] != 0.0:
+            ax = -prm[_P_CG] * xd
+            ay = -prm[_P_CG] * yd
+            if has_wp:
+                rx = wx - px
+                ry = wy - py
+                nr = np.sqrt(rx * rx + ry * ry) + prm[_P_EPS]
+                ax += prm[_P_KG] * rx / nr
+                ay += prm[_P_KG] * ry / nr
+            gm = prm[_P_GM]
+            m11 += gm
+            m22 += gm
+            f1 += gm * ax
+            f2 += gm * ay
+        if pts[i, 6] != 0.0:
+            lat = (wy if has_wp else 0.0) - prm[_P_CH] * w
+            hs = prm[_P_KH] * lat * prm[_P_R]
+            hm = prm[_P_HM]
+            m11 += hm
+            m22 += hm
+            f1 += hm * hs * pts[i, 7]
+            f2 += hm * hs * pts[i, 8]
+        if pts[i, 3] != 0.0:
+            og = pts[i, 4]
+            for j in range(n_obs):
+                if not mask[j]:
+                    continue
+                rx = obs[j, 0] - px
+                ry = obs[j, 1] - py
+                d = max(np.sqrt(rx * rx + ry * ry), 1e-6)
+                ux = rx / d
+                uy = ry / d
+                proj = ux * xd + uy * yd
+                s = -og * (prm[_P_KR] + prm[_P_CO] * proj) / (d / prm[_P_SO] + 0.001)
+                wgt = gate * prm[_P_MS] * np.exp(-prm[_P_MD] * (d - prm[_P_MO]))
+                m11 += wgt * ux * ux
+                m12 += wgt * ux * uy
+                m22 += wgt * uy * uy
+                # f = (w u u^T)(s u) = w s u
+                f1 += wgt * s * ux
+                f2 += wgt * s * uy
+        if m11 == 0.0 and m22 == 0.0:
+            continue
+        a1, a2 = _solve2(m11, m12, m22, f1, f2, ridge)
+        a1 *= pts[i, 5]
+        a2 *= pts[i, 5]
+        j11 = 1.0 - py * t / L
+        j12 = -py * ds
+        j21 = px * t / L
+        j22 = px * ds
+        if prm[_P_BIAS] != 0.0:
+            a1 -= -w * w * px
+            a2 -= v * w - w * w * py
+        # rows of J^T M
+        c11 = j11 * m11 + j21 * m12
+        c12 = j11 * m12 + j21 * m22
+        c21 = j12 * m11 + j22 * m12
+        c22 = j12 * m12 + j22 * m22
+        B1 += c11 * a1 + c12 * a2
+        B2 += c21 * a1 + c22 * a2
+        A11 += c11 * j11 + c12 * j21
+        A12 += c11 * j12 + c12 * j22
+        A22 += c21 * j12 + c22 * j22
+    # steering servo toward the pure-pursuit steering angle (q-space RMP)
+    if has_wp and prm[_P_SSM] > 0.0:
+        n2 = wx * wx + wy * wy
+        if n2 > 1e-12:
+            dstar = np.arctan(2.0 * L * wy / n2)
+            dstar = min(max(dstar, -prm[_P_DLIM]), prm[_P_DLIM])
+            delta = min(max(steer_raw, -prm[_P_DLIM]), prm[_P_DLIM])
+            A22 += prm[_P_SSM]
+            B2 += prm[_P_SSM] * prm[_P_SSG] * (dstar - delta)
+    u1, u2 = _solve2(A11, A12, A22, B1, B2, ridge)
+    return (min(max(u1, -prm[_P_AMAX]), prm[_P_AMAX]),
+            min(max(u2, -prm[_P_SMAX]), prm[_P_SMAX]))
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True)
+def _rmp_kernel(state, wp, obs, mask, prm, pts, out):
+    for k in range(state.shape[0]):
+        out[k, 0], out[k, 1] = rmp_car_controls(state[k, 3], state[k, 4], wp[k, 0], wp[k, 1],
+                                                obs[k], mask[k], prm, pts)
+
+
+def packed_params(cfg: RmpConfig, vehicle: VehicleConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(prm, pts)``: the RMP and vehicle parameters as the kernel's arrays
+    (validated; cached per config object)."""
+    return _pack(cfg, vehicle)
 
 
 # ====================================================================== entry point

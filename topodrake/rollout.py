@@ -4,7 +4,7 @@ The same functions as the Drake diagram (``topodrake.systems``), in the same
 order per control period ``k``::
 
     ranges_k   = lidar(pose_k)                 (and image_k = camera(pose_k))
-    waypoint_k = expert(progress, pose_k)
+    waypoint_k = expert(progress, memory, pose_k, ranges_k)   (updates progress, memory)
     u_k        = rmp(state_k, waypoint_k, ranges_k) * (1 + noise_std * w_k)
     state_k+1  = vehicle_step(state_k, u_k)    (RK2 + clamp)
     stop when |xy - goal| < tolerance (success), the body touches a wall
@@ -22,11 +22,12 @@ from typing import Callable
 import numpy as np
 
 from topodrake.control import controls_toward
-from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints
+from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints, initial_memory
 from topodrake.rmp import RmpConfig
 from topodrake.sensing.camera import Camera
 from topodrake.sensing.config import CameraConfig, LidarConfig
 from topodrake.sensing.lidar import Lidar
+from topodrake.sensing.scene import scene_of
 from topodrake.vehicle import VehicleConfig, in_collision, vehicle_step
 
 SUCCESS, COLLISION, TIMEOUT, RUNNING = 0, 1, 2, 3
@@ -79,6 +80,7 @@ class ExpertRollout:
         self.world = world
         self.config = config or RolloutConfig()
         self.lidar = Lidar(world, self.config.lidar)
+        self.scene = scene_of(world)
         self.camera = Camera(world, self.config.camera) if self.config.render_camera else None
 
     def run(self, starts: np.ndarray, goals: np.ndarray, *, seeds=None,
@@ -103,6 +105,7 @@ class ExpertRollout:
             paths = [self.world.astar(s, g) for s, g in zip(starts, goals)]
         packed = PackedPaths.pack(paths)
         progress = packed.offsets[:-1].copy()
+        memory = initial_memory(starts)
         state = np.zeros((n, 5))
         state[:, :3] = starts
         poses = np.repeat(starts[:, None], t_steps + 1, axis=1)
@@ -123,7 +126,10 @@ class ExpertRollout:
                 if on_images is not None:
                     on_images(k, active, images)
             wp, progress[active] = expert_waypoints(self.world.grid, packed, progress,
-                                                    st[:, :2], cfg.expert, cars=active)
+                                                    st[:, :3], cfg.expert, cars=active,
+                                                    memory=memory, ranges=ranges,
+                                                    lidar=cfg.lidar, scene=self.scene,
+                                                    rmp=cfg.rmp, vehicle=veh)
             u = controls_toward(st, wp, ranges, cfg.lidar, cfg.rmp, veh)
             if noise is not None and cfg.noise_std > 0:
                 u = u * (1.0 + cfg.noise_std * noise[active, k])

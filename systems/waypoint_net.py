@@ -1,0 +1,218 @@
+"""WaypointNet (C_WP as a Drake system), TargetSource, and the C_WP + RMP diagram.
+
+WaypointNet is a thin wrapper over :mod:`topodrake.learning.policy`: any
+:class:`~topodrake.learning.policy.WaypointPolicy` (the learned network or
+the A* oracle) runs inside it.
+
+Timing (10 Hz, sample and hold). Its inputs are held signals: the camera
+image (or lidar ranges) that the sensors sample every period, the car state
+held by a ZeroOrderHold, and the target. The prediction is a cache entry
+that depends on those inputs and on the system's abstract state only, never
+on time or the continuous state, so it is computed once per control period
+(not at every integrator stage) from the observation sampled at the start
+of the period, with no extra period of delay: the same order as the batched
+engine (render, predict, control, step).
+
+Target cache. The target half of the network (one tensor per anchor) lives
+in abstract state as ``TargetCache(key, features)``. A periodic update
+(same period) stores the features of the current target whenever the
+target's ``key`` differs from the cached one; in the one period after a
+target change the prediction encodes the new target on the fly. The policy
+object holds weights only; nothing per-run is kept in ``self``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem, ValueProducer
+
+from topodrake.learning.policy import TargetContext, WaypointPrediction, target_input
+from topodrake.vehicle import car_to_world
+
+
+@dataclass
+class TargetCache:
+    key: int = -2
+    features: object = None
+
+
+def _nan_prediction(direct: bool) -> WaypointPrediction:
+    return WaypointPrediction(np.full((1, 2), np.nan), np.zeros(1), np.zeros((1, 2)),
+                              np.zeros((1, 2)) if direct else None)
+
+
+class WaypointNet(LeafSystem):
+    """Inputs: ``observation`` (camera: abstract (H, W, 3) uint8 image; lidar:
+    vector of ranges; absent for the pose oracle, which reads ``state``),
+    ``target`` (abstract :class:`TargetContext`), ``state`` (held car state,
+    5). Outputs: ``waypoint`` (world xy, for RmpController), ``waypoint_local``
+    (car frame), ``heading_diff`` (1), ``overlap`` (2), and ``controls`` (2)
+    for a direct-control policy. Without a target (key < 0) the waypoint is
+    NaN, which the RMP reads as "stop"."""
+
+    def __init__(self, policy, period: float = 0.1, camera=None, lidar=None):
+        super().__init__()
+        from topodrake.sensing.config import CameraConfig, LidarConfig
+
+        self.policy = policy
+        self.direct = bool(getattr(policy, "is_direct_control", False))
+        kind = policy.observation
+        if kind == "camera":
+            c = camera or getattr(policy, "sensor", None) or CameraConfig()
+            self.observation_port = self.DeclareAbstractInputPort(
+                "observation", AbstractValue.Make(np.zeros((c.height, c.width, 3), np.uint8)))
+        elif kind == "lidar":
+            beams = (lidar or getattr(policy, "sensor", None) or LidarConfig()).beams
+            self.observation_port = self.DeclareVectorInputPort("observation", beams)
+        elif kind == "pose":
+            self.observation_port = None
+        else:
+            raise ValueError(f"unknown policy observation {kind!r}")
+        self.target_port = self.DeclareAbstractInputPort("target", AbstractValue.Make(TargetContext()))
+        self.state_port = self.DeclareVectorInputPort("state", 5)
+        self.cache_index = self.DeclareAbstractState(AbstractValue.Make(TargetCache()))
+        inputs = [self.target_port, self.state_port] + (
+            [self.observation_port] if self.observation_port is not None else [])
+        prereq = {self.input_port_ticket(p.get_index()) for p in inputs}
+        prereq.add(self.abstract_state_ticket(self.cache_index))
+        self._prediction = self.DeclareCacheEntry(
+            "prediction", ValueProducer(
+                allocate=lambda: AbstractValue.Make(_nan_prediction(self.direct)),
+                calc=self._calc_prediction), prereq)
+        ticket = {self._prediction.ticket()}
+        self.waypoint_port = self.DeclareVectorOutputPort("waypoint", 2, self._out_waypoint,
+                                                          prerequisites_of_calc=ticket)
+        self.waypoint_local_port = self.DeclareVectorOutputPort(
+            "waypoint_local", 2, lambda c, o: o.SetFromVector(self._pred(c).waypoint[0]),
+            prerequisites_of_calc=ticket)
+        self.heading_port = self.DeclareVectorOutputPort(
+            "heading_diff", 1, lambda c, o: o.SetFromVector(self._pred(c).heading_diff[:1]),
+            prerequisites_of_calc=ticket)
+        self.overlap_port = self.DeclareVectorOutputPort(
+            "overlap", 2, lambda c, o: o.SetFromVector(self._pred(c).overlap[0]),
+            prerequisites_of_calc=ticket)
+        self.controls_port = None
+        if self.direct:
+            self.controls_port = self.DeclareVectorOutputPort(
+                "controls", 2, lambda c, o: o.SetFromVector(self._pred(c).controls[0]),
+                prerequisites_of_calc=ticket)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update_cache)
+
+    # -- target features ------------------------------------------------------
+    def _features(self, context, target: TargetContext):
+        cache = context.get_abstract_state(self.cache_index).get_value()
+        if cache.key == target.key:
+            return cache.features
+        return self.policy.encode_target(target_input(self.policy, target))
+
+    def _update_cache(self, context, state):
+        target = self.target_port.Eval(context)
+        cache = context.get_abstract_state(self.cache_index).get_value()
+        if target.key < 0 or target.key == cache.key:
+            return
+        feats = self.policy.encode_target(target_input(self.policy, target))
+        if hasattr(feats, "numpy"):
+            feats = feats.numpy().copy()
+        state.get_mutable_abstract_state(self.cache_index).set_value(TargetCache(target.key, feats))
+
+    # -- prediction -------------------------------------------------------------
+    def _calc_prediction(self, context, value):
+        target = self.target_port.Eval(context)
+        if target.key < 0:
+            value.set_value(_nan_prediction(self.direct))
+            return
+        feats = self._features(context, target)
+        if self.observation_port is None:
+            obs = self.state_port.Eval(context)[None, :3]
+        else:
+            obs = np.asarray(self.observation_port.Eval(context))[None]
+        value.set_value(self.policy.predict(obs, feats))
+
+    def _pred(self, context) -> WaypointPrediction:
+        return self._prediction.Eval(context)
+
+    def _out_waypoint(self, context, output):
+        local = self._pred(context).waypoint[:1]
+        state = self.state_port.Eval(context)
+        output.SetFromVector(car_to_world(local[:, None], state[None])[0, 0])
+
+
+class TargetSource(LeafSystem):
+    """Outputs ``target``: a :class:`TargetContext` kept as a parameter of the
+    Context, so each Monte Carlo trial sets its own with :meth:`set_target`."""
+
+    def __init__(self, target: TargetContext | None = None):
+        super().__init__()
+        self.param_index = self.DeclareAbstractParameter(AbstractValue.Make(target or TargetContext()))
+        self.target_port = self.DeclareAbstractOutputPort(
+            "target", lambda: AbstractValue.Make(TargetContext()), self._calc,
+            prerequisites_of_calc={self.all_parameters_ticket()})
+
+    def set_target(self, context, target: TargetContext) -> None:
+        context.get_mutable_abstract_parameter(self.param_index).set_value(target)
+
+    def _calc(self, context, output):
+        output.set_value(context.get_abstract_parameter(self.param_index).get_value())
+
+
+@dataclass
+class WaypointDiagram:
+    diagram: object
+    car: object
+    waypoint_net: WaypointNet
+    target_source: TargetSource
+    pose_logger: object
+    world: object
+    scenario: object
+    extras: dict = field(default_factory=dict)
+
+
+def build_waypoint_diagram(scenario, policy, world=None, target: TargetContext | None = None,
+                           meshcat=None) -> WaypointDiagram:
+    """CarPlant + sensors + WaypointNet (+ RmpController) + ActuationNoise.
+
+    ::
+
+        CarPlant --pose--> LidarSensor, CameraSensor (camera policies)
+        CarPlant --state--> ZeroOrderHold --> WaypointNet, RmpController
+        TargetSource --target--> WaypointNet --waypoint--> RmpController --> ActuationNoise --> CarPlant
+        (a direct-control policy's ``controls`` go straight to ActuationNoise)
+
+    Exported outputs: ``pose``, ``state``, ``waypoint``, ``overlap``,
+    ``heading_diff``, ``controls``, ``ranges`` and (camera) ``image``.
+    """
+    from pydrake.systems.framework import DiagramBuilder
+
+    from topodrake.systems.control import RmpController
+    from topodrake.systems.diagram import add_chassis
+    from topodrake.world import load_world
+
+    world = world or load_world(scenario.world)
+    dt = scenario.vehicle.dt
+    b = DiagramBuilder()
+    c = add_chassis(b, scenario, world, camera=policy.observation == "camera", meshcat=meshcat)
+    source = b.AddNamedSystem("target_source", TargetSource(target))
+    net = b.AddNamedSystem("waypoint_net", WaypointNet(policy, dt, scenario.camera, scenario.lidar))
+    b.Connect(c.hold.get_output_port(), net.state_port)
+    b.Connect(source.target_port, net.target_port)
+    if c.camera is not None:
+        b.Connect(c.camera.image_port, net.observation_port)
+    elif policy.observation == "lidar":
+        b.Connect(c.lidar.ranges_port, net.observation_port)
+    if net.direct:
+        b.Connect(net.controls_port, c.noise.controls_port)
+    else:
+        rmp = b.AddNamedSystem("rmp", RmpController(scenario.lidar, scenario.rmp, scenario.vehicle))
+        b.Connect(c.hold.get_output_port(), rmp.state_port)
+        b.Connect(net.waypoint_port, rmp.waypoint_port)
+        b.Connect(c.lidar.ranges_port, rmp.ranges_port)
+        b.Connect(rmp.controls_port, c.noise.controls_port)
+    b.ExportOutput(net.waypoint_port, "waypoint")
+    b.ExportOutput(net.overlap_port, "overlap")
+    b.ExportOutput(net.heading_port, "heading_diff")
+    diagram = b.Build()
+    diagram.set_name("topodrake_waypoint")
+    return WaypointDiagram(diagram, c.car, net, source, c.pose_logger, world, scenario)

@@ -1,0 +1,82 @@
+"""Command-line pieces of the learning package, for :mod:`topodrake.cli` to mount.
+
+``add_train_parser(sub)`` adds ``train waypoint`` and ``add_bench_parser(bsub)``
+adds ``networks`` under ``bench``::
+
+    topodrake train waypoint --config configs/waypoint_camera_k5.yaml --out checkpoints/camera_k5
+    topodrake bench networks --json
+
+Both commands raise :class:`~topodrake.errors.TopodrakeError` for bad input
+(the CLI prints one line and exits 2).
+"""
+
+from __future__ import annotations
+
+import json
+
+
+def cmd_train_waypoint(args) -> None:
+    from topodrake.learning.config import load_train_config
+    from topodrake.learning.train import train_waypoint
+
+    cfg = load_train_config(args.config)
+    if args.max_minutes is not None:
+        cfg.max_minutes = args.max_minutes
+    if args.max_samples is not None:
+        cfg.max_samples = args.max_samples
+    if args.threads is not None:
+        cfg.threads = args.threads
+    result = train_waypoint(cfg, args.out, args.data, resume=not args.no_resume,
+                            progress=not args.quiet)
+    if args.json:
+        print(json.dumps({"checkpoint": str(result.checkpoint), "samples_seen": result.samples_seen,
+                          "wall_time_s": round(result.wall_time_s, 1),
+                          "train_samples_per_s": round(result.train_samples_per_s, 1),
+                          "metrics": result.metrics}))
+
+
+def add_train_parser(sub) -> None:
+    """``train waypoint`` under the top-level subparsers ``sub``."""
+    train = sub.add_parser("train", help="train the learned components")
+    tsub = train.add_subparsers(dest="train_command", required=True)
+    tw = tsub.add_parser("waypoint", help="train C_WP (or the direct-control baseline) from a YAML config")
+    tw.add_argument("--config", required=True, help="training YAML (see configs/waypoint_*.yaml)")
+    tw.add_argument("--out", required=True, help="output folder: checkpoint.pt and card.json")
+    tw.add_argument("--data", default="data", help="cache of demonstrations and sample sets")
+    tw.add_argument("--no-resume", action="store_true",
+                    help="refuse to continue an existing checkpoint in --out")
+    tw.add_argument("--max-minutes", type=float, help="override the config's time budget")
+    tw.add_argument("--max-samples", type=int, help="override the config's sample budget")
+    tw.add_argument("--threads", type=int, help="torch / numba threads")
+    tw.add_argument("--quiet", action="store_true", help="no progress bar")
+    tw.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    tw.set_defaults(func=cmd_train_waypoint)
+
+
+def cmd_bench_networks(args) -> None:
+    from topodrake.learning.bench import bench_networks
+
+    cfg = None
+    if args.config:
+        from topodrake.learning.config import load_train_config
+        cfg = load_train_config(args.config)
+    result = bench_networks(cfg, args.world, args.batch, args.seconds, args.threads, args.seed)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        width = max(len(k) for k in result)
+        for k, v in result.items():
+            print(f"{k:<{width}}  {v}")
+
+
+def add_bench_parser(bsub) -> None:
+    """``networks`` under the ``bench`` subparsers ``bsub``."""
+    bn = bsub.add_parser("networks", help="C_WP training and naive/cached inference throughput")
+    bn.add_argument("--config", help="training YAML (default: the camera k=5 default profile)")
+    bn.add_argument("--world", default="train-00")
+    bn.add_argument("--batch", type=int, default=64)
+    bn.add_argument("--seconds", type=float, default=3.0, help="timing window per figure")
+    bn.add_argument("--threads", type=int, default=1)
+    bn.add_argument("--seed", type=int, default=0)
+    bn.add_argument("--json", action="store_true")
+    bn.set_defaults(func=cmd_bench_networks)

@@ -1,0 +1,218 @@
+"""Waypoint policies: the learned C_WP and the A* oracle, behind one protocol.
+
+A :class:`WaypointPolicy` answers "where should the car drive next to reach
+this target?" in two steps, so the target side can be cached while the car
+follows one anchor:
+
+* ``encode_target(context)`` takes the target's context, (N, 2k+1, ...)
+  observations of the kind named by ``policy.observation`` (``"camera"``:
+  uint8 images (H, W, 3); ``"lidar"``: ranges (beams,); ``"pose"``: car poses
+  (3,), the oracle's privileged input), and returns opaque target features;
+* ``predict(observation, target)`` takes the current observations (N, ...)
+  (or one, shared by N targets) and returns a :class:`WaypointPrediction`:
+  the waypoint in the car frame, the heading difference and both overlaps
+  (and controls for the direct-control baseline).
+
+The follower hands targets around as :class:`TargetContext` (a key that
+changes whenever the target changes, plus the context's observations and,
+when known, poses); :func:`target_input` picks what a policy consumes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+import torch
+
+from topodrake.errors import TopodrakeError
+from topodrake.learning.networks import (CONTROL_SCALE, NetworkConfig, WaypointNetwork, camera_input,
+                                         fold_batchnorm, lidar_input)
+from topodrake.sensing.config import CameraConfig, LidarConfig
+
+
+@dataclass
+class TargetContext:
+    """A target as the follower sees it: 2k + 1 context frames, past to future."""
+
+    key: int = -1                            # changes whenever the target changes; -1 = none
+    observations: np.ndarray | None = None   # (2k+1, H, W, 3) uint8 or (2k+1, beams)
+    poses: np.ndarray | None = None          # (2k+1, 3) when known (oracle)
+
+
+@dataclass
+class WaypointPrediction:
+    waypoint: np.ndarray              # (N, 2) car frame (m)
+    heading_diff: np.ndarray          # (N,) target minus current heading (rad)
+    overlap: np.ndarray               # (N, 2) R_cur->tgt, R_tgt->cur in [0, 1]
+    controls: np.ndarray | None = None  # (N, 2) accel, steering rate (direct-control baseline)
+
+
+@runtime_checkable
+class WaypointPolicy(Protocol):
+    observation: str      # "camera" | "lidar" | "pose"
+    k: int
+    frame_step: int
+
+    def encode_target(self, context: np.ndarray) -> Any: ...
+
+    def predict(self, observation: np.ndarray, target: Any) -> WaypointPrediction: ...
+
+
+def target_input(policy: WaypointPolicy, target: TargetContext) -> np.ndarray:
+    """The (1, 2k+1, ...) array of ``target`` that ``policy.encode_target`` takes."""
+    arr = target.poses if policy.observation == "pose" else target.observations
+    if arr is None:
+        what = "poses" if policy.observation == "pose" else f"{policy.observation} observations"
+        raise TopodrakeError(f"target {target.key} has no {what} for this policy")
+    arr = np.asarray(arr)
+    if len(arr) != 2 * policy.k + 1:
+        raise TopodrakeError(f"target {target.key} has {len(arr)} context frames; the policy "
+                             f"needs 2k + 1 = {2 * policy.k + 1}")
+    return arr[None]
+
+
+# ---------------------------------------------------------------- learned
+
+class LearnedWaypointPolicy:
+    """C_WP from a trained :class:`WaypointNetwork` (batched; cached target features).
+
+    ``encode_target`` returns the target half of the first layer, a tensor
+    (N, 2k+1, C0, ...) (``.numpy()`` it to keep it in a Drake abstract
+    state); ``predict`` adds the current observation's half, computed once.
+    ``predict_naive`` runs the full network on the stacked pairs (for tests
+    and benchmarks).
+    """
+
+    def __init__(self, model: WaypointNetwork, sensor: CameraConfig | LidarConfig, name: str = ""):
+        self.model = fold_batchnorm(model.eval())   # BatchNorm folded into the convolutions
+        self.cfg: NetworkConfig = model.cfg
+        self.sensor = sensor
+        self.name = name
+        self.observation = self.cfg.modality
+        self.k = self.cfg.k
+        self.frame_step = self.cfg.frame_step
+
+    @classmethod
+    def from_checkpoint(cls, path, *, modality: str | None = None, k: int | None = None,
+                        output: str | None = None, camera: CameraConfig | None = None,
+                        lidar: LidarConfig | None = None) -> "LearnedWaypointPolicy":
+        """Load a checkpoint, refusing one trained for another sensor, k or output."""
+        from topodrake.learning.checkpoint import load_checkpoint
+
+        ck = load_checkpoint(path, modality=modality, k=k, output=output, camera=camera, lidar=lidar)
+        return cls(ck.model, ck.sensor, name=Path(path).parent.name)
+
+    @property
+    def is_direct_control(self) -> bool:
+        return self.cfg.output == "control"
+
+    def to_input(self, raw: np.ndarray) -> torch.Tensor:
+        """Raw observations (..., H, W, 3) uint8 / (..., beams) -> network tensors."""
+        if self.observation == "camera":
+            return camera_input(raw, self.cfg.image_size)
+        return lidar_input(raw, self.sensor.range_m)
+
+    @torch.inference_mode()
+    def encode_target(self, context: np.ndarray) -> torch.Tensor:
+        x = self.to_input(np.asarray(context))
+        if x.shape[1] != self.cfg.frames:
+            raise TopodrakeError(f"target context has {x.shape[1]} frames; this policy needs "
+                                 f"{self.cfg.frames}")
+        return self.model.encode_target(x)
+
+    @torch.inference_mode()
+    def predict(self, observation: np.ndarray, target) -> WaypointPrediction:
+        cur = self.to_input(np.asarray(observation))
+        tgt = torch.as_tensor(target)
+        return self._prediction(self.model.forward_cached(cur, tgt))
+
+    @torch.inference_mode()
+    def predict_naive(self, observation: np.ndarray, context: np.ndarray) -> WaypointPrediction:
+        cur = self.to_input(np.asarray(observation))
+        ctx = self.to_input(np.asarray(context))
+        if cur.shape[0] == 1 and ctx.shape[0] > 1:
+            cur = cur.expand(ctx.shape[0], *cur.shape[1:])
+        return self._prediction(self.model(cur, ctx))
+
+    @staticmethod
+    def _prediction(out: dict) -> WaypointPrediction:
+        h = out["heading"]
+        controls = out.get("control")
+        return WaypointPrediction(
+            out["waypoint"].numpy().astype(np.float64),
+            torch.atan2(h[:, 1], h[:, 0]).numpy().astype(np.float64),
+            torch.sigmoid(out["overlap_logits"]).numpy().astype(np.float64),
+            None if controls is None else controls.numpy().astype(np.float64) * CONTROL_SCALE)
+
+
+# ---------------------------------------------------------------- oracle
+
+class AStarOracle:
+    """The privileged A* oracle: the same labels the network is trained on,
+    computed from poses (waypoint: A* from the car to the target's centre
+    frame, expert lookahead, shortened to the target distance; heading
+    difference; geometric mutual overlap)."""
+
+    observation = "pose"
+
+    def __init__(self, world, k: int = 0, frame_step: int = 3, camera: CameraConfig | None = None,
+                 lookahead_m: float = 5.0, overlap_rays: int = 100):
+        self.world = world
+        self.k = k
+        self.frame_step = frame_step
+        self.camera = camera or CameraConfig()
+        self.lookahead_m = lookahead_m
+        self.overlap_rays = overlap_rays
+
+    def encode_target(self, context: np.ndarray) -> np.ndarray:
+        ctx = np.asarray(context, np.float64)
+        if ctx.ndim != 3 or ctx.shape[1:] != (2 * self.k + 1, 3):
+            raise TopodrakeError(f"oracle target context must be (N, {2 * self.k + 1}, 3) poses, "
+                                 f"got {ctx.shape}")
+        return ctx[:, self.k].copy()
+
+    def predict(self, observation: np.ndarray, target) -> WaypointPrediction:
+        from topodrake.learning.samples import expert_waypoint_labels, wrap_angle
+        from topodrake.sensing.overlap import mutual_overlap
+
+        poses = np.asarray(observation, np.float64).reshape(-1, 3)
+        tgt = np.asarray(target, np.float64).reshape(-1, 3)
+        if len(tgt) == 1 and len(poses) > 1:
+            tgt = np.repeat(tgt, len(poses), axis=0)
+        if len(poses) == 1 and len(tgt) > 1:
+            poses = np.repeat(poses, len(tgt), axis=0)
+        wp, valid = expert_waypoint_labels(self.world, poses, tgt[:, :2], self.lookahead_m)
+        if not valid.all():
+            # no A* path (e.g. the car is in a wall's c-space margin): aim straight at the target
+            d = tgt[~valid, :2] - poses[~valid, :2]
+            c, s = np.cos(poses[~valid, 2]), np.sin(poses[~valid, 2])
+            wp[~valid] = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+        ov = mutual_overlap(self.world, poses, tgt, self.camera, self.overlap_rays)
+        return WaypointPrediction(wp, wrap_angle(tgt[:, 2] - poses[:, 2]), ov)
+
+
+def context_frames(n_frames: int, j: int, k: int, frame_step: int = 3) -> np.ndarray:
+    """Indices j - k*step .. j + k*step of a trajectory of ``n_frames``, clamped."""
+    return np.clip(j + frame_step * np.arange(-k, k + 1), 0, n_frames - 1)
+
+
+def make_target_context(world, trajectory_poses: np.ndarray, j: int, k: int, *,
+                        frame_step: int = 3, modality: str = "camera",
+                        camera: CameraConfig | None = None, lidar: LidarConfig | None = None,
+                        key: int = 0) -> TargetContext:
+    """The :class:`TargetContext` of frame ``j`` of a trajectory: its 2k + 1
+    context poses and their rendered observations (camera images or lidar
+    ranges; ``modality="pose"`` renders nothing)."""
+    poses = np.asarray(trajectory_poses, np.float64)[context_frames(len(trajectory_poses), j, k,
+                                                                    frame_step)]
+    obs = None
+    if modality == "camera":
+        from topodrake.sensing.camera import Camera
+        obs = Camera(world, camera).render(poses)
+    elif modality == "lidar":
+        from topodrake.sensing.lidar import Lidar
+        obs = Lidar(world, lidar).scan(poses)
+    return TargetContext(key=key, observations=obs, poses=poses)
