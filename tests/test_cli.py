@@ -132,3 +132,10 @@ def test_demo_writes_plan_camera_strip_and_meshcat_recording(capsys, tmp_path):
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
     html = (tmp_path / "meshcat.html").read_text()
     assert "<html" in html.lower() and len(html) > 10_000
+
+
+def test_trials_on_a_local_pool(capsys):
+    code, out, _ = run(capsys, "trials", "--trials", "2", "--workers", "2", "--json",
+                       "--start-place", "2", "--goal-place", "8")
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert code == 0 and summary["trials"] == 2 and summary["success_rate"] == 1.0

@@ -42,6 +42,22 @@ def cmd_drive(args) -> None:
     print(json.dumps(result.summary()))
 
 
+def cmd_trials(args) -> None:
+    from topodrake.montecarlo import run_trials, trial_seeds
+    from topodrake.systems.trials import expert_trial
+
+    seeds = trial_seeds(args.seed, args.trials)
+    results = run_trials(expert_trial, seeds, workers=args.workers, ray_address=args.ray,
+                         desc="expert trials", world=args.world, start_place=args.start_place,
+                         goal_place=args.goal_place, noise_std=args.noise, camera=args.camera)
+    outcomes = [r["outcome"] for r in results]
+    summary = {"world": args.world, "trials": len(results), "seed": args.seed,
+               "success_rate": outcomes.count("success") / len(results),
+               "collision_rate": outcomes.count("collision") / len(results),
+               "mean_time_s": sum(r["time_s"] for r in results) / len(results)}
+    _print_result(summary, args.json)
+
+
 def cmd_collect(args) -> None:
     from topodrake.demonstrations import CollectConfig, collect, load_demos
 
@@ -127,6 +143,20 @@ def build_parser() -> argparse.ArgumentParser:
     drive = sub.add_parser("drive", help="run one expert scenario from a YAML file")
     drive.add_argument("scenario", help="Scenario YAML (see topodrake.systems.scenario)")
     drive.set_defaults(func=cmd_drive)
+
+    tr = sub.add_parser("trials", help="seeded Monte Carlo expert drives in the Drake diagram")
+    tr.add_argument("--world", default="test-0")
+    tr.add_argument("--start-place", type=int, default=0)
+    tr.add_argument("--goal-place", type=int, default=5)
+    tr.add_argument("--trials", type=int, default=20)
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--noise", type=float, default=0.33)
+    tr.add_argument("--camera", action="store_true", help="render the camera too")
+    tr.add_argument("--workers", type=int, help="local processes (default: all cores)")
+    tr.add_argument("--ray", metavar="ADDRESS",
+                    help="run on a Ray cluster ('auto', 'local' or ray://host:port)")
+    tr.add_argument("--json", action="store_true")
+    tr.set_defaults(func=cmd_trials)
 
     col = sub.add_parser("collect", help="generate expert demonstrations (resumable)")
     col.add_argument("world", help="catalogue name or map YAML/JSON")
