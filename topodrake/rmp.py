@@ -617,6 +617,18 @@ def _rmp_kernel(state, wp, obs, mask, prm, pts, out):
                                                 obs[k], mask[k], prm, pts)
 
 
+@numba.njit(cache=True, fastmath=False, nogil=True, parallel=True)
+def _rmp_kernel_parallel(state, wp, obs, mask, prm, pts, out):
+    for k in numba.prange(state.shape[0]):
+        out[k, 0], out[k, 1] = rmp_car_controls(state[k, 3], state[k, 4], wp[k, 0], wp[k, 1],
+                                                obs[k], mask[k], prm, pts)
+
+
+#: Batches smaller than this run the serial kernel (thread start-up costs
+#: more than it saves for the Drake systems' batch of one).
+SERIAL_BELOW = 8
+
+
 def packed_params(cfg: RmpConfig, vehicle: VehicleConfig) -> tuple[np.ndarray, np.ndarray]:
     """``(prm, pts)``: the RMP and vehicle parameters as the kernel's arrays
     (validated; cached per config object)."""
@@ -666,5 +678,6 @@ def rmp_controls(state: np.ndarray, waypoint_local: np.ndarray,
     if backend != "numba":
         raise ValueError(f"unknown backend {backend!r} (numba or numpy)")
     out = np.empty((n, 2))
-    _rmp_kernel(state, wp, obs, np.ascontiguousarray(mask), prm, pts, out)
+    kernel = _rmp_kernel if n < SERIAL_BELOW else _rmp_kernel_parallel
+    kernel(state, wp, obs, np.ascontiguousarray(mask), prm, pts, out)
     return out
