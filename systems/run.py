@@ -1,4 +1,12 @@
-"""Run a built expert diagram until goal, collision or timeout."""
+"""Run a built navigation diagram until success, collision or timeout.
+
+:class:`ExpertRunner` drives the expert diagram to a goal position;
+:class:`TargetRunner` drives a C_WP diagram (``build_waypoint_diagram``)
+toward a target pose, where success is the paper's controller criterion:
+within the goal tolerance of the target position, or both image overlaps
+between the car's and the target's camera above ``overlap_success``. Both
+share one simulator set-up, reset and stop logic (:class:`DiagramRunner`).
+"""
 
 from __future__ import annotations
 
@@ -34,9 +42,10 @@ class RunResult:
                 "wall_time_s": round(self.wall_time_s, 3)}
 
 
-class ExpertRunner:
+class DiagramRunner:
     """A simulator over one built diagram, reused across runs (a Monte Carlo
-    trial only resets the context)."""
+    trial only resets the context). ``built`` has ``diagram``, ``car``,
+    ``pose_logger``, ``noise_logger``, ``world`` and ``scenario``."""
 
     def __init__(self, built):
         self.built = built
@@ -46,33 +55,30 @@ class ExpertRunner:
             use_error_control=False, target_realtime_rate=0.0,
             publish_every_time_step=False), self.simulator)
 
-    def run(self, start=None, goal=None, seed: int | None = None,
-            t_max_s: float | None = None) -> RunResult:
+    def _reset(self, start: np.ndarray, seed: int):
         b = self.built
-        sc = b.scenario
-        world = b.world
-        start = sc.start_pose(world) if start is None else world.check_pose(start, "start")
-        goal = sc.goal_xy(world) if goal is None else world.check_pose(goal, "goal")[:2]
-        t_max = sc.t_max_s if t_max_s is None else t_max_s
-        seed = sc.seed if seed is None else seed
-        diagram = b.diagram
         context = self.simulator.get_mutable_context()
-        diagram.SetDefaultContext(context)
-        diagram.SetRandomContext(context, RandomGenerator(int(seed) % (2 ** 32)))
+        b.diagram.SetDefaultContext(context)
+        b.diagram.SetRandomContext(context, RandomGenerator(int(seed) % (2 ** 32)))
         context.SetTime(0.0)
-        car_ctx = b.car.GetMyMutableContextFromRoot(context)
-        car_ctx.SetContinuousState(np.array([*start[:3], 0.0, 0.0]))
-        b.expert.set_goal(b.expert.GetMyMutableContextFromRoot(context), goal)
+        b.car.GetMyMutableContextFromRoot(context).SetContinuousState(
+            np.array([*start[:3], 0.0, 0.0]))
         b.pose_logger.FindMutableLog(context).Clear()
         b.noise_logger.FindMutableLog(context).Clear()
-        tol = sc.goal_tolerance_m
-        vehicle = sc.vehicle
-        clearance = world.grid.clearance_at
+        return context
+
+    def _simulate(self, reached, t_max: float) -> dict:
+        """Advance to ``t_max`` or until ``reached(state)`` (success) or a
+        collision; returns the outcome flags, final state, poses and wall time."""
+        b = self.built
+        diagram = b.diagram
+        clearance = b.world.grid.clearance_at
+        vehicle = b.scenario.vehicle
         flags = {"success": False, "collision": False}
 
         def monitor(root):
             x = b.car.GetMyContextFromRoot(root).get_continuous_state_vector().CopyToVector()
-            if np.hypot(x[0] - goal[0], x[1] - goal[1]) < tol:
+            if reached(x):
                 flags["success"] = True
                 return EventStatus.ReachedTermination(diagram, "goal reached")
             if in_collision(x[None], clearance, vehicle)[0]:
@@ -85,20 +91,96 @@ class ExpertRunner:
         self.simulator.Initialize()
         self.simulator.AdvanceTo(t_max)
         wall = time.perf_counter() - wall
+        context = self.simulator.get_context()
         x = b.car.GetMyContextFromRoot(context).get_continuous_state_vector().CopyToVector()
         log = b.pose_logger.FindLog(context)
-        poses = np.vstack([log.data().T, x[None, :3]])
-        dist = float(np.hypot(x[0] - goal[0], x[1] - goal[1]))
-        return RunResult(flags["success"], flags["collision"],
-                         not (flags["success"] or flags["collision"]),
-                         float(context.get_time()), dist, poses,
-                         self._applied_noise(context), wall)
+        # Publish events run at the end of a step, so the noise sample logged
+        # at t_k+1 is the one held during step k; the first entry (t = 0) is
+        # the value before the first update.
+        noise = b.noise_logger.FindLog(context).data().T[1:].copy()
+        return {**flags, "state": x, "time_s": float(context.get_time()),
+                "poses": np.vstack([log.data().T, x[None, :3]]), "noise": noise, "wall": wall}
 
-    def _applied_noise(self, context) -> np.ndarray:
-        # Publish events run at the end of a step, so the sample logged at
-        # t_k+1 is the one held during step k; the first entry (t = 0) is the
-        # value before the first update.
-        return self.built.noise_logger.FindLog(context).data().T[1:].copy()
+
+class ExpertRunner(DiagramRunner):
+    """Runs the expert diagram (``build_expert_diagram``) to a goal position."""
+
+    def run(self, start=None, goal=None, seed: int | None = None,
+            t_max_s: float | None = None) -> RunResult:
+        b = self.built
+        sc = b.scenario
+        world = b.world
+        start = sc.start_pose(world) if start is None else world.check_pose(start, "start")
+        goal = sc.goal_xy(world) if goal is None else world.check_pose(goal, "goal")[:2]
+        context = self._reset(start, sc.seed if seed is None else seed)
+        b.expert.set_goal(b.expert.GetMyMutableContextFromRoot(context), goal)
+        tol = sc.goal_tolerance_m
+        r = self._simulate(lambda x: np.hypot(x[0] - goal[0], x[1] - goal[1]) < tol,
+                           sc.t_max_s if t_max_s is None else t_max_s)
+        x = r["state"]
+        return RunResult(r["success"], r["collision"], not (r["success"] or r["collision"]),
+                         r["time_s"], float(np.hypot(x[0] - goal[0], x[1] - goal[1])),
+                         r["poses"], r["noise"], r["wall"])
+
+
+@dataclass
+class TargetRunResult(RunResult):
+    """A :class:`RunResult` toward a target pose, with the final overlaps."""
+
+    overlap: np.ndarray = field(default_factory=lambda: np.zeros(2), repr=False)
+    reached_by: str = ""       # "distance", "overlap" or "" (not reached)
+
+    def summary(self) -> dict:
+        out = super().summary()
+        out["overlap"] = [round(float(v), 3) for v in self.overlap]
+        out["reached_by"] = self.reached_by
+        return out
+
+
+class TargetRunner(DiagramRunner):
+    """Runs a C_WP diagram (``build_waypoint_diagram``) toward a target pose.
+
+    Success: within ``scenario.goal_tolerance_m`` of the target position, or
+    both geometric image overlaps (car -> target, target -> car) above
+    ``overlap_success``. Collision is failure; so is running out of time."""
+
+    def __init__(self, built, overlap_success: float = 0.7):
+        super().__init__(built)
+        self.overlap_success = overlap_success
+
+    def run(self, start, target_pose, target, seed: int = 0, t_max_s: float = 30.0
+            ) -> TargetRunResult:
+        """``target``: the :class:`~topodrake.learning.policy.TargetContext`
+        the network sees; ``target_pose`` (3,): where it was taken."""
+        from topodrake.sensing.overlap import mutual_overlap
+
+        b = self.built
+        world = b.world
+        start = world.check_pose(start, "start")
+        goal = world.check_pose(target_pose, "target")[:3]
+        context = self._reset(start, seed)
+        b.target_source.set_target(b.target_source.GetMyMutableContextFromRoot(context), target)
+        tol = b.scenario.goal_tolerance_m
+        camera = b.scenario.camera
+        how = {"by": ""}
+
+        def reached(x):
+            if np.hypot(x[0] - goal[0], x[1] - goal[1]) < tol:
+                how["by"] = "distance"
+                return True
+            ov = mutual_overlap(world, x[None, :3], goal[None], camera)[0]
+            if ov.min() > self.overlap_success:
+                how["by"] = "overlap"
+                return True
+            return False
+
+        r = self._simulate(reached, t_max_s)
+        x = r["state"]
+        overlap = mutual_overlap(world, x[None, :3], goal[None], camera)[0]
+        return TargetRunResult(r["success"], r["collision"], not (r["success"] or r["collision"]),
+                               r["time_s"], float(np.hypot(x[0] - goal[0], x[1] - goal[1])),
+                               r["poses"], r["noise"], r["wall"], overlap=overlap,
+                               reached_by=how["by"])
 
 
 def run_scenario(scenario, meshcat=None) -> RunResult:

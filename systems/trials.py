@@ -32,3 +32,79 @@ def expert_trial(seed: int, world: str = "test-0", start_place: int = 0, goal_pl
     summary.pop("wall_time_s")
     summary["seed"] = seed
     return summary
+
+
+@lru_cache(maxsize=2)
+def _evaluation_set(data_dir: str, worlds: tuple[str, ...]):
+    """The test houses' expert trajectories (collected into ``data_dir`` once)
+    and the loaded worlds."""
+    from pathlib import Path
+
+    from topodrake.learning.samples import collect_trajectories
+    from topodrake.world import load_world
+
+    trajs = collect_trajectories(list(worlds), Path(data_dir) / "demos" / "pairs-s0",
+                                 progress=False)
+    return trajs, {w: load_world(w) for w in worlds}
+
+
+@lru_cache(maxsize=4)
+def _policy(checkpoint: str):
+    import torch
+
+    from topodrake.learning.policy import AStarOracle, LearnedWaypointPolicy
+
+    torch.set_num_threads(1)        # one trial per core
+    if checkpoint == "oracle":
+        return AStarOracle
+    return LearnedWaypointPolicy.from_checkpoint(checkpoint)
+
+
+@lru_cache(maxsize=8)
+def _target_runner(checkpoint: str, data_dir: str, worlds: tuple[str, ...], world: str,
+                   noise_std: float):
+    from topodrake.learning.policy import AStarOracle
+    from topodrake.systems.run import TargetRunner
+    from topodrake.systems.scenario import Scenario
+    from topodrake.systems.waypoint_net import build_waypoint_diagram
+
+    w = _evaluation_set(data_dir, worlds)[1][world]
+    policy = _policy(checkpoint)
+    if policy is AStarOracle:
+        policy = AStarOracle(w)
+    scenario = Scenario(world=w.name, noise_std=noise_std,
+                        camera_enabled=policy.observation == "camera")
+    if policy.observation == "camera":
+        scenario.camera = policy.sensor
+    elif policy.observation == "lidar":
+        scenario.lidar = policy.sensor
+    return TargetRunner(build_waypoint_diagram(scenario, policy, world=w))
+
+
+def controller_trial(seed: int, checkpoint: str = "oracle", noise_std: float = 0.0,
+                     data_dir: str = "data",
+                     worlds: tuple[str, ...] = ("test-0", "test-1", "test-2", "test-3", "test-4")
+                     ) -> dict:
+    """One run of the controller-success protocol
+    (:mod:`topodrake.learning.evaluation`): C_WP of ``checkpoint`` (or the A*
+    ``"oracle"``) + RMP drives from the source of the seed's pair toward its
+    target in the Drake diagram. The pair depends on the seed only."""
+    from topodrake.learning.evaluation import sample_controller_pair
+    from topodrake.learning.policy import make_target_context
+
+    trajs, loaded = _evaluation_set(str(data_dir), tuple(worlds))
+    pair = sample_controller_pair(trajs, seed, loaded)
+    runner = _target_runner(str(checkpoint), str(data_dir), tuple(worlds), pair.world,
+                            float(noise_std))
+    policy = runner.built.waypoint_net.policy
+    poses = trajs.poses[trajs.rows(pair.trajectory)]
+    target = make_target_context(loaded[pair.world], poses, pair.target, policy.k,
+                                 frame_step=policy.frame_step, modality=policy.observation,
+                                 camera=runner.built.scenario.camera,
+                                 lidar=runner.built.scenario.lidar, key=seed % (2 ** 31))
+    result = runner.run(poses[pair.source], poses[pair.target], target, seed=seed,
+                        t_max_s=pair.t_max_s)
+    out = result.summary()
+    out.pop("wall_time_s")
+    out.update(seed=seed, pair=pair.summary())
+    return out

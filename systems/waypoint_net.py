@@ -165,6 +165,7 @@ class WaypointDiagram:
     waypoint_net: WaypointNet
     target_source: TargetSource
     pose_logger: object
+    noise_logger: object
     world: object
     scenario: object
     extras: dict = field(default_factory=dict)
@@ -215,4 +216,5 @@ def build_waypoint_diagram(scenario, policy, world=None, target: TargetContext |
     b.ExportOutput(net.heading_port, "heading_diff")
     diagram = b.Build()
     diagram.set_name("topodrake_waypoint")
-    return WaypointDiagram(diagram, c.car, net, source, c.pose_logger, world, scenario)
+    return WaypointDiagram(diagram, c.car, net, source, c.pose_logger, c.noise_logger, world,
+                           scenario)

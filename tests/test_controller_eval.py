@@ -1,0 +1,118 @@
+"""Controller evaluation: pair sampling, the target runner, the study's statistics."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from topodrake.errors import TopodrakeError
+from topodrake.learning.evaluation import PairConfig, sample_controller_pair
+from topodrake.learning.samples import TrajectorySet
+
+
+@pytest.fixture(scope="module")
+def line_set(box_world):
+    """One straight 'expert' trajectory along y = 8 in the box world, 5 cm apart."""
+    x = np.arange(1.0, 9.0, 0.05)
+    poses = np.column_stack([x, np.full_like(x, 8.0), np.zeros_like(x)])
+    states = np.column_stack([poses, np.full_like(x, 0.5), np.zeros_like(x)])
+    return TrajectorySet(["box"], np.array([0], np.int32), np.array([0, len(x)]), poses, states)
+
+
+def _study():
+    path = Path(__file__).resolve().parents[1] / "studies" / "controller_success.py"
+    spec = importlib.util.spec_from_file_location("controller_success", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_pairs_follow_the_protocol_and_depend_on_the_seed_only(box_world, line_set):
+    from topodrake.sensing.overlap import mutual_overlap
+
+    worlds = {"box": box_world}
+    pairs = [sample_controller_pair(line_set, s, worlds) for s in range(40)]
+    again = [sample_controller_pair(line_set, s, worlds) for s in range(40)]
+    assert pairs == again
+    d = np.array([p.distance_m for p in pairs])
+    assert d.min() >= -1.0 - 0.05 and d.max() <= 3.0 + 0.05
+    assert (d < 0).any() and (d > 1.5).any()          # behind and well ahead both occur
+    for p in pairs:
+        a, b = line_set.poses[p.source], line_set.poses[p.target]
+        assert mutual_overlap(box_world, a[None], b[None])[0].min() > 0.1
+        # straight line: the A* length is the distance, so t_max = 10 s + |d| / 0.3
+        assert p.t_max_s == pytest.approx(10.0 + abs(p.distance_m) / 0.3, abs=0.5)
+
+
+def test_pairs_refused_without_room(box_world, line_set):
+    short = TrajectorySet(["box"], np.array([0], np.int32), np.array([0, 2]),
+                          line_set.poses[:2], line_set.states[:2])
+    with pytest.raises(TopodrakeError, match="no controller pair"):
+        sample_controller_pair(short, 0, {"box": box_world},
+                               PairConfig(min_distance_m=2.0, max_distance_m=3.0, tries=20))
+
+
+@pytest.fixture(scope="module")
+def oracle_runner(box_world):
+    from topodrake.learning.policy import AStarOracle
+    from topodrake.systems.run import TargetRunner
+    from topodrake.systems.scenario import Scenario
+    from topodrake.systems.waypoint_net import build_waypoint_diagram
+
+    built = build_waypoint_diagram(Scenario(world="box", noise_std=0.33), AStarOracle(box_world),
+                                   world=box_world)
+    return TargetRunner(built)
+
+
+def _target(pose, key):
+    from topodrake.learning.policy import TargetContext
+
+    return TargetContext(key=key, poses=np.asarray([pose], float))
+
+
+def test_target_runner_reaches_a_target_ahead(oracle_runner):
+    start, goal = [1.5, 3.0, 0.0], [4.0, 3.0, 0.0]
+    r = oracle_runner.run(start, goal, _target(goal, 1), seed=5, t_max_s=20.0)
+    assert r.success and not r.collision
+    assert r.reached_by in ("distance", "overlap")
+    assert r.distance_to_goal_m < 0.27 or r.overlap.min() > 0.7
+    assert r.time_s > 1.0                      # 2.5 m away: not solved at the start
+    assert len(r.noise) >= int(r.time_s / 0.1) - 1 and np.abs(r.noise).max() > 0
+
+
+def test_target_runner_times_out_behind_a_wall(oracle_runner):
+    # The target is on the far side of the partition (x in [4.9, 5.1], y < 6):
+    # the car cannot get there in 2 s, and no overlap through the wall.
+    start, goal = [4.0, 1.0, 0.0], [6.0, 1.0, 0.0]
+    r = oracle_runner.run(start, goal, _target(goal, 2), seed=1, t_max_s=2.0)
+    assert r.timeout and not r.success and r.reached_by == ""
+    assert r.time_s == pytest.approx(2.0)
+
+
+def test_target_runner_refuses_a_start_in_a_wall(oracle_runner):
+    with pytest.raises(TopodrakeError, match="start"):
+        oracle_runner.run([5.0, 3.0, 0.0], [4.0, 3.0, 0.0], _target([4.0, 3.0, 0.0], 3))
+
+
+def test_wilson_interval_and_summary():
+    study = _study()
+    lo, hi = study.wilson(95, 100)
+    assert lo < 0.95 < hi and hi - lo < 0.12
+    lo4, hi4 = study.wilson(380, 400)
+    assert hi4 - lo4 < hi - lo                     # more trials, tighter interval
+    assert study.wilson(0, 10)[0] == 0.0 and study.wilson(10, 10)[1] == 1.0
+    results = ([{"outcome": "success", "time_s": 0.1}] * 2 + [{"outcome": "success", "time_s": 4.0}] * 5
+               + [{"outcome": "collision", "time_s": 2.0}] * 2 + [{"outcome": "timeout", "time_s": 9.0}])
+    s = study.summarize(results)
+    assert s["success"] == 0.7 and s["collisions"] == 2 and s["timeouts"] == 1
+    assert s["immediate_successes"] == 2 and s["success_nontrivial"] == pytest.approx(5 / 8)
+
+
+def test_study_refuses_a_missing_checkpoint(tmp_path, capsys):
+    study = _study()
+    code = study.main(["--controllers", "camera_k5", "--checkpoints", str(tmp_path), "--trials", "2"])
+    assert code == 2
+    assert "no checkpoint" in capsys.readouterr().err
