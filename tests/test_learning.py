@@ -304,10 +304,13 @@ def test_tiny_training_reduces_loss_and_resumes(samples, tmp_path):
                            progress=False)
     assert first.samples_seen == 32
     more = train_waypoint(_tiny_config(max_samples=1280), tmp_path, samples=(train, val),
-                          progress=False)
+                          progress=False, command="topodrake train waypoint --config c.yaml --out x")
     assert more.samples_seen == 1280
     assert more.metrics["loss"] < 0.85 * first.metrics["loss"]
-    assert (tmp_path / "card.json").exists()
+    import json
+    card = json.loads((tmp_path / "card.json").read_text())
+    assert card["samples_seen"] == 1280 and card["command"].endswith("--out x")
+    assert card["data"]["train_samples"] == 240 and card["wall_time_s"] > 0
     # same seed, same data: the uninterrupted run lands on the same weights
     straight = train_waypoint(_tiny_config(max_samples=1280), tmp_path / "b", samples=(train, val),
                               progress=False)

@@ -26,8 +26,14 @@ def cmd_train_waypoint(args) -> None:
         cfg.max_samples = args.max_samples
     if args.threads is not None:
         cfg.threads = args.threads
+    command = f"topodrake train waypoint --config {args.config} --out {args.out}"
+    if args.data != "data":
+        command += f" --data {args.data}"
+    for flag in ("max_minutes", "max_samples", "threads"):
+        if getattr(args, flag) is not None:
+            command += f" --{flag.replace('_', '-')} {getattr(args, flag)}"
     result = train_waypoint(cfg, args.out, args.data, resume=not args.no_resume,
-                            progress=not args.quiet)
+                            progress=not args.quiet, command=command)
     if args.json:
         print(json.dumps({"checkpoint": str(result.checkpoint), "samples_seen": result.samples_seen,
                           "wall_time_s": round(result.wall_time_s, 1),

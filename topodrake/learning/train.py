@@ -175,9 +175,10 @@ def _diff(a, b, prefix=""):
 
 
 def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool = True,
-                   progress: bool = True, samples: tuple[SampleSet, SampleSet] | None = None
-                   ) -> TrainResult:
-    """Train (or resume) a C_WP / direct-control network into ``out_dir``."""
+                   progress: bool = True, samples: tuple[SampleSet, SampleSet] | None = None,
+                   command: str | None = None) -> TrainResult:
+    """Train (or resume) a C_WP / direct-control network into ``out_dir``;
+    ``command`` (the command line that redoes it) goes into the card."""
     from tqdm import tqdm
 
     cfg.validate()
@@ -296,7 +297,7 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
             "train_samples_per_s": round(rate, 1), "git_revision": revision,
             "data": {"train_worlds": cfg.data.train_worlds, "val_worlds": cfg.data.val_worlds,
                      "train_samples": len(train_set), "val_samples": len(val_set)},
-            "metrics": metrics, "config": cfg_dict}
+            "metrics": metrics, "command": command, "config": cfg_dict}
     atomic_write_json(out_dir / CARD, card)
     if progress:
         print(f"trained {cfg.network.modality} k={cfg.network.k} {cfg.network.output}: "
