@@ -139,13 +139,21 @@ class PairEncoder(nn.Module):
         wc, wo, wd = w[:, :s], w[:, s:2 * s], w[:, 2 * s:]
         return wc + wd, wo - wd
 
+    def freeze_split(self) -> None:
+        """Store (W_cur, W_tgt) once, for inference with fixed weights (the
+        split costs several tensor operations per call otherwise)."""
+        with torch.no_grad():
+            self._split = tuple(w.detach().clone().contiguous() for w in self.split_weights())
+
+    def _weights(self) -> tuple[torch.Tensor, torch.Tensor]:
+        frozen = getattr(self, "_split", None)
+        return frozen if frozen is not None else self.split_weights()
+
     def first_current(self, cur: torch.Tensor) -> torch.Tensor:
-        w_cur, _ = self.split_weights()
-        return self._conv_first(cur, w_cur, None)
+        return self._conv_first(cur, self._weights()[0], None)
 
     def first_target(self, ctx: torch.Tensor) -> torch.Tensor:
-        _, w_tgt = self.split_weights()
-        return self._conv_first(ctx, w_tgt, self.first.bias)
+        return self._conv_first(ctx, self._weights()[1], self.first.bias)
 
     def _conv_first(self, x, w, b):
         f = F.conv2d if x.dim() == 4 else F.conv1d

@@ -20,6 +20,7 @@ when known, poses); :func:`target_input` picks what a policy consumes.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -87,7 +88,10 @@ class LearnedWaypointPolicy:
     """
 
     def __init__(self, model: WaypointNetwork, sensor: CameraConfig | LidarConfig, name: str = ""):
-        self.model = fold_batchnorm(model.eval())   # BatchNorm folded into the convolutions
+        folded = fold_batchnorm(model.eval())      # BatchNorm folded into the convolutions
+        # The policy keeps its own copy: its first-layer split is frozen.
+        self.model = copy.deepcopy(folded) if folded is model else folded
+        self.model.encoder.freeze_split()
         self.cfg: NetworkConfig = model.cfg
         self.sensor = sensor
         self.name = name
