@@ -1,7 +1,11 @@
-"""Batched closed-loop engine: N expert cars stepped together in one world.
+"""Batched closed-loop engine: N cars stepped together in one world.
 
-The same functions as the Drake diagram (``topodrake.systems``), in the same
-order per control period ``k``::
+:class:`ExpertRollout` drives the A* expert to goal positions;
+:class:`PolicyRollout` drives a waypoint policy (learned C_WP, the direct-
+control baseline or the A* oracle) + RMP toward target poses, as the
+``build_waypoint_diagram`` diagram does. The same functions as the Drake
+diagram (``topodrake.systems``), in the same order per control period ``k``
+(for the expert)::
 
     ranges_k   = lidar(pose_k)                 (and image_k = camera(pose_k))
     waypoint_k = expert(progress, memory, pose_k, ranges_k)   (updates progress, memory)
@@ -28,10 +32,10 @@ from topodrake.sensing.camera import Camera
 from topodrake.sensing.config import CameraConfig, LidarConfig
 from topodrake.sensing.lidar import Lidar
 from topodrake.sensing.scene import scene_of
-from topodrake.vehicle import VehicleConfig, in_collision, vehicle_step
+from topodrake.vehicle import VehicleConfig, car_to_world, in_collision, vehicle_step
 
-SUCCESS, COLLISION, TIMEOUT, RUNNING = 0, 1, 2, 3
-OUTCOMES = ("success", "collision", "timeout", "running")
+SUCCESS, COLLISION, TIMEOUT, RUNNING, LOST = 0, 1, 2, 3, 4
+OUTCOMES = ("success", "collision", "timeout", "running", "lost")
 
 
 @dataclass
@@ -148,3 +152,129 @@ class ExpertRollout:
         hit = in_collision(state, clearance, cfg.vehicle)
         outcome[idx[reached]] = SUCCESS
         outcome[idx[~reached & hit]] = COLLISION
+
+
+@dataclass
+class PolicyRolloutResult(RolloutResult):
+    """A :class:`RolloutResult` toward target poses; ``overlap`` (N, 2) holds
+    the final geometric overlaps (car -> target, target -> car)."""
+
+    overlap: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+
+class PolicyRollout:
+    """Steps many cars, each following its own target with one waypoint policy.
+
+    Per control period, for the cars still driving: lidar scan (and camera
+    image for a camera policy); ``policy.predict`` on the batch with each
+    car's cached target features; waypoint to world frame with the car's
+    state, RMP controls toward it (a direct-control policy's controls are
+    used as they are); actuation noise; vehicle step. Then, as the Drake
+    ``TargetRunner`` checks after every step: success when within
+    ``goal_tolerance_m`` of the target position or both image overlaps above
+    ``overlap_success``; collision; ``lost`` when ``overlap_lost`` is set and
+    both overlaps fall below it; timeout at the car's ``t_max``.
+    """
+
+    def __init__(self, world, policy, config: RolloutConfig | None = None, *,
+                 overlap_success: float = 0.7, overlap_lost: float | None = None):
+        from topodrake.errors import TopodrakeError
+
+        self.world = world
+        self.policy = policy
+        self.config = config or RolloutConfig()
+        self.overlap_success = overlap_success
+        self.overlap_lost = overlap_lost
+        self.lidar = Lidar(world, self.config.lidar)
+        self.camera = None
+        kind = policy.observation
+        if kind == "camera":
+            self.camera = Camera(world, getattr(policy, "sensor", None) or self.config.camera)
+        elif kind == "lidar":
+            sensor = getattr(policy, "sensor", None)
+            if sensor is not None and sensor != self.config.lidar:
+                raise TopodrakeError("the lidar policy was trained with another lidar config "
+                                     "than the engine's (RolloutConfig.lidar)")
+        elif kind != "pose":
+            raise TopodrakeError(f"unknown policy observation {kind!r}")
+
+    def _observe(self, st: np.ndarray, ranges: np.ndarray) -> np.ndarray:
+        kind = self.policy.observation
+        if kind == "camera":
+            return self.camera.render(st[:, :3])
+        return ranges if kind == "lidar" else st[:, :3]
+
+    def run(self, starts: np.ndarray, target_poses: np.ndarray, target_features, *,
+            t_max_s=None, seeds=None, noise: np.ndarray | None = None) -> PolicyRolloutResult:
+        """Drive cars from ``starts`` (N, 3) toward ``target_poses`` (N, 3).
+
+        ``target_features``: ``policy.encode_target`` of the N targets'
+        contexts (row i belongs to car i). ``t_max_s``: scalar or (N,)
+        (default: the config's). Noise as in :meth:`ExpertRollout.run`."""
+        from topodrake.sensing.overlap import mutual_overlap
+
+        cfg = self.config
+        veh = cfg.vehicle
+        starts = np.asarray(starts, np.float64).reshape(-1, 3)
+        targets = np.asarray(target_poses, np.float64).reshape(-1, 3)
+        n = len(starts)
+        if len(targets) != n or len(target_features) != n:
+            raise ValueError(f"{n} starts, {len(targets)} target poses and "
+                             f"{len(target_features)} target features")
+        t_max = np.broadcast_to(np.asarray(cfg.t_max_s if t_max_s is None else t_max_s,
+                                           np.float64), (n,))
+        limit = np.rint(t_max / veh.dt).astype(np.int64)
+        t_steps = int(limit.max()) if n else 0
+        if noise is None and seeds is not None and cfg.noise_std > 0:
+            noise = standard_normal_noise(seeds, t_steps)
+        is_torch = hasattr(target_features, "index_select")
+        state = np.zeros((n, 5))
+        state[:, :3] = starts
+        poses = np.repeat(starts[:, None], t_steps + 1, axis=1)
+        controls = np.zeros((n, t_steps, 2))
+        waypoints = np.full((n, t_steps, 2), np.nan)
+        outcome = np.full(n, RUNNING)
+        steps = np.zeros(n, np.int64)
+        overlap = mutual_overlap(self.world, starts, targets, cfg.camera) if n else np.zeros((0, 2))
+        clearance = self.world.grid.clearance_at
+        direct = bool(getattr(self.policy, "is_direct_control", False))
+        for k in range(t_steps):
+            outcome[(outcome == RUNNING) & (limit <= k)] = TIMEOUT
+            active = np.flatnonzero(outcome == RUNNING)
+            if active.size == 0:
+                break
+            st = state[active]
+            ranges = self.lidar.scan(st[:, :3])
+            feats = (target_features.index_select(0, _torch_index(active)) if is_torch
+                     else target_features[active])
+            pred = self.policy.predict(self._observe(st, ranges), feats)
+            if direct:
+                u = np.asarray(pred.controls, np.float64)
+            else:
+                wp = car_to_world(np.asarray(pred.waypoint, np.float64)[:, None], st)[:, 0]
+                u = controls_toward(st, wp, ranges, cfg.lidar, cfg.rmp, veh)
+                waypoints[active, k] = wp
+            if noise is not None and cfg.noise_std > 0:
+                u = u * (1.0 + cfg.noise_std * noise[active, k])
+            state[active] = vehicle_step(st, u, veh)
+            controls[active, k] = u
+            steps[active] = k + 1
+            poses[active, k + 1:] = state[active, None, :3]
+            ov = mutual_overlap(self.world, state[active, :3], targets[active], cfg.camera)
+            overlap[active] = ov
+            reached = ((np.hypot(*(state[active, :2] - targets[active, :2]).T)
+                        < cfg.goal_tolerance_m) | (ov.min(axis=1) > self.overlap_success))
+            hit = in_collision(state[active], clearance, veh)
+            outcome[active[reached]] = SUCCESS
+            outcome[active[~reached & hit]] = COLLISION
+            if self.overlap_lost is not None:
+                lost = ~reached & ~hit & (ov.max(axis=1) < self.overlap_lost)
+                outcome[active[lost]] = LOST
+        outcome[outcome == RUNNING] = TIMEOUT
+        return PolicyRolloutResult(poses, controls, waypoints, steps, outcome, [], overlap=overlap)
+
+
+def _torch_index(idx: np.ndarray):
+    import torch
+
+    return torch.as_tensor(idx, dtype=torch.long)

@@ -19,6 +19,7 @@ The car starts at rest at the source pose (no jitter).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,7 +87,9 @@ def sample_controller_pair(trajs, seed: int, worlds: dict, cfg: PairConfig = Pai
             # The expert may pass a wall closer than the c-space radius, so a
             # trajectory pose can lie outside the planner's free space.
             length = abs(float(s[j] - s[i]))
-        return ControllerPair(world.name, t, i, j, float(s[j] - s[i]),
-                              cfg.t_base_s + length / cfg.v_min)
+        # A whole number of 0.1 s control periods, so the Drake run and the
+        # batched engine stop after the same step.
+        t_max = math.ceil(10.0 * (cfg.t_base_s + length / cfg.v_min) - 1e-9) / 10.0
+        return ControllerPair(world.name, t, i, j, float(s[j] - s[i]), t_max)
     raise TopodrakeError(f"no controller pair found for seed {seed} in {cfg.tries} tries "
                          "(trajectories too short?)")
