@@ -15,11 +15,17 @@ prints ``{"camera_k0": {"clean": p, "noisy": p}, ...}`` and writes
 ``results/controller_success.json`` (the same object),
 ``results/controller_success_details.json`` (outcome counts, Wilson 95 %
 intervals, the command) and ``results/controller_success.png``.
+
+Each (controller, noise) block of trials is kept in
+``results/controller_success_runs/`` with the checkpoint's hash; a rerun with
+the same settings reuses finished blocks, so the study can be run as the
+checkpoints arrive (``--controllers camera_k2``) and resumed after a stop.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import sys
@@ -58,6 +64,35 @@ def summarize(results: list[dict]) -> dict:
             **{plural[o]: c for o, c in counts.items()}, "trials": n,
             "immediate_successes": immediate,
             "success_nontrivial": (counts["success"] - immediate) / max(n - immediate, 1)}
+
+
+def _fingerprint(checkpoint: str) -> str:
+    if checkpoint == "oracle":
+        return "oracle"
+    return hashlib.sha1(Path(checkpoint).read_bytes()).hexdigest()[:16]
+
+
+def run_block(name: str, cond: str, checkpoint: str, noise: float, seeds: list[int], args) -> list:
+    """The trials of one controller and noise setting, reused from the run
+    cache when the seeds, noise and checkpoint are the same."""
+    from topodrake.montecarlo import run_trials
+    from topodrake.systems.trials import controller_trial
+
+    key = {"controller": name, "condition": cond, "noise_std": noise, "seed": args.seed,
+           "trials": len(seeds), "checkpoint": _fingerprint(checkpoint), "data": str(args.data)}
+    cache = Path(args.out) / "controller_success_runs" / f"{name}-{cond}.json"
+    if cache.is_file():
+        try:
+            stored = json.loads(cache.read_text())
+            if stored.get("key") == key:
+                return stored["results"]
+        except (OSError, ValueError):
+            pass                                   # unreadable: run again
+    results = run_trials(controller_trial, seeds, workers=args.workers, ray_address=args.ray,
+                         progress=not args.quiet, desc=f"{name} {cond}", checkpoint=checkpoint,
+                         noise_std=noise, data_dir=args.data)
+    atomic_write_json(cache, {"key": key, "results": results})
+    return results
 
 
 def plot(summary: dict, details: dict, path: Path) -> None:
@@ -113,8 +148,7 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from topodrake.montecarlo import run_trials, trial_seeds
-    from topodrake.systems.trials import controller_trial
+    from topodrake.montecarlo import trial_seeds
 
     if args.trials < 1:
         raise TopodrakeError("--trials must be >= 1")
@@ -134,10 +168,7 @@ def _run(args) -> int:
     for name in names:
         summary[name], details[name] = {}, {}
         for cond, noise in (("clean", 0.0), ("noisy", args.noise)):
-            results = run_trials(controller_trial, seeds, workers=args.workers,
-                                 ray_address=args.ray, progress=not args.quiet,
-                                 desc=f"{name} {cond}", checkpoint=checkpoints[name],
-                                 noise_std=noise, data_dir=args.data)
+            results = run_block(name, cond, checkpoints[name], noise, seeds, args)
             s = summarize(results)
             summary[name][cond] = round(s["success"], 4)
             details[name][cond] = s

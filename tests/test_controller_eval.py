@@ -116,3 +116,31 @@ def test_study_refuses_a_missing_checkpoint(tmp_path, capsys):
     code = study.main(["--controllers", "camera_k5", "--checkpoints", str(tmp_path), "--trials", "2"])
     assert code == 2
     assert "no checkpoint" in capsys.readouterr().err
+
+
+def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatch):
+    import argparse
+
+    import topodrake.montecarlo as mc
+
+    study = _study()
+    calls = []
+
+    def fake_run_trials(fn, seeds, **kw):
+        calls.append(kw["noise_std"])
+        return [{"outcome": "success", "time_s": 1.0, "seed": s} for s in seeds]
+
+    monkeypatch.setattr(mc, "run_trials", fake_run_trials)
+    args = argparse.Namespace(seed=0, data="data", out=str(tmp_path), workers=1, ray=None, quiet=True)
+    first = study.run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], args)
+    again = study.run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], args)
+    assert first == again and calls == [0.0]
+    study.run_block("oracle", "clean", "oracle", 0.33, [1, 2, 3], args)     # other noise: rerun
+    study.run_block("oracle", "clean", "oracle", 0.33, [1, 2, 3, 4], args)  # other trials: rerun
+    assert calls == [0.0, 0.33, 0.33]
+    ck = tmp_path / "ck.pt"
+    ck.write_bytes(b"weights-a")
+    study.run_block("net", "clean", str(ck), 0.0, [1], args)
+    ck.write_bytes(b"weights-b")                                            # retrained: rerun
+    study.run_block("net", "clean", str(ck), 0.0, [1], args)
+    assert len(calls) == 5
