@@ -321,6 +321,10 @@ def test_tiny_training_reduces_loss_and_resumes(samples, tmp_path):
     card = json.loads((tmp_path / "card.json").read_text())
     assert card["samples_seen"] == 1280 and card["command"].endswith("--out x")
     assert card["data"]["train_samples"] == 240 and card["wall_time_s"] > 0
+    # the shipped file holds no optimizer state; resume.pt beside it does
+    blob = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    assert "optimizer" not in blob and (tmp_path / "resume.pt").is_file()
+    assert oct((tmp_path / "checkpoint.pt").stat().st_mode & 0o777) != oct(0o600)
     # same seed, same data: the uninterrupted run lands on the same weights
     straight = train_waypoint(_tiny_config(max_samples=1280), tmp_path / "b", samples=(train, val),
                               progress=False)

@@ -13,7 +13,12 @@ A checkpoint is one ``torch.save`` file (read back with
     samples_seen, wall_time_s  training progress
     created                    ISO time of writing
     model                      state dict
-    optimizer, train_state     (optional) to resume training
+    train_state                (optional) where training stands, to resume
+
+The optimizer state, twice the size of the weights, goes to ``resume.pt``
+beside the checkpoint (:func:`save_resume_state`), so the checkpoint that is
+shipped stays small; an older checkpoint that holds ``optimizer`` itself is
+still read.
 
 Loading refuses, with one line naming the file and the mismatch, a file that
 is not a checkpoint, a corrupt one, or one trained for another sensor,
@@ -103,6 +108,34 @@ def save_checkpoint(path, model: WaypointNetwork, sensor: CameraConfig | LidarCo
     buf = io.BytesIO()
     torch.save(blob, buf)
     return atomic_write_bytes(path, buf.getvalue())
+
+
+RESUME = "resume.pt"
+
+
+def save_resume_state(path, optimizer: dict, samples_seen: int) -> Path:
+    """Write the optimizer state of a training run at ``samples_seen``."""
+    buf = io.BytesIO()
+    torch.save({"format": FORMAT + "-resume", "samples_seen": int(samples_seen),
+                "optimizer": optimizer}, buf)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def load_resume_state(path, samples_seen) -> dict | None:
+    """The optimizer state in ``path`` if it belongs to the checkpoint at
+    ``samples_seen``; None when missing, unreadable or from another step
+    (training then resumes with a fresh optimizer)."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:
+        return None
+    if (not isinstance(blob, dict) or blob.get("format") != FORMAT + "-resume"
+            or blob.get("samples_seen") != samples_seen):
+        return None
+    return blob.get("optimizer")
 
 
 def _mismatch(path, what: str, have, want) -> TopodrakeError:

@@ -32,7 +32,8 @@ from torch.nn import functional as F
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
-from topodrake.learning.checkpoint import git_revision, load_checkpoint, save_checkpoint
+from topodrake.learning.checkpoint import (RESUME, git_revision, load_checkpoint, load_resume_state,
+                                          save_checkpoint, save_resume_state)
 from topodrake.learning.config import TrainConfig
 from topodrake.learning.data import Batch, SampleBatcher
 from topodrake.learning.networks import WaypointNetwork, input_size
@@ -212,8 +213,9 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
             raise TopodrakeError(f"checkpoint {ckpt_path} was trained with {diff[0]} = {diff[1]!r}, "
                                  f"the config says {diff[2]!r}; use another output folder")
         model.load_state_dict(ck.model.state_dict())
-        if ck.optimizer is not None:
-            opt.load_state_dict(ck.optimizer)
+        optimizer = ck.optimizer or load_resume_state(out_dir / RESUME, ck.meta.get("samples_seen"))
+        if optimizer is not None:
+            opt.load_state_dict(optimizer)
         state.update(ck.train_state or {})
         history = list(ck.meta.get("history", []))
     revision = git_revision()
@@ -222,10 +224,13 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
         return cfg.lr * cfg.lr_decay ** (seen // cfg.epoch_samples)
 
     def write(metrics: dict) -> None:
+        # The optimizer state (twice the weights) stays beside the shipped
+        # checkpoint, written first so a checkpoint never precedes its state.
+        save_resume_state(out_dir / RESUME, opt.state_dict(), state["samples_seen"])
         save_checkpoint(ckpt_path, model, sensor, train_config=cfg_dict, metrics=metrics,
                         history=history, samples_seen=state["samples_seen"],
-                        wall_time_s=state["wall_time_s"], optimizer=opt.state_dict(),
-                        train_state=dict(state), revision=revision)
+                        wall_time_s=state["wall_time_s"], train_state=dict(state),
+                        revision=revision)
 
     n = len(train_b)
     bs = cfg.batch_size
