@@ -28,7 +28,7 @@ def test_drake_and_batched_paths_agree(box_world, noise_std):
 def test_parallel_batch_matches_serial_batch(box_world, monkeypatch):
     """Batches of >= 8 cars take the parallel expert and RMP kernels; they
     must drive exactly the paths the serial kernels drive."""
-    import topodrake.expert as expert
+    import topodrake.expert.kernel as expert
     import topodrake.rmp as rmp
 
     rng = np.random.default_rng(3)
