@@ -78,3 +78,20 @@ def test_sample_free_pose_is_free_and_seeded(box_world):
     assert (a[:, 0] < 4.9).mean() > 0.3 and (a[:, 0] > 5.1).mean() > 0.3
     one = box_world.sample_free_pose(np.random.default_rng(0))
     assert one.shape == (3,)
+
+
+def test_clearance_treats_beyond_the_grid_as_occupied():
+    from topodrake.world.grid import OccupancyGrid
+
+    occ = np.zeros((40, 60), bool)
+    occ[20, 30] = True                       # one obstacle cell in the middle
+    grid = OccupancyGrid(occ, origin=np.zeros(2), resolution=0.05)
+    c = grid.clearance
+    assert np.isfinite(c).all()
+    assert c[0, 0] == pytest.approx(0.05)    # next to the edge: one cell from "outside"
+    assert c[20, 31] == pytest.approx(0.05)  # next to the obstacle
+    assert c[10, 10] == pytest.approx(0.55)  # 11 cells from the bottom/left edges
+    # an empty grid has finite clearance too: the car stays off its edges
+    empty = OccupancyGrid(np.zeros((10, 10), bool), origin=np.zeros(2))
+    assert empty.clearance.max() == pytest.approx(0.25)
+    assert not empty.is_free(np.array([0.02, 0.25]))

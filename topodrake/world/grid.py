@@ -66,10 +66,11 @@ class OccupancyGrid:
 
     @cached_property
     def clearance(self) -> np.ndarray:
-        """(H, W) distance in metres from each cell centre to the nearest occupied cell."""
-        if not self.occupied.any():
-            return np.full(self.shape, np.inf)
-        return ndimage.distance_transform_edt(~self.occupied) * self.resolution
+        """(H, W) distance in metres from each cell centre to the nearest occupied
+        cell, where everything beyond the grid counts as occupied (a map that
+        ends in free space must not let the car drive off its edge)."""
+        free = np.pad(~self.occupied, 1, constant_values=False)
+        return ndimage.distance_transform_edt(free)[1:-1, 1:-1] * self.resolution
 
     @cached_property
     def free_space(self) -> np.ndarray:
