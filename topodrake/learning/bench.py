@@ -12,6 +12,9 @@ prints (issue 4):
 * ``infer_*_batch_per_s``: the same per sample at batch ``batch`` (the
   batched engine), and ``cached_speedup`` = cached / naive at batch 1.
 
+Naive and cached are timed in alternating windows (median of 5 each), so a
+change of load during the run affects both figures alike.
+
 Rates count one thread unless ``threads`` says otherwise.
 """
 
@@ -32,6 +35,18 @@ def _rate(fn, n_items: int, min_seconds: float) -> float:
         elapsed = time.perf_counter() - start
         if elapsed >= min_seconds:
             return calls * n_items / elapsed
+
+
+def _paired_rates(fn_a, fn_b, n_items: int, min_seconds: float, rounds: int = 5
+                  ) -> tuple[float, float]:
+    """Median rates of two calls timed in alternating windows, so that a
+    change of machine load during the measurement hits both alike."""
+    window = min_seconds / rounds
+    a, b = [], []
+    for _ in range(rounds):
+        a.append(_rate(fn_a, n_items, window))
+        b.append(_rate(fn_b, n_items, window))
+    return float(np.median(a)), float(np.median(b))
 
 
 def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
@@ -88,10 +103,12 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
         cur = src.raw(wi[:batch], samples.src_pose[:batch])
         feats1 = policy.encode_target(ctx[:1])
         feats = policy.encode_target(ctx)
-        out["infer_naive_per_s"] = _rate(lambda: policy.predict_naive(cur[:1], ctx[:1]), 1, min_seconds)
-        out["infer_cached_per_s"] = _rate(lambda: policy.predict(cur[:1], feats1), 1, min_seconds)
-        out["infer_naive_batch_per_s"] = _rate(lambda: policy.predict_naive(cur, ctx), batch, min_seconds)
-        out["infer_cached_batch_per_s"] = _rate(lambda: policy.predict(cur, feats), batch, min_seconds)
+        out["infer_naive_per_s"], out["infer_cached_per_s"] = _paired_rates(
+            lambda: policy.predict_naive(cur[:1], ctx[:1]), lambda: policy.predict(cur[:1], feats1),
+            1, 2 * min_seconds)
+        out["infer_naive_batch_per_s"], out["infer_cached_batch_per_s"] = _paired_rates(
+            lambda: policy.predict_naive(cur, ctx), lambda: policy.predict(cur, feats),
+            batch, 2 * min_seconds)
         out["encode_target_per_s"] = _rate(lambda: policy.encode_target(ctx[:1]), 1, min_seconds)
         out["cached_speedup"] = out["infer_cached_per_s"] / out["infer_naive_per_s"]
         out["batch"] = batch
