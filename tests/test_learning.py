@@ -166,6 +166,37 @@ def test_cached_inference_equals_naive(modality):
         assert torch.allclose(naive_many[key], many[key], atol=1e-5), key
 
 
+@pytest.mark.parametrize("modality,output,pool", [("camera", "waypoint", 1), ("lidar", "waypoint", 1),
+                                                  ("camera", "control", 2)])
+def test_inference_plan_equals_the_module(modality, output, pool):
+    from topodrake.learning.inference import InferencePlan
+    from topodrake.learning.networks import fold_batchnorm
+
+    torch.manual_seed(2)
+    cfg = NetworkConfig(modality=modality, output=output, k=2, first_pool=pool)
+    size = input_size(cfg, 64)
+    net = WaypointNetwork(cfg, size)
+    net.train()
+    shape = (3, size, size) if modality == "camera" else (1, size)
+    net(torch.rand(8, *shape) - 0.5, torch.rand(8, 5, *shape) - 0.5)   # BatchNorm statistics
+    model = fold_batchnorm(net.eval())
+    plan = InferencePlan(model)
+    cur, ctx = torch.rand(3, *shape) - 0.5, torch.rand(3, 5, *shape) - 0.5
+    with torch.no_grad():
+        ref = net(cur, ctx)
+        naive = plan.naive(cur, ctx)
+        cached = plan.cached(cur, plan.encode_target(ctx))
+        one = plan.cached(cur[:1], plan.encode_target(ctx))      # one observation, 3 targets
+        ref_one = net(cur[:1].expand(3, *shape), ctx)
+    assert set(naive) == set(ref)
+    for key in ref:
+        assert torch.allclose(ref[key], naive[key], atol=1e-5), key
+        assert torch.allclose(ref[key], cached[key], atol=1e-5), key
+        assert torch.allclose(ref_one[key], one[key], atol=1e-5), key
+    with pytest.raises(ValueError, match="BatchNorm"):
+        InferencePlan(net)
+
+
 @pytest.mark.parametrize("modality", ["camera", "lidar"])
 def test_batchnorm_split_and_folding_are_exact(modality):
     from topodrake.learning.networks import fold_batchnorm

@@ -139,21 +139,13 @@ class PairEncoder(nn.Module):
         wc, wo, wd = w[:, :s], w[:, s:2 * s], w[:, 2 * s:]
         return wc + wd, wo - wd
 
-    def freeze_split(self) -> None:
-        """Store (W_cur, W_tgt) once, for inference with fixed weights (the
-        split costs several tensor operations per call otherwise)."""
-        with torch.no_grad():
-            self._split = tuple(w.detach().clone().contiguous() for w in self.split_weights())
-
-    def _weights(self) -> tuple[torch.Tensor, torch.Tensor]:
-        frozen = getattr(self, "_split", None)
-        return frozen if frozen is not None else self.split_weights()
-
     def first_current(self, cur: torch.Tensor) -> torch.Tensor:
-        return self._conv_first(cur, self._weights()[0], None)
+        w_cur, _ = self.split_weights()
+        return self._conv_first(cur, w_cur, None)
 
     def first_target(self, ctx: torch.Tensor) -> torch.Tensor:
-        return self._conv_first(ctx, self._weights()[1], self.first.bias)
+        _, w_tgt = self.split_weights()
+        return self._conv_first(ctx, w_tgt, self.first.bias)
 
     def _conv_first(self, x, w, b):
         f = F.conv2d if x.dim() == 4 else F.conv1d
@@ -198,7 +190,10 @@ class WaypointNetwork(nn.Module):
     def _heads(self, feats: torch.Tensor, n: int) -> dict:
         # feats: (N * frames, F) ordered frame-major within each sample
         x = feats.view(n, self.cfg.frames, -1).transpose(1, 2)     # (N, F, frames)
-        h = F.relu(self.combine(x)).flatten(1)                      # (N, C)
+        # The Conv1d spans all frames (one output position), so it is a
+        # linear map of the flattened (F, frames) block; as a matrix product
+        # it skips the convolution's set-up, which dominates at batch 1.
+        h = F.relu(F.linear(x.flatten(1), self.combine.weight.flatten(1), self.combine.bias))
         out = {"waypoint": self.waypoint(h), "heading": self.heading(h),
                "overlap_logits": self.overlap(h)}
         if self.control is not None:

@@ -20,7 +20,6 @@ when known, poses); :func:`target_input` picks what a policy consumes.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -29,6 +28,7 @@ import numpy as np
 import torch
 
 from topodrake.errors import TopodrakeError
+from topodrake.learning.inference import InferencePlan
 from topodrake.learning.networks import (CONTROL_SCALE, NetworkConfig, WaypointNetwork, camera_input,
                                          fold_batchnorm, lidar_input)
 from topodrake.sensing.config import CameraConfig, LidarConfig
@@ -88,10 +88,10 @@ class LearnedWaypointPolicy:
     """
 
     def __init__(self, model: WaypointNetwork, sensor: CameraConfig | LidarConfig, name: str = ""):
-        folded = fold_batchnorm(model.eval())      # BatchNorm folded into the convolutions
-        # The policy keeps its own copy: its first-layer split is frozen.
-        self.model = copy.deepcopy(folded) if folded is model else folded
-        self.model.encoder.freeze_split()
+        self.model = fold_batchnorm(model.eval())   # BatchNorm folded into the convolutions
+        # Inference runs on a frozen copy of the weights (training the model
+        # further does not change this policy).
+        self.plan = InferencePlan(self.model)
         self.cfg: NetworkConfig = model.cfg
         self.sensor = sensor
         self.name = name
@@ -125,13 +125,13 @@ class LearnedWaypointPolicy:
         if x.shape[1] != self.cfg.frames:
             raise TopodrakeError(f"target context has {x.shape[1]} frames; this policy needs "
                                  f"{self.cfg.frames}")
-        return self.model.encode_target(x)
+        return self.plan.encode_target(x)
 
     @torch.inference_mode()
     def predict(self, observation: np.ndarray, target) -> WaypointPrediction:
         cur = self.to_input(np.asarray(observation))
         tgt = torch.as_tensor(target)
-        return self._prediction(self.model.forward_cached(cur, tgt))
+        return self._prediction(self.plan.cached(cur, tgt))
 
     @torch.inference_mode()
     def predict_naive(self, observation: np.ndarray, context: np.ndarray) -> WaypointPrediction:
@@ -139,7 +139,7 @@ class LearnedWaypointPolicy:
         ctx = self.to_input(np.asarray(context))
         if cur.shape[0] == 1 and ctx.shape[0] > 1:
             cur = cur.expand(ctx.shape[0], *cur.shape[1:])
-        return self._prediction(self.model(cur, ctx))
+        return self._prediction(self.plan.naive(cur, ctx))
 
     @staticmethod
     def _prediction(out: dict) -> WaypointPrediction:

@@ -1,0 +1,102 @@
+"""A lean inference path of a trained waypoint network (no autograd, no modules).
+
+At batch 1 (one car in the Drake diagram) the network's arithmetic is small
+and the fixed cost of calling some twenty ``nn.Module`` objects, allocating
+every activation and converting between layouts is a large share of a
+control step. :class:`InferencePlan` holds the weights of an inference copy
+of :class:`~topodrake.learning.networks.WaypointNetwork` (BatchNorm already
+folded, first-layer split frozen) as plain tensors and runs the same
+operations as functional calls with in-place activations. It serves both the
+naive path (full network on the stacked pairs) and the cached path (target
+half of the first layer precomputed), so the two stay comparable, and it
+gives the module's outputs to float rounding (``tests/test_learning.py``).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+class InferencePlan:
+    """Plain-tensor forward passes of an eval-mode, BatchNorm-free network."""
+
+    def __init__(self, model):
+        if model.cfg.norm != "none":
+            raise ValueError("InferencePlan needs a network without BatchNorm "
+                             "(fold it first: networks.fold_batchnorm)")
+        enc = model.encoder
+        self.frames = model.cfg.frames
+        self.two_d = isinstance(enc.first, nn.Conv2d)
+        self.conv = F.conv2d if self.two_d else F.conv1d
+        self.pool = enc.pool
+        self.pool_fn = enc.pool_fn
+        with torch.no_grad():
+            w_cur, w_tgt = (w.detach().clone().contiguous() for w in enc.split_weights())
+            self.w_cur, self.w_tgt = w_cur, w_tgt
+            self.w_full = enc.first.weight.detach().clone()
+            self.b_first = enc.first.bias.detach().clone()
+            self.first_args = (enc.first.stride, enc.first.padding)
+            self.rest = [(m.weight.detach().clone(), m.bias.detach().clone(), m.stride, m.padding)
+                         for m in enc.rest if isinstance(m, (nn.Conv1d, nn.Conv2d))]
+            self.fc = (enc.fc.weight.detach().clone(), enc.fc.bias.detach().clone())
+            self.combine = (model.combine.weight.detach().flatten(1).clone(),
+                            model.combine.bias.detach().clone())
+            # The heads' hidden layers stacked into one matrix product, their
+            # output layers into one block-diagonal one (exact; fewer calls).
+            names = [n for n in ("waypoint", "heading", "overlap", "control")
+                     if getattr(model, n) is not None]
+            heads = [getattr(model, n) for n in names]
+            self.head_names = ["overlap_logits" if n == "overlap" else n for n in names]
+            self.head_hidden = (torch.cat([h[0].weight for h in heads]).detach().clone(),
+                                torch.cat([h[0].bias for h in heads]).detach().clone())
+            self.head_out = (torch.block_diag(*[h[2].weight for h in heads]).detach().clone(),
+                             torch.cat([h[2].bias for h in heads]).detach().clone())
+            self.head_sizes = [h[2].out_features for h in heads]
+
+    # -- pieces -------------------------------------------------------------------
+    def first_current(self, cur: torch.Tensor) -> torch.Tensor:
+        stride, padding = self.first_args
+        return self.conv(cur, self.w_cur, None, stride=stride, padding=padding)
+
+    def first_target(self, ctx: torch.Tensor) -> torch.Tensor:
+        stride, padding = self.first_args
+        return self.conv(ctx, self.w_tgt, self.b_first, stride=stride, padding=padding)
+
+    def after_first(self, pre: torch.Tensor) -> torch.Tensor:
+        x = pre.relu_()
+        if self.pool > 1:
+            x = self.pool_fn(x, self.pool)
+        for w, b, stride, padding in self.rest:
+            x = self.conv(x, w, b, stride=stride, padding=padding).relu_()
+        return F.linear(x.flatten(1), *self.fc).relu_()
+
+    def heads_of(self, feats: torch.Tensor, n: int) -> dict:
+        x = feats.view(n, self.frames, -1).transpose(1, 2).flatten(1)
+        h = F.linear(x, *self.combine).relu_()
+        y = F.linear(F.linear(h, *self.head_hidden).relu_(), *self.head_out)
+        return dict(zip(self.head_names, torch.split(y, self.head_sizes, dim=1)))
+
+    # -- whole passes -------------------------------------------------------------
+    def encode_target(self, ctx: torch.Tensor) -> torch.Tensor:
+        """(N, 2k+1, C, ...) -> target half of the first layer (N, 2k+1, C0, ...)."""
+        n, m = ctx.shape[:2]
+        pre = self.first_target(ctx.reshape(n * m, *ctx.shape[2:]))
+        return pre.view(n, m, *pre.shape[1:])
+
+    def cached(self, cur: torch.Tensor, target: torch.Tensor) -> dict:
+        """``cur`` (N or 1, C, ...), ``target`` (N or 1, 2k+1, C0, ...)."""
+        pre = target + self.first_current(cur).unsqueeze(1)
+        n, m = pre.shape[:2]
+        return self.heads_of(self.after_first(pre.view(n * m, *pre.shape[2:])), n)
+
+    def naive(self, cur: torch.Tensor, ctx: torch.Tensor) -> dict:
+        """The full first layer on every stacked [cur, frame, cur - frame]."""
+        n, m = ctx.shape[:2]
+        frames = ctx.reshape(n * m, *ctx.shape[2:])
+        cur_rep = cur.unsqueeze(1).expand(n, m, *cur.shape[1:]).reshape(n * m, *cur.shape[1:])
+        stride, padding = self.first_args
+        pre = self.conv(torch.cat([cur_rep, frames, cur_rep - frames], dim=1), self.w_full,
+                        self.b_first, stride=stride, padding=padding)
+        return self.heads_of(self.after_first(pre), n)
