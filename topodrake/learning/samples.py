@@ -333,6 +333,31 @@ _SAMPLE_FIELDS = ("traj", "src", "tgt", "src_pose", "src_speed_steer", "distance
                   "heading_diff", "overlap", "control")
 
 
+def draw_jitter(rng: np.random.Generator, m: int, cfg: SampleConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Sideways offsets and heading changes, ``cfg.jitter_tries`` tries for
+    each of ``m`` draws: two (tries, m) arrays."""
+    lat = np.clip(cfg.lateral_std_m * rng.standard_normal((cfg.jitter_tries, m)),
+                  -cfg.lateral_clip_m, cfg.lateral_clip_m)
+    dth = np.radians(cfg.heading_std_deg) * rng.standard_normal((cfg.jitter_tries, m))
+    return lat, dth
+
+
+def apply_jitter(world, base: np.ndarray, lat: np.ndarray, dth: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The first try of each draw whose reference point lies in the reachable
+    free space: jittered poses (m, 3) and (m,) True where some try was free."""
+    jit = np.repeat(base[None], len(lat), axis=0)
+    jit[..., 0] -= lat * np.sin(base[:, 2])
+    jit[..., 1] += lat * np.cos(base[:, 2])
+    jit[..., 2] += dth
+    rc = world.grid.to_cell(jit[..., :2])
+    inb = world.grid.in_bounds(rc)
+    rcc = np.clip(rc, 0, np.array(world.grid.shape) - 1)
+    free = inb & world.grid.reachable[rcc[..., 0], rcc[..., 1]]
+    first = np.argmax(free, axis=0)
+    return jit[first, np.arange(base.shape[0])], free.any(axis=0)
+
+
 def _world_samples(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
                    rng: np.random.Generator, cfg: SampleConfig) -> dict:
     """Up to ``n`` samples from the trajectories ``traj_ids`` of one world."""
@@ -359,9 +384,7 @@ def _world_samples(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
         pick = rng.choice(len(traj_ids), size=m, p=lengths / lengths.sum())
         src = (rng.random(m) * lengths[pick]).astype(np.int64)
         dist = rng.uniform(cfg.distance_min_m, cfg.distance_max_m, m)
-        lat = np.clip(cfg.lateral_std_m * rng.standard_normal((cfg.jitter_tries, m)),
-                      -cfg.lateral_clip_m, cfg.lateral_clip_m)
-        dth = np.radians(cfg.heading_std_deg) * rng.standard_normal((cfg.jitter_tries, m))
+        lat, dth = draw_jitter(rng, m, cfg)
         tgt = np.empty(m, np.int64)
         ok = np.ones(m, bool)
         for q in range(m):
@@ -376,18 +399,8 @@ def _world_samples(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
             tgt[q] = min(j, len(a) - 1)
         rows0 = trajs.traj_offsets[traj_ids[pick]]
         base = trajs.poses[rows0 + src]
-        # jitter: the first collision-free try of each draw
-        jit = np.repeat(base[None], cfg.jitter_tries, axis=0)
-        jit[..., 0] -= lat * np.sin(base[:, 2])
-        jit[..., 1] += lat * np.cos(base[:, 2])
-        jit[..., 2] += dth
-        rc = world.grid.to_cell(jit[..., :2])
-        inb = world.grid.in_bounds(rc)
-        rcc = np.clip(rc, 0, np.array(world.grid.shape) - 1)
-        free = inb & world.grid.reachable[rcc[..., 0], rcc[..., 1]]
-        first = np.argmax(free, axis=0)
-        ok &= free.any(axis=0)
-        src_pose = jit[first, np.arange(m)]
+        src_pose, free = apply_jitter(world, base, lat, dth)
+        ok &= free
         idx = np.flatnonzero(ok)
         tgt_pose = trajs.poses[rows0[idx] + tgt[idx]]
         ov = mutual_overlap(world, src_pose[idx], tgt_pose, CameraConfig(), cfg.overlap_rays)
