@@ -1,0 +1,93 @@
+"""Reachability labels from closed-loop rollouts (A* oracle on the box world)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from topodrake.errors import TopodrakeError
+from topodrake.learning.reach_labels import (ReachLabelConfig, draw_pairs, label_reachability,
+                                             load_reach_labels, time_limits)
+from topodrake.learning.samples import TrajectorySet
+
+
+@pytest.fixture(scope="module")
+def two_lines(box_world):
+    """Two straight 'expert' trajectories of the box world: along y = 8
+    (above the partition) and along y = 2 left of it."""
+    a = np.arange(1.0, 9.0, 0.05)
+    b = np.arange(1.0, 4.5, 0.05)
+    pa = np.column_stack([a, np.full_like(a, 8.0), np.zeros_like(a)])
+    pb = np.column_stack([b, np.full_like(b, 2.0), np.zeros_like(b)])
+    poses = np.concatenate([pa, pb])
+    states = np.column_stack([poses, np.zeros((len(poses), 2))])
+    return TrajectorySet(["box"], np.array([0, 0], np.int32), np.array([0, len(a), len(poses)]),
+                         poses, states)
+
+
+CFG = ReachLabelConfig(distance_min_m=-0.5, distance_max_m=2.0, batch=4, chunk=5)
+
+
+def test_pairs_mix_same_and_other_trajectories(box_world, two_lines):
+    pairs = draw_pairs(box_world, two_lines, np.array([0, 1]), 200, np.random.default_rng(0), CFG)
+    assert len(pairs["src"]) == 200
+    same = pairs["same"]
+    assert 0.5 < same.mean() < 0.7                        # probability 0.6
+    assert np.all(pairs["traj"][same] == pairs["src_traj"][same])
+    assert np.all(pairs["traj"][~same] != pairs["src_traj"][~same])
+    # same-trajectory targets lie within the distance range along the line
+    rows_s = two_lines.traj_offsets[pairs["src_traj"]] + pairs["src"]
+    rows_t = two_lines.traj_offsets[pairs["traj"]] + pairs["tgt"]
+    d = two_lines.poses[rows_t, 0] - two_lines.poses[rows_s, 0]
+    assert d[same].min() >= -0.5 - 0.05 and d[same].max() <= 2.0 + 0.05
+    # sources are jittered off the line, into free space
+    assert np.abs(pairs["src_pose"][:, 1] - two_lines.poses[rows_s, 1]).max() > 0.05
+    assert box_world.grid.is_free(pairs["src_pose"][:, :2]).all()
+
+
+def test_time_limit_is_astar_length_over_v_min(box_world):
+    # around the partition (x in [4.9, 5.1], y < 6): much longer than the 2 m straight line
+    t = time_limits(box_world, np.array([[4.0, 2.0, 0.0], [1.0, 8.0, 0.0]]),
+                    np.array([[6.0, 2.0], [3.0, 8.0]]), CFG)
+    assert t[1] == pytest.approx(2.0 / 0.25, abs=0.3)
+    assert t[0] > 2.5 * 2.0 / 0.25
+    assert np.allclose(t * 10, np.round(t * 10))          # whole control periods
+
+
+def test_labels_resume_and_refuse_another_config(box_world, two_lines, tmp_path):
+    from topodrake.learning.policy import AStarOracle
+
+    def oracle(world):
+        return AStarOracle(world)
+
+    loader = {"box": box_world}.__getitem__
+    out = label_reachability(two_lines, oracle, tmp_path / "labels", 12, seed=3,
+                             controller={"name": "oracle"}, config=CFG, load_world=loader,
+                             progress=False)
+    labels = load_reach_labels(out)
+    assert len(labels) == 12
+    assert set(np.unique(labels.outcome)) <= {0, 1, 2, 4}
+    assert np.array_equal(labels.label, (labels.outcome == 0).astype(np.uint8))
+    # the oracle reaches most targets on its own line; targets on the other
+    # line start out of view and end as "lost" (outcome 4) or timeouts
+    assert labels.label[labels.same].mean() > 0.7
+    assert labels.label[~labels.same].mean() < labels.label[labels.same].mean()
+    # resume: drop the last chunk from the manifest, run again, same labels
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["chunks"] == ["000-00000.npz", "000-00001.npz", "000-00002.npz"]
+    manifest["chunks"] = manifest["chunks"][:2]
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    label_reachability(two_lines, oracle, out, 12, seed=3, controller={"name": "oracle"},
+                       config=CFG, load_world=loader, progress=False)
+    again = load_reach_labels(out)
+    for key in ("label", "outcome", "src_pose", "t_max", "tgt"):
+        assert np.array_equal(again.fields[key], labels.fields[key]), key
+    with pytest.raises(TopodrakeError, match="another controller"):
+        label_reachability(two_lines, oracle, out, 12, seed=3, controller={"name": "net"},
+                           config=CFG, load_world=loader, progress=False)
+    with pytest.raises(TopodrakeError, match="not a topodrake-reach-labels"):
+        (tmp_path / "foreign").mkdir()
+        (tmp_path / "foreign" / "manifest.json").write_text('{"format": "other"}')
+        load_reach_labels(tmp_path / "foreign")
