@@ -1,0 +1,51 @@
+"""Sparsify a trajectory into anchors (the paper's "Sparsifying a Trajectory").
+
+From anchor i the next anchor is the farthest frame j such that every frame
+i+1 .. j passed ``reach(i, j) > p``: the controller is trusted to get from
+anchor i to each of them. The scan stops at the first frame that fails, the
+next anchor is the frame before it (at least i + 1, so the walk always
+advances) and the trajectory's last frame is always kept.
+
+``reach(i, js)`` returns the probabilities for anchor ``i`` and a batch of
+later frames ``js`` (N,), so a learned RE evaluates a window of candidates
+in one batched call (with the anchor's and the candidates' cached features).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+
+
+def sparsify(n_frames: int, reach: Callable[[int, np.ndarray], np.ndarray], p: float = 0.99,
+             window: int = 32) -> np.ndarray:
+    """Anchor frame indices (increasing, first 0, last ``n_frames - 1``)."""
+    if n_frames < 1:
+        raise TopodrakeError("cannot sparsify an empty trajectory")
+    if not 0.0 < p < 1.0:
+        raise TopodrakeError(f"p_sparsify must be in (0, 1), got {p}")
+    if window < 1:
+        raise TopodrakeError("window must be >= 1")
+    anchors = [0]
+    i = 0
+    last = n_frames - 1
+    while i < last:
+        j_pass = i                       # last frame that passed from anchor i
+        start = i + 1
+        while start <= last:
+            js = np.arange(start, min(start + window, last + 1))
+            probs = np.asarray(reach(i, js), np.float64).reshape(-1)
+            if probs.shape != js.shape:
+                raise TopodrakeError(f"reach() returned {probs.size} values for {js.size} frames")
+            fail = np.flatnonzero(~(probs > p))
+            if fail.size:
+                j_pass = int(js[fail[0]]) - 1
+                break
+            j_pass = int(js[-1])
+            start = j_pass + 1
+        i = max(j_pass, i + 1)
+        anchors.append(i)
+    return np.asarray(anchors, np.int64)
