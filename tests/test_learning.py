@@ -167,7 +167,7 @@ def test_cached_inference_equals_naive(modality):
 
 
 @pytest.mark.parametrize("modality,output,pool", [("camera", "waypoint", 1), ("lidar", "waypoint", 1),
-                                                  ("camera", "control", 2)])
+                                                  ("camera", "control", 2), ("camera", "reach", 1)])
 def test_inference_plan_equals_the_module(modality, output, pool):
     from topodrake.learning.inference import InferencePlan
     from topodrake.learning.networks import fold_batchnorm

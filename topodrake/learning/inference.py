@@ -18,6 +18,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from topodrake.learning.networks import HEADS
+
 
 class InferencePlan:
     """Plain-tensor forward passes of an eval-mode, BatchNorm-free network."""
@@ -45,10 +47,9 @@ class InferencePlan:
                             model.combine.bias.detach().clone())
             # The heads' hidden layers stacked into one matrix product, their
             # output layers into one block-diagonal one (exact; fewer calls).
-            names = [n for n in ("waypoint", "heading", "overlap", "control")
-                     if getattr(model, n) is not None]
-            heads = [getattr(model, n) for n in names]
-            self.head_names = ["overlap_logits" if n == "overlap" else n for n in names]
+            present = [(name, key) for name, key in HEADS if getattr(model, name) is not None]
+            heads = [getattr(model, name) for name, _ in present]
+            self.head_names = [key for _, key in present]
             self.head_hidden = (torch.cat([h[0].weight for h in heads]).detach().clone(),
                                 torch.cat([h[0].bias for h in heads]).detach().clone())
             self.head_out = (torch.block_diag(*[h[2].weight for h in heads]).detach().clone(),

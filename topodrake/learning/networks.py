@@ -47,7 +47,10 @@ from torch.nn import functional as F
 from topodrake.errors import TopodrakeError
 
 MODALITIES = ("camera", "lidar")
-OUTPUTS = ("waypoint", "control")
+#: Head attribute and output key, in output order.
+HEADS = (("waypoint", "waypoint"), ("heading", "heading"), ("overlap", "overlap_logits"),
+         ("control", "control"), ("reach", "reach_logit"))
+OUTPUTS = ("waypoint", "control", "reach")
 
 
 @dataclass
@@ -173,7 +176,8 @@ class WaypointNetwork(nn.Module):
     Outputs: ``waypoint`` (N, 2) metres in the car frame, ``heading`` (N, 2)
     (cos, sin) of target minus current heading, ``overlap_logits`` (N, 2)
     (R_cur->tgt, R_tgt->cur), and for the baseline ``control`` (N, 2) in
-    units of :data:`CONTROL_SCALE`.
+    units of :data:`CONTROL_SCALE`. With ``output = "reach"`` (the
+    reachability estimator RE) the only output is ``reach_logit`` (N, 1).
     """
 
     def __init__(self, cfg: NetworkConfig, in_size: int):
@@ -182,10 +186,17 @@ class WaypointNetwork(nn.Module):
         self.in_size = int(in_size)
         self.encoder = PairEncoder(cfg, in_size)
         self.combine = nn.Conv1d(cfg.feature_dim, cfg.combine_channels, cfg.frames)
-        self.waypoint = _head(cfg.combine_channels, cfg.hidden, 2)
-        self.heading = _head(cfg.combine_channels, cfg.hidden, 2)
-        self.overlap = _head(cfg.combine_channels, cfg.hidden, 2)
-        self.control = _head(cfg.combine_channels, cfg.hidden, 2) if cfg.output == "control" else None
+        c, hid = cfg.combine_channels, cfg.hidden
+        if cfg.output == "reach":
+            # The reachability estimator RE: the same design with one logit.
+            self.waypoint = self.heading = self.overlap = self.control = None
+            self.reach = _head(c, hid, 1)
+        else:
+            self.waypoint = _head(c, hid, 2)
+            self.heading = _head(c, hid, 2)
+            self.overlap = _head(c, hid, 2)
+            self.control = _head(c, hid, 2) if cfg.output == "control" else None
+            self.reach = None
 
     def _heads(self, feats: torch.Tensor, n: int) -> dict:
         # feats: (N * frames, F) ordered frame-major within each sample
@@ -194,10 +205,11 @@ class WaypointNetwork(nn.Module):
         # linear map of the flattened (F, frames) block; as a matrix product
         # it skips the convolution's set-up, which dominates at batch 1.
         h = F.relu(F.linear(x.flatten(1), self.combine.weight.flatten(1), self.combine.bias))
-        out = {"waypoint": self.waypoint(h), "heading": self.heading(h),
-               "overlap_logits": self.overlap(h)}
-        if self.control is not None:
-            out["control"] = self.control(h)
+        out = {}
+        for name, key in HEADS:
+            head = getattr(self, name)
+            if head is not None:
+                out[key] = head(h)
         return out
 
     def forward(self, cur: torch.Tensor, ctx: torch.Tensor) -> dict:
