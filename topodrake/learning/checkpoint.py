@@ -14,6 +14,7 @@ A checkpoint is one ``torch.save`` file (read back with
     created                    ISO time of writing
     model                      state dict
     train_state                (optional) where training stands, to resume
+    extra                      (optional) task data, e.g. the controller an RE measured
 
 The optimizer state, twice the size of the weights, goes to ``resume.pt``
 beside the checkpoint (:func:`save_resume_state`), so the checkpoint that is
@@ -86,8 +87,11 @@ def save_checkpoint(path, model: WaypointNetwork, sensor: CameraConfig | LidarCo
                     train_config: dict | None = None, metrics: dict | None = None,
                     history: list | None = None, samples_seen: int = 0,
                     wall_time_s: float = 0.0, optimizer: dict | None = None,
-                    train_state: dict | None = None, revision: str | None = None) -> Path:
-    """Write a checkpoint atomically (temporary file, then rename)."""
+                    train_state: dict | None = None, revision: str | None = None,
+                    extra: dict | None = None) -> Path:
+    """Write a checkpoint atomically (temporary file, then rename); ``extra``
+    (JSON-like) is kept as ``meta["extra"]``, e.g. the controller an RE
+    was trained for."""
     cfg = model.cfg
     blob = {
         "format": FORMAT, "version": VERSION,
@@ -105,6 +109,8 @@ def save_checkpoint(path, model: WaypointNetwork, sensor: CameraConfig | LidarCo
         blob["optimizer"] = optimizer
     if train_state is not None:
         blob["train_state"] = train_state
+    if extra:
+        blob["extra"] = extra
     buf = io.BytesIO()
     torch.save(blob, buf)
     return atomic_write_bytes(path, buf.getvalue())

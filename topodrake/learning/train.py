@@ -156,13 +156,15 @@ def _sensor(cfg: TrainConfig):
     return cfg.camera if cfg.network.modality == "camera" else cfg.lidar
 
 
+#: Settings a resumed run may change (budgets and bookkeeping).
+_RUNTIME = ("max_samples", "max_minutes", "val_every_samples", "checkpoint_every_s", "threads")
+
+
 def _comparable(cfg_dict: dict) -> dict:
-    """The parts of a TrainConfig that must not change on resume."""
-    keep = ("network", "data", "batch_size", "lr", "lr_decay", "epoch_samples", "seed")
-    out = {k: cfg_dict.get(k) for k in keep}
-    sensor = "camera" if cfg_dict["network"]["modality"] == "camera" else "lidar"
-    out[sensor] = cfg_dict.get(sensor)
-    return out
+    """The parts of a training config that must not change on resume:
+    everything but the budgets and the sensor the network does not use."""
+    unused = "lidar" if cfg_dict["network"]["modality"] == "camera" else "camera"
+    return {k: v for k, v in cfg_dict.items() if k not in _RUNTIME and k != unused}
 
 
 def _diff(a, b, prefix=""):
@@ -175,28 +177,64 @@ def _diff(a, b, prefix=""):
     return None if a == b else (prefix.rstrip("."), a, b)
 
 
+@dataclass
+class Task:
+    """What a training run optimises: batches, loss and validation metrics.
+
+    ``loss(model, batch) -> (loss tensor, {name: float})`` and
+    ``evaluate(model, batcher) -> metrics`` (``metric`` names the validation
+    figure shown on the progress bar). ``card`` is merged into card.json and
+    ``meta`` into the checkpoint."""
+
+    train: object
+    val: object
+    loss: object
+    evaluate: object
+    metric: str
+    card: dict
+    meta: dict | None = None
+
+
 def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool = True,
                    progress: bool = True, samples: tuple[SampleSet, SampleSet] | None = None,
                    command: str | None = None) -> TrainResult:
     """Train (or resume) a C_WP / direct-control network into ``out_dir``;
     ``command`` (the command line that redoes it) goes into the card."""
-    from tqdm import tqdm
-
     cfg.validate()
-    if cfg.threads > 0:
-        torch.set_num_threads(cfg.threads)
+    _set_threads(cfg.threads)
+    train_set, val_set = samples if samples is not None else prepare_samples(cfg, data_dir, progress)
+    output = cfg.network.output
+    task = Task(
+        train=SampleBatcher(train_set, cfg.network, cfg.camera, cfg.lidar),
+        val=SampleBatcher(val_set, cfg.network, cfg.camera, cfg.lidar),
+        loss=lambda model, b: waypoint_loss(model.forward_split(b.cur, b.ctx), b, output),
+        evaluate=evaluate, metric="waypoint_error_m",
+        card={"data": {"train_worlds": cfg.data.train_worlds, "val_worlds": cfg.data.val_worlds,
+                       "train_samples": len(train_set), "val_samples": len(val_set)}})
+    return train_network(cfg, task, out_dir, resume=resume, progress=progress, command=command)
+
+
+def _set_threads(threads: int) -> None:
+    if threads > 0:
+        torch.set_num_threads(threads)
         try:
             import numba
-            numba.set_num_threads(min(cfg.threads, numba.config.NUMBA_NUM_THREADS))
+            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
         except Exception:
             pass
+
+
+def train_network(cfg: TrainConfig, task: Task, out_dir, *, resume: bool = True,
+                  progress: bool = True, command: str | None = None) -> TrainResult:
+    """The training loop shared by C_WP, the direct-control baseline and RE:
+    Adam with step decay, seeded batch order, periodic validation and
+    checkpoints, resume, and the card."""
+    from tqdm import tqdm
+
     out_dir = Path(out_dir)
     ckpt_path = out_dir / CHECKPOINT
-    train_set, val_set = samples if samples is not None else prepare_samples(cfg, data_dir, progress)
     sensor = _sensor(cfg)
-    train_b = SampleBatcher(train_set, cfg.network, cfg.camera, cfg.lidar)
-    val_b = SampleBatcher(val_set, cfg.network, cfg.camera, cfg.lidar)
-
+    train_b, val_b = task.train, task.val
     torch.manual_seed(cfg.seed)
     model = WaypointNetwork(cfg.network, input_size(cfg.network, cfg.lidar.beams))
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
@@ -230,7 +268,7 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
         save_checkpoint(ckpt_path, model, sensor, train_config=cfg_dict, metrics=metrics,
                         history=history, samples_seen=state["samples_seen"],
                         wall_time_s=state["wall_time_s"], train_state=dict(state),
-                        revision=revision)
+                        revision=revision, extra=task.meta)
 
     n = len(train_b)
     bs = cfg.batch_size
@@ -256,8 +294,7 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
             for g in opt.param_groups:
                 g["lr"] = lr_at(state["samples_seen"])
             batch = train_b.batch(idx)
-            loss, parts = waypoint_loss(model.forward_split(batch.cur, batch.ctx), batch,
-                                        cfg.network.output)
+            loss, parts = task.loss(model, batch)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -272,12 +309,13 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
             bar.update(bs)
             if state["samples_seen"] >= next_val:
                 next_val += cfg.val_every_samples
-                metrics = evaluate(model, val_b)
+                metrics = task.evaluate(model, val_b)
                 history.append({"samples_seen": state["samples_seen"],
                                 "wall_time_s": round(state["wall_time_s"], 1),
                                 "train_loss": round(ema, 5), "metrics": metrics})
                 t_seg = time.perf_counter()   # validation is not training time
-            bar.set_postfix(loss=f"{ema:.3f}", val_wp_m=metrics.get("waypoint_error_m", float("nan")))
+            bar.set_postfix(loss=f"{ema:.3f}", **{f"val_{task.metric}": metrics.get(task.metric,
+                                                                                  float("nan"))})
             if time.perf_counter() - last_ckpt >= cfg.checkpoint_every_s:
                 write(metrics)
                 last_ckpt = time.perf_counter()
@@ -288,7 +326,7 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
         raise
     bar.close()
     if not history or history[-1]["samples_seen"] != state["samples_seen"]:
-        metrics = evaluate(model, val_b)
+        metrics = task.evaluate(model, val_b)
         history.append({"samples_seen": state["samples_seen"],
                         "wall_time_s": round(state["wall_time_s"], 1),
                         "train_loss": round(ema, 5) if ema is not None else None,
@@ -300,13 +338,11 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
             "output": cfg.network.output, "samples_seen": state["samples_seen"],
             "wall_time_s": round(state["wall_time_s"], 1),
             "train_samples_per_s": round(rate, 1), "git_revision": revision,
-            "data": {"train_worlds": cfg.data.train_worlds, "val_worlds": cfg.data.val_worlds,
-                     "train_samples": len(train_set), "val_samples": len(val_set)},
-            "metrics": metrics, "command": command, "config": cfg_dict}
+            **task.card, "metrics": metrics, "command": command, "config": cfg_dict}
     atomic_write_json(out_dir / CARD, card)
     if progress:
         print(f"trained {cfg.network.modality} k={cfg.network.k} {cfg.network.output}: "
               f"{state['samples_seen']} samples in {state['wall_time_s'] / 60:.1f} min "
-              f"({rate:.0f}/s); val waypoint error {metrics.get('waypoint_error_m', float('nan')):.3f} m "
+              f"({rate:.0f}/s); val {task.metric} {metrics.get(task.metric, float('nan')):.3f} "
               f"-> {ckpt_path}")
     return TrainResult(ckpt_path, metrics, state["samples_seen"], state["wall_time_s"], rate)
