@@ -1,0 +1,99 @@
+"""Training RE on rollout labels; the RE checkpoint is tied to its controller."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from topodrake.errors import TopodrakeError
+
+torch.set_num_threads(1)
+WORLD = "train-00"
+
+
+@pytest.fixture(scope="module")
+def labels(tmp_path_factory):
+    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.reach_labels import (ReachLabelConfig, label_reachability,
+                                                 load_reach_labels)
+    from topodrake.learning.samples import TrajectorySet
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+    from topodrake.world import load_world
+
+    world = load_world(WORLD)
+    p = world.places
+    pairs = [(0, 3), (2, 5)]
+    res = ExpertRollout(world, RolloutConfig(t_max_s=60.0)).run(
+        np.array([p[i] for i, _ in pairs]), np.array([p[j, :2] for _, j in pairs]))
+    drives = [(0, res.trajectory(i)["poses"], res.trajectory(i)["controls"])
+              for i in range(len(pairs)) if res.success[i]]
+    trajs = TrajectorySet.from_drives([WORLD], drives)
+    cfg = ReachLabelConfig(distance_min_m=-0.5, distance_max_m=2.5, batch=32, chunk=64)
+    out = tmp_path_factory.mktemp("labels")
+    folder = label_reachability(trajs, lambda w: AStarOracle(w), out / "l", 64, seed=1,
+                                controller={"name": "oracle"}, config=cfg, progress=False)
+    return load_reach_labels(folder)
+
+
+def _config(**kw):
+    from topodrake.learning.networks import NetworkConfig
+    from topodrake.learning.reach_train import ReachTrainConfig
+
+    cfg = ReachTrainConfig(network=NetworkConfig(output="reach", k=1, channels=[8, 8, 16],
+                                                 feature_dim=16, combine_channels=16, hidden=16),
+                           batch_size=16, lr=3e-3, epoch_samples=10 ** 6, val_every_samples=10 ** 6,
+                           checkpoint_every_s=10 ** 6, **kw)
+    cfg.labels.train_pairs = 64
+    cfg.labels.val_pairs = 64
+    return cfg
+
+
+def test_labels_have_both_outcomes(labels):
+    assert len(labels) == 64
+    assert 0.1 < labels.label.mean() < 0.95
+
+
+def test_training_fits_the_labels_and_ties_the_checkpoint_to_its_controller(labels, tmp_path):
+    from topodrake.learning.reach_train import (controller_identity, evaluate_reach,
+                                                load_reachability, train_reachability, ReachBatcher)
+
+    ctrl = tmp_path / "cwp.pt"
+    ctrl.write_bytes(b"controller weights")
+    ident = controller_identity(ctrl)
+    cfg = _config(max_samples=16)
+    first = train_reachability(cfg, tmp_path / "re", labels=(labels, labels), controller=ident,
+                               progress=False)
+    cfg = _config(max_samples=1600)
+    more = train_reachability(cfg, tmp_path / "re", labels=(labels, labels), controller=ident,
+                              progress=False)
+    assert more.samples_seen == 1600
+    assert more.metrics["bce"] < 0.8 * first.metrics["bce"]
+    for key in ("ece", "brier", "auroc", "accuracy"):
+        assert key in more.metrics
+    card = json.loads((tmp_path / "re" / "card.json").read_text())
+    assert card["controller"]["sha1"] == ident["sha1"] and card["output"] == "reach"
+    ck = load_reachability(tmp_path / "re" / "checkpoint.pt", ctrl)
+    assert ck.network.output == "reach"
+    # same metrics when evaluated again from the loaded checkpoint
+    again = evaluate_reach(ck.model, ReachBatcher(labels, ck.network))
+    assert again["bce"] == pytest.approx(more.metrics["bce"], abs=1e-4)
+    other = tmp_path / "other.pt"
+    other.write_bytes(b"another controller")
+    with pytest.raises(TopodrakeError, match="trained for controller"):
+        load_reachability(tmp_path / "re" / "checkpoint.pt", other)
+
+
+def test_reach_config_is_checked(tmp_path):
+    from topodrake.learning.reach_train import load_reach_config
+
+    bad = tmp_path / "re.yaml"
+    bad.write_text("network: {output: waypoint}\n")
+    with pytest.raises(TopodrakeError, match="output must be 'reach'"):
+        load_reach_config(bad)
+    good = tmp_path / "ok.yaml"
+    good.write_text("network: {output: reach, k: 2}\ncontroller: x.pt\nlabels: {train_pairs: 100}\n")
+    cfg = load_reach_config(good)
+    assert cfg.network.k == 2 and cfg.labels.train_pairs == 100 and cfg.controller == "x.pt"
