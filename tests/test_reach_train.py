@@ -97,3 +97,17 @@ def test_reach_config_is_checked(tmp_path):
     good.write_text("network: {output: reach, k: 2}\ncontroller: x.pt\nlabels: {train_pairs: 100}\n")
     cfg = load_reach_config(good)
     assert cfg.network.k == 2 and cfg.labels.train_pairs == 100 and cfg.controller == "x.pt"
+
+
+def test_cli_refuses_bad_reach_configs(tmp_path, capsys):
+    from topodrake.cli import main
+
+    assert main(["train", "reachability", "--config", str(tmp_path / "none.yaml"),
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "none.yaml" in capsys.readouterr().err
+    cfg = tmp_path / "re.yaml"
+    cfg.write_text(f"network: {{output: reach}}\ncontroller: {tmp_path / 'missing.pt'}\n")
+    assert main(["train", "reachability", "--config", str(cfg), "--out", str(tmp_path / "o"),
+                 "--data", str(tmp_path / "data")]) == 2
+    assert "missing.pt does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()          # nothing half-written

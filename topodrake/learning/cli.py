@@ -1,9 +1,10 @@
 """Command-line pieces of the learning package, for :mod:`topodrake.cli` to mount.
 
-``add_train_parser(sub)`` adds ``train waypoint`` and ``add_bench_parser(bsub)``
+``add_train_parser(sub)`` adds ``train waypoint`` / ``train reachability`` and ``add_bench_parser(bsub)``
 adds ``networks`` under ``bench``::
 
     topodrake train waypoint --config configs/waypoint_camera_k5.yaml --out checkpoints/camera_k5
+    topodrake train reachability --config configs/reach_camera_k5.yaml --out checkpoints/reach_camera_k5
     topodrake bench networks --json
 
 Both commands raise :class:`~topodrake.errors.TopodrakeError` for bad input
@@ -15,25 +16,27 @@ from __future__ import annotations
 import json
 
 
-def cmd_train_waypoint(args) -> None:
-    from topodrake.learning.config import load_train_config
-    from topodrake.learning.train import train_waypoint
+def _command(args, verb: str) -> str:
+    command = f"topodrake train {verb} --config {args.config} --out {args.out}"
+    if args.data != "data":
+        command += f" --data {args.data}"
+    for flag in ("max_minutes", "max_samples", "threads"):
+        if getattr(args, flag) is not None:
+            command += f" --{flag.replace('_', '-')} {getattr(args, flag)}"
+    return command
 
-    cfg = load_train_config(args.config)
+
+def _apply_overrides(cfg, args):
     if args.max_minutes is not None:
         cfg.max_minutes = args.max_minutes
     if args.max_samples is not None:
         cfg.max_samples = args.max_samples
     if args.threads is not None:
         cfg.threads = args.threads
-    command = f"topodrake train waypoint --config {args.config} --out {args.out}"
-    if args.data != "data":
-        command += f" --data {args.data}"
-    for flag in ("max_minutes", "max_samples", "threads"):
-        if getattr(args, flag) is not None:
-            command += f" --{flag.replace('_', '-')} {getattr(args, flag)}"
-    result = train_waypoint(cfg, args.out, args.data, resume=not args.no_resume,
-                            progress=not args.quiet, command=command)
+    return cfg
+
+
+def _print_result(args, result) -> None:
     if args.json:
         print(json.dumps({"checkpoint": str(result.checkpoint), "samples_seen": result.samples_seen,
                           "wall_time_s": round(result.wall_time_s, 1),
@@ -41,22 +44,47 @@ def cmd_train_waypoint(args) -> None:
                           "metrics": result.metrics}))
 
 
+def cmd_train_reachability(args) -> None:
+    from topodrake.learning.reach_train import load_reach_config, train_reachability
+
+    cfg = _apply_overrides(load_reach_config(args.config), args)
+    result = train_reachability(cfg, args.out, args.data, resume=not args.no_resume,
+                                progress=not args.quiet, command=_command(args, "reachability"))
+    _print_result(args, result)
+
+
+def cmd_train_waypoint(args) -> None:
+    from topodrake.learning.config import load_train_config
+    from topodrake.learning.train import train_waypoint
+
+    cfg = _apply_overrides(load_train_config(args.config), args)
+    result = train_waypoint(cfg, args.out, args.data, resume=not args.no_resume,
+                            progress=not args.quiet, command=_command(args, "waypoint"))
+    _print_result(args, result)
+
+
 def add_train_parser(sub) -> None:
     """``train waypoint`` under the top-level subparsers ``sub``."""
     train = sub.add_parser("train", help="train the learned components")
     tsub = train.add_subparsers(dest="train_command", required=True)
-    tw = tsub.add_parser("waypoint", help="train C_WP (or the direct-control baseline) from a YAML config")
-    tw.add_argument("--config", required=True, help="training YAML (see configs/waypoint_*.yaml)")
-    tw.add_argument("--out", required=True, help="output folder: checkpoint.pt and card.json")
-    tw.add_argument("--data", default="data", help="cache of demonstrations and sample sets")
-    tw.add_argument("--no-resume", action="store_true",
-                    help="refuse to continue an existing checkpoint in --out")
-    tw.add_argument("--max-minutes", type=float, help="override the config's time budget")
-    tw.add_argument("--max-samples", type=int, help="override the config's sample budget")
-    tw.add_argument("--threads", type=int, help="torch / numba threads")
-    tw.add_argument("--quiet", action="store_true", help="no progress bar")
-    tw.add_argument("--json", action="store_true", help="print the result as one JSON object")
-    tw.set_defaults(func=cmd_train_waypoint)
+    for verb, helptext, configs, func in (
+            ("waypoint", "train C_WP (or the direct-control baseline) from a YAML config",
+             "configs/waypoint_*.yaml", cmd_train_waypoint),
+            ("reachability", "roll out a C_WP for labels and train its reachability estimator",
+             "configs/reach_*.yaml", cmd_train_reachability)):
+        tw = tsub.add_parser(verb, help=helptext)
+        tw.add_argument("--config", required=True, help=f"training YAML (see {configs})")
+        tw.add_argument("--out", required=True, help="output folder: checkpoint.pt and card.json")
+        tw.add_argument("--data", default="data",
+                        help="cache of demonstrations, sample sets and rollout labels")
+        tw.add_argument("--no-resume", action="store_true",
+                        help="refuse to continue an existing checkpoint in --out")
+        tw.add_argument("--max-minutes", type=float, help="override the config's time budget")
+        tw.add_argument("--max-samples", type=int, help="override the config's sample budget")
+        tw.add_argument("--threads", type=int, help="torch / numba threads")
+        tw.add_argument("--quiet", action="store_true", help="no progress bar")
+        tw.add_argument("--json", action="store_true", help="print the result as one JSON object")
+        tw.set_defaults(func=func)
 
 
 def cmd_bench_networks(args) -> None:
