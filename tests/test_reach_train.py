@@ -111,3 +111,33 @@ def test_cli_refuses_bad_reach_configs(tmp_path, capsys):
                  "--data", str(tmp_path / "data")]) == 2
     assert "missing.pt does not exist" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()          # nothing half-written
+
+
+def test_reachability_cached_pairwise_and_naive_agree():
+    from topodrake.learning.networks import NetworkConfig, WaypointNetwork
+    from topodrake.learning.reachability import Reachability
+    from topodrake.sensing.camera import Camera
+    from topodrake.sensing.config import CameraConfig
+    from topodrake.world import load_world
+
+    world = load_world(WORLD)
+    rng = np.random.default_rng(0)
+    images = Camera(world).render(world.sample_free_pose(rng, 30))
+    torch.manual_seed(0)
+    re = Reachability(WaypointNetwork(NetworkConfig(output="reach", k=2), 64), CameraConfig())
+    feats = re.frame_features(images, batch=7)            # several feature batches
+    src = np.array([0, 3, 29, 10])
+    tgt = np.array([5, 0, 12, 29])
+    rows = re.context_rows(30, tgt)
+    assert rows.min() == 0 and rows.max() == 29            # clamped at both ends
+    pair = re.pairwise(feats, src, rows, batch=3)
+    naive = re.probability_naive(images[src], images[rows])
+    cached = re.probability(images[src], re.encode_target(images[rows]))
+    assert np.allclose(pair, naive, atol=1e-5) and np.allclose(cached, naive, atol=1e-5)
+    assert np.all((pair > 0) & (pair < 1))
+    # temperature scaling moves probabilities toward 0.5
+    soft = Reachability(re.model, CameraConfig(), temperature=4.0)
+    p_soft = soft.probability(images[src], soft.encode_target(images[rows]))
+    assert np.all(np.abs(p_soft - 0.5) <= np.abs(cached - 0.5) + 1e-9)
+    anchors = re.sparsify(images, p=0.5, feats=feats)
+    assert anchors[0] == 0 and anchors[-1] == 29 and np.all(np.diff(anchors) > 0)

@@ -14,11 +14,13 @@ gives the module's outputs to float rounding (``tests/test_learning.py``).
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
 
-from topodrake.learning.networks import HEADS
+from topodrake.errors import TopodrakeError
+from topodrake.learning.networks import HEADS, camera_input, fold_batchnorm, lidar_input
 
 
 class InferencePlan:
@@ -101,3 +103,41 @@ class InferencePlan:
         pre = self.conv(torch.cat([cur_rep, frames, cur_rep - frames], dim=1), self.w_full,
                         self.b_first, stride=stride, padding=padding)
         return self.heads_of(self.after_first(pre), n)
+
+
+class ObservationNetwork:
+    """A trained network behind raw observations: the base of the C_WP policy
+    and of the reachability estimator.
+
+    Holds an inference copy of the model (BatchNorm folded) and its
+    :class:`InferencePlan`; converts raw observations (camera uint8 images
+    (..., H, W, 3) or lidar ranges (..., beams)) to network inputs, and
+    encodes targets: ``encode_target(context (N, 2k+1, ...))`` returns the
+    target half of the first layer (N, 2k+1, C0, ...), computed once per
+    target and reused while it stays the same."""
+
+    def __init__(self, model, sensor, name: str = ""):
+        self.model = fold_batchnorm(model.eval())   # BatchNorm folded into the convolutions
+        # Inference runs on a frozen copy of the weights (training the model
+        # further does not change this object).
+        self.plan = InferencePlan(self.model)
+        self.cfg = model.cfg
+        self.sensor = sensor
+        self.name = name
+        self.observation = self.cfg.modality
+        self.k = self.cfg.k
+        self.frame_step = self.cfg.frame_step
+
+    def to_input(self, raw: np.ndarray) -> torch.Tensor:
+        """Raw observations (..., H, W, 3) uint8 / (..., beams) -> network tensors."""
+        if self.observation == "camera":
+            return camera_input(raw, self.cfg.image_size)
+        return lidar_input(raw, self.sensor.range_m)
+
+    @torch.inference_mode()
+    def encode_target(self, context: np.ndarray) -> torch.Tensor:
+        x = self.to_input(np.asarray(context))
+        if x.shape[1] != self.cfg.frames:
+            raise TopodrakeError(f"target context has {x.shape[1]} frames; this network needs "
+                                 f"{self.cfg.frames}")
+        return self.plan.encode_target(x)

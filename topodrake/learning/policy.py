@@ -28,9 +28,8 @@ import numpy as np
 import torch
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.inference import InferencePlan
-from topodrake.learning.networks import (CONTROL_SCALE, NetworkConfig, WaypointNetwork, camera_input,
-                                         fold_batchnorm, lidar_input)
+from topodrake.learning.inference import ObservationNetwork
+from topodrake.learning.networks import CONTROL_SCALE
 from topodrake.sensing.config import CameraConfig, LidarConfig
 
 
@@ -77,7 +76,7 @@ def target_input(policy: WaypointPolicy, target: TargetContext) -> np.ndarray:
 
 # ---------------------------------------------------------------- learned
 
-class LearnedWaypointPolicy:
+class LearnedWaypointPolicy(ObservationNetwork):
     """C_WP from a trained :class:`WaypointNetwork` (batched; cached target features).
 
     ``encode_target`` returns the target half of the first layer, a tensor
@@ -86,18 +85,6 @@ class LearnedWaypointPolicy:
     ``predict_naive`` runs the full network on the stacked pairs (for tests
     and benchmarks).
     """
-
-    def __init__(self, model: WaypointNetwork, sensor: CameraConfig | LidarConfig, name: str = ""):
-        self.model = fold_batchnorm(model.eval())   # BatchNorm folded into the convolutions
-        # Inference runs on a frozen copy of the weights (training the model
-        # further does not change this policy).
-        self.plan = InferencePlan(self.model)
-        self.cfg: NetworkConfig = model.cfg
-        self.sensor = sensor
-        self.name = name
-        self.observation = self.cfg.modality
-        self.k = self.cfg.k
-        self.frame_step = self.cfg.frame_step
 
     @classmethod
     def from_checkpoint(cls, path, *, modality: str | None = None, k: int | None = None,
@@ -112,20 +99,6 @@ class LearnedWaypointPolicy:
     @property
     def is_direct_control(self) -> bool:
         return self.cfg.output == "control"
-
-    def to_input(self, raw: np.ndarray) -> torch.Tensor:
-        """Raw observations (..., H, W, 3) uint8 / (..., beams) -> network tensors."""
-        if self.observation == "camera":
-            return camera_input(raw, self.cfg.image_size)
-        return lidar_input(raw, self.sensor.range_m)
-
-    @torch.inference_mode()
-    def encode_target(self, context: np.ndarray) -> torch.Tensor:
-        x = self.to_input(np.asarray(context))
-        if x.shape[1] != self.cfg.frames:
-            raise TopodrakeError(f"target context has {x.shape[1]} frames; this policy needs "
-                                 f"{self.cfg.frames}")
-        return self.plan.encode_target(x)
 
     @torch.inference_mode()
     def predict(self, observation: np.ndarray, target) -> WaypointPrediction:

@@ -1,0 +1,127 @@
+"""The reachability estimator RE at inference time, single pairs and all pairs.
+
+``Reachability.probability(observation, target_features)`` is what the Drake
+system and the follower ask ("can my controller get from here to that
+anchor?"); the target side is cached exactly as for C_WP.
+
+Map building asks RE about many pairs of frames of the same trajectories,
+and every context overlaps its neighbours. :meth:`Reachability.frame_features`
+therefore computes the first layer's two halves once per image (the current
+half ``W_c * o`` and the target half ``W_t * o + b``), and
+:meth:`Reachability.pairwise` adds them for any list of (source frame,
+context frames) without touching an image again. :meth:`sparsify` runs the
+greedy anchor selection of :mod:`topodrake.topomap.sparsify` on top of it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from topodrake.learning.inference import ObservationNetwork
+
+
+@dataclass
+class FrameFeatures:
+    """First-layer halves of T images: ``current`` (T, C0, ...) and
+    ``target`` (T, C0, ...)."""
+
+    current: torch.Tensor
+    target: torch.Tensor
+
+    def __len__(self) -> int:
+        return len(self.current)
+
+
+class Reachability(ObservationNetwork):
+    """Probabilities from a trained RE (``network.output = "reach"``).
+
+    ``temperature`` divides the logit (temperature scaling, fitted on
+    validation rollouts; 1 = as trained)."""
+
+    def __init__(self, model, sensor, name: str = "", controller: dict | None = None,
+                 temperature: float = 1.0):
+        if model.cfg.output != "reach":
+            raise ValueError("Reachability needs a network with output 'reach'")
+        super().__init__(model, sensor, name)
+        self.controller = controller or {}
+        self.temperature = float(temperature)
+
+    @classmethod
+    def from_checkpoint(cls, path, controller_checkpoint, temperature: float = 1.0
+                        ) -> "Reachability":
+        """Load an RE, refusing one trained for another controller."""
+        from topodrake.learning.reach_train import load_reachability
+
+        ck = load_reachability(path, controller_checkpoint)
+        return cls(ck.model, ck.sensor, name=Path(path).parent.name,
+                   controller=(ck.meta.get("extra") or {}).get("controller"),
+                   temperature=temperature)
+
+    def _prob(self, out: dict) -> np.ndarray:
+        z = out["reach_logit"][:, 0] / self.temperature
+        return torch.sigmoid(z).numpy().astype(np.float64)
+
+    @torch.inference_mode()
+    def probability(self, observation: np.ndarray, target) -> np.ndarray:
+        """(N,) for current observations (N or 1, ...) and target features
+        (N or 1, 2k+1, ...) from :meth:`encode_target`."""
+        cur = self.to_input(np.asarray(observation))
+        return self._prob(self.plan.cached(cur, torch.as_tensor(target)))
+
+    @torch.inference_mode()
+    def probability_naive(self, observation: np.ndarray, context: np.ndarray) -> np.ndarray:
+        """The full network on the stacked pairs (for tests and benchmarks)."""
+        cur = self.to_input(np.asarray(observation))
+        ctx = self.to_input(np.asarray(context))
+        if cur.shape[0] == 1 and ctx.shape[0] > 1:
+            cur = cur.expand(ctx.shape[0], *cur.shape[1:])
+        return self._prob(self.plan.naive(cur, ctx))
+
+    # -- all pairs -------------------------------------------------------------
+    @torch.inference_mode()
+    def frame_features(self, observations: np.ndarray, batch: int = 256) -> FrameFeatures:
+        """Both first-layer halves of every image (T, ...), once."""
+        cur, tgt = [], []
+        for lo in range(0, len(observations), batch):
+            x = self.to_input(np.asarray(observations[lo:lo + batch]))
+            cur.append(self.plan.first_current(x))
+            tgt.append(self.plan.first_target(x))
+        return FrameFeatures(torch.cat(cur), torch.cat(tgt))
+
+    @torch.inference_mode()
+    def pairwise(self, feats: FrameFeatures, source: np.ndarray, context_rows: np.ndarray,
+                 batch: int = 512) -> np.ndarray:
+        """RE(frame ``source[m]``, context frames ``context_rows[m]``) (M,)."""
+        source = np.asarray(source, np.int64)
+        rows = np.asarray(context_rows, np.int64).reshape(len(source), -1)
+        if rows.shape[1] != self.cfg.frames:
+            raise ValueError(f"context rows need {self.cfg.frames} frames, got {rows.shape[1]}")
+        out = np.empty(len(source))
+        for lo in range(0, len(source), batch):
+            s = torch.from_numpy(source[lo:lo + batch])
+            r = torch.from_numpy(rows[lo:lo + batch])
+            pre = feats.target[r] + feats.current[s].unsqueeze(1)
+            n, m = pre.shape[:2]
+            res = self.plan.heads_of(self.plan.after_first(pre.reshape(n * m, *pre.shape[2:])), n)
+            out[lo:lo + batch] = self._prob(res)
+        return out
+
+    def context_rows(self, n_frames: int, targets: np.ndarray) -> np.ndarray:
+        """(M, 2k+1) clamped context frames of target frames ``targets`` of one trajectory."""
+        targets = np.asarray(targets, np.int64)
+        offsets = self.frame_step * np.arange(-self.k, self.k + 1)
+        return np.clip(targets[:, None] + offsets[None], 0, n_frames - 1)
+
+    def sparsify(self, observations: np.ndarray, p: float = 0.99, window: int = 32,
+                 feats: FrameFeatures | None = None) -> np.ndarray:
+        """Anchor frames of one trajectory's observations (T, ...)."""
+        from topodrake.topomap.sparsify import sparsify
+
+        feats = feats or self.frame_features(observations)
+        n = len(feats)
+        return sparsify(n, lambda i, js: self.pairwise(feats, np.full(len(js), i),
+                                                       self.context_rows(n, js)), p, window)
