@@ -44,7 +44,91 @@ def _nan_prediction(direct: bool) -> WaypointPrediction:
                               np.zeros((1, 2)) if direct else None)
 
 
-class WaypointNet(LeafSystem):
+class TargetConditionedNet(LeafSystem):
+    """Base of the systems that run a network on (current observation,
+    cached target): the observation and ``target`` input ports, the target
+    cache in abstract state with its periodic update, and a cache entry
+    ``prediction`` computed once per period by :meth:`compute` (subclasses
+    declare their outputs from :meth:`prediction`).
+
+    ``network`` has ``observation`` ("camera", "lidar" or "pose"), an
+    optional ``sensor`` and ``encode_target``."""
+
+    def __init__(self, network, period: float, camera=None, lidar=None, state_input: bool = True):
+        super().__init__()
+        from topodrake.sensing.config import CameraConfig, LidarConfig
+
+        self.network = network
+        kind = network.observation
+        if kind == "camera":
+            c = camera or getattr(network, "sensor", None) or CameraConfig()
+            self.observation_port = self.DeclareAbstractInputPort(
+                "observation", AbstractValue.Make(np.zeros((c.height, c.width, 3), np.uint8)))
+        elif kind == "lidar":
+            beams = (lidar or getattr(network, "sensor", None) or LidarConfig()).beams
+            self.observation_port = self.DeclareVectorInputPort("observation", beams)
+        elif kind == "pose":
+            self.observation_port = None
+        else:
+            raise ValueError(f"unknown observation kind {kind!r}")
+        if kind == "pose" and not state_input:
+            raise ValueError("a pose-observing network needs the state input")
+        self.target_port = self.DeclareAbstractInputPort("target", AbstractValue.Make(TargetContext()))
+        self.state_port = self.DeclareVectorInputPort("state", 5) if state_input else None
+        self.cache_index = self.DeclareAbstractState(AbstractValue.Make(TargetCache()))
+        inputs = [p for p in (self.target_port, self.state_port, self.observation_port)
+                  if p is not None]
+        prereq = {self.input_port_ticket(p.get_index()) for p in inputs}
+        prereq.add(self.abstract_state_ticket(self.cache_index))
+        self._prediction = self.DeclareCacheEntry(
+            "prediction", ValueProducer(allocate=lambda: AbstractValue.Make(self.empty()),
+                                        calc=self._calc_prediction), prereq)
+        self.prediction_ticket = {self._prediction.ticket()}
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update_cache)
+
+    # -- subclass interface ------------------------------------------------------
+    def empty(self):
+        """The prediction without a target (key < 0)."""
+        raise NotImplementedError
+
+    def compute(self, observation: np.ndarray, features):
+        """The prediction for one observation (1, ...) and target features."""
+        raise NotImplementedError
+
+    def prediction(self, context):
+        return self._prediction.Eval(context)
+
+    # -- target features ---------------------------------------------------------
+    def _features(self, context, target: TargetContext):
+        cache = context.get_abstract_state(self.cache_index).get_value()
+        if cache.key == target.key:
+            return cache.features
+        return self.network.encode_target(target_input(self.network, target))
+
+    def _update_cache(self, context, state):
+        target = self.target_port.Eval(context)
+        cache = context.get_abstract_state(self.cache_index).get_value()
+        if target.key < 0 or target.key == cache.key:
+            return
+        feats = self.network.encode_target(target_input(self.network, target))
+        if hasattr(feats, "numpy"):
+            feats = feats.numpy().copy()
+        state.get_mutable_abstract_state(self.cache_index).set_value(TargetCache(target.key, feats))
+
+    def _calc_prediction(self, context, value):
+        target = self.target_port.Eval(context)
+        if target.key < 0:
+            value.set_value(self.empty())
+            return
+        feats = self._features(context, target)
+        if self.observation_port is None:
+            obs = self.state_port.Eval(context)[None, :3]
+        else:
+            obs = np.asarray(self.observation_port.Eval(context))[None]
+        value.set_value(self.compute(obs, feats))
+
+
+class WaypointNet(TargetConditionedNet):
     """Inputs: ``observation`` (camera: abstract (H, W, 3) uint8 image; lidar:
     vector of ranges; absent for the pose oracle, which reads ``state``),
     ``target`` (abstract :class:`TargetContext`), ``state`` (held car state,
@@ -54,88 +138,35 @@ class WaypointNet(LeafSystem):
     NaN, which the RMP reads as "stop"."""
 
     def __init__(self, policy, period: float = 0.1, camera=None, lidar=None):
-        super().__init__()
-        from topodrake.sensing.config import CameraConfig, LidarConfig
-
         self.policy = policy
         self.direct = bool(getattr(policy, "is_direct_control", False))
-        kind = policy.observation
-        if kind == "camera":
-            c = camera or getattr(policy, "sensor", None) or CameraConfig()
-            self.observation_port = self.DeclareAbstractInputPort(
-                "observation", AbstractValue.Make(np.zeros((c.height, c.width, 3), np.uint8)))
-        elif kind == "lidar":
-            beams = (lidar or getattr(policy, "sensor", None) or LidarConfig()).beams
-            self.observation_port = self.DeclareVectorInputPort("observation", beams)
-        elif kind == "pose":
-            self.observation_port = None
-        else:
-            raise ValueError(f"unknown policy observation {kind!r}")
-        self.target_port = self.DeclareAbstractInputPort("target", AbstractValue.Make(TargetContext()))
-        self.state_port = self.DeclareVectorInputPort("state", 5)
-        self.cache_index = self.DeclareAbstractState(AbstractValue.Make(TargetCache()))
-        inputs = [self.target_port, self.state_port] + (
-            [self.observation_port] if self.observation_port is not None else [])
-        prereq = {self.input_port_ticket(p.get_index()) for p in inputs}
-        prereq.add(self.abstract_state_ticket(self.cache_index))
-        self._prediction = self.DeclareCacheEntry(
-            "prediction", ValueProducer(
-                allocate=lambda: AbstractValue.Make(_nan_prediction(self.direct)),
-                calc=self._calc_prediction), prereq)
-        ticket = {self._prediction.ticket()}
+        super().__init__(policy, period, camera, lidar)
+        ticket = self.prediction_ticket
         self.waypoint_port = self.DeclareVectorOutputPort("waypoint", 2, self._out_waypoint,
                                                           prerequisites_of_calc=ticket)
         self.waypoint_local_port = self.DeclareVectorOutputPort(
-            "waypoint_local", 2, lambda c, o: o.SetFromVector(self._pred(c).waypoint[0]),
+            "waypoint_local", 2, lambda c, o: o.SetFromVector(self.prediction(c).waypoint[0]),
             prerequisites_of_calc=ticket)
         self.heading_port = self.DeclareVectorOutputPort(
-            "heading_diff", 1, lambda c, o: o.SetFromVector(self._pred(c).heading_diff[:1]),
+            "heading_diff", 1, lambda c, o: o.SetFromVector(self.prediction(c).heading_diff[:1]),
             prerequisites_of_calc=ticket)
         self.overlap_port = self.DeclareVectorOutputPort(
-            "overlap", 2, lambda c, o: o.SetFromVector(self._pred(c).overlap[0]),
+            "overlap", 2, lambda c, o: o.SetFromVector(self.prediction(c).overlap[0]),
             prerequisites_of_calc=ticket)
         self.controls_port = None
         if self.direct:
             self.controls_port = self.DeclareVectorOutputPort(
-                "controls", 2, lambda c, o: o.SetFromVector(self._pred(c).controls[0]),
+                "controls", 2, lambda c, o: o.SetFromVector(self.prediction(c).controls[0]),
                 prerequisites_of_calc=ticket)
-        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update_cache)
 
-    # -- target features ------------------------------------------------------
-    def _features(self, context, target: TargetContext):
-        cache = context.get_abstract_state(self.cache_index).get_value()
-        if cache.key == target.key:
-            return cache.features
-        return self.policy.encode_target(target_input(self.policy, target))
+    def empty(self) -> WaypointPrediction:
+        return _nan_prediction(self.direct)
 
-    def _update_cache(self, context, state):
-        target = self.target_port.Eval(context)
-        cache = context.get_abstract_state(self.cache_index).get_value()
-        if target.key < 0 or target.key == cache.key:
-            return
-        feats = self.policy.encode_target(target_input(self.policy, target))
-        if hasattr(feats, "numpy"):
-            feats = feats.numpy().copy()
-        state.get_mutable_abstract_state(self.cache_index).set_value(TargetCache(target.key, feats))
-
-    # -- prediction -------------------------------------------------------------
-    def _calc_prediction(self, context, value):
-        target = self.target_port.Eval(context)
-        if target.key < 0:
-            value.set_value(_nan_prediction(self.direct))
-            return
-        feats = self._features(context, target)
-        if self.observation_port is None:
-            obs = self.state_port.Eval(context)[None, :3]
-        else:
-            obs = np.asarray(self.observation_port.Eval(context))[None]
-        value.set_value(self.policy.predict(obs, feats))
-
-    def _pred(self, context) -> WaypointPrediction:
-        return self._prediction.Eval(context)
+    def compute(self, observation, features) -> WaypointPrediction:
+        return self.policy.predict(observation, features)
 
     def _out_waypoint(self, context, output):
-        local = self._pred(context).waypoint[:1]
+        local = self.prediction(context).waypoint[:1]
         state = self.state_port.Eval(context)
         output.SetFromVector(car_to_world(local[:, None], state[None])[0, 0])
 

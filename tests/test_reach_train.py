@@ -141,3 +141,52 @@ def test_reachability_cached_pairwise_and_naive_agree():
     assert np.all(np.abs(p_soft - 0.5) <= np.abs(cached - 0.5) + 1e-9)
     anchors = re.sparsify(images, p=0.5, feats=feats)
     assert anchors[0] == 0 and anchors[-1] == 29 and np.all(np.diff(anchors) > 0)
+
+
+def test_reachability_estimator_system_matches_the_batched_call():
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    from topodrake.learning.networks import NetworkConfig, WaypointNetwork
+    from topodrake.learning.policy import TargetContext
+    from topodrake.learning.reachability import Reachability
+    from topodrake.sensing.camera import Camera
+    from topodrake.sensing.config import CameraConfig
+    from topodrake.systems.diagram import add_chassis
+    from topodrake.systems.reachability import ReachabilityEstimator
+    from topodrake.systems.scenario import Scenario
+    from topodrake.systems.waypoint_net import TargetSource
+    from topodrake.world import load_world
+
+    world = load_world(WORLD)
+    torch.manual_seed(3)
+    re = Reachability(WaypointNetwork(NetworkConfig(output="reach", k=1), 64), CameraConfig())
+    poses = world.sample_free_pose(np.random.default_rng(4), 4)
+    images = Camera(world).render(poses)
+    b = DiagramBuilder()
+    c = add_chassis(b, Scenario(world=WORLD), world, camera=True)
+    stop = b.AddSystem(ConstantVectorSource(np.zeros(2)))
+    b.Connect(stop.get_output_port(), c.noise.controls_port)
+    source = b.AddSystem(TargetSource())
+    est = b.AddSystem(ReachabilityEstimator(re))
+    b.Connect(c.camera.image_port, est.observation_port)
+    b.Connect(source.target_port, est.target_port)
+    diagram = b.Build()
+    ctx = diagram.CreateDefaultContext()
+    c.car.GetMyMutableContextFromRoot(ctx).SetContinuousState(np.array([*poses[0], 0.0, 0.0]))
+    est_ctx = est.GetMyContextFromRoot(ctx)
+    assert est.probability_port.Eval(est_ctx)[0] == 0.0           # no target yet
+    source.set_target(source.GetMyMutableContextFromRoot(ctx),
+                      TargetContext(key=7, observations=images[1:]))
+    # the camera samples (and the estimator caches the target) at t = 0 when
+    # the simulator takes its first step; the car stands still
+    from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
+    sim = Simulator(diagram, ctx)
+    ApplySimulatorConfig(SimulatorConfig(integration_scheme="runge_kutta2", max_step_size=0.1,
+                                         use_error_control=False), sim)
+    sim.AdvanceTo(0.05)
+    held = c.camera.image_port.Eval(c.camera.GetMyContextFromRoot(ctx))
+    assert np.array_equal(held, images[0])                       # the image at the start pose
+    got = est.probability_port.Eval(est.GetMyContextFromRoot(ctx))[0]
+    want = re.probability(images[:1], re.encode_target(images[1:][None]))[0]
+    assert got == pytest.approx(want, abs=1e-6) and 0.0 < got < 1.0
