@@ -190,3 +190,10 @@ def test_reachability_estimator_system_matches_the_batched_call():
     got = est.probability_port.Eval(est.GetMyContextFromRoot(ctx))[0]
     want = re.probability(images[:1], re.encode_target(images[1:][None]))[0]
     assert got == pytest.approx(want, abs=1e-6) and 0.0 < got < 1.0
+
+
+def test_bench_reachability_cli_refuses_a_missing_controller(tmp_path, capsys):
+    from topodrake.cli import main
+
+    assert main(["bench", "reachability", "--controller", str(tmp_path / "no.pt")]) == 2
+    assert "no.pt does not exist" in capsys.readouterr().err

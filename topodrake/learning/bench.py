@@ -115,3 +115,84 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
         return {k: (round(v, 1) if isinstance(v, float) else v) for k, v in out.items()}
     finally:
         torch.set_num_threads(old_threads)
+
+
+def bench_reachability(config=None, controller: str | None = None, world_name: str = "test-0",
+                       pairs: int = 256, label_pairs: int = 128, min_seconds: float = 3.0,
+                       threads: int = 1, seed: int = 0) -> dict:
+    """The RE figures of issue 5 (``topodrake bench reachability``).
+
+    * ``pairs_per_s_naive``: RE on (source image, 2k + 1 context images)
+      pairs, the full network on the stacked inputs;
+    * ``pairs_per_s_cached``: the same pairs from per-image first-layer
+      features computed once per image (``frame_features_per_s``), as map
+      building queries many pairs of the same trajectories;
+    * ``label_rollouts_per_s``: labelled pairs per second of the batched
+      C_WP + RMP rollouts that make RE's training labels (``controller``:
+      a C_WP checkpoint; default an untrained network of the default profile,
+      which costs the same per step).
+
+    The network (``config``: a ReachTrainConfig) is untrained: throughput
+    does not depend on the weights."""
+    from topodrake.learning.networks import WaypointNetwork, input_size
+    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.reach_labels import ReachLabelConfig, _label_chunk, draw_pairs
+    from topodrake.learning.reach_train import ReachTrainConfig
+    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.samples import TrajectorySet
+    from topodrake.montecarlo import trial_seeds
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+    from topodrake.sensing.camera import Camera
+    from topodrake.sensing.lidar import Lidar
+    from topodrake.world import load_world
+
+    cfg = config or ReachTrainConfig()
+    net_cfg = cfg.network
+    old_threads = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        world = load_world(world_name)
+        p = world.places
+        jobs = [(0, 5), (3, 8), (6, 1), (2, 7)]
+        res = ExpertRollout(world, RolloutConfig(t_max_s=120.0)).run(
+            np.array([p[i] for i, _ in jobs]), np.array([p[j, :2] for _, j in jobs]))
+        drives = [(0, res.trajectory(i)["poses"], res.trajectory(i)["controls"])
+                  for i in range(len(jobs)) if res.success[i]]
+        trajs = TrajectorySet.from_drives([world_name], drives)
+        poses = trajs.poses[trajs.rows(0)]
+        sensor = cfg.camera if net_cfg.modality == "camera" else cfg.lidar
+        obs = (Camera(world, sensor).render(poses) if net_cfg.modality == "camera"
+               else Lidar(world, sensor).scan(poses))
+        torch.manual_seed(seed)
+        re = Reachability(WaypointNetwork(net_cfg, input_size(net_cfg, cfg.lidar.beams)), sensor)
+        rng = np.random.default_rng(seed)
+        src = rng.integers(0, len(poses), pairs)
+        rows = re.context_rows(len(poses), rng.integers(0, len(poses), pairs))
+        out = {"modality": net_cfg.modality, "k": net_cfg.k, "threads": threads, "pairs": pairs,
+               "trajectory_frames": len(poses)}
+        feats = re.frame_features(obs)
+        out["pairs_per_s_naive"], out["pairs_per_s_cached"] = _paired_rates(
+            lambda: re.probability_naive(obs[src], obs[rows]),
+            lambda: re.pairwise(feats, src, rows), pairs, 2 * min_seconds)
+        out["frame_features_per_s"] = _rate(lambda: re.frame_features(obs), len(obs), min_seconds)
+        out["cached_speedup"] = out["pairs_per_s_cached"] / out["pairs_per_s_naive"]
+
+        if controller:
+            policy = LearnedWaypointPolicy.from_checkpoint(controller)
+        else:
+            from topodrake.learning.config import TrainConfig
+            tc = TrainConfig()
+            torch.manual_seed(seed)
+            policy = LearnedWaypointPolicy(
+                WaypointNetwork(tc.network, input_size(tc.network, tc.lidar.beams)), tc.camera)
+        lcfg = ReachLabelConfig()
+        drawn = draw_pairs(world, trajs, np.arange(trajs.count), label_pairs, rng, lcfg)
+        seeds = np.array(trial_seeds(seed, label_pairs), np.int64)
+        start = time.perf_counter()
+        chunk = _label_chunk(world, policy, trajs, drawn, seeds, lcfg)
+        out["label_rollouts_per_s"] = label_pairs / (time.perf_counter() - start)
+        out["label_success_rate"] = float(chunk["label"].mean())
+        out["label_car_steps"] = int(chunk["steps"].sum())
+        return {k: (round(v, 1) if isinstance(v, float) else v) for k, v in out.items()}
+    finally:
+        torch.set_num_threads(old_threads)

@@ -103,6 +103,29 @@ def cmd_bench_networks(args) -> None:
             print(f"{k:<{width}}  {v}")
 
 
+def cmd_bench_reachability(args) -> None:
+    from topodrake.learning.bench import bench_reachability
+
+    cfg = None
+    if args.config:
+        from topodrake.learning.reach_train import load_reach_config
+        cfg = load_reach_config(args.config)
+    if args.controller:
+        from pathlib import Path
+
+        from topodrake.errors import TopodrakeError
+        if not Path(args.controller).is_file():
+            raise TopodrakeError(f"controller checkpoint {args.controller} does not exist")
+    result = bench_reachability(cfg, args.controller, args.world, args.pairs, args.label_pairs,
+                                args.seconds, args.threads, args.seed)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        width = max(len(k) for k in result)
+        for k, v in result.items():
+            print(f"{k:<{width}}  {v}")
+
+
 def add_bench_parser(bsub) -> None:
     """``networks`` under the ``bench`` subparsers ``bsub``."""
     bn = bsub.add_parser("networks", help="C_WP training and naive/cached inference throughput")
@@ -114,3 +137,15 @@ def add_bench_parser(bsub) -> None:
     bn.add_argument("--seed", type=int, default=0)
     bn.add_argument("--json", action="store_true")
     bn.set_defaults(func=cmd_bench_networks)
+    br = bsub.add_parser("reachability", help="RE pair throughput (naive / cached) and label rollouts")
+    br.add_argument("--config", help="RE training YAML (default: the camera k=5 profile)")
+    br.add_argument("--controller", help="C_WP checkpoint for the label rollouts "
+                                         "(default: an untrained network of the default profile)")
+    br.add_argument("--world", default="test-0")
+    br.add_argument("--pairs", type=int, default=256)
+    br.add_argument("--label-pairs", type=int, default=128)
+    br.add_argument("--seconds", type=float, default=3.0, help="timing window per figure")
+    br.add_argument("--threads", type=int, default=1)
+    br.add_argument("--seed", type=int, default=0)
+    br.add_argument("--json", action="store_true")
+    br.set_defaults(func=cmd_bench_reachability)

@@ -27,6 +27,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.learning.calibration import calibration_summary
 from topodrake.learning.config import TrainConfig
 from topodrake.learning.data import ObservationSource, to_network_input
+from topodrake.learning.networks import NetworkConfig
 from topodrake.learning.reach_labels import (ReachLabelConfig, ReachLabels, label_reachability,
                                              load_reach_labels)
 from topodrake.typed_yaml import load_typed
@@ -40,8 +41,13 @@ class ReachLabelSets:
     rollout: ReachLabelConfig = field(default_factory=ReachLabelConfig)
 
 
+def _reach_network() -> NetworkConfig:
+    return NetworkConfig(output="reach")
+
+
 @dataclass
 class ReachTrainConfig(TrainConfig):
+    network: NetworkConfig = field(default_factory=_reach_network)
     controller: str = "checkpoints/camera_k5/checkpoint.pt"   # the C_WP it describes
     labels: ReachLabelSets = field(default_factory=ReachLabelSets)
 
