@@ -154,10 +154,18 @@ class TargetRunner(DiagramRunner):
         the network sees; ``target_pose`` (3,): where it was taken."""
         from topodrake.sensing.overlap import mutual_overlap
 
+        from topodrake.errors import TopodrakeError
+
         b = self.built
         world = b.world
-        start = world.check_pose(start, "start")
-        goal = world.check_pose(target_pose, "target")[:3]
+        # Poses of expert drives may pass closer to walls than the c-space
+        # radius, so the start is checked against the car's body instead.
+        start = world.check_pose(start, "start", free=False)
+        goal = world.check_pose(target_pose, "target", free=False)[:3]
+        if in_collision(np.array([[*start[:3], 0.0, 0.0]]), world.grid.clearance_at,
+                        b.scenario.vehicle)[0]:
+            raise TopodrakeError(f"start ({start[0]:.2f}, {start[1]:.2f}) puts the car's body "
+                                 f"into a wall of {world.name!r}")
         context = self._reset(start, seed)
         b.target_source.set_target(b.target_source.GetMyMutableContextFromRoot(context), target)
         tol = b.scenario.goal_tolerance_m

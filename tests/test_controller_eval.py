@@ -93,8 +93,19 @@ def test_target_runner_times_out_behind_a_wall(oracle_runner):
 
 
 def test_target_runner_refuses_a_start_in_a_wall(oracle_runner):
-    with pytest.raises(TopodrakeError, match="start"):
+    with pytest.raises(TopodrakeError, match="start .* wall"):
         oracle_runner.run([5.0, 3.0, 0.0], [4.0, 3.0, 0.0], _target([4.0, 3.0, 0.0], 3))
+    with pytest.raises(TopodrakeError, match="outside the map"):
+        oracle_runner.run([4.0, 3.0, 0.0], [40.0, 3.0, 0.0], _target([4.0, 3.0, 0.0], 4))
+
+
+def test_target_runner_accepts_poses_near_walls(oracle_runner):
+    # 0.15 m from the partition face at x = 4.9: inside the c-space margin
+    # (0.2 m) but the car's body (sideways to the wall) is clear of it.
+    start = [4.75, 3.0, 1.5708]
+    r = oracle_runner.run(start, [4.75, 4.0, 1.5708], _target([4.75, 4.0, 1.5708], 5),
+                          seed=0, t_max_s=1.0)
+    assert not r.collision
 
 
 def test_wilson_interval_and_summary():

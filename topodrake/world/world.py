@@ -69,9 +69,10 @@ class World:
         free = largest_component(~self.grid.occupied)
         return float(free.sum() * self.grid.resolution ** 2)
 
-    def check_pose(self, pose, what: str = "pose") -> np.ndarray:
+    def check_pose(self, pose, what: str = "pose", free: bool = True) -> np.ndarray:
         """Validate one ``(x, y[, heading])``; raise a one-line error if it is
-        outside the map or in collision."""
+        outside the map or (with ``free``) outside the free configuration
+        space."""
         pose = np.asarray(pose, dtype=np.float64).reshape(-1)
         if pose.size not in (2, 3) or not np.all(np.isfinite(pose)):
             raise TopodrakeError(f"{what} must be finite (x, y[, heading]), got {pose.tolist()}")
@@ -81,7 +82,7 @@ class World:
             raise TopodrakeError(
                 f"{what} ({pose[0]:.2f}, {pose[1]:.2f}) is outside the map of "
                 f"{self.name!r} [{x0:.1f}, {x1:.1f}] x [{y0:.1f}, {y1:.1f}]")
-        if not self.grid.free_space[rc[0], rc[1]]:
+        if free and not self.grid.free_space[rc[0], rc[1]]:
             raise TopodrakeError(
                 f"{what} ({pose[0]:.2f}, {pose[1]:.2f}) is in collision in {self.name!r}")
         return pose
