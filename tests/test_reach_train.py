@@ -197,3 +197,36 @@ def test_bench_reachability_cli_refuses_a_missing_controller(tmp_path, capsys):
 
     assert main(["bench", "reachability", "--controller", str(tmp_path / "no.pt")]) == 2
     assert "no.pt does not exist" in capsys.readouterr().err
+
+
+def test_sparsify_cli_end_to_end(tmp_path, capsys):
+    from topodrake.cli import main
+    from topodrake.demonstrations import CollectConfig, collect
+    from topodrake.learning.checkpoint import save_checkpoint
+    from topodrake.learning.networks import NetworkConfig, WaypointNetwork
+    from topodrake.learning.reach_train import controller_identity
+    from topodrake.sensing.config import CameraConfig
+
+    demos = collect("test-1", tmp_path / "demos", CollectConfig(protocol="random", count=2, seed=5),
+                    progress=False)
+    ctrl = tmp_path / "cwp.pt"
+    ctrl.write_bytes(b"c")
+    torch.manual_seed(0)
+    net = WaypointNetwork(NetworkConfig(output="reach", k=1, channels=[8, 8, 16], feature_dim=16,
+                                        combine_channels=16, hidden=16), 64)
+    save_checkpoint(tmp_path / "re.pt", net, CameraConfig(),
+                    extra={"controller": controller_identity(ctrl)})
+    args = ["sparsify", "test-1", "--reach", str(tmp_path / "re.pt"), "--controller", str(ctrl),
+            "--demos", str(demos), "--p", "0.3", "--out", str(tmp_path / "a.png"), "--json"]
+    assert main(args) in (0, None)
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["anchor_frames"][0] == 0 and out["anchor_frames"][-1] == out["frames"] - 1
+    assert out["keep_ratio"] == pytest.approx(out["anchors"] / out["frames"], abs=1e-4)
+    assert (tmp_path / "a.png").stat().st_size > 10000
+    other = tmp_path / "other.pt"
+    other.write_bytes(b"o")
+    args[5] = str(other)
+    assert main(args) == 2
+    assert "trained for controller" in capsys.readouterr().err
+    assert main(args[:4] + ["--controller", str(ctrl), "--demos", str(tmp_path / "none")]) == 2
+    assert "no demonstrations" in capsys.readouterr().err

@@ -187,8 +187,10 @@ def build_parser() -> argparse.ArgumentParser:
     wp.set_defaults(func=cmd_world_plot)
 
     from topodrake.learning.cli import add_bench_parser, add_train_parser
+    from topodrake.topomap.cli import add_sparsify_parser
 
     add_train_parser(sub)
+    add_sparsify_parser(sub)
 
     bench = sub.add_parser("bench", help="benchmarks that print the issues' figures")
     bsub = bench.add_subparsers(dest="bench_command", required=True)

@@ -1,0 +1,85 @@
+"""``topodrake sparsify``: anchors of one expert drive under a trained RE.
+
+    topodrake sparsify test-0 --reach checkpoints/reach_camera_k5/checkpoint.pt \\
+        --controller checkpoints/camera_k5/checkpoint.pt --drive 3 --out anchors.png --json
+
+Reads the world's demonstrations (``topodrake collect``; default folder
+``data/demos/pairs-s0/WORLD``), renders the drive's observations, keeps
+anchors greedily while RE > ``--p`` and prints the anchor count and keep
+ratio (and plots them on the floor plan with ``--out``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from topodrake.errors import TopodrakeError
+
+
+def cmd_sparsify(args) -> None:
+    from topodrake.demonstrations import load_demos
+    from topodrake.learning.reachability import Reachability
+    from topodrake.world import load_world
+
+    world = load_world(args.world)
+    folder = Path(args.demos) if args.demos else Path("data/demos/pairs-s0") / args.world
+    if not (folder / "manifest.json").is_file():
+        raise TopodrakeError(f"no demonstrations in {folder}; make them with "
+                             f"'topodrake collect {args.world} --out {folder}'")
+    _, demos = load_demos(folder, successful_only=True)
+    if not 0 <= args.drive < len(demos):
+        raise TopodrakeError(f"--drive must be in 0..{len(demos) - 1} ({folder} has "
+                             f"{len(demos)} successful drives)")
+    poses = demos[args.drive].poses
+    re = Reachability.from_checkpoint(args.reach, args.controller)
+    if re.observation == "camera":
+        from topodrake.sensing.camera import Camera
+        obs = Camera(world, re.sensor).render(poses)
+    else:
+        from topodrake.sensing.lidar import Lidar
+        obs = Lidar(world, re.sensor).scan(poses)
+    anchors = re.sparsify(obs, p=args.p)
+    result = {"world": args.world, "drive": args.drive, "frames": len(poses),
+              "anchors": len(anchors), "keep_ratio": round(len(anchors) / len(poses), 4),
+              "p_sparsify": args.p, "anchor_frames": anchors.tolist()}
+    if args.out:
+        plot_anchors(world, poses, anchors, args.out, title=f"{re.name or 'RE'}: "
+                     f"{len(anchors)} anchors of {len(poses)} frames (p = {args.p})")
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{len(anchors)} anchors of {len(poses)} frames "
+              f"(keep ratio {result['keep_ratio']:.3f})" + (f"; wrote {args.out}" if args.out else ""))
+
+
+def plot_anchors(world, poses, anchors, out, title: str = "") -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from topodrake.world.plot import plot_world, save_figure
+
+    fig, ax = plt.subplots(figsize=(8, 8))
+    plot_world(world, ax, places=False)
+    ax.plot(poses[:, 0], poses[:, 1], color="0.4", lw=1.0)
+    a = poses[np.asarray(anchors)]
+    ax.quiver(a[:, 0], a[:, 1], np.cos(a[:, 2]), np.sin(a[:, 2]), color="tab:red",
+              scale=30, width=0.004)
+    ax.plot(a[:, 0], a[:, 1], "o", color="tab:red", ms=4)
+    ax.set_title(title)
+    save_figure(fig, out)
+
+
+def add_sparsify_parser(sub) -> None:
+    sp = sub.add_parser("sparsify", help="anchors of one expert drive under a trained RE")
+    sp.add_argument("world", help="catalogue name or map file")
+    sp.add_argument("--reach", required=True, help="RE checkpoint")
+    sp.add_argument("--controller", required=True, help="the C_WP checkpoint RE was trained for")
+    sp.add_argument("--demos", help="demonstration folder (default data/demos/pairs-s0/WORLD)")
+    sp.add_argument("--drive", type=int, default=0, help="index among the successful drives")
+    sp.add_argument("--p", type=float, default=0.99, help="p_sparsify")
+    sp.add_argument("--out", help="PNG of the anchors on the floor plan")
+    sp.add_argument("--json", action="store_true")
+    sp.set_defaults(func=cmd_sparsify)
