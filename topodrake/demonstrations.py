@@ -22,7 +22,6 @@ complete chunk; a folder of another format or version is refused.
 from __future__ import annotations
 
 import io
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -30,6 +29,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes, atomic_write_json
+from topodrake.fileio import read_manifest as _read_manifest
 
 FORMAT = "topodrake-demos"
 VERSION = 1
@@ -132,21 +132,8 @@ def _write_chunk(path: Path, res, starts, goals, seeds) -> None:
 
 
 def read_manifest(folder) -> dict:
-    path = Path(folder) / "manifest.json"
-    try:
-        m = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise TopodrakeError(f"{folder} is not a demonstration set: no manifest.json") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise TopodrakeError(f"{path} is not valid JSON ({e.msg if hasattr(e, 'msg') else e})") from None
-    if not isinstance(m, dict) or m.get("format") != FORMAT:
-        raise TopodrakeError(f"{path} is not a {FORMAT} manifest")
-    if m.get("version") != VERSION:
-        raise TopodrakeError(f"{path} has format version {m.get('version')}; this topodrake reads {VERSION}")
-    for key in ("world", "config", "jobs", "chunks"):
-        if key not in m:
-            raise TopodrakeError(f"{path} lacks the key {key!r}")
-    return m
+    return _read_manifest(folder, FORMAT, VERSION, "a demonstration set",
+                          ("world", "config", "jobs", "chunks"))
 
 
 @dataclass

@@ -7,6 +7,8 @@ import os
 import tempfile
 from pathlib import Path
 
+from topodrake.errors import TopodrakeError
+
 
 def atomic_write_bytes(path, data: bytes) -> Path:
     path = Path(path)
@@ -29,3 +31,26 @@ def atomic_write_bytes(path, data: bytes) -> Path:
 
 def atomic_write_json(path, obj) -> Path:
     return atomic_write_bytes(path, (json.dumps(obj, indent=2) + "\n").encode())
+
+
+def read_manifest(folder, fmt: str, version: int, what: str, keys=()) -> dict:
+    """``folder/manifest.json`` of a versioned data folder, checked: a missing,
+    unreadable or foreign manifest, another version or a missing key raises
+    one :class:`TopodrakeError` line naming the folder."""
+    path = Path(folder) / "manifest.json"
+    try:
+        m = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise TopodrakeError(f"{folder} is not {what}: no manifest.json") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise TopodrakeError(f"{path} is not valid JSON ({getattr(e, 'msg', e)})") from None
+    except OSError as e:
+        raise TopodrakeError(f"{path} is unreadable ({type(e).__name__})") from None
+    if not isinstance(m, dict) or m.get("format") != fmt:
+        raise TopodrakeError(f"{path} is not a {fmt} manifest")
+    if m.get("version") != version:
+        raise TopodrakeError(f"{path} has format version {m.get('version')}; this topodrake reads {version}")
+    for key in keys:
+        if key not in m:
+            raise TopodrakeError(f"{path} lacks the key {key!r}")
+    return m

@@ -37,6 +37,20 @@ def _rate(fn, n_items: int, min_seconds: float) -> float:
             return calls * n_items / elapsed
 
 
+def expert_drives(world, place_pairs, t_max_s: float):
+    """A :class:`TrajectorySet` of the expert's successful drives between
+    ``place_pairs`` (start place, goal place) of ``world``."""
+    from topodrake.learning.samples import TrajectorySet
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+
+    p = world.places
+    res = ExpertRollout(world, RolloutConfig(t_max_s=t_max_s)).run(
+        np.array([p[i] for i, _ in place_pairs]), np.array([p[j, :2] for _, j in place_pairs]))
+    drives = [(0, res.trajectory(i)["poses"], res.trajectory(i)["controls"])
+              for i in range(len(place_pairs)) if res.success[i]]
+    return TrajectorySet.from_drives([world.name], drives)
+
+
 def _paired_rates(fn_a, fn_b, n_items: int, min_seconds: float, rounds: int = 5
                   ) -> tuple[float, float]:
     """Median rates of two calls timed in alternating windows, so that a
@@ -57,9 +71,8 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
     from topodrake.learning.data import SampleBatcher
     from topodrake.learning.networks import WaypointNetwork, input_size
     from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.samples import TrajectorySet, make_samples
+    from topodrake.learning.samples import make_samples
     from topodrake.learning.train import waypoint_loss
-    from topodrake.rollout import ExpertRollout, RolloutConfig
     from topodrake.world import load_world
 
     cfg = config or TrainConfig()
@@ -68,13 +81,8 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
     torch.set_num_threads(threads)
     try:
         world = load_world(world_name)
-        p = world.places
-        pairs = [(0, 3), (2, 5), (4, 1), (6, 8)]
-        res = ExpertRollout(world, RolloutConfig(t_max_s=90.0)).run(
-            np.array([p[i] for i, _ in pairs]), np.array([p[j, :2] for _, j in pairs]))
-        drives = [(0, res.trajectory(i)["poses"], res.trajectory(i)["controls"])
-                  for i in range(len(pairs)) if res.success[i]]
-        samples = make_samples(TrajectorySet.from_drives([world_name], drives), 8 * batch, seed)
+        trajs = expert_drives(world, [(0, 3), (2, 5), (4, 1), (6, 8)], 90.0)
+        samples = make_samples(trajs, 8 * batch, seed)
         batcher = SampleBatcher(samples, net_cfg, cfg.camera, cfg.lidar)
         torch.manual_seed(seed)
         model = WaypointNetwork(net_cfg, input_size(net_cfg, cfg.lidar.beams))
@@ -139,9 +147,7 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
     from topodrake.learning.reach_labels import ReachLabelConfig, _label_chunk, draw_pairs
     from topodrake.learning.reach_train import ReachTrainConfig
     from topodrake.learning.reachability import Reachability
-    from topodrake.learning.samples import TrajectorySet
     from topodrake.montecarlo import trial_seeds
-    from topodrake.rollout import ExpertRollout, RolloutConfig
     from topodrake.sensing.camera import Camera
     from topodrake.sensing.lidar import Lidar
     from topodrake.world import load_world
@@ -152,13 +158,7 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
     torch.set_num_threads(threads)
     try:
         world = load_world(world_name)
-        p = world.places
-        jobs = [(0, 5), (3, 8), (6, 1), (2, 7)]
-        res = ExpertRollout(world, RolloutConfig(t_max_s=120.0)).run(
-            np.array([p[i] for i, _ in jobs]), np.array([p[j, :2] for _, j in jobs]))
-        drives = [(0, res.trajectory(i)["poses"], res.trajectory(i)["controls"])
-                  for i in range(len(jobs)) if res.success[i]]
-        trajs = TrajectorySet.from_drives([world_name], drives)
+        trajs = expert_drives(world, [(0, 5), (3, 8), (6, 1), (2, 7)], 120.0)
         poses = trajs.poses[trajs.rows(0)]
         sensor = cfg.camera if net_cfg.modality == "camera" else cfg.lidar
         obs = (Camera(world, sensor).render(poses) if net_cfg.modality == "camera"

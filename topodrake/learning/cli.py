@@ -94,7 +94,11 @@ def cmd_bench_networks(args) -> None:
     if args.config:
         from topodrake.learning.config import load_train_config
         cfg = load_train_config(args.config)
-    result = bench_networks(cfg, args.world, args.batch, args.seconds, args.threads, args.seed)
+    _print_figures(args, bench_networks(cfg, args.world, args.batch, args.seconds, args.threads,
+                                        args.seed))
+
+
+def _print_figures(args, result: dict) -> None:
     if args.json:
         print(json.dumps(result))
     else:
@@ -116,14 +120,8 @@ def cmd_bench_reachability(args) -> None:
         from topodrake.errors import TopodrakeError
         if not Path(args.controller).is_file():
             raise TopodrakeError(f"controller checkpoint {args.controller} does not exist")
-    result = bench_reachability(cfg, args.controller, args.world, args.pairs, args.label_pairs,
-                                args.seconds, args.threads, args.seed)
-    if args.json:
-        print(json.dumps(result))
-    else:
-        width = max(len(k) for k in result)
-        for k, v in result.items():
-            print(f"{k:<{width}}  {v}")
+    _print_figures(args, bench_reachability(cfg, args.controller, args.world, args.pairs,
+                                            args.label_pairs, args.seconds, args.threads, args.seed))
 
 
 def add_bench_parser(bsub) -> None:

@@ -38,6 +38,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes, atomic_write_json
+from topodrake.fileio import read_manifest as _read_manifest
 from topodrake.learning.samples import (SampleConfig, TrajectorySet, _arclength, _snap_free,
                                         apply_jitter, draw_jitter)
 
@@ -296,19 +297,8 @@ def _write_trajectories(path: Path, trajs: TrajectorySet) -> None:
 
 
 def read_manifest(folder) -> dict:
-    path = Path(folder) / "manifest.json"
-    try:
-        manifest = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise TopodrakeError(f"{folder} has no manifest.json: not a reachability label set") from None
-    except (OSError, ValueError) as e:
-        raise TopodrakeError(f"{path} is unreadable ({type(e).__name__})") from None
-    if manifest.get("format") != FORMAT:
-        raise TopodrakeError(f"{folder} is not a {FORMAT} folder")
-    if manifest.get("version") != VERSION:
-        raise TopodrakeError(f"{folder} has label format version {manifest.get('version')}; "
-                             f"this topodrake reads {VERSION}")
-    return manifest
+    return _read_manifest(folder, FORMAT, VERSION, "a reachability label set",
+                          ("n", "config", "controller", "chunks"))
 
 
 def load_reach_labels(folder) -> ReachLabels:
