@@ -208,7 +208,7 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
         train=SampleBatcher(train_set, cfg.network, cfg.camera, cfg.lidar),
         val=SampleBatcher(val_set, cfg.network, cfg.camera, cfg.lidar),
         loss=lambda model, b: waypoint_loss(model.forward_split(b.cur, b.ctx), b, output),
-        evaluate=evaluate, metric="waypoint_error_m",
+        evaluate=evaluate, metric="control_mae" if output == "control" else "waypoint_error_m",
         card={"data": {"train_worlds": cfg.data.train_worlds, "val_worlds": cfg.data.val_worlds,
                        "train_samples": len(train_set), "val_samples": len(val_set)}})
     return train_network(cfg, task, out_dir, resume=resume, progress=progress, command=command)
