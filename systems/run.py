@@ -67,14 +67,15 @@ class DiagramRunner:
         b.noise_logger.FindMutableLog(context).Clear()
         return context
 
-    def _simulate(self, reached, t_max: float) -> dict:
-        """Advance to ``t_max`` or until ``reached(state)`` (success) or a
-        collision; returns the outcome flags, final state, poses and wall time."""
+    def _simulate(self, reached, t_max: float, lost=None) -> dict:
+        """Advance to ``t_max`` or until ``reached(state)`` (success), a
+        collision or ``lost(state)`` (a failure that ends the run early);
+        returns the outcome flags, final state, poses and wall time."""
         b = self.built
         diagram = b.diagram
         clearance = b.world.grid.clearance_at
         vehicle = b.scenario.vehicle
-        flags = {"success": False, "collision": False}
+        flags = {"success": False, "collision": False, "lost": False}
 
         def monitor(root):
             x = b.car.GetMyContextFromRoot(root).get_continuous_state_vector().CopyToVector()
@@ -84,6 +85,9 @@ class DiagramRunner:
             if in_collision(x[None], clearance, vehicle)[0]:
                 flags["collision"] = True
                 return EventStatus.ReachedTermination(diagram, "collision")
+            if lost is not None and lost(x):
+                flags["lost"] = True
+                return EventStatus.ReachedTermination(diagram, "target lost")
             return EventStatus.Succeeded()
 
         self.simulator.set_monitor(monitor)
@@ -129,6 +133,11 @@ class TargetRunResult(RunResult):
 
     overlap: np.ndarray = field(default_factory=lambda: np.zeros(2), repr=False)
     reached_by: str = ""       # "distance", "overlap" or "" (not reached)
+    lost: bool = False         # ended early: both overlaps fell below overlap_lost
+
+    @property
+    def outcome(self) -> str:
+        return "lost" if self.lost else super().outcome
 
     def summary(self) -> dict:
         out = super().summary()
@@ -142,11 +151,14 @@ class TargetRunner(DiagramRunner):
 
     Success: within ``scenario.goal_tolerance_m`` of the target position, or
     both geometric image overlaps (car -> target, target -> car) above
-    ``overlap_success``. Collision is failure; so is running out of time."""
+    ``overlap_success``. Collision is failure; so is running out of time, and
+    (with ``overlap_lost``) both overlaps below it, which ends the run early
+    as the batched engine's ``PolicyRollout`` does."""
 
-    def __init__(self, built, overlap_success: float = 0.7):
+    def __init__(self, built, overlap_success: float = 0.7, overlap_lost: float | None = None):
         super().__init__(built)
         self.overlap_success = overlap_success
+        self.overlap_lost = overlap_lost
 
     def run(self, start, target_pose, target, seed: int = 0, t_max_s: float = 30.0
             ) -> TargetRunResult:
@@ -182,13 +194,18 @@ class TargetRunner(DiagramRunner):
                 return True
             return False
 
-        r = self._simulate(reached, t_max_s)
+        def lost(x):
+            ov = mutual_overlap(world, x[None, :3], goal[None], camera)[0]
+            return ov.max() < self.overlap_lost
+
+        r = self._simulate(reached, t_max_s, lost if self.overlap_lost is not None else None)
         x = r["state"]
         overlap = mutual_overlap(world, x[None, :3], goal[None], camera)[0]
-        return TargetRunResult(r["success"], r["collision"], not (r["success"] or r["collision"]),
+        ended = r["success"] or r["collision"] or r["lost"]
+        return TargetRunResult(r["success"], r["collision"], not ended,
                                r["time_s"], float(np.hypot(x[0] - goal[0], x[1] - goal[1])),
                                r["poses"], r["noise"], r["wall"], overlap=overlap,
-                               reached_by=how["by"])
+                               reached_by=how["by"], lost=r["lost"])
 
 
 def run_scenario(scenario, meshcat=None) -> RunResult:

@@ -155,3 +155,16 @@ def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatc
     ck.write_bytes(b"weights-b")                                            # retrained: rerun
     study.run_block("net", "clean", str(ck), 0.0, [1], args)
     assert len(calls) == 5
+
+
+def test_target_runner_stops_when_the_target_is_lost(box_world):
+    from topodrake.learning.policy import AStarOracle
+    from topodrake.systems.run import TargetRunner
+    from topodrake.systems.scenario import Scenario
+    from topodrake.systems.waypoint_net import build_waypoint_diagram
+
+    built = build_waypoint_diagram(Scenario(world="box"), AStarOracle(box_world), world=box_world)
+    runner = TargetRunner(built, overlap_lost=0.05)
+    # behind the partition and facing away: no overlap at all from the start
+    r = runner.run([4.0, 1.0, 3.14], [6.0, 1.0, 0.0], _target([6.0, 1.0, 0.0], 9), t_max_s=20.0)
+    assert r.lost and r.outcome == "lost" and not r.timeout and r.time_s < 1.0
