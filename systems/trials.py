@@ -108,3 +108,69 @@ def controller_trial(seed: int, checkpoint: str = "oracle", noise_std: float = 0
     out.pop("wall_time_s")
     out.update(seed=seed, pair=pair.summary())
     return out
+
+
+@lru_cache(maxsize=4)
+def _reachability(reach: str, controller: str):
+    from topodrake.learning.reachability import Reachability
+
+    return Reachability.from_checkpoint(reach, controller)
+
+
+@lru_cache(maxsize=8)
+def _reach_runner(controller: str, data_dir: str, worlds: tuple[str, ...], world: str,
+                  noise_std: float, overlap_lost: float):
+    from topodrake.systems.run import TargetRunner
+    from topodrake.systems.scenario import Scenario
+    from topodrake.systems.waypoint_net import build_waypoint_diagram
+
+    w = _evaluation_set(data_dir, worlds)[1][world]
+    policy = _policy(controller)
+    scenario = Scenario(world=world, noise_std=noise_std,
+                        camera_enabled=policy.observation == "camera")
+    if policy.observation == "camera":
+        scenario.camera = policy.sensor
+    else:
+        scenario.lidar = policy.sensor
+    return TargetRunner(build_waypoint_diagram(scenario, policy, world=w), overlap_lost=overlap_lost)
+
+
+def reach_trial(seed: int, reach: str = "", controller: str = "", noise_std: float = 0.33,
+                data_dir: str = "data",
+                worlds: tuple[str, ...] = ("test-0", "test-1", "test-2", "test-3", "test-4")) -> dict:
+    """One calibration trial of an RE: a fresh (jittered source, target) pair
+    drawn from the seed as for the RE labels, RE's predicted probability, and
+    the outcome of the C_WP ``controller`` driving it in the Drake diagram."""
+    import numpy as np
+
+    from topodrake.learning.policy import make_target_context
+    from topodrake.learning.reach_labels import ReachLabelConfig, draw_pairs, time_limits
+
+    cfg = ReachLabelConfig()
+    trajs, loaded = _evaluation_set(str(data_dir), tuple(worlds))
+    rng = np.random.default_rng(seed)
+    w = int(rng.integers(len(trajs.worlds)))
+    world = loaded[trajs.worlds[w]]
+    pair = {k: v[0] for k, v in draw_pairs(world, trajs, np.flatnonzero(trajs.traj_world == w), 1,
+                                          rng, cfg).items()}
+    poses = trajs.poses[trajs.rows(int(pair["traj"]))]
+    tgt_pose = poses[int(pair["tgt"])]
+    t_max = float(time_limits(world, pair["src_pose"][None], tgt_pose[None, :2], cfg)[0])
+    re = _reachability(str(reach), str(controller))
+    sensor = {"camera" if re.observation == "camera" else "lidar": re.sensor}
+    src_obs = make_target_context(world, pair["src_pose"][None], 0, 0, modality=re.observation,
+                                  **sensor).observations
+    ctx = make_target_context(world, poses, int(pair["tgt"]), re.k, frame_step=re.frame_step,
+                              modality=re.observation, **sensor)
+    p = float(re.probability(src_obs, re.encode_target(ctx.observations[None]))[0])
+    runner = _reach_runner(str(controller), str(data_dir), tuple(worlds), world.name,
+                           float(noise_std), cfg.overlap_lost)
+    policy = runner.built.waypoint_net.policy
+    target = make_target_context(world, poses, int(pair["tgt"]), policy.k,
+                                 frame_step=policy.frame_step, modality=policy.observation,
+                                 camera=runner.built.scenario.camera,
+                                 lidar=runner.built.scenario.lidar, key=seed % (2 ** 31))
+    result = runner.run(pair["src_pose"], tgt_pose, target, seed=seed, t_max_s=t_max)
+    return {"seed": seed, "world": world.name, "p": p, "success": bool(result.success),
+            "outcome": result.outcome, "same_trajectory": bool(pair["same"]), "t_max_s": t_max,
+            "time_s": round(result.time_s, 2)}

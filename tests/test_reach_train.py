@@ -230,3 +230,17 @@ def test_sparsify_cli_end_to_end(tmp_path, capsys):
     assert "trained for controller" in capsys.readouterr().err
     assert main(args[:4] + ["--controller", str(ctrl), "--demos", str(tmp_path / "none")]) == 2
     assert "no demonstrations" in capsys.readouterr().err
+
+
+def test_calibration_study_refuses_bad_estimators(tmp_path, capsys):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "studies" / "reachability_calibration.py"
+    spec = importlib.util.spec_from_file_location("reachability_calibration", path)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    assert study.main(["--estimators", "x=only-one-path", "--out", str(tmp_path)]) == 2
+    assert "name=RE.pt:CWP.pt" in capsys.readouterr().err
+    assert study.main(["--estimators", f"x={tmp_path}/a.pt:{tmp_path}/b.pt"]) == 2
+    assert "a.pt does not exist" in capsys.readouterr().err

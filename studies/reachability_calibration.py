@@ -1,0 +1,181 @@
+"""Is RE calibrated? Predicted reachability against closed-loop outcomes in Drake.
+
+For each RE (default: camera k=5 and lidar k=5, each with the C_WP it was
+trained for) and for clean and noisy actuation, ``--pairs`` seeded trials
+(``topodrake.systems.trials.reach_trial``): a fresh pair in the test houses
+drawn as for the RE labels, RE's probability from the source observation,
+and the outcome of the C_WP + RMP diagram driving it (success within
+0.27 m or both overlaps > 0.7 before A*/v_min; failure on timeout,
+collision or both overlaps < 0.05). Also ``keep_ratio``: the fraction of
+test-house expert frames kept as anchors at ``--p`` (0.99).
+
+    python studies/reachability_calibration.py --pairs 1000 --json
+
+prints ``{"camera_k5": {"ece", "brier", "auroc", "keep_ratio"}, ...}`` with
+the noisy runs' figures (RE is trained on noisy rollouts) and writes
+``results/reachability_calibration.json`` (both settings, reliability bins,
+the command) and ``results/reachability_calibration.png`` (binned predicted
+probability against the empirical success rate, like the paper's
+path-probability figure).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.fileio import atomic_write_json
+
+DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
+           "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
+WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
+
+
+def parse_estimators(text: str) -> dict:
+    """``name=re.pt:cwp.pt,...`` -> {name: (re path, controller path)}."""
+    out = {}
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        try:
+            name, paths = item.split("=", 1)
+            reach, controller = paths.split(":", 1)
+        except ValueError:
+            raise TopodrakeError(f"--estimators entry {item!r} is not name=RE.pt:CWP.pt") from None
+        for path in (reach, controller):
+            if not Path(path).is_file():
+                raise TopodrakeError(f"{name}: checkpoint {path} does not exist")
+        out[name] = (reach, controller)
+    if not out:
+        raise TopodrakeError("no estimators given")
+    return out
+
+
+def keep_ratio(reach: str, controller: str, data_dir: str, p: float, drives: int | None) -> float:
+    """Anchors kept / frames over the test houses' successful expert drives."""
+    from topodrake.demonstrations import load_demos
+    from topodrake.learning.reachability import Reachability
+    from topodrake.world import load_world
+
+    re = Reachability.from_checkpoint(reach, controller)
+    kept = frames = 0
+    for name in WORLDS:
+        world = load_world(name)
+        _, demos = load_demos(Path(data_dir) / "demos" / "pairs-s0" / name, successful_only=True)
+        for d in demos[:drives]:
+            if re.observation == "camera":
+                from topodrake.sensing.camera import Camera
+                obs = Camera(world, re.sensor).render(d.poses)
+            else:
+                from topodrake.sensing.lidar import Lidar
+                obs = Lidar(world, re.sensor).scan(d.poses)
+            kept += len(re.sparsify(obs, p=p))
+            frames += len(d.poses)
+    return kept / max(frames, 1)
+
+
+def plot(details: dict, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(details)
+    fig, axes = plt.subplots(1, len(names), figsize=(5 * len(names), 4.2), dpi=110, squeeze=False)
+    for ax, name in zip(axes[0], names):
+        for off, cond, colour in ((-0.02, "clean", "#3b75af"), (0.02, "noisy", "#ef8636")):
+            r = details[name][cond]["reliability"]
+            centres = (np.array(r["edges"][:-1]) + np.array(r["edges"][1:])) / 2
+            rate = np.array([np.nan if v is None else v for v in r["rate"]], float)
+            ax.bar(centres + off, np.nan_to_num(rate), 0.04, color=colour, label=f"{cond} actuation")
+        ax.plot([0, 1], [0, 1], "k--", lw=1, label="calibrated")
+        s = details[name]["noisy"]
+        ax.set_title(f"{name}: ECE {s['ece']:.3f}, AUROC {s['auroc'] or float('nan'):.3f}")
+        ax.set_xlabel("predicted reachability (bin)")
+        ax.set_ylabel("empirical success rate")
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1.05)
+        ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--pairs", type=int, default=1000)
+    ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")
+    ap.add_argument("--p", type=float, default=0.99, help="p_sparsify for keep_ratio")
+    ap.add_argument("--keep-drives", type=int, help="drives per house for keep_ratio (default all)")
+    ap.add_argument("--noise", type=float, default=0.33)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--data", default="data")
+    ap.add_argument("--workers", type=int)
+    ap.add_argument("--ray", metavar="ADDRESS")
+    ap.add_argument("--out", default="results")
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        return _run(args)
+    except TopodrakeError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+
+
+def _run(args) -> int:
+    from topodrake.learning.calibration import calibration_summary, reliability
+    from topodrake.learning.samples import collect_trajectories
+    from topodrake.montecarlo import run_trials, trial_seeds
+    from topodrake.systems.trials import reach_trial
+
+    if args.pairs < 1:
+        raise TopodrakeError("--pairs must be >= 1")
+    estimators = parse_estimators(args.estimators)
+    # make sure the test houses' demonstrations exist before the workers start
+    collect_trajectories(list(WORLDS), Path(args.data) / "demos" / "pairs-s0",
+                         progress=not args.quiet)
+    seeds = trial_seeds(args.seed, args.pairs)
+    summary, details = {}, {}
+    t0 = time.perf_counter()
+    for name, (reach, controller) in estimators.items():
+        details[name] = {}
+        for cond, noise in (("clean", 0.0), ("noisy", args.noise)):
+            res = run_trials(reach_trial, seeds, workers=args.workers, ray_address=args.ray,
+                             progress=not args.quiet, desc=f"{name} {cond}", reach=reach,
+                             controller=controller, noise_std=noise, data_dir=args.data,
+                             worlds=WORLDS)
+            p = np.array([r["p"] for r in res])
+            y = np.array([r["success"] for r in res], int)
+            s = calibration_summary(p, y)
+            rel = reliability(p, y)
+            s["reliability"] = {"edges": rel.edges.tolist(), "count": rel.count.tolist(),
+                                "rate": [None if np.isnan(v) else float(v) for v in rel.rate],
+                                "mean_pred": [None if np.isnan(v) else float(v) for v in rel.mean_pred]}
+            details[name][cond] = s
+        ratio = keep_ratio(reach, controller, args.data, args.p, args.keep_drives)
+        n = details[name]["noisy"]
+        summary[name] = {"ece": round(n["ece"], 4), "brier": round(n["brier"], 4),
+                         "auroc": None if n["auroc"] is None else round(n["auroc"], 4),
+                         "keep_ratio": round(ratio, 4)}
+    out = Path(args.out)
+    atomic_write_json(out / "reachability_calibration.json", {
+        "command": "python studies/reachability_calibration.py " + " ".join(sys.argv[1:]),
+        "pairs": args.pairs, "seed": args.seed, "noise_std": args.noise, "p_sparsify": args.p,
+        "estimators": {k: {"reach": r, "controller": c} for k, (r, c) in estimators.items()},
+        "wall_time_s": round(time.perf_counter() - t0, 1), "summary": summary, "details": details})
+    plot(details, out / "reachability_calibration.png")
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for name, s in summary.items():
+            print(f"{name:<10} ECE {s['ece']:.3f}  Brier {s['brier']:.3f}  AUROC {s['auroc']}  "
+                  f"keep ratio {s['keep_ratio']:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
