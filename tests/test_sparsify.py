@@ -15,9 +15,12 @@ def test_anchors_every_reach_limit():
         calls.append(len(js))
         return np.where(js - i <= 4, 0.999, 0.1)
 
-    a = sparsify(20, reach, p=0.99, window=3)
+    a = sparsify(20, reach, p=0.99, window=3, max_window=3)
     assert a.tolist() == [0, 4, 8, 12, 16, 19]
     assert max(calls) <= 3                       # evaluated in windows
+    calls.clear()
+    assert sparsify(20, reach, p=0.99, window=2, max_window=8).tolist() == [0, 4, 8, 12, 16, 19]
+    assert calls[:2] == [2, 4]                   # windows double while every frame passes
 
 
 def test_first_failure_stops_the_scan_even_if_later_frames_pass():
@@ -26,6 +29,7 @@ def test_first_failure_stops_the_scan_even_if_later_frames_pass():
         return np.where((js == 3) & (i == 0), 0.2, 0.999)
 
     assert sparsify(10, reach, window=4).tolist() == [0, 2, 9]
+    assert sparsify(10, reach, window=1).tolist() == [0, 2, 9]
 
 
 def test_walk_always_advances_and_keeps_the_last_frame():

@@ -116,7 +116,7 @@ class Reachability(ObservationNetwork):
         offsets = self.frame_step * np.arange(-self.k, self.k + 1)
         return np.clip(targets[:, None] + offsets[None], 0, n_frames - 1)
 
-    def sparsify(self, observations: np.ndarray, p: float = 0.99, window: int = 32,
+    def sparsify(self, observations: np.ndarray, p: float = 0.99, window: int = 4,
                  feats: FrameFeatures | None = None) -> np.ndarray:
         """Anchor frames of one trajectory's observations (T, ...)."""
         from topodrake.topomap.sparsify import sparsify

@@ -21,22 +21,28 @@ from topodrake.errors import TopodrakeError
 
 
 def sparsify(n_frames: int, reach: Callable[[int, np.ndarray], np.ndarray], p: float = 0.99,
-             window: int = 32) -> np.ndarray:
-    """Anchor frame indices (increasing, first 0, last ``n_frames - 1``)."""
+             window: int = 4, max_window: int = 64) -> np.ndarray:
+    """Anchor frame indices (increasing, first 0, last ``n_frames - 1``).
+
+    Candidates are scored in windows that start at ``window`` frames and
+    double up to ``max_window`` while every frame passes, so a short reach
+    costs few queries and a long one few calls."""
     if n_frames < 1:
         raise TopodrakeError("cannot sparsify an empty trajectory")
     if not 0.0 < p < 1.0:
         raise TopodrakeError(f"p_sparsify must be in (0, 1), got {p}")
-    if window < 1:
-        raise TopodrakeError("window must be >= 1")
+    if window < 1 or max_window < 1:
+        raise TopodrakeError("window and max_window must be >= 1")
     anchors = [0]
     i = 0
     last = n_frames - 1
     while i < last:
         j_pass = i                       # last frame that passed from anchor i
         start = i + 1
+        size = window
         while start <= last:
-            js = np.arange(start, min(start + window, last + 1))
+            js = np.arange(start, min(start + size, last + 1))
+            size = min(2 * size, max(max_window, window))
             probs = np.asarray(reach(i, js), np.float64).reshape(-1)
             if probs.shape != js.shape:
                 raise TopodrakeError(f"reach() returned {probs.size} values for {js.size} frames")
