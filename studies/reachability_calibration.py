@@ -156,6 +156,10 @@ def _run(args) -> int:
                                 "rate": [None if np.isnan(v) else float(v) for v in rel.rate],
                                 "mean_pred": [None if np.isnan(v) else float(v) for v in rel.mean_pred]}
             details[name][cond] = s
+    # The keep ratios run RE in this process, so they come after every
+    # forked Monte Carlo block (a fork after torch has started its OpenMP
+    # threads can hang the children).
+    for name, (reach, controller) in estimators.items():
         ratio = keep_ratio(reach, controller, args.data, args.p, args.keep_drives)
         n = details[name]["noisy"]
         summary[name] = {"ece": round(n["ece"], 4), "brier": round(n["brier"], 4),

@@ -32,6 +32,8 @@ def run_trials(trial: Callable[..., dict], seeds: list[int], *, workers: int | N
     """Run ``trial(seed, **kwargs)`` for every seed; results in seed order.
 
     ``workers`` defaults to the machine's cores (1 runs in this process).
+    Workers are forked: run trials before this process starts torch's
+    OpenMP threads (running a network here first can hang the children).
     With ``ray_address`` (``"auto"``, ``"local"`` or ``"ray://host:port"``)
     the trials run as Ray tasks instead.
     """

@@ -154,10 +154,12 @@ def evaluate_reach(model, batcher: ReachBatcher, batch_size: int = 256) -> dict:
 
 # ---------------------------------------------------------------- data and training
 
-def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True
-                   ) -> tuple[ReachLabels, ReachLabels, dict]:
+def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
+                   only: str | None = None) -> tuple[ReachLabels, ReachLabels, dict]:
     """Training and validation labels of the config's controller, rolled out
-    once into ``data_dir/reach-labels/`` (resumable) and reused."""
+    once into ``data_dir/reach-labels/`` (resumable) and reused. ``only``
+    ("train" or "val") makes just that split (the other is None), so two
+    processes can roll out both at once."""
     from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.samples import collect_trajectories
 
@@ -171,6 +173,9 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True
     out = []
     for split, worlds, n, seed in (("train", d.train_worlds, lab.train_pairs, lab.seed),
                                    ("val", d.val_worlds, lab.val_pairs, lab.seed + 1)):
+        if only is not None and split != only:
+            out.append(None)
+            continue
         key = hashlib.sha1(json.dumps({"worlds": worlds, "n": n, "seed": seed,
                                        "cfg": asdict(lab.rollout), "demos": str(demo_root)},
                                       sort_keys=True).encode()).hexdigest()[:10]
