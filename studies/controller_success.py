@@ -34,6 +34,7 @@ from pathlib import Path
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
+from topodrake.montecarlo import add_study_arguments, study_main
 
 CONTROLLERS = ("camera_k0", "camera_k2", "camera_k5", "lidar_k5", "direct_k0")
 #: Table I of the paper (clean actuation; no lidar row there).
@@ -127,24 +128,12 @@ def plot(summary: dict, details: dict, path: Path) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", type=int, default=400, help="trials per controller and noise setting")
-    ap.add_argument("--seed", type=int, default=0, help="base seed of the trial seeds")
     ap.add_argument("--controllers", default=",".join(CONTROLLERS),
                     help="comma-separated checkpoint folder names under --checkpoints "
                          "('oracle' = the A* oracle)")
     ap.add_argument("--checkpoints", default="checkpoints")
-    ap.add_argument("--data", default="data", help="cache of the test houses' demonstrations")
-    ap.add_argument("--noise", type=float, default=0.33, help="actuation noise std of the noisy runs")
-    ap.add_argument("--workers", type=int, help="local worker processes (default: all cores)")
-    ap.add_argument("--ray", metavar="ADDRESS", help="run the trials on a Ray cluster")
-    ap.add_argument("--out", default="results")
-    ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars")
-    args = ap.parse_args(argv)
-    try:
-        return _run(args)
-    except TopodrakeError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    add_study_arguments(ap, "cache of the test houses' demonstrations")
+    return study_main(_run, ap.parse_args(argv))
 
 
 def _run(args) -> int:

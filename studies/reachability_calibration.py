@@ -31,6 +31,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
+from topodrake.montecarlo import add_study_arguments, study_main
 
 DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
            "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
@@ -110,20 +111,8 @@ def main(argv=None) -> int:
     ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")
     ap.add_argument("--p", type=float, default=0.99, help="p_sparsify for keep_ratio")
     ap.add_argument("--keep-drives", type=int, help="drives per house for keep_ratio (default all)")
-    ap.add_argument("--noise", type=float, default=0.33)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--data", default="data")
-    ap.add_argument("--workers", type=int)
-    ap.add_argument("--ray", metavar="ADDRESS")
-    ap.add_argument("--out", default="results")
-    ap.add_argument("--json", action="store_true")
-    ap.add_argument("--quiet", action="store_true")
-    args = ap.parse_args(argv)
-    try:
-        return _run(args)
-    except TopodrakeError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    add_study_arguments(ap, "cache of demonstrations (test houses)")
+    return study_main(_run, ap.parse_args(argv))
 
 
 def _run(args) -> int:

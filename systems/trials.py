@@ -62,7 +62,7 @@ def _policy(checkpoint: str):
 
 @lru_cache(maxsize=8)
 def _target_runner(checkpoint: str, data_dir: str, worlds: tuple[str, ...], world: str,
-                   noise_std: float):
+                   noise_std: float, overlap_lost: float | None = None):
     from topodrake.learning.policy import AStarOracle
     from topodrake.systems.run import TargetRunner
     from topodrake.systems.scenario import Scenario
@@ -78,7 +78,8 @@ def _target_runner(checkpoint: str, data_dir: str, worlds: tuple[str, ...], worl
         scenario.camera = policy.sensor
     elif policy.observation == "lidar":
         scenario.lidar = policy.sensor
-    return TargetRunner(build_waypoint_diagram(scenario, policy, world=w))
+    return TargetRunner(build_waypoint_diagram(scenario, policy, world=w),
+                        overlap_lost=overlap_lost)
 
 
 def controller_trial(seed: int, checkpoint: str = "oracle", noise_std: float = 0.0,
@@ -117,24 +118,6 @@ def _reachability(reach: str, controller: str):
     return Reachability.from_checkpoint(reach, controller)
 
 
-@lru_cache(maxsize=8)
-def _reach_runner(controller: str, data_dir: str, worlds: tuple[str, ...], world: str,
-                  noise_std: float, overlap_lost: float):
-    from topodrake.systems.run import TargetRunner
-    from topodrake.systems.scenario import Scenario
-    from topodrake.systems.waypoint_net import build_waypoint_diagram
-
-    w = _evaluation_set(data_dir, worlds)[1][world]
-    policy = _policy(controller)
-    scenario = Scenario(world=world, noise_std=noise_std,
-                        camera_enabled=policy.observation == "camera")
-    if policy.observation == "camera":
-        scenario.camera = policy.sensor
-    else:
-        scenario.lidar = policy.sensor
-    return TargetRunner(build_waypoint_diagram(scenario, policy, world=w), overlap_lost=overlap_lost)
-
-
 def reach_trial(seed: int, reach: str = "", controller: str = "", noise_std: float = 0.33,
                 data_dir: str = "data",
                 worlds: tuple[str, ...] = ("test-0", "test-1", "test-2", "test-3", "test-4")) -> dict:
@@ -163,8 +146,8 @@ def reach_trial(seed: int, reach: str = "", controller: str = "", noise_std: flo
     ctx = make_target_context(world, poses, int(pair["tgt"]), re.k, frame_step=re.frame_step,
                               modality=re.observation, **sensor)
     p = float(re.probability(src_obs, re.encode_target(ctx.observations[None]))[0])
-    runner = _reach_runner(str(controller), str(data_dir), tuple(worlds), world.name,
-                           float(noise_std), cfg.overlap_lost)
+    runner = _target_runner(str(controller), str(data_dir), tuple(worlds), world.name,
+                            float(noise_std), cfg.overlap_lost)
     policy = runner.built.waypoint_net.policy
     target = make_target_context(world, poses, int(pair["tgt"]), policy.k,
                                  frame_step=policy.frame_step, modality=policy.observation,

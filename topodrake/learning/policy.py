@@ -172,8 +172,9 @@ class AStarOracle:
 
 
 def context_frames(n_frames: int, j: int, k: int, frame_step: int = 3) -> np.ndarray:
-    """Indices j - k*step .. j + k*step of a trajectory of ``n_frames``, clamped."""
-    return np.clip(j + frame_step * np.arange(-k, k + 1), 0, n_frames - 1)
+    """Indices j - k*step .. j + k*step of a trajectory of ``n_frames``, clamped:
+    (2k+1,) for one frame ``j``, (M, 2k+1) for an array of M frames."""
+    return np.clip(np.asarray(j)[..., None] + frame_step * np.arange(-k, k + 1), 0, n_frames - 1)
 
 
 def make_target_context(world, trajectory_poses: np.ndarray, j: int, k: int, *,

@@ -112,9 +112,9 @@ class Reachability(ObservationNetwork):
 
     def context_rows(self, n_frames: int, targets: np.ndarray) -> np.ndarray:
         """(M, 2k+1) clamped context frames of target frames ``targets`` of one trajectory."""
-        targets = np.asarray(targets, np.int64)
-        offsets = self.frame_step * np.arange(-self.k, self.k + 1)
-        return np.clip(targets[:, None] + offsets[None], 0, n_frames - 1)
+        from topodrake.learning.policy import context_frames
+
+        return context_frames(n_frames, np.asarray(targets, np.int64), self.k, self.frame_step)
 
     def sparsify(self, observations: np.ndarray, p: float = 0.99, window: int = 4,
                  feats: FrameFeatures | None = None) -> np.ndarray:
