@@ -2,7 +2,7 @@
 
 Example (every key optional; see ``configs/waypoint_camera_k5.yaml``)::
 
-    network: {modality: camera, k: 5, image_size: 64, channels: [32, 32, 64]}
+    network: {modality: camera, k: 5, image_size: 64, channels: [32, 64, 64], first_pool: 2}
     data: {train_samples: 200000, val_samples: 2000}
     batch_size: 64
     max_minutes: 60
