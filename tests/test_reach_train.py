@@ -45,7 +45,7 @@ def _config(**kw):
     cfg = ReachTrainConfig(network=NetworkConfig(output="reach", k=1, channels=[8, 8, 16],
                                                  feature_dim=16, combine_channels=16, hidden=16),
                            batch_size=16, lr=3e-3, epoch_samples=10 ** 6, val_every_samples=10 ** 6,
-                           checkpoint_every_s=10 ** 6, **kw)
+                           checkpoint_every_s=10 ** 6, **{"init": "scratch", **kw})
     cfg.labels.train_pairs = 64
     cfg.labels.val_pairs = 64
     return cfg
@@ -84,6 +84,60 @@ def test_training_fits_the_labels_and_ties_the_checkpoint_to_its_controller(labe
     other.write_bytes(b"another controller")
     with pytest.raises(TopodrakeError, match="trained for controller"):
         load_reachability(tmp_path / "re" / "checkpoint.pt", other)
+
+
+def test_re_starts_from_its_controller_and_keeps_a_temperature_that_helps(labels, tmp_path):
+    from topodrake.learning.checkpoint import save_checkpoint
+    from topodrake.learning.networks import NetworkConfig, WaypointNetwork
+    from topodrake.learning.reach_train import (checkpoint_temperature, controller_identity,
+                                                init_from_controller, load_reachability,
+                                                train_reachability)
+    from topodrake.learning.reachability import Reachability
+    from topodrake.sensing.config import CameraConfig
+
+    tiny = dict(k=1, channels=[8, 8, 16], feature_dim=16, combine_channels=16, hidden=16)
+    torch.manual_seed(5)
+    cwp = WaypointNetwork(NetworkConfig(**tiny), 64)
+    save_checkpoint(tmp_path / "cwp.pt", cwp, CameraConfig())
+    ident = controller_identity(tmp_path / "cwp.pt")
+    cfg = _config(max_samples=16, init="controller", temperature_scaling=True)
+    train_reachability(cfg, tmp_path / "re", labels=(labels, labels), controller=ident,
+                       progress=False)
+    ck = load_reachability(tmp_path / "re" / "checkpoint.pt", tmp_path / "cwp.pt")
+    theirs, mine = cwp.state_dict(), ck.model.state_dict()
+    for key in ("encoder.first.weight", "combine.weight", "overlap.0.weight"):
+        # one Adam step (lr 3e-3) away from the controller's weights
+        assert (theirs[key] - mine[key]).abs().max() < 2 * cfg.lr
+        assert (theirs[key] - mine[key]).abs().max() < 0.1 * theirs[key].abs().max()
+    # the temperature is kept only if it lowers the validation BCE, and loading applies it
+    card = json.loads((tmp_path / "re" / "card.json").read_text())
+    t = checkpoint_temperature(ck.meta)
+    assert t == card["temperature"] > 0
+    if t != 1.0:
+        assert card["calibrated_metrics"]["bce"] < card["metrics"]["bce"]
+    assert Reachability.from_checkpoint(tmp_path / "re" / "checkpoint.pt",
+                                        tmp_path / "cwp.pt").temperature == t
+    # a controller of another profile cannot seed RE
+    wide = WaypointNetwork(NetworkConfig(output="reach", **{**tiny, "channels": [8, 16, 16]}), 64)
+    with pytest.raises(TopodrakeError, match="network profile differs"):
+        init_from_controller(wide, tmp_path / "cwp.pt")
+
+
+def test_reach_batches_carry_the_starting_overlaps(labels):
+    from topodrake.learning.reach_train import ReachBatcher, start_overlaps
+    from topodrake.sensing.overlap import mutual_overlap
+    from topodrake.world import load_world
+
+    ov = start_overlaps(labels)
+    t = labels.trajectories
+    tgt = t.poses[t.traj_offsets[labels.traj] + labels.tgt]
+    want = mutual_overlap(load_world(WORLD), labels.src_pose, tgt)
+    assert np.allclose(ov, want) and ov.shape == (len(labels), 2)
+    # both kinds of pairs are present: ones that see each other and ones that do not
+    assert (ov.min(axis=1) < 0.05).any() and (ov.min(axis=1) > 0.5).any()
+    cfg = _config()
+    b = ReachBatcher(labels, cfg.network).batch(np.array([3, 0, 7]))
+    assert torch.allclose(b.overlap, torch.from_numpy(ov[[3, 0, 7]]).float())
 
 
 def test_reach_config_is_checked(tmp_path):

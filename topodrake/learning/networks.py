@@ -181,7 +181,9 @@ class WaypointNetwork(nn.Module):
     (cos, sin) of target minus current heading, ``overlap_logits`` (N, 2)
     (R_cur->tgt, R_tgt->cur), and for the baseline ``control`` (N, 2) in
     units of :data:`CONTROL_SCALE`. With ``output = "reach"`` (the
-    reachability estimator RE) the only output is ``reach_logit`` (N, 1).
+    reachability estimator RE) the output is ``reach_logit`` (N, 1), plus
+    ``overlap_logits`` (N, 2) of the pair as it starts, an auxiliary head
+    that teaches the encoder to tell pairs that see nothing of each other.
     """
 
     def __init__(self, cfg: NetworkConfig, in_size: int):
@@ -192,8 +194,10 @@ class WaypointNetwork(nn.Module):
         self.combine = nn.Conv1d(cfg.feature_dim, cfg.combine_channels, cfg.frames)
         c, hid = cfg.combine_channels, cfg.hidden
         if cfg.output == "reach":
-            # The reachability estimator RE: the same design with one logit.
-            self.waypoint = self.heading = self.overlap = self.control = None
+            # The reachability estimator RE: the same design with one logit
+            # (and the auxiliary overlap head).
+            self.waypoint = self.heading = self.control = None
+            self.overlap = _head(c, hid, 2)
             self.reach = _head(c, hid, 1)
         else:
             self.waypoint = _head(c, hid, 2)

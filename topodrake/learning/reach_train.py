@@ -50,12 +50,25 @@ class ReachTrainConfig(TrainConfig):
     network: NetworkConfig = field(default_factory=_reach_network)
     controller: str = "checkpoints/camera_k5/checkpoint.pt"   # the C_WP it describes
     labels: ReachLabelSets = field(default_factory=ReachLabelSets)
+    # "controller": start from the C_WP's encoder and frame combiner (same
+    # profile needed); "scratch": random initialisation
+    init: str = "controller"
+    # weight of the auxiliary loss on the pair's starting image overlaps
+    # (geometric, from the poses; 0 = the paper's RE, reach logit only)
+    overlap_weight: float = 1.0
+    # fit a temperature on the validation rollouts after training (kept
+    # only if it lowers their BCE; Reachability applies it)
+    temperature_scaling: bool = True
 
     def validate(self, where: str = "reach train config") -> "ReachTrainConfig":
         if self.network.output != "reach":
             raise TopodrakeError(f"{where}: network.output must be 'reach' for RE")
         if self.labels.train_pairs < self.batch_size or self.labels.val_pairs < 1:
             raise TopodrakeError(f"{where}: need labels.train_pairs >= batch_size and val_pairs >= 1")
+        if self.overlap_weight < 0:
+            raise TopodrakeError(f"{where}: overlap_weight must be >= 0, got {self.overlap_weight}")
+        if self.init not in ("controller", "scratch"):
+            raise TopodrakeError(f"{where}: init must be 'controller' or 'scratch', got {self.init!r}")
         self.labels.rollout.validate()
         super().validate(where)
         return self
@@ -80,6 +93,24 @@ def controller_identity(path) -> dict:
     return {"checkpoint": str(path), "sha1": file_sha1(path)}
 
 
+def init_from_controller(model, controller_path) -> None:
+    """Copy the C_WP's encoder, frame combiner and overlap head into RE
+    ``model`` (the controller has already learnt to compare observations
+    from far more samples than there are reachability labels); the reach
+    head stays random."""
+    from topodrake.learning.checkpoint import load_checkpoint
+
+    ck = load_checkpoint(controller_path)
+    src = {k: v for k, v in ck.model.state_dict().items()
+           if k.startswith(("encoder.", "combine.", "overlap."))}
+    dst = model.state_dict()
+    bad = [k for k, v in src.items() if k not in dst or dst[k].shape != v.shape]
+    if bad:
+        raise TopodrakeError(f"cannot start RE from {controller_path}: its network profile differs "
+                             f"(e.g. {bad[0]}); give RE the controller's profile or set init: scratch")
+    model.load_state_dict(src, strict=False)
+
+
 # ---------------------------------------------------------------- batches
 
 @dataclass
@@ -87,6 +118,7 @@ class ReachBatch:
     cur: torch.Tensor      # (B, C, ...) observation at the jittered source
     ctx: torch.Tensor      # (B, 2k+1, C, ...) target context
     label: torch.Tensor    # (B,) 1 = reached
+    overlap: torch.Tensor  # (B, 2) image overlaps of source and target at the start
 
     def __len__(self) -> int:
         return len(self.label)
@@ -103,6 +135,7 @@ class ReachBatcher:
         self.lidar = lidar or LidarConfig()
         self.source = ObservationSource(labels.trajectories.worlds, cfg.modality, camera, self.lidar)
         self._label = torch.from_numpy(labels.label.astype(np.float32))
+        self._overlap = torch.from_numpy(start_overlaps(labels).astype(np.float32))
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -126,30 +159,79 @@ class ReachBatcher:
                                    self.lidar)
         cur = to_network_input(self.source.raw(world, self.labels.src_pose[idx]), self.cfg, self.lidar)
         ctx = ctx_all[torch.from_numpy(inv.reshape(rows.shape))]
-        return ReachBatch(cur, ctx, self._label[torch.from_numpy(idx)])
+        sel = torch.from_numpy(idx)
+        return ReachBatch(cur, ctx, self._label[sel], self._overlap[sel])
 
 
-def reach_loss(model, batch: ReachBatch) -> tuple[torch.Tensor, dict]:
-    logit = model.forward_split(batch.cur, batch.ctx)["reach_logit"][:, 0]
-    loss = F.binary_cross_entropy_with_logits(logit, batch.label)
-    return loss, {"loss": loss.item()}
+def start_overlaps(labels: ReachLabels) -> np.ndarray:
+    """(N, 2) geometric image overlaps (R_src->tgt, R_tgt->src) of every
+    pair's jittered source and target pose, as the rollout starts."""
+    from topodrake.sensing.overlap import mutual_overlap
+    from topodrake.world import load_world
+
+    t = labels.trajectories
+    world = t.traj_world[labels.traj]
+    tgt = t.poses[t.traj_offsets[labels.traj] + labels.tgt]
+    out = np.zeros((len(labels), 2))
+    for w in np.unique(world):
+        sel = world == w
+        out[sel] = mutual_overlap(load_world(t.worlds[w]), labels.src_pose[sel], tgt[sel])
+    return out
+
+
+def reach_loss(model, batch: ReachBatch, overlap_weight: float = 1.0
+               ) -> tuple[torch.Tensor, dict]:
+    out = model.forward_split(batch.cur, batch.ctx)
+    reach = F.binary_cross_entropy_with_logits(out["reach_logit"][:, 0], batch.label)
+    ov = F.binary_cross_entropy_with_logits(out["overlap_logits"], batch.overlap,
+                                            reduction="none").sum(1).mean()
+    loss = reach + overlap_weight * ov
+    return loss, {"loss": loss.item(), "loss_reach": reach.item(), "loss_overlap": ov.item()}
 
 
 @torch.no_grad()
-def evaluate_reach(model, batcher: ReachBatcher, batch_size: int = 256) -> dict:
-    """BCE, accuracy at 0.5, ECE (10 bins), Brier score and AUROC."""
+def reach_logits(model, batcher: ReachBatcher, batch_size: int = 256
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(logits, labels) of every pair of ``batcher``."""
     model.eval()
     logits, labels = [], []
     for start in range(0, len(batcher), batch_size):
         b = batcher.batch(np.arange(start, min(start + batch_size, len(batcher))))
         logits.append(model.forward_split(b.cur, b.ctx)["reach_logit"][:, 0])
         labels.append(b.label)
-    z, y = torch.cat(logits), torch.cat(labels)
+    return torch.cat(logits), torch.cat(labels)
+
+
+def _reach_metrics(z: torch.Tensor, y: torch.Tensor) -> dict:
     p = torch.sigmoid(z).numpy().astype(np.float64)
     out = {"bce": float(F.binary_cross_entropy_with_logits(z, y)),
            "accuracy": float(((p > 0.5) == (y.numpy() > 0.5)).mean())}
     out.update(calibration_summary(p, y.numpy()))
     return {k: (round(v, 5) if isinstance(v, float) else v) for k, v in out.items()}
+
+
+def evaluate_reach(model, batcher: ReachBatcher, batch_size: int = 256) -> dict:
+    """BCE, accuracy at 0.5, ECE (10 bins), Brier score and AUROC."""
+    return _reach_metrics(*reach_logits(model, batcher, batch_size))
+
+
+def fit_reach_temperature(model, batcher: ReachBatcher) -> dict:
+    """Temperature scaling on the validation pairs, kept only if it lowers
+    their BCE: ``{"temperature": T, "calibrated_metrics": ...}`` (T = 1
+    when it does not help)."""
+    from topodrake.learning.calibration import fit_temperature
+
+    z, y = reach_logits(model, batcher)
+    t = fit_temperature(z.numpy(), y.numpy())
+    before, after = _reach_metrics(z, y), _reach_metrics(z / t, y)
+    if not after["bce"] < before["bce"]:
+        t, after = 1.0, before
+    return {"temperature": round(float(t), 5), "calibrated_metrics": after}
+
+
+def checkpoint_temperature(meta: dict) -> float:
+    """The temperature an RE checkpoint was calibrated with (1 if none)."""
+    return float((meta.get("extra") or {}).get("temperature", 1.0))
 
 
 # ---------------------------------------------------------------- data and training
@@ -203,13 +285,17 @@ def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resum
     task = Task(
         train=ReachBatcher(train_l, cfg.network, cfg.camera, cfg.lidar),
         val=ReachBatcher(val_l, cfg.network, cfg.camera, cfg.lidar),
-        loss=reach_loss, evaluate=evaluate_reach, metric="ece",
+        loss=lambda model, b: reach_loss(model, b, cfg.overlap_weight),
+        evaluate=evaluate_reach, metric="ece",
         card={"controller": controller,
               "data": {"train_worlds": cfg.data.train_worlds, "val_worlds": cfg.data.val_worlds,
                        "train_pairs": len(train_l), "val_pairs": len(val_l),
                        "train_success_rate": round(float(train_l.label.mean()), 4),
                        "val_success_rate": round(float(val_l.label.mean()), 4)}},
-        meta={"controller": controller})
+        meta={"controller": controller},
+        init=(lambda model: init_from_controller(model, controller["checkpoint"]))
+        if cfg.init == "controller" else None,
+        finish=fit_reach_temperature if cfg.temperature_scaling else None)
     return train_network(cfg, task, out_dir, resume=resume, progress=progress, command=command)
 
 

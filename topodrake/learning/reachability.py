@@ -51,15 +51,17 @@ class Reachability(ObservationNetwork):
         self.temperature = float(temperature)
 
     @classmethod
-    def from_checkpoint(cls, path, controller_checkpoint, temperature: float = 1.0
+    def from_checkpoint(cls, path, controller_checkpoint, temperature: float | None = None
                         ) -> "Reachability":
-        """Load an RE, refusing one trained for another controller."""
-        from topodrake.learning.reach_train import load_reachability
+        """Load an RE, refusing one trained for another controller.
+        ``temperature`` defaults to the one fitted after training (1 if none)."""
+        from topodrake.learning.reach_train import checkpoint_temperature, load_reachability
 
         ck = load_reachability(path, controller_checkpoint)
         return cls(ck.model, ck.sensor, name=Path(path).parent.name,
                    controller=(ck.meta.get("extra") or {}).get("controller"),
-                   temperature=temperature)
+                   temperature=checkpoint_temperature(ck.meta) if temperature is None
+                   else temperature)
 
     def _prob(self, out: dict) -> np.ndarray:
         z = out["reach_logit"][:, 0] / self.temperature

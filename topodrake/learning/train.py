@@ -184,7 +184,10 @@ class Task:
     ``loss(model, batch) -> (loss tensor, {name: float})`` and
     ``evaluate(model, batcher) -> metrics`` (``metric`` names the validation
     figure shown on the progress bar). ``card`` is merged into card.json and
-    ``meta`` into the checkpoint."""
+    ``meta`` into the checkpoint. ``init(model)``, if given, sets the
+    starting weights of a fresh run (not of a resumed one); ``finish(model,
+    val) -> dict`` runs after the last step and its result goes into the
+    checkpoint's ``meta`` and the card (e.g. a fitted temperature)."""
 
     train: object
     val: object
@@ -193,6 +196,8 @@ class Task:
     metric: str
     card: dict
     meta: dict | None = None
+    init: object = None
+    finish: object = None
 
 
 def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool = True,
@@ -241,6 +246,8 @@ def train_network(cfg: TrainConfig, task: Task, out_dir, *, resume: bool = True,
     state = {"epoch": 0, "pos": 0, "samples_seen": 0, "wall_time_s": 0.0}
     history: list[dict] = []
     cfg_dict = cfg.to_dict()
+    if task.init is not None and not ckpt_path.exists():
+        task.init(model)
     if ckpt_path.exists():
         if not resume:
             raise TopodrakeError(f"{ckpt_path} exists; resume it or choose another output folder")
@@ -331,6 +338,10 @@ def train_network(cfg: TrainConfig, task: Task, out_dir, *, resume: bool = True,
                         "wall_time_s": round(state["wall_time_s"], 1),
                         "train_loss": round(ema, 5) if ema is not None else None,
                         "metrics": metrics})
+    if task.finish is not None:
+        finished = task.finish(model, val_b)
+        task.meta = {**(task.meta or {}), **finished}
+        task.card = {**task.card, **finished}
     write(metrics)
     seen = state["samples_seen"] - start_seen
     rate = seen / max(state["wall_time_s"] - start_wall, 1e-9)
