@@ -31,29 +31,12 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
+from topodrake.learning.reachability import parse_estimators
 from topodrake.montecarlo import add_study_arguments, study_main
 
 DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
            "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
 WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
-
-
-def parse_estimators(text: str) -> dict:
-    """``name=re.pt:cwp.pt,...`` -> {name: (re path, controller path)}."""
-    out = {}
-    for item in filter(None, (s.strip() for s in text.split(","))):
-        try:
-            name, paths = item.split("=", 1)
-            reach, controller = paths.split(":", 1)
-        except ValueError:
-            raise TopodrakeError(f"--estimators entry {item!r} is not name=RE.pt:CWP.pt") from None
-        for path in (reach, controller):
-            if not Path(path).is_file():
-                raise TopodrakeError(f"{name}: checkpoint {path} does not exist")
-        out[name] = (reach, controller)
-    if not out:
-        raise TopodrakeError("no estimators given")
-    return out
 
 
 def keep_ratio(reach: str, controller: str, data_dir: str, p: float, drives: int | None) -> float:
@@ -68,13 +51,7 @@ def keep_ratio(reach: str, controller: str, data_dir: str, p: float, drives: int
         world = load_world(name)
         _, demos = load_demos(Path(data_dir) / "demos" / "pairs-s0" / name, successful_only=True)
         for d in demos[:drives]:
-            if re.observation == "camera":
-                from topodrake.sensing.camera import Camera
-                obs = Camera(world, re.sensor).render(d.poses)
-            else:
-                from topodrake.sensing.lidar import Lidar
-                obs = Lidar(world, re.sensor).scan(d.poses)
-            kept += len(re.sparsify(obs, p=p))
+            kept += len(re.sparsify(re.observe(world, d.poses), p=p))
             frames += len(d.poses)
     return kept / max(frames, 1)
 

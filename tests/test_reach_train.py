@@ -253,24 +253,33 @@ def test_bench_reachability_cli_refuses_a_missing_controller(tmp_path, capsys):
     assert "no.pt does not exist" in capsys.readouterr().err
 
 
-def test_sparsify_cli_end_to_end(tmp_path, capsys):
-    from topodrake.cli import main
+@pytest.fixture(scope="module")
+def tiny_re(tmp_path_factory):
+    """(demo folder of test-1 with two drives, untrained tiny RE, its 'controller')."""
     from topodrake.demonstrations import CollectConfig, collect
     from topodrake.learning.checkpoint import save_checkpoint
     from topodrake.learning.networks import NetworkConfig, WaypointNetwork
     from topodrake.learning.reach_train import controller_identity
     from topodrake.sensing.config import CameraConfig
 
-    demos = collect("test-1", tmp_path / "demos", CollectConfig(protocol="random", count=2, seed=5),
+    tmp = tmp_path_factory.mktemp("tiny_re")
+    demos = collect("test-1", tmp / "demos", CollectConfig(protocol="random", count=2, seed=5),
                     progress=False)
-    ctrl = tmp_path / "cwp.pt"
+    ctrl = tmp / "cwp.pt"
     ctrl.write_bytes(b"c")
     torch.manual_seed(0)
     net = WaypointNetwork(NetworkConfig(output="reach", k=1, channels=[8, 8, 16], feature_dim=16,
                                         combine_channels=16, hidden=16), 64)
-    save_checkpoint(tmp_path / "re.pt", net, CameraConfig(),
+    save_checkpoint(tmp / "re.pt", net, CameraConfig(),
                     extra={"controller": controller_identity(ctrl)})
-    args = ["sparsify", "test-1", "--reach", str(tmp_path / "re.pt"), "--controller", str(ctrl),
+    return demos, tmp / "re.pt", ctrl
+
+
+def test_sparsify_cli_end_to_end(tiny_re, tmp_path, capsys):
+    from topodrake.cli import main
+
+    demos, re_path, ctrl = tiny_re
+    args = ["sparsify", "test-1", "--reach", str(re_path), "--controller", str(ctrl),
             "--demos", str(demos), "--p", "0.3", "--out", str(tmp_path / "a.png"), "--json"]
     assert main(args) in (0, None)
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -286,14 +295,41 @@ def test_sparsify_cli_end_to_end(tmp_path, capsys):
     assert "no demonstrations" in capsys.readouterr().err
 
 
-def test_calibration_study_refuses_bad_estimators(tmp_path, capsys):
+def _study(name):
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "studies" / "reachability_calibration.py"
-    spec = importlib.util.spec_from_file_location("reachability_calibration", path)
+    path = Path(__file__).resolve().parents[1] / "studies" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
     study = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(study)
+    return study
+
+
+def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, tmp_path, capsys):
+    from topodrake.demonstrations import load_demos
+
+    demos, re_path, ctrl = tiny_re
+    study = _study("sparsification")
+    est = f"a={re_path}:{ctrl},b={re_path}:{ctrl}"
+    assert study.main(["--world", "test-1", "--demos", str(demos), "--estimators", est,
+                       "--p", "0.3", "--out", str(tmp_path), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    saved = json.loads((tmp_path / "sparsification.json").read_text())
+    lengths = [len(d.poses) for d in load_demos(demos, successful_only=True)[1]]
+    assert saved["drive"] == int(np.argmax(lengths)) and saved["frames"] == max(lengths)
+    assert summary["a"] == summary["b"]                     # the same RE twice: the same anchors
+    frames = saved["results"]["a"]["anchor_frames"]
+    assert frames[0] == 0 and frames[-1] == max(lengths) - 1
+    assert summary["a"]["keep_ratio"] == pytest.approx(len(frames) / max(lengths), abs=1e-4)
+    assert (tmp_path / "sparsification.png").stat().st_size > 10000
+    assert study.main(["--world", "test-1", "--demos", str(demos), "--estimators", est,
+                       "--drive", "7", "--out", str(tmp_path)]) == 2
+    assert "--drive must be in 0..1" in capsys.readouterr().err
+
+
+def test_calibration_study_refuses_bad_estimators(tmp_path, capsys):
+    study = _study("reachability_calibration")
     assert study.main(["--estimators", "x=only-one-path", "--out", str(tmp_path)]) == 2
     assert "name=RE.pt:CWP.pt" in capsys.readouterr().err
     assert study.main(["--estimators", f"x={tmp_path}/a.pt:{tmp_path}/b.pt"]) == 2

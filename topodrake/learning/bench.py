@@ -148,8 +148,7 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
     from topodrake.learning.reach_train import ReachTrainConfig
     from topodrake.learning.reachability import Reachability
     from topodrake.montecarlo import trial_seeds
-    from topodrake.sensing.camera import Camera
-    from topodrake.sensing.lidar import Lidar
+    from topodrake.sensing.observe import observe
     from topodrake.world import load_world
 
     cfg = config or ReachTrainConfig()
@@ -161,8 +160,7 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
         trajs = expert_drives(world, [(0, 5), (3, 8), (6, 1), (2, 7)], 120.0)
         poses = trajs.poses[trajs.rows(0)]
         sensor = cfg.camera if net_cfg.modality == "camera" else cfg.lidar
-        obs = (Camera(world, sensor).render(poses) if net_cfg.modality == "camera"
-               else Lidar(world, sensor).scan(poses))
+        obs = observe(world, net_cfg.modality, poses, sensor)
         torch.manual_seed(seed)
         re = Reachability(WaypointNetwork(net_cfg, input_size(net_cfg, cfg.lidar.beams)), sensor)
         rng = np.random.default_rng(seed)

@@ -134,6 +134,11 @@ class ObservationNetwork:
             return camera_input(raw, self.cfg.image_size)
         return lidar_input(raw, self.sensor.range_m)
 
+    def observe(self, world, poses: np.ndarray) -> np.ndarray:
+        """This network's raw observations (its sensor) at ``poses`` (N, 3) in ``world``."""
+        from topodrake.sensing.observe import observe
+        return observe(world, self.observation, poses, self.sensor)
+
     @torch.inference_mode()
     def encode_target(self, context: np.ndarray) -> torch.Tensor:
         x = self.to_input(np.asarray(context))

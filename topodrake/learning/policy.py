@@ -187,10 +187,7 @@ def make_target_context(world, trajectory_poses: np.ndarray, j: int, k: int, *,
     poses = np.asarray(trajectory_poses, np.float64)[context_frames(len(trajectory_poses), j, k,
                                                                     frame_step)]
     obs = None
-    if modality == "camera":
-        from topodrake.sensing.camera import Camera
-        obs = Camera(world, camera).render(poses)
-    elif modality == "lidar":
-        from topodrake.sensing.lidar import Lidar
-        obs = Lidar(world, lidar).scan(poses)
+    if modality != "pose":
+        from topodrake.sensing.observe import observe
+        obs = observe(world, modality, poses, camera if modality == "camera" else lidar)
     return TargetContext(key=key, observations=obs, poses=poses)

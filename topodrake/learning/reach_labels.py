@@ -201,12 +201,9 @@ def _target_contexts(world, policy, trajs, traj, tgt) -> np.ndarray:
     poses = trajs.poses[rows.ravel()]
     if policy.observation == "pose":
         obs = poses
-    elif policy.observation == "camera":
-        from topodrake.sensing.camera import Camera
-        obs = Camera(world, policy.sensor).render(poses)
     else:
-        from topodrake.sensing.lidar import Lidar
-        obs = Lidar(world, policy.sensor).scan(poses)
+        from topodrake.sensing.observe import observe
+        obs = observe(world, policy.observation, poses, policy.sensor)
     return obs.reshape(*rows.shape, *obs.shape[1:])
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from topodrake.errors import TopodrakeError
 from topodrake.learning.inference import ObservationNetwork
 
 
@@ -127,3 +128,21 @@ class Reachability(ObservationNetwork):
         n = len(feats)
         return sparsify(n, lambda i, js: self.pairwise(feats, np.full(len(js), i),
                                                        self.context_rows(n, js)), p, window)
+
+
+def parse_estimators(text: str) -> dict:
+    """``name=re.pt:cwp.pt,...`` -> {name: (re path, controller path)}."""
+    out = {}
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        try:
+            name, paths = item.split("=", 1)
+            reach, controller = paths.split(":", 1)
+        except ValueError:
+            raise TopodrakeError(f"--estimators entry {item!r} is not name=RE.pt:CWP.pt") from None
+        for path in (reach, controller):
+            if not Path(path).is_file():
+                raise TopodrakeError(f"{name}: checkpoint {path} does not exist")
+        out[name] = (reach, controller)
+    if not out:
+        raise TopodrakeError("no estimators given")
+    return out

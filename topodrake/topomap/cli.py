@@ -33,17 +33,12 @@ def cmd_sparsify(args) -> None:
                              f"{len(demos)} successful drives)")
     poses = demos[args.drive].poses
     re = Reachability.from_checkpoint(args.reach, args.controller)
-    if re.observation == "camera":
-        from topodrake.sensing.camera import Camera
-        obs = Camera(world, re.sensor).render(poses)
-    else:
-        from topodrake.sensing.lidar import Lidar
-        obs = Lidar(world, re.sensor).scan(poses)
-    anchors = re.sparsify(obs, p=args.p)
+    anchors = re.sparsify(re.observe(world, poses), p=args.p)
     result = {"world": args.world, "drive": args.drive, "frames": len(poses),
               "anchors": len(anchors), "keep_ratio": round(len(anchors) / len(poses), 4),
               "p_sparsify": args.p, "anchor_frames": anchors.tolist()}
     if args.out:
+        from topodrake.topomap.plot import plot_anchors
         plot_anchors(world, poses, anchors, args.out, title=f"{re.name or 'RE'}: "
                      f"{len(anchors)} anchors of {len(poses)} frames (p = {args.p})")
     if args.json:
@@ -51,25 +46,6 @@ def cmd_sparsify(args) -> None:
     else:
         print(f"{len(anchors)} anchors of {len(poses)} frames "
               f"(keep ratio {result['keep_ratio']:.3f})" + (f"; wrote {args.out}" if args.out else ""))
-
-
-def plot_anchors(world, poses, anchors, out, title: str = "") -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from topodrake.world.plot import plot_world, save_figure
-
-    fig, ax = plt.subplots(figsize=(8, 8))
-    plot_world(world, ax, places=False)
-    ax.plot(poses[:, 0], poses[:, 1], color="0.4", lw=1.0)
-    a = poses[np.asarray(anchors)]
-    ax.quiver(a[:, 0], a[:, 1], np.cos(a[:, 2]), np.sin(a[:, 2]), color="tab:red",
-              scale=30, width=0.004)
-    ax.plot(a[:, 0], a[:, 1], "o", color="tab:red", ms=4)
-    ax.set_title(title)
-    save_figure(fig, out)
 
 
 def add_sparsify_parser(sub) -> None:

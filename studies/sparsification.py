@@ -1,0 +1,119 @@
+"""How many anchors does each controller need? One test-house drive, sparsified by several REs.
+
+The paper's sparsification figure: the same expert trajectory of a test
+house, reduced to anchors greedily while RE > ``--p`` (0.99), once per
+controller (default camera k=2, camera k=5 and lidar k=5, each RE with the
+C_WP it was trained for). A controller that reaches farther needs fewer
+anchors.
+
+    python studies/sparsification.py --json
+
+prints ``{"camera_k2": {"anchors": n, "keep_ratio": r}, ...}`` and writes
+``results/sparsification.json`` (anchor frames, the command) and
+``results/sparsification.png`` (one floor-plan panel per RE).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.fileio import atomic_write_json
+
+DEFAULT = ("camera_k2=checkpoints/reach_camera_k2/checkpoint.pt:checkpoints/camera_k2/checkpoint.pt,"
+           "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
+           "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
+
+
+def pick_drive(lengths, drive: int | None) -> int:
+    """``drive`` if given (checked), else the longest of the drives' ``lengths``."""
+    if not len(lengths):
+        raise TopodrakeError("no successful drives to sparsify")
+    if drive is None:
+        return int(np.argmax(lengths))
+    if not 0 <= drive < len(lengths):
+        raise TopodrakeError(f"--drive must be in 0..{len(lengths) - 1}")
+    return drive
+
+
+def plot(world, poses, results: dict, path: Path, p: float) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from topodrake.topomap.plot import draw_anchors
+    from topodrake.world.plot import save_figure
+
+    fig, axes = plt.subplots(1, len(results), figsize=(6 * len(results), 6), squeeze=False)
+    for ax, (name, r) in zip(axes[0], results.items()):
+        draw_anchors(ax, world, poses, r["anchor_frames"],
+                     f"{name}: {r['anchors']} anchors of {len(poses)} frames")
+    fig.suptitle(f"{world.name}: one expert drive sparsified at p = {p}")
+    save_figure(fig, path)
+
+
+def main(argv=None) -> int:
+    from topodrake.montecarlo import study_main
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--world", default="test-0", help="test house (its demonstrations must exist)")
+    ap.add_argument("--drive", type=int, help="index among its successful drives (default: longest)")
+    ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")
+    ap.add_argument("--p", type=float, default=0.99, help="p_sparsify")
+    ap.add_argument("--data", default="data", help="cache of demonstrations")
+    ap.add_argument("--demos", help="demonstration folder of the world (default: DATA/demos/pairs-s0/WORLD)")
+    ap.add_argument("--out", default="results")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    return study_main(_run, args)
+
+
+def _run(args) -> int:
+    from topodrake.demonstrations import load_demos
+    from topodrake.learning.reachability import Reachability, parse_estimators
+    from topodrake.learning.samples import collect_trajectories
+    from topodrake.world import load_world
+
+    estimators = parse_estimators(args.estimators)
+    world = load_world(args.world)
+    if args.demos:
+        folder = Path(args.demos)
+        if not (folder / "manifest.json").is_file():
+            raise TopodrakeError(f"no demonstrations in {folder}")
+    else:   # the test houses' standard demonstrations, made once if missing
+        root = Path(args.data) / "demos" / "pairs-s0"
+        collect_trajectories([args.world], root, progress=False)
+        folder = root / args.world
+    _, demos = load_demos(folder, successful_only=True)
+    drive = pick_drive([len(d.poses) for d in demos], args.drive)
+    poses = demos[drive].poses
+    results = {}
+    for name, (reach, controller) in estimators.items():
+        re = Reachability.from_checkpoint(reach, controller)
+        anchors = re.sparsify(re.observe(world, poses), p=args.p)
+        results[name] = {"anchors": len(anchors), "keep_ratio": round(len(anchors) / len(poses), 4),
+                         "anchor_frames": anchors.tolist()}
+    out = Path(args.out)
+    atomic_write_json(out / "sparsification.json", {
+        "command": "python studies/sparsification.py " + " ".join(sys.argv[1:]),
+        "world": args.world, "demos": str(folder), "drive": drive, "frames": len(poses), "p_sparsify": args.p,
+        "estimators": {k: {"reach": r, "controller": c} for k, (r, c) in estimators.items()},
+        "results": results})
+    plot(world, poses, results, out / "sparsification.png", args.p)
+    summary = {k: {"anchors": r["anchors"], "keep_ratio": r["keep_ratio"]} for k, r in results.items()}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for name, s in summary.items():
+            print(f"{name:<10} {s['anchors']:4d} anchors of {len(poses)} frames "
+                  f"(keep ratio {s['keep_ratio']:.3f})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

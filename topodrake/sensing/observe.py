@@ -1,0 +1,17 @@
+"""Observations of either modality for a batch of poses, by name."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def observe(world, modality: str, poses: np.ndarray, sensor=None) -> np.ndarray:
+    """Camera images (N, H, W, 3) uint8 or lidar ranges (N, beams) at ``poses``
+    (N, 3); ``sensor`` is the modality's config (default: the default one)."""
+    if modality == "camera":
+        from topodrake.sensing.camera import Camera
+        return Camera(world, sensor).render(poses)
+    if modality == "lidar":
+        from topodrake.sensing.lidar import Lidar
+        return Lidar(world, sensor).scan(poses)
+    raise ValueError(f"no observations of modality {modality!r}")
