@@ -94,6 +94,7 @@ def main(argv=None) -> int:
 
 def _run(args) -> int:
     from topodrake.learning.calibration import calibration_summary, reliability
+    from topodrake.learning.reach_labels import ReachLabelConfig
     from topodrake.learning.samples import collect_trajectories
     from topodrake.montecarlo import run_trials, trial_seeds
     from topodrake.systems.trials import reach_trial
@@ -117,6 +118,13 @@ def _run(args) -> int:
             p = np.array([r["p"] for r in res])
             y = np.array([r["success"] for r in res], int)
             s = calibration_summary(p, y)
+            # Pairs that see nothing of each other at the start fail at once
+            # (overlaps < 0.05); how well RE ranks the others is shown apart.
+            seeing = np.array([max(r["start_overlap"]) >= ReachLabelConfig().overlap_lost
+                               for r in res])
+            s["share_not_overlapping"] = float(1 - seeing.mean())
+            s["auroc_overlapping"] = (calibration_summary(p[seeing], y[seeing])["auroc"]
+                                      if seeing.any() else None)
             rel = reliability(p, y)
             s["reliability"] = {"edges": rel.edges.tolist(), "count": rel.count.tolist(),
                                 "rate": [None if np.isnan(v) else float(v) for v in rel.rate],

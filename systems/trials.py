@@ -154,6 +154,9 @@ def reach_trial(seed: int, reach: str = "", controller: str = "", noise_std: flo
                                  camera=runner.built.scenario.camera,
                                  lidar=runner.built.scenario.lidar, key=seed % (2 ** 31))
     result = runner.run(pair["src_pose"], tgt_pose, target, seed=seed, t_max_s=t_max)
+    from topodrake.sensing.overlap import mutual_overlap
+    start_overlap = mutual_overlap(world, pair["src_pose"][None], tgt_pose[None])[0]
     return {"seed": seed, "world": world.name, "p": p, "success": bool(result.success),
+            "start_overlap": [round(float(v), 4) for v in start_overlap],
             "outcome": result.outcome, "same_trajectory": bool(pair["same"]), "t_max_s": t_max,
             "time_s": round(result.time_s, 2)}
