@@ -100,3 +100,15 @@ def test_overlap_respects_occlusion(box_world):
     b = np.array([[3.0, 3.0, np.pi]])
     assert image_overlap(box_world, a, b)[0] == pytest.approx(0.0)
     assert image_overlap(box_world, b, b)[0] == pytest.approx(1.0)
+
+
+def test_observe_dispatches_on_the_modality(box_world):
+    from topodrake.sensing.observe import observe
+
+    poses = np.array([[1.0, 1.0, 0.3], [2.0, 1.5, -1.0]])
+    assert np.array_equal(observe(box_world, "camera", poses), Camera(box_world).render(poses))
+    lidar = LidarConfig(beams=32)
+    scans = observe(box_world, "lidar", poses, lidar)
+    assert scans.shape == (2, 32) and np.array_equal(scans, Lidar(box_world, lidar).scan(poses))
+    with pytest.raises(ValueError, match="modality 'sonar'"):
+        observe(box_world, "sonar", poses)
