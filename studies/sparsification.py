@@ -101,7 +101,8 @@ def _run(args) -> int:
     out = Path(args.out)
     atomic_write_json(out / "sparsification.json", {
         "command": "python studies/sparsification.py " + " ".join(sys.argv[1:]),
-        "world": args.world, "demos": str(folder), "drive": drive, "frames": len(poses), "p_sparsify": args.p,
+        "world": args.world, "demos": str(folder), "drive": drive, "frames": len(poses),
+        "p_sparsify": args.p,
         "estimators": {k: {"reach": r, "controller": c} for k, (r, c) in estimators.items()},
         "results": results})
     plot(world, poses, results, out / "sparsification.png", args.p)
