@@ -7,6 +7,14 @@ training, test houses for validation (ECE, Brier score, AUROC). The
 checkpoint names its controller (path and SHA-1 of the C_WP checkpoint), and
 :func:`load_reachability` refuses an RE next to another controller.
 
+Beyond the paper's recipe (each a config switch): RE starts from its
+controller's encoder, frame combiner and overlap head (``init``); an
+auxiliary head learns the pair's geometric image overlaps at the start
+(``overlap_weight``), the cue for the many pairs that fail at once because
+the two views share nothing; and a temperature fitted on the validation
+rollouts is stored and applied on load when it lowers their BCE
+(``temperature_scaling``).
+
 Config: a :class:`ReachTrainConfig` YAML (``configs/reach_*.yaml``). Its
 ``data`` section picks the demonstrations (worlds, protocol, seed) as for
 C_WP; ``labels`` sets how many pairs are rolled out and how.
