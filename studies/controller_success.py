@@ -102,6 +102,8 @@ def plot(summary: dict, details: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
+    from topodrake.world.plot import save_figure
+
     names = list(summary)
     x = np.arange(len(names))
     fig, ax = plt.subplots(figsize=(7.5, 3.6), dpi=120)
@@ -121,8 +123,7 @@ def plot(summary: dict, details: dict, path: Path) -> None:
     ax.set_title(f"Local controller success, {details[names[0]]['clean']['trials']} trials each")
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv=None) -> int:

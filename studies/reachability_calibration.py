@@ -61,6 +61,8 @@ def plot(details: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from topodrake.world.plot import save_figure
+
     names = list(details)
     fig, axes = plt.subplots(1, len(names), figsize=(5 * len(names), 4.2), dpi=110, squeeze=False)
     for ax, name in zip(axes[0], names):
@@ -78,8 +80,7 @@ def plot(details: dict, path: Path) -> None:
         ax.set_ylim(0, 1.05)
         ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv=None) -> int:

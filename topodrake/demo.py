@@ -65,7 +65,6 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
     ax.legend(loc="upper right", fontsize=8)
     files["plan"] = out / "plan.png"
     save_figure(fig, files["plan"])
-    plt.close(fig)
 
     images = Camera(world, scenario.camera).render(result.poses[frames_at])
     fig, axes = plt.subplots(1, n_frames, figsize=(2 * n_frames, 2.4))
@@ -75,7 +74,6 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
         axi.axis("off")
     files["camera"] = out / "camera.png"
     save_figure(fig, files["camera"])
-    plt.close(fig)
 
     if viewer is not None:
         viewer.StopRecording()

@@ -21,9 +21,21 @@ Rates count one thread unless ``threads`` says otherwise.
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 
 import numpy as np
 import torch
+
+
+@contextmanager
+def torch_threads(n: int):
+    """Run the block with ``n`` torch threads, then restore the previous count."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
 
 
 def _rate(fn, n_items: int, min_seconds: float) -> float:
@@ -77,9 +89,7 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
 
     cfg = config or TrainConfig()
     net_cfg = cfg.network
-    old_threads = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
+    with torch_threads(threads):
         world = load_world(world_name)
         trajs = expert_drives(world, [(0, 3), (2, 5), (4, 1), (6, 8)], 90.0)
         samples = make_samples(trajs, 8 * batch, seed)
@@ -121,8 +131,6 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
         out["cached_speedup"] = out["infer_cached_per_s"] / out["infer_naive_per_s"]
         out["batch"] = batch
         return {k: (round(v, 1) if isinstance(v, float) else v) for k, v in out.items()}
-    finally:
-        torch.set_num_threads(old_threads)
 
 
 def bench_reachability(config=None, controller: str | None = None, world_name: str = "test-0",
@@ -153,9 +161,7 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
 
     cfg = config or ReachTrainConfig()
     net_cfg = cfg.network
-    old_threads = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
+    with torch_threads(threads):
         world = load_world(world_name)
         trajs = expert_drives(world, [(0, 5), (3, 8), (6, 1), (2, 7)], 120.0)
         poses = trajs.poses[trajs.rows(0)]
@@ -192,5 +198,3 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
         out["label_success_rate"] = float(chunk["label"].mean())
         out["label_car_steps"] = int(chunk["steps"].sum())
         return {k: (round(v, 1) if isinstance(v, float) else v) for k, v in out.items()}
-    finally:
-        torch.set_num_threads(old_threads)

@@ -52,12 +52,15 @@ def plot_world(world, ax=None, *, places: bool = True, show_free: bool = True):
 
 
 def save_figure(fig, path) -> None:
-    """Write a figure atomically (temporary file, then rename)."""
+    """Write a figure atomically (temporary file, then rename) and close it."""
     import os
     from pathlib import Path
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}{path.suffix}")
+    import matplotlib.pyplot as plt
+
     fig.savefig(tmp, dpi=120, bbox_inches="tight")
     os.replace(tmp, path)
+    plt.close(fig)
