@@ -47,6 +47,22 @@ def test_pairs_mix_same_and_other_trajectories(box_world, two_lines):
     assert box_world.grid.is_free(pairs["src_pose"][:, :2]).all()
 
 
+
+def test_a_share_of_sources_sits_on_the_expert_pose(box_world, two_lines):
+    from dataclasses import replace
+
+    def on_pose(share, n=300):
+        pairs = draw_pairs(box_world, two_lines, np.array([0, 1]), n, np.random.default_rng(1),
+                           replace(CFG, unjittered_sources=share))
+        base = two_lines.poses[two_lines.traj_offsets[pairs["src_traj"]] + pairs["src"]]
+        return np.all(pairs["src_pose"] == base, axis=1)
+
+    assert not on_pose(0.0).any()
+    assert 0.2 < on_pose(0.3).mean() < 0.4
+    assert on_pose(1.0).all()
+    with pytest.raises(TopodrakeError, match="unjittered_sources"):
+        ReachLabelConfig(unjittered_sources=1.5).validate()
+
 def test_time_limit_is_astar_length_over_v_min(box_world):
     # around the partition (x in [4.9, 5.1], y < 6): much longer than the 2 m straight line
     t = time_limits(box_world, np.array([[4.0, 2.0, 0.0], [1.0, 8.0, 0.0]]),

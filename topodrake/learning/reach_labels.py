@@ -59,13 +59,15 @@ class ReachLabelConfig:
     overlap_lost: float = 0.05
     noise_std: float = 0.33
     target_snap_m: float = 0.3       # A* goal: nearest free cell within this of the target
+    unjittered_sources: float = 0.0  # share of sources on the expert pose itself
     batch: int = 128                 # cars per engine run
     chunk: int = 1024                # pairs per file
     jitter: SampleConfig = field(default_factory=SampleConfig)
 
     def validate(self) -> "ReachLabelConfig":
-        if not 0.0 <= self.same_trajectory <= 1.0:
-            raise TopodrakeError("same_trajectory must be a probability")
+        for name in ("same_trajectory", "unjittered_sources"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise TopodrakeError(f"{name} must be a probability, got {getattr(self, name)}")
         if not self.v_min > 0 or self.batch < 1 or self.chunk < 1:
             raise TopodrakeError("need v_min > 0, batch >= 1 and chunk >= 1")
         if self.distance_min_m >= self.distance_max_m:
@@ -120,6 +122,10 @@ def draw_pairs(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
         other = (pick + 1 + rng.integers(0, max(len(traj_ids) - 1, 1), m)) % len(traj_ids)
         other_u = rng.random(m)
         lat, dth = draw_jitter(rng, m, cfg.jitter)
+        if cfg.unjittered_sources > 0:   # (no extra draw otherwise: old pair sets stay as they were)
+            on_path = rng.random(m) < cfg.unjittered_sources
+            lat[:, on_path] = 0.0
+            dth[:, on_path] = 0.0
         tpick = np.where(same, pick, other)
         tgt = np.empty(m, np.int64)
         ok = np.ones(m, bool)
