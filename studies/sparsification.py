@@ -4,12 +4,16 @@ The paper's sparsification figure: the same expert trajectory of a test
 house, reduced to anchors greedily while RE > ``--p`` (0.99), once per
 controller (default camera k=2, camera k=5 and lidar k=5, each RE with the
 C_WP it was trained for). A controller that reaches farther needs fewer
-anchors.
+anchors. Each anchor promises that its controller gets there from the
+previous one; ``hop_success`` checks the promise: ``--hop-runs`` noisy
+closed-loop rollouts of every hop in the batched engine
+(:func:`topodrake.topomap.hops.anchor_hop_success`).
 
     python studies/sparsification.py --json
 
-prints ``{"camera_k2": {"anchors": n, "keep_ratio": r}, ...}`` and writes
-``results/sparsification.json`` (anchor frames, the command) and
+prints ``{"camera_k2": {"anchors": n, "keep_ratio": r, "hop_success": s}, ...}``
+and writes ``results/sparsification.json`` (anchor frames, each hop's
+successes, the command) and
 ``results/sparsification.png`` (one floor-plan panel per RE).
 """
 
@@ -51,8 +55,9 @@ def plot(world, poses, results: dict, path: Path, p: float) -> None:
 
     fig, axes = plt.subplots(1, len(results), figsize=(6 * len(results), 6), squeeze=False)
     for ax, (name, r) in zip(axes[0], results.items()):
+        hops = f", hops made {r['hop_success']:.1%}" if r.get("hop_success") is not None else ""
         draw_anchors(ax, world, poses, r["anchor_frames"],
-                     f"{name}: {r['anchors']} anchors of {len(poses)} frames")
+                     f"{name}: {r['anchors']} anchors of {len(poses)} frames{hops}")
     fig.suptitle(f"{world.name}: one expert drive sparsified at p = {p}")
     save_figure(fig, path)
 
@@ -65,6 +70,9 @@ def main(argv=None) -> int:
     ap.add_argument("--drive", type=int, help="index among its successful drives (default: longest)")
     ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")
     ap.add_argument("--p", type=float, default=0.99, help="p_sparsify")
+    ap.add_argument("--hop-runs", type=int, default=4,
+                    help="noisy rollouts of each anchor hop (0: do not check the hops)")
+    ap.add_argument("--seed", type=int, default=0, help="noise seeds of the hop rollouts")
     ap.add_argument("--data", default="data", help="cache of demonstrations")
     ap.add_argument("--demos", help="demonstration folder of the world (default: DATA/demos/pairs-s0/WORLD)")
     ap.add_argument("--out", default="results")
@@ -75,10 +83,14 @@ def main(argv=None) -> int:
 
 def _run(args) -> int:
     from topodrake.demonstrations import load_demos
+    from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.reachability import Reachability, parse_estimators
     from topodrake.learning.samples import collect_trajectories
+    from topodrake.topomap.hops import anchor_hop_success
     from topodrake.world import load_world
 
+    if args.hop_runs < 0:
+        raise TopodrakeError("--hop-runs must be >= 0")
     estimators = parse_estimators(args.estimators)
     world = load_world(args.world)
     if args.demos:
@@ -98,21 +110,28 @@ def _run(args) -> int:
         anchors = re.sparsify(re.observe(world, poses), p=args.p)
         results[name] = {"anchors": len(anchors), "keep_ratio": round(len(anchors) / len(poses), 4),
                          "anchor_frames": anchors.tolist()}
+        if args.hop_runs:
+            ok = anchor_hop_success(world, LearnedWaypointPolicy.from_checkpoint(controller), poses,
+                                    anchors, runs=args.hop_runs, seed=args.seed)
+            results[name]["hop_success"] = round(float(ok.mean()), 4) if ok.size else None
+            results[name]["hop_successes"] = ok.sum(axis=1).tolist()
     out = Path(args.out)
     atomic_write_json(out / "sparsification.json", {
         "command": "python studies/sparsification.py " + " ".join(sys.argv[1:]),
         "world": args.world, "demos": str(folder), "drive": drive, "frames": len(poses),
-        "p_sparsify": args.p,
+        "p_sparsify": args.p, "hop_runs": args.hop_runs, "seed": args.seed,
         "estimators": {k: {"reach": r, "controller": c} for k, (r, c) in estimators.items()},
         "results": results})
     plot(world, poses, results, out / "sparsification.png", args.p)
-    summary = {k: {"anchors": r["anchors"], "keep_ratio": r["keep_ratio"]} for k, r in results.items()}
+    summary = {k: {key: r[key] for key in ("anchors", "keep_ratio", "hop_success") if key in r}
+               for k, r in results.items()}
     if args.json:
         print(json.dumps(summary))
     else:
         for name, s in summary.items():
+            hops = f", hops made {s['hop_success']:.3f}" if s.get("hop_success") is not None else ""
             print(f"{name:<10} {s['anchors']:4d} anchors of {len(poses)} frames "
-                  f"(keep ratio {s['keep_ratio']:.3f})")
+                  f"(keep ratio {s['keep_ratio']:.3f}{hops})")
     return 0
 
 

@@ -107,3 +107,20 @@ def test_labels_resume_and_refuse_another_config(box_world, two_lines, tmp_path)
         (tmp_path / "foreign").mkdir()
         (tmp_path / "foreign" / "manifest.json").write_text('{"format": "other"}')
         load_reach_labels(tmp_path / "foreign")
+
+
+def test_anchor_hops_are_checked_by_closed_loop_rollouts(box_world):
+    from topodrake.learning.policy import AStarOracle
+    from topodrake.topomap.hops import anchor_hop_success
+
+    # a 'drive' along y = 2 whose last frame lies behind the partition wall
+    # (x in [4.9, 5.1], y < 6): that hop starts with nothing in common in view
+    poses = np.array([[3.0, 2.0, 0.0], [3.6, 2.0, 0.0], [4.2, 2.0, 0.0], [6.0, 2.0, 0.0]])
+    ok = anchor_hop_success(box_world, AStarOracle(box_world), poses, np.array([0, 2, 3]),
+                            runs=3, seed=5, config=CFG)
+    assert ok.shape == (2, 3)
+    assert ok[0].all() and not ok[1].any()
+    assert anchor_hop_success(box_world, AStarOracle(box_world), poses, np.array([1]),
+                              config=CFG).shape == (0, 4)
+    with pytest.raises(TopodrakeError, match="increasing frame indices"):
+        anchor_hop_success(box_world, AStarOracle(box_world), poses, np.array([0, 5]), config=CFG)

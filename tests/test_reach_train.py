@@ -255,7 +255,7 @@ def test_bench_reachability_cli_refuses_a_missing_controller(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def tiny_re(tmp_path_factory):
-    """(demo folder of test-1 with two drives, untrained tiny RE, its 'controller')."""
+    """(demo folder of test-1 with two drives, untrained tiny RE, its untrained tiny C_WP)."""
     from topodrake.demonstrations import CollectConfig, collect
     from topodrake.learning.checkpoint import save_checkpoint
     from topodrake.learning.networks import NetworkConfig, WaypointNetwork
@@ -265,11 +265,10 @@ def tiny_re(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("tiny_re")
     demos = collect("test-1", tmp / "demos", CollectConfig(protocol="random", count=2, seed=5),
                     progress=False)
-    ctrl = tmp / "cwp.pt"
-    ctrl.write_bytes(b"c")
     torch.manual_seed(0)
-    net = WaypointNetwork(NetworkConfig(output="reach", k=1, channels=[8, 8, 16], feature_dim=16,
-                                        combine_channels=16, hidden=16), 64)
+    tiny = dict(k=1, channels=[8, 8, 16], feature_dim=16, combine_channels=16, hidden=16)
+    ctrl = save_checkpoint(tmp / "cwp.pt", WaypointNetwork(NetworkConfig(**tiny), 64), CameraConfig())
+    net = WaypointNetwork(NetworkConfig(output="reach", **tiny), 64)
     save_checkpoint(tmp / "re.pt", net, CameraConfig(),
                     extra={"controller": controller_identity(ctrl)})
     return demos, tmp / "re.pt", ctrl
@@ -281,8 +280,9 @@ def test_sparsify_cli_end_to_end(tiny_re, tmp_path, capsys):
     demos, re_path, ctrl = tiny_re
     args = ["sparsify", "test-1", "--reach", str(re_path), "--controller", str(ctrl),
             "--demos", str(demos), "--p", "0.3", "--out", str(tmp_path / "a.png"), "--json"]
-    assert main(args) in (0, None)
+    assert main(args + ["--hop-runs", "1"]) in (0, None)
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert 0.0 <= out["hop_success"] <= 1.0
     assert out["anchor_frames"][0] == 0 and out["anchor_frames"][-1] == out["frames"] - 1
     assert out["keep_ratio"] == pytest.approx(out["anchors"] / out["frames"], abs=1e-4)
     assert (tmp_path / "a.png").stat().st_size > 10000
@@ -313,7 +313,7 @@ def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, 
     study = _study("sparsification")
     est = f"a={re_path}:{ctrl},b={re_path}:{ctrl}"
     assert study.main(["--world", "test-1", "--demos", str(demos), "--estimators", est,
-                       "--p", "0.3", "--out", str(tmp_path), "--json"]) == 0
+                       "--p", "0.3", "--hop-runs", "2", "--out", str(tmp_path), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     saved = json.loads((tmp_path / "sparsification.json").read_text())
     lengths = [len(d.poses) for d in load_demos(demos, successful_only=True)[1]]
@@ -322,6 +322,9 @@ def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, 
     frames = saved["results"]["a"]["anchor_frames"]
     assert frames[0] == 0 and frames[-1] == max(lengths) - 1
     assert summary["a"]["keep_ratio"] == pytest.approx(len(frames) / max(lengths), abs=1e-4)
+    hops = saved["results"]["a"]["hop_successes"]             # two noisy runs per anchor hop
+    assert len(hops) == len(frames) - 1 and all(0 <= h <= 2 for h in hops)
+    assert summary["a"]["hop_success"] == pytest.approx(sum(hops) / (2 * len(hops)), abs=1e-4)
     assert (tmp_path / "sparsification.png").stat().st_size > 10000
     assert study.main(["--world", "test-1", "--demos", str(demos), "--estimators", est,
                        "--drive", "7", "--out", str(tmp_path)]) == 2

@@ -152,7 +152,7 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
     does not depend on the weights."""
     from topodrake.learning.networks import WaypointNetwork, input_size
     from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reach_labels import ReachLabelConfig, _label_chunk, draw_pairs
+    from topodrake.learning.reach_labels import ReachLabelConfig, rollout_pairs, draw_pairs
     from topodrake.learning.reach_train import ReachTrainConfig
     from topodrake.learning.reachability import Reachability
     from topodrake.montecarlo import trial_seeds
@@ -193,7 +193,7 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
         drawn = draw_pairs(world, trajs, np.arange(trajs.count), label_pairs, rng, lcfg)
         seeds = np.array(trial_seeds(seed, label_pairs), np.int64)
         start = time.perf_counter()
-        chunk = _label_chunk(world, policy, trajs, drawn, seeds, lcfg)
+        chunk = rollout_pairs(world, policy, trajs, drawn, seeds, lcfg)
         out["label_rollouts_per_s"] = label_pairs / (time.perf_counter() - start)
         out["label_success_rate"] = float(chunk["label"].mean())
         out["label_car_steps"] = int(chunk["steps"].sum())

@@ -170,8 +170,12 @@ def time_limits(world, src_pose: np.ndarray, tgt_xy: np.ndarray, cfg: ReachLabel
     return out
 
 
-def _label_chunk(world, policy, trajs: TrajectorySet, pairs: dict, seeds: np.ndarray,
-                 cfg: ReachLabelConfig) -> dict:
+def rollout_pairs(world, policy, trajs: TrajectorySet, pairs: dict, seeds: np.ndarray,
+                  cfg: ReachLabelConfig) -> dict:
+    """Roll out ``policy`` on (source pose, target frame) ``pairs`` of one
+    world (the fields of :func:`draw_pairs`), one noise seed each, and label
+    them by the rules of the module docstring: the pairs' fields plus
+    ``t_max``, ``outcome``, ``steps``, final ``overlap``, ``label`` and ``seed``."""
     from topodrake.rollout import SUCCESS, PolicyRollout, RolloutConfig
 
     tgt_rows = trajs.traj_offsets[pairs["traj"]] + pairs["tgt"]
@@ -270,7 +274,7 @@ def label_reachability(trajs: TrajectorySet, policy, out_dir, n: int, *, seed: i
             if nm in done:
                 continue
             sl = slice(c * cfg.chunk, c * cfg.chunk + size)
-            chunk = _label_chunk(world, policy_for(world), trajs, {k: v[sl] for k, v in pairs.items()},
+            chunk = rollout_pairs(world, policy_for(world), trajs, {k: v[sl] for k, v in pairs.items()},
                                  seeds[sl], cfg)
             buf = io.BytesIO()
             np.savez_compressed(buf, format=np.array(FORMAT), version=np.array(VERSION), **chunk)

@@ -6,7 +6,9 @@
 Reads the world's demonstrations (``topodrake collect``; default folder
 ``data/demos/pairs-s0/WORLD``), renders the drive's observations, keeps
 anchors greedily while RE > ``--p`` and prints the anchor count and keep
-ratio (and plots them on the floor plan with ``--out``).
+ratio (and plots them on the floor plan with ``--out``). ``--hop-runs N``
+also drives every anchor hop N times with the controller and actuation
+noise (:mod:`topodrake.topomap.hops`) and prints the share it made.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ def cmd_sparsify(args) -> None:
         raise TopodrakeError(f"no demonstrations in {folder}; make them with "
                              f"'topodrake collect {args.world} --out {folder}'")
     _, demos = load_demos(folder, successful_only=True)
+    if args.hop_runs < 0:
+        raise TopodrakeError("--hop-runs must be >= 0")
     if not 0 <= args.drive < len(demos):
         raise TopodrakeError(f"--drive must be in 0..{len(demos) - 1} ({folder} has "
                              f"{len(demos)} successful drives)")
@@ -37,6 +41,13 @@ def cmd_sparsify(args) -> None:
     result = {"world": args.world, "drive": args.drive, "frames": len(poses),
               "anchors": len(anchors), "keep_ratio": round(len(anchors) / len(poses), 4),
               "p_sparsify": args.p, "anchor_frames": anchors.tolist()}
+    if args.hop_runs:
+        from topodrake.learning.policy import LearnedWaypointPolicy
+        from topodrake.topomap.hops import anchor_hop_success
+
+        ok = anchor_hop_success(world, LearnedWaypointPolicy.from_checkpoint(args.controller),
+                                poses, anchors, runs=args.hop_runs, seed=args.seed)
+        result["hop_success"] = round(float(ok.mean()), 4) if ok.size else None
     if args.out:
         from topodrake.topomap.plot import plot_anchors
         plot_anchors(world, poses, anchors, args.out, title=f"{re.name or 'RE'}: "
@@ -44,8 +55,11 @@ def cmd_sparsify(args) -> None:
     if args.json:
         print(json.dumps(result))
     else:
+        hops = (f", hops made {result['hop_success']:.3f}"
+                if result.get("hop_success") is not None else "")
         print(f"{len(anchors)} anchors of {len(poses)} frames "
-              f"(keep ratio {result['keep_ratio']:.3f})" + (f"; wrote {args.out}" if args.out else ""))
+              f"(keep ratio {result['keep_ratio']:.3f}{hops})"
+              + (f"; wrote {args.out}" if args.out else ""))
 
 
 def add_sparsify_parser(sub) -> None:
@@ -56,6 +70,9 @@ def add_sparsify_parser(sub) -> None:
     sp.add_argument("--demos", help="demonstration folder (default data/demos/pairs-s0/WORLD)")
     sp.add_argument("--drive", type=int, default=0, help="index among the successful drives")
     sp.add_argument("--p", type=float, default=0.99, help="p_sparsify")
+    sp.add_argument("--hop-runs", type=int, default=0,
+                    help="check each anchor hop with N noisy closed-loop rollouts")
+    sp.add_argument("--seed", type=int, default=0, help="noise seeds of the hop rollouts")
     sp.add_argument("--out", help="PNG of the anchors on the floor plan")
     sp.add_argument("--json", action="store_true")
     sp.set_defaults(func=cmd_sparsify)

@@ -1,0 +1,43 @@
+"""Does the controller make the hops a sparsified trajectory promises?
+
+Sparsification keeps an anchor only where RE trusts the controller to get
+there from the previous one (RE > p_sparsify). :func:`anchor_hop_success`
+checks that promise in the batched engine: C_WP starts at rest on each
+anchor's pose, with actuation noise, and drives toward the next anchor
+(its context from the same trajectory) under the RE labels' rules
+(:func:`topodrake.learning.reach_labels.rollout_pairs`: success within
+0.27 m or both overlaps > 0.7 before A*/v_min).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+
+
+def anchor_hop_success(world, policy, poses: np.ndarray, anchors: np.ndarray, runs: int = 4,
+                       seed: int = 0, config=None) -> np.ndarray:
+    """(H, runs) successes of the H = len(anchors) - 1 hops, each run with
+    its own noise seed."""
+    from topodrake.learning.reach_labels import ReachLabelConfig, rollout_pairs
+    from topodrake.learning.samples import TrajectorySet
+    from topodrake.montecarlo import trial_seeds
+
+    poses = np.asarray(poses, np.float64)
+    anchors = np.asarray(anchors, np.int64)
+    if runs < 1:
+        raise TopodrakeError("need at least one run per hop")
+    if len(anchors) < 2:
+        return np.zeros((0, runs), bool)
+    if anchors.min() < 0 or anchors.max() >= len(poses) or np.any(np.diff(anchors) <= 0):
+        raise TopodrakeError("anchors must be increasing frame indices of the trajectory")
+    # one trajectory; the rollouts read its poses only (no replayed states needed)
+    trajs = TrajectorySet([world.name], np.zeros(1, np.int32), np.array([0, len(poses)]), poses,
+                          np.column_stack([poses, np.zeros((len(poses), 2))]))
+    src, tgt = np.repeat(anchors[:-1], runs), np.repeat(anchors[1:], runs)
+    pairs = {"src_traj": np.zeros(len(src), np.int64), "src": src, "src_pose": poses[src],
+             "traj": np.zeros(len(src), np.int64), "tgt": tgt, "same": np.ones(len(src), bool)}
+    seeds = np.array(trial_seeds(seed, len(src)), np.int64)
+    out = rollout_pairs(world, policy, trajs, pairs, seeds, config or ReachLabelConfig())
+    return out["label"].reshape(-1, runs).astype(bool)
