@@ -124,3 +124,25 @@ def test_anchor_hops_are_checked_by_closed_loop_rollouts(box_world):
                               config=CFG).shape == (0, 4)
     with pytest.raises(TopodrakeError, match="increasing frame indices"):
         anchor_hop_success(box_world, AStarOracle(box_world), poses, np.array([0, 5]), config=CFG)
+
+
+def test_label_sets_over_the_same_trajectories_join(box_world, two_lines, tmp_path):
+    from dataclasses import replace
+
+    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.reach_labels import concat_reach_labels
+
+    loader = {"box": box_world}.__getitem__
+    made = [load_reach_labels(label_reachability(
+        two_lines, lambda w: AStarOracle(w), tmp_path / name, n, seed=seed, config=cfg,
+        load_world=loader, progress=False))
+        for name, n, seed, cfg in (("a", 6, 1, CFG), ("b", 4, 2, replace(CFG, unjittered_sources=1.0)))]
+    both = concat_reach_labels(made)
+    assert len(both) == 10 and len(both.meta["parts"]) == 2
+    assert np.array_equal(both.src_pose, np.concatenate([made[0].src_pose, made[1].src_pose]))
+    other = TrajectorySet(["box"], np.array([0], np.int32), np.array([0, 100]),
+                          two_lines.poses[:100], two_lines.states[:100])
+    with pytest.raises(TopodrakeError, match="different trajectories"):
+        concat_reach_labels([made[0], load_reach_labels(label_reachability(
+            other, lambda w: AStarOracle(w), tmp_path / "c", 3, config=CFG, load_world=loader,
+            progress=False))])

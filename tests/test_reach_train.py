@@ -51,6 +51,21 @@ def _config(**kw):
     return cfg
 
 
+def test_more_label_sets_come_from_yaml_and_need_seeds_of_their_own():
+    from topodrake.learning.reach_train import ReachTrainConfig
+    from topodrake.typed_yaml import load_typed_data
+
+    text = ("labels:\n  seed: 0\n  more:\n    - train_pairs: 500\n      seed: 7\n"
+            "      rollout: {unjittered_sources: 1.0}\n")
+    cfg = load_typed_data(ReachTrainConfig, text, "config").validate()
+    assert cfg.labels.more[0].train_pairs == 500
+    assert cfg.labels.more[0].rollout.unjittered_sources == 1.0
+    assert cfg.labels.rollout.unjittered_sources == 0.0
+    clash = load_typed_data(ReachTrainConfig, text.replace("seed: 7", "seed: 1"), "config")
+    with pytest.raises(TopodrakeError, match="seed of its own"):
+        clash.validate()                                    # seed 1 is the validation set's
+
+
 def test_labels_have_both_outcomes(labels):
     assert len(labels) == 64
     assert 0.1 < labels.label.mean() < 0.95

@@ -19,8 +19,9 @@ def resolve_field_types(cls, seen=None) -> None:
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
         f.type = hints[f.name]
-        if dataclasses.is_dataclass(f.type):
-            resolve_field_types(f.type, seen)
+        for t in (f.type, *typing.get_args(f.type)):    # nested, or listed (list[Config])
+            if dataclasses.is_dataclass(t):
+                resolve_field_types(t, seen)
 
 
 def first_line(e: Exception) -> str:

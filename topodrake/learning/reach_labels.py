@@ -330,3 +330,18 @@ def load_reach_labels(folder) -> ReachLabels:
         raise TopodrakeError(f"{folder} has no finished chunks yet")
     fields = {k: np.concatenate([p[k] for p in parts]) for k in FIELDS}
     return ReachLabels(trajs, fields, manifest)
+
+
+def concat_reach_labels(parts: list[ReachLabels]) -> ReachLabels:
+    """One label set of several made over the same trajectories (their
+    manifests under ``meta["parts"]``)."""
+    if not parts:
+        raise TopodrakeError("no label sets to join")
+    if len(parts) == 1:
+        return parts[0]
+    digest = _trajectory_digest(parts[0].trajectories)
+    for part in parts[1:]:
+        if _trajectory_digest(part.trajectories) != digest:
+            raise TopodrakeError("cannot join reachability labels over different trajectories")
+    fields = {k: np.concatenate([part.fields[k] for part in parts]) for k in FIELDS}
+    return ReachLabels(parts[0].trajectories, fields, {"parts": [part.meta for part in parts]})

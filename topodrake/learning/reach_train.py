@@ -17,7 +17,8 @@ rollouts is stored and applied on load when it lowers their BCE
 
 Config: a :class:`ReachTrainConfig` YAML (``configs/reach_*.yaml``). Its
 ``data`` section picks the demonstrations (worlds, protocol, seed) as for
-C_WP; ``labels`` sets how many pairs are rolled out and how.
+C_WP; ``labels`` sets how many pairs are rolled out and how (``labels.more``
+adds training pairs drawn another way, e.g. with every source on the path).
 """
 
 from __future__ import annotations
@@ -36,17 +37,29 @@ from topodrake.learning.calibration import calibration_summary
 from topodrake.learning.config import TrainConfig
 from topodrake.learning.data import ObservationSource, to_network_input
 from topodrake.learning.networks import NetworkConfig
-from topodrake.learning.reach_labels import (ReachLabelConfig, ReachLabels, label_reachability,
-                                             load_reach_labels)
+from topodrake.learning.reach_labels import (ReachLabelConfig, ReachLabels, concat_reach_labels,
+                                             label_reachability, load_reach_labels)
 from topodrake.typed_yaml import load_typed
+
+
+@dataclass
+class MoreReachLabels:
+    """More training pairs from the same demonstrations, drawn another way
+    (e.g. every source on the expert's path); validation stays on the main
+    set. Its own seed (not one of the main sets')."""
+
+    train_pairs: int = 20000
+    seed: int = 10
+    rollout: ReachLabelConfig = field(default_factory=ReachLabelConfig)
 
 
 @dataclass
 class ReachLabelSets:
     train_pairs: int = 60000
     val_pairs: int = 4000
-    seed: int = 0
+    seed: int = 0                  # training pairs; validation uses seed + 1
     rollout: ReachLabelConfig = field(default_factory=ReachLabelConfig)
+    more: list[MoreReachLabels] = field(default_factory=list)
 
 
 def _reach_network() -> NetworkConfig:
@@ -78,6 +91,13 @@ class ReachTrainConfig(TrainConfig):
         if self.init not in ("controller", "scratch"):
             raise TopodrakeError(f"{where}: init must be 'controller' or 'scratch', got {self.init!r}")
         self.labels.rollout.validate()
+        seeds = [self.labels.seed, self.labels.seed + 1]
+        for extra in self.labels.more:
+            if extra.train_pairs < 1 or extra.seed in seeds:
+                raise TopodrakeError(f"{where}: every labels.more set needs train_pairs >= 1 and a "
+                                     f"seed of its own (seed {extra.seed} is taken)")
+            seeds.append(extra.seed)
+            extra.rollout.validate()
         super().validate(where)
         return self
 
@@ -260,21 +280,26 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
     d, lab = cfg.data, cfg.labels
     tag = d.demo_protocol + (f"{d.demo_count}" if d.demo_protocol == "random" else "")
     demo_root = Path(data_dir) / "demos" / f"{tag}-s{d.demo_seed}"
+    sets = {"train": [(d.train_worlds, lab.train_pairs, lab.seed, lab.rollout)]
+            + [(d.train_worlds, m.train_pairs, m.seed, m.rollout) for m in lab.more],
+            "val": [(d.val_worlds, lab.val_pairs, lab.seed + 1, lab.rollout)]}
     out = []
-    for split, worlds, n, seed in (("train", d.train_worlds, lab.train_pairs, lab.seed),
-                                   ("val", d.val_worlds, lab.val_pairs, lab.seed + 1)):
+    for split, parts in sets.items():
         if only is not None and split != only:
             out.append(None)
             continue
-        key = hashlib.sha1(json.dumps({"worlds": worlds, "n": n, "seed": seed,
-                                       "cfg": asdict(lab.rollout), "demos": str(demo_root)},
-                                      sort_keys=True).encode()).hexdigest()[:10]
-        folder = Path(data_dir) / "reach-labels" / f"{ident['sha1'][:10]}-{split}-{key}"
-        trajs = collect_trajectories(worlds, demo_root, protocol=d.demo_protocol,
-                                     count=d.demo_count, seed=d.demo_seed, progress=progress)
-        label_reachability(trajs, policy, folder, n, seed=seed, controller=ident,
-                           config=lab.rollout, progress=progress)
-        out.append(load_reach_labels(folder))
+        made = []
+        for worlds, n, seed, rollout in parts:
+            key = hashlib.sha1(json.dumps({"worlds": worlds, "n": n, "seed": seed,
+                                           "cfg": asdict(rollout), "demos": str(demo_root)},
+                                          sort_keys=True).encode()).hexdigest()[:10]
+            folder = Path(data_dir) / "reach-labels" / f"{ident['sha1'][:10]}-{split}-{key}"
+            trajs = collect_trajectories(worlds, demo_root, protocol=d.demo_protocol,
+                                         count=d.demo_count, seed=d.demo_seed, progress=progress)
+            label_reachability(trajs, policy, folder, n, seed=seed, controller=ident,
+                               config=rollout, progress=progress)
+            made.append(load_reach_labels(folder))
+        out.append(concat_reach_labels(made))
     return out[0], out[1], ident
 
 
