@@ -56,6 +56,35 @@ def keep_ratio(reach: str, controller: str, data_dir: str, p: float, drives: int
     return kept / max(frames, 1)
 
 
+def summarise_trials(res: list[dict]) -> dict:
+    """ECE, Brier, AUROC and reliability bins of trial records (``p``,
+    ``success``, ``start_overlap``), and AUROC split by the pairs' start.
+
+    Pairs that see nothing of each other at the start fail at once (both
+    overlaps < 0.05): ``auroc_reached_vs_not_overlapping`` says how well RE
+    tells the reached pairs from those, ``auroc_overlapping`` how well it
+    ranks the pairs that are actually driven."""
+    from topodrake.learning.calibration import calibration_summary, reliability
+    from topodrake.learning.reach_labels import ReachLabelConfig
+
+    p = np.array([r["p"] for r in res], float)
+    y = np.array([r["success"] for r in res], int)
+    seeing = np.array([max(r["start_overlap"]) >= ReachLabelConfig().overlap_lost for r in res])
+
+    def auroc_of(sel):
+        return calibration_summary(p[sel], y[sel])["auroc"] if sel.any() else None
+
+    s = calibration_summary(p, y)
+    s["share_not_overlapping"] = float(1 - seeing.mean())
+    s["auroc_overlapping"] = auroc_of(seeing)
+    s["auroc_reached_vs_not_overlapping"] = auroc_of(~seeing | (y == 1))
+    rel = reliability(p, y)
+    s["reliability"] = {"edges": rel.edges.tolist(), "count": rel.count.tolist(),
+                        "rate": [None if np.isnan(v) else float(v) for v in rel.rate],
+                        "mean_pred": [None if np.isnan(v) else float(v) for v in rel.mean_pred]}
+    return s
+
+
 def plot(details: dict, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -94,8 +123,6 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from topodrake.learning.calibration import calibration_summary, reliability
-    from topodrake.learning.reach_labels import ReachLabelConfig
     from topodrake.learning.samples import collect_trajectories
     from topodrake.montecarlo import run_trials, trial_seeds
     from topodrake.systems.trials import reach_trial
@@ -116,21 +143,7 @@ def _run(args) -> int:
                              progress=not args.quiet, desc=f"{name} {cond}", reach=reach,
                              controller=controller, noise_std=noise, data_dir=args.data,
                              worlds=WORLDS)
-            p = np.array([r["p"] for r in res])
-            y = np.array([r["success"] for r in res], int)
-            s = calibration_summary(p, y)
-            # Pairs that see nothing of each other at the start fail at once
-            # (overlaps < 0.05); how well RE ranks the others is shown apart.
-            seeing = np.array([max(r["start_overlap"]) >= ReachLabelConfig().overlap_lost
-                               for r in res])
-            s["share_not_overlapping"] = float(1 - seeing.mean())
-            s["auroc_overlapping"] = (calibration_summary(p[seeing], y[seeing])["auroc"]
-                                      if seeing.any() else None)
-            rel = reliability(p, y)
-            s["reliability"] = {"edges": rel.edges.tolist(), "count": rel.count.tolist(),
-                                "rate": [None if np.isnan(v) else float(v) for v in rel.rate],
-                                "mean_pred": [None if np.isnan(v) else float(v) for v in rel.mean_pred]}
-            details[name][cond] = s
+            details[name][cond] = summarise_trials(res)
     # The keep ratios run RE in this process, so they come after every
     # forked Monte Carlo block (a fork after torch has started its OpenMP
     # threads can hang the children).

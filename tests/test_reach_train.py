@@ -352,3 +352,18 @@ def test_calibration_study_refuses_bad_estimators(tmp_path, capsys):
     assert "name=RE.pt:CWP.pt" in capsys.readouterr().err
     assert study.main(["--estimators", f"x={tmp_path}/a.pt:{tmp_path}/b.pt"]) == 2
     assert "a.pt does not exist" in capsys.readouterr().err
+
+
+def test_calibration_study_splits_auroc_by_how_pairs_start():
+    study = _study("reachability_calibration")
+    # reached pairs (p 0.6-0.9), two driven failures ranked among them,
+    # blind starts (no overlap) all below every reached pair
+    recs = ([{"p": v, "success": True, "start_overlap": [0.8, 0.6]} for v in (0.6, 0.7, 0.8, 0.9)]
+            + [{"p": v, "success": False, "start_overlap": [0.5, 0.4]} for v in (0.75, 0.85)]
+            + [{"p": v, "success": False, "start_overlap": [0.0, 0.01]} for v in (0.1, 0.2, 0.3)])
+    s = study.summarise_trials(recs)
+    assert s["n"] == 9 and s["share_not_overlapping"] == pytest.approx(3 / 9)
+    assert s["auroc_reached_vs_not_overlapping"] == pytest.approx(1.0)
+    assert s["auroc_overlapping"] == pytest.approx(3 / 8)   # 2 + 1 reached pairs above them
+    assert s["auroc"] == pytest.approx((3 + 12) / 20)
+    assert sum(s["reliability"]["count"]) == 9
