@@ -55,7 +55,7 @@ def plot(world, poses, results: dict, path: Path, p: float) -> None:
 
     fig, axes = plt.subplots(1, len(results), figsize=(6 * len(results), 6), squeeze=False)
     for ax, (name, r) in zip(axes[0], results.items()):
-        hops = f", hops made {r['hop_success']:.1%}" if r.get("hop_success") is not None else ""
+        hops = f"\nhops made {r['hop_success']:.1%}" if r.get("hop_success") is not None else ""
         draw_anchors(ax, world, poses, r["anchor_frames"],
                      f"{name}: {r['anchors']} anchors of {len(poses)} frames{hops}")
     fig.suptitle(f"{world.name}: one expert drive sparsified at p = {p}")
