@@ -152,7 +152,7 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
     does not depend on the weights."""
     from topodrake.learning.networks import WaypointNetwork, input_size
     from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reach_labels import ReachLabelConfig, rollout_pairs, draw_pairs
+    from topodrake.learning.reach_labels import ReachLabelConfig, draw_pairs, rollout_pairs
     from topodrake.learning.reach_train import ReachTrainConfig
     from topodrake.learning.reachability import Reachability
     from topodrake.montecarlo import trial_seeds
