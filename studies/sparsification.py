@@ -86,7 +86,7 @@ def _run(args) -> int:
     from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.reachability import Reachability, parse_estimators
     from topodrake.learning.samples import collect_trajectories
-    from topodrake.topomap.hops import anchor_hop_success
+    from topodrake.topomap.hops import anchor_hop_success, share_made
     from topodrake.world import load_world
 
     if args.hop_runs < 0:
@@ -113,7 +113,7 @@ def _run(args) -> int:
         if args.hop_runs:
             ok = anchor_hop_success(world, LearnedWaypointPolicy.from_checkpoint(controller), poses,
                                     anchors, runs=args.hop_runs, seed=args.seed)
-            results[name]["hop_success"] = round(float(ok.mean()), 4) if ok.size else None
+            results[name]["hop_success"] = share_made(ok)
             results[name]["hop_successes"] = ok.sum(axis=1).tolist()
     out = Path(args.out)
     atomic_write_json(out / "sparsification.json", {

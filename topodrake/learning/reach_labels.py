@@ -205,9 +205,9 @@ def _target_contexts(world, policy, trajs, traj, tgt) -> np.ndarray:
     """(M, 2k+1, ...) context observations (or poses, for the oracle)."""
     from topodrake.learning.policy import context_frames
 
-    rows = np.stack([trajs.traj_offsets[t] + context_frames(
-        trajs.traj_offsets[t + 1] - trajs.traj_offsets[t], j, policy.k, policy.frame_step)
-        for t, j in zip(traj, tgt)])
+    lo = trajs.traj_offsets[traj][:, None]
+    rows = lo + context_frames(trajs.traj_offsets[traj + 1][:, None] - lo, tgt, policy.k,
+                               policy.frame_step)
     poses = trajs.poses[rows.ravel()]
     if policy.observation == "pose":
         obs = poses

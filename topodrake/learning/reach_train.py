@@ -169,12 +169,13 @@ class ReachBatcher:
         return len(self.labels)
 
     def context_rows(self, idx) -> np.ndarray:
+        from topodrake.learning.policy import context_frames
+
         t = self.labels.trajectories
         traj, tgt = self.labels.traj[idx], self.labels.tgt[idx]
-        lo = t.traj_offsets[traj]
-        hi = t.traj_offsets[traj + 1] - 1
-        frames = tgt[:, None] + self.cfg.frame_step * np.arange(-self.cfg.k, self.cfg.k + 1)[None]
-        return np.clip(lo[:, None] + frames, lo[:, None], hi[:, None])
+        lo = t.traj_offsets[traj][:, None]
+        n = t.traj_offsets[traj + 1][:, None] - lo
+        return lo + context_frames(n, tgt, self.cfg.k, self.cfg.frame_step)
 
     def batch(self, idx) -> ReachBatch:
         idx = np.asarray(idx, np.int64)

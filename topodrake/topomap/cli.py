@@ -43,11 +43,11 @@ def cmd_sparsify(args) -> None:
               "p_sparsify": args.p, "anchor_frames": anchors.tolist()}
     if args.hop_runs:
         from topodrake.learning.policy import LearnedWaypointPolicy
-        from topodrake.topomap.hops import anchor_hop_success
+        from topodrake.topomap.hops import anchor_hop_success, share_made
 
         ok = anchor_hop_success(world, LearnedWaypointPolicy.from_checkpoint(args.controller),
                                 poses, anchors, runs=args.hop_runs, seed=args.seed)
-        result["hop_success"] = round(float(ok.mean()), 4) if ok.size else None
+        result["hop_success"] = share_made(ok)
     if args.out:
         from topodrake.topomap.plot import plot_anchors
         plot_anchors(world, poses, anchors, args.out, title=f"{re.name or 'RE'}: "

@@ -41,3 +41,8 @@ def anchor_hop_success(world, policy, poses: np.ndarray, anchors: np.ndarray, ru
     seeds = np.array(trial_seeds(seed, len(src)), np.int64)
     out = rollout_pairs(world, policy, trajs, pairs, seeds, config or ReachLabelConfig())
     return out["label"].reshape(-1, runs).astype(bool)
+
+
+def share_made(ok: np.ndarray) -> float | None:
+    """The share of hop runs made (4 decimals), None when there are no hops."""
+    return round(float(np.mean(ok)), 4) if np.size(ok) else None
