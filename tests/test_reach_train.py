@@ -367,3 +367,19 @@ def test_calibration_study_splits_auroc_by_how_pairs_start():
     assert s["auroc_overlapping"] == pytest.approx(3 / 8)   # 2 + 1 reached pairs above them
     assert s["auroc"] == pytest.approx((3 + 12) / 20)
     assert sum(s["reliability"]["count"]) == 9
+
+
+def test_label_folders_name_what_the_labels_depend_on_not_the_data_path(tmp_path):
+    from topodrake.learning.reach_labels import ReachLabelConfig
+    from topodrake.learning.reach_train import label_folder
+
+    ident = {"sha1": "ab" * 20}
+    args = ("train", "pairs-s0", ["train-00"], 100, 0)
+    rel = label_folder("data", ident, *args, ReachLabelConfig())
+    absolute = label_folder(tmp_path / "data", ident, *args, ReachLabelConfig())
+    assert rel.name == absolute.name and rel.name.startswith("ababababab-train-")
+    assert absolute.parent == tmp_path / "data" / "reach-labels"
+    other = [label_folder("data", ident, "train", "pairs-s0", ["train-00"], 100, 1, ReachLabelConfig()),
+             label_folder("data", ident, "train", "random20-s0", ["train-00"], 100, 0, ReachLabelConfig()),
+             label_folder("data", ident, *args, ReachLabelConfig(unjittered_sources=0.5))]
+    assert len({rel.name, *(o.name for o in other)}) == 4

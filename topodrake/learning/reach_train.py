@@ -265,6 +265,18 @@ def checkpoint_temperature(meta: dict) -> float:
 
 # ---------------------------------------------------------------- data and training
 
+def label_folder(data_dir, controller: dict, split: str, demos: str, worlds: list[str], n: int,
+                 seed: int, rollout: ReachLabelConfig) -> Path:
+    """``data_dir/reach-labels/<controller sha1[:10]>-<split>-<key>``: where one
+    label set lives. The key hashes what the labels depend on, the
+    demonstrations by their folder's name ``demos``, not its path, so a
+    relative and an absolute ``--data`` find the same labels."""
+    key = hashlib.sha1(json.dumps({"worlds": list(worlds), "n": int(n), "seed": int(seed),
+                                   "cfg": asdict(rollout), "demos": str(demos)},
+                                  sort_keys=True).encode()).hexdigest()[:10]
+    return Path(data_dir) / "reach-labels" / f"{controller['sha1'][:10]}-{split}-{key}"
+
+
 def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
                    only: str | None = None) -> tuple[ReachLabels, ReachLabels, dict]:
     """Training and validation labels of the config's controller, rolled out
@@ -291,10 +303,7 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
             continue
         made = []
         for worlds, n, seed, rollout in parts:
-            key = hashlib.sha1(json.dumps({"worlds": worlds, "n": n, "seed": seed,
-                                           "cfg": asdict(rollout), "demos": str(demo_root)},
-                                          sort_keys=True).encode()).hexdigest()[:10]
-            folder = Path(data_dir) / "reach-labels" / f"{ident['sha1'][:10]}-{split}-{key}"
+            folder = label_folder(data_dir, ident, split, demo_root.name, worlds, n, seed, rollout)
             trajs = collect_trajectories(worlds, demo_root, protocol=d.demo_protocol,
                                          count=d.demo_count, seed=d.demo_seed, progress=progress)
             label_reachability(trajs, policy, folder, n, seed=seed, controller=ident,
