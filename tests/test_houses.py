@@ -17,6 +17,12 @@ PINNED_AREA_M2 = {
     "train-00": 332.8, "train-01": 343.9, "train-02": 303.3, "train-03": 259.6,
     "train-04": 214.2, "train-05": 238.9, "train-06": 289.0, "train-07": 225.8,
     "train-08": 245.5, "train-09": 274.1, "train-10": 233.6, "train-11": 270.4,
+    "train-12": 280.8, "train-13": 383.3, "train-14": 313.6, "train-15": 294.7,
+    "train-16": 264.7, "train-17": 421.7, "train-18": 342.8, "train-19": 266.2,
+    "train-20": 342.7, "train-21": 298.8, "train-22": 213.4, "train-23": 294.7,
+    "train-24": 281.6, "train-25": 394.1, "train-26": 251.7, "train-27": 217.7,
+    "train-28": 387.6, "train-29": 399.2, "train-30": 268.9, "train-31": 367.8,
+    "train-32": 402.5, "train-33": 398.1, "train-34": 254.1, "train-35": 288.8,
     "test-0": 337.1, "test-1": 304.7, "test-2": 400.7, "test-3": 279.8, "test-4": 358.9,
 }
 
@@ -32,8 +38,8 @@ def houses():
 
 
 def test_catalogue_names_and_seeds():
-    assert NAMES == [f"train-{i:02d}" for i in range(12)] + [f"test-{i}" for i in range(5)]
-    assert len(set(CATALOGUE.values())) == 17
+    assert NAMES == [f"train-{i:02d}" for i in range(36)] + [f"test-{i}" for i in range(5)]
+    assert len(set(CATALOGUE.values())) == 41
     assert set(PINNED_AREA_M2) == set(NAMES)
 
 

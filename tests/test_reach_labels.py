@@ -126,7 +126,7 @@ def test_anchor_hops_are_checked_by_closed_loop_rollouts(box_world):
         anchor_hop_success(box_world, AStarOracle(box_world), poses, np.array([0, 5]), config=CFG)
 
 
-def test_label_sets_over_the_same_trajectories_join(box_world, two_lines, tmp_path):
+def test_label_sets_join_over_shared_or_other_houses(box_world, two_lines, tmp_path):
     from dataclasses import replace
 
     from topodrake.learning.policy import AStarOracle
@@ -140,9 +140,26 @@ def test_label_sets_over_the_same_trajectories_join(box_world, two_lines, tmp_pa
     both = concat_reach_labels(made)
     assert len(both) == 10 and len(both.meta["parts"]) == 2
     assert np.array_equal(both.src_pose, np.concatenate([made[0].src_pose, made[1].src_pose]))
-    other = TrajectorySet(["box"], np.array([0], np.int32), np.array([0, 100]),
-                          two_lines.poses[:100], two_lines.states[:100])
-    with pytest.raises(TopodrakeError, match="different trajectories"):
+    # a set over other houses brings its trajectories along
+    loader = {"box": box_world, "box2": box_world}.__getitem__
+    other = TrajectorySet(["box2"], np.array([0], np.int32), np.array([0, 100]),
+                          two_lines.poses[100:200], two_lines.states[100:200])
+    third = load_reach_labels(label_reachability(other, lambda w: AStarOracle(w), tmp_path / "c", 3,
+                                                 config=CFG, load_world=loader, progress=False))
+    joined = concat_reach_labels(made + [third])
+    t = joined.trajectories
+    assert t.worlds == ["box", "box2"] and t.count == 3 and len(joined) == 13
+    for part, rows in ((made[0], slice(0, 6)), (third, slice(10, 13))):
+        pt = part.trajectories
+        want = pt.poses[pt.traj_offsets[part.traj] + part.tgt]
+        got = t.poses[t.traj_offsets[joined.traj[rows]] + joined.tgt[rows]]
+        assert np.array_equal(got, want)
+        assert np.array_equal(t.traj_world[joined.src_traj[rows]],
+                              [t.worlds.index(pt.worlds[w]) for w in pt.traj_world[part.src_traj]])
+    # but one house cannot stand for two sets of drives
+    same_house = TrajectorySet(["box"], np.array([0], np.int32), np.array([0, 100]),
+                               two_lines.poses[:100], two_lines.states[:100])
+    with pytest.raises(TopodrakeError, match="share worlds"):
         concat_reach_labels([made[0], load_reach_labels(label_reachability(
-            other, lambda w: AStarOracle(w), tmp_path / "c", 3, config=CFG, load_world=loader,
+            same_house, lambda w: AStarOracle(w), tmp_path / "d", 3, config=CFG, load_world=loader,
             progress=False))])

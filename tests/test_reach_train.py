@@ -64,6 +64,12 @@ def test_more_label_sets_come_from_yaml_and_need_seeds_of_their_own():
     clash = load_typed_data(ReachTrainConfig, text.replace("seed: 7", "seed: 1"), "config")
     with pytest.raises(TopodrakeError, match="seed of its own"):
         clash.validate()                                    # seed 1 is the validation set's
+    houses = load_typed_data(ReachTrainConfig, text + "      worlds: [train-12, train-13]\n",
+                             "config").validate()
+    assert houses.labels.more[0].worlds == ["train-12", "train-13"]
+    for bad in ("[]", "[train-12, test-0]"):
+        with pytest.raises(TopodrakeError, match="outside data.val_worlds"):
+            load_typed_data(ReachTrainConfig, text + f"      worlds: {bad}\n", "config").validate()
 
 
 def test_labels_have_both_outcomes(labels):

@@ -333,15 +333,25 @@ def load_reach_labels(folder) -> ReachLabels:
 
 
 def concat_reach_labels(parts: list[ReachLabels]) -> ReachLabels:
-    """One label set of several made over the same trajectories (their
-    manifests under ``meta["parts"]``)."""
+    """One label set of several (their manifests under ``meta["parts"]``).
+    Parts over the same trajectories share them; parts over other worlds
+    (e.g. extra training houses) bring theirs along, with the pairs'
+    trajectory indices moved to match."""
+    from topodrake.learning.samples import TrajectorySet
+
     if not parts:
         raise TopodrakeError("no label sets to join")
     if len(parts) == 1:
         return parts[0]
-    digest = _trajectory_digest(parts[0].trajectories)
-    for part in parts[1:]:
-        if _trajectory_digest(part.trajectories) != digest:
-            raise TopodrakeError("cannot join reachability labels over different trajectories")
+    sets, digests, shift = [], [], []
+    for part in parts:
+        d = _trajectory_digest(part.trajectories)
+        if d not in digests:
+            digests.append(d)
+            sets.append(part.trajectories)
+        shift.append(sum(ts.count for ts in sets[:digests.index(d)]))
+    trajs = TrajectorySet.concat(sets) if len(sets) > 1 else sets[0]
     fields = {k: np.concatenate([part.fields[k] for part in parts]) for k in FIELDS}
-    return ReachLabels(parts[0].trajectories, fields, {"parts": [part.meta for part in parts]})
+    for key in ("src_traj", "traj"):
+        fields[key] = np.concatenate([part.fields[key] + s for part, s in zip(parts, shift)])
+    return ReachLabels(trajs, fields, {"parts": [part.meta for part in parts]})

@@ -44,13 +44,15 @@ from topodrake.typed_yaml import load_typed
 
 @dataclass
 class MoreReachLabels:
-    """More training pairs from the same demonstrations, drawn another way
-    (e.g. every source on the expert's path); validation stays on the main
-    set. Its own seed (not one of the main sets')."""
+    """More training pairs, drawn another way (e.g. every source on the
+    expert's path) or in other houses (``worlds``; default: the config's
+    ``data.train_worlds``); validation stays on the main set. Its own seed
+    (not one of the main sets')."""
 
     train_pairs: int = 20000
     seed: int = 10
     rollout: ReachLabelConfig = field(default_factory=ReachLabelConfig)
+    worlds: list[str] | None = None
 
 
 @dataclass
@@ -93,6 +95,10 @@ class ReachTrainConfig(TrainConfig):
         self.labels.rollout.validate()
         seeds = [self.labels.seed, self.labels.seed + 1]
         for extra in self.labels.more:
+            if extra.worlds is not None and (not extra.worlds
+                                             or set(extra.worlds) & set(self.data.val_worlds)):
+                raise TopodrakeError(f"{where}: labels.more worlds must be a non-empty list of "
+                                     f"houses outside data.val_worlds, got {extra.worlds}")
             if extra.train_pairs < 1 or extra.seed in seeds:
                 raise TopodrakeError(f"{where}: every labels.more set needs train_pairs >= 1 and a "
                                      f"seed of its own (seed {extra.seed} is taken)")
@@ -294,7 +300,7 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
     tag = d.demo_protocol + (f"{d.demo_count}" if d.demo_protocol == "random" else "")
     demo_root = Path(data_dir) / "demos" / f"{tag}-s{d.demo_seed}"
     sets = {"train": [(d.train_worlds, lab.train_pairs, lab.seed, lab.rollout)]
-            + [(d.train_worlds, m.train_pairs, m.seed, m.rollout) for m in lab.more],
+            + [(m.worlds or d.train_worlds, m.train_pairs, m.seed, m.rollout) for m in lab.more],
             "val": [(d.val_worlds, lab.val_pairs, lab.seed + 1, lab.rollout)]}
     out = []
     for split, parts in sets.items():
@@ -331,7 +337,7 @@ def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resum
         loss=lambda model, b: reach_loss(model, b, cfg.overlap_weight),
         evaluate=evaluate_reach, metric="ece",
         card={"controller": controller,
-              "data": {"train_worlds": cfg.data.train_worlds, "val_worlds": cfg.data.val_worlds,
+              "data": {"train_worlds": train_l.trajectories.worlds, "val_worlds": cfg.data.val_worlds,
                        "train_pairs": len(train_l), "val_pairs": len(val_l),
                        "train_success_rate": round(float(train_l.label.mean()), 4),
                        "val_success_rate": round(float(val_l.label.mean()), 4)}},

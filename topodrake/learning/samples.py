@@ -147,6 +147,21 @@ class TrajectorySet:
             drives += [(len(worlds) - 1, d.poses, d.controls) for d in demos]
         return cls.from_drives(worlds, drives)
 
+    @classmethod
+    def concat(cls, sets: list["TrajectorySet"]) -> "TrajectorySet":
+        """The trajectories of ``sets``, one after another (worlds too). Sets
+        of different worlds only: a world in two sets would stand for two
+        different sets of drives."""
+        worlds = [w for ts in sets for w in ts.worlds]
+        if len(set(worlds)) != len(worlds):
+            raise TopodrakeError(f"cannot join trajectory sets that share worlds ({worlds})")
+        w_off = np.cumsum([0] + [len(ts.worlds) for ts in sets])
+        r_off = np.cumsum([0] + [len(ts.poses) for ts in sets])
+        offsets = np.concatenate([[0]] + [ts.traj_offsets[1:] + r for ts, r in zip(sets, r_off)])
+        return cls(worlds, np.concatenate([ts.traj_world + w for ts, w in zip(sets, w_off)]).astype(np.int32),
+                   offsets.astype(np.int64), np.concatenate([ts.poses for ts in sets]),
+                   np.concatenate([ts.states for ts in sets]))
+
     def select_worlds(self, names: list[str]) -> "TrajectorySet":
         keep_w = [self.worlds.index(n) for n in names]
         remap = {w: i for i, w in enumerate(keep_w)}
