@@ -23,6 +23,21 @@ PINNED_AREA_M2 = {
     "train-24": 281.6, "train-25": 394.1, "train-26": 251.7, "train-27": 217.7,
     "train-28": 387.6, "train-29": 399.2, "train-30": 268.9, "train-31": 367.8,
     "train-32": 402.5, "train-33": 398.1, "train-34": 254.1, "train-35": 288.8,
+    "train-36": 277.4, "train-37": 287.4, "train-38": 279.8, "train-39": 408.9,
+    "train-40": 394.9, "train-41": 402.1, "train-42": 295.0, "train-43": 245.6,
+    "train-44": 219.7, "train-45": 396.3, "train-46": 233.1, "train-47": 336.1,
+    "train-48": 369.1, "train-49": 275.2, "train-50": 323.7, "train-51": 379.6,
+    "train-52": 273.2, "train-53": 394.6, "train-54": 220.9, "train-55": 379.2,
+    "train-56": 418.9, "train-57": 305.3, "train-58": 219.3, "train-59": 312.7,
+    "train-60": 426.7, "train-61": 347.3, "train-62": 352.1, "train-63": 423.8,
+    "train-64": 268.1, "train-65": 428.8, "train-66": 309.1, "train-67": 418.9,
+    "train-68": 394.5, "train-69": 432.9, "train-70": 259.6, "train-71": 268.7,
+    "train-72": 325.3, "train-73": 290.6, "train-74": 436.7, "train-75": 390.2,
+    "train-76": 295.2, "train-77": 324.4, "train-78": 408.9, "train-79": 422.7,
+    "train-80": 402.4, "train-81": 316.1, "train-82": 388.4, "train-83": 300.1,
+    "train-84": 405.9, "train-85": 395.1, "train-86": 390.2, "train-87": 324.5,
+    "train-88": 339.4, "train-89": 244.3, "train-90": 366.3, "train-91": 228.6,
+    "train-92": 214.7, "train-93": 378.3, "train-94": 373.4, "train-95": 315.1,
     "test-0": 337.1, "test-1": 304.7, "test-2": 400.7, "test-3": 279.8, "test-4": 358.9,
 }
 
@@ -38,8 +53,8 @@ def houses():
 
 
 def test_catalogue_names_and_seeds():
-    assert NAMES == [f"train-{i:02d}" for i in range(36)] + [f"test-{i}" for i in range(5)]
-    assert len(set(CATALOGUE.values())) == 41
+    assert NAMES == [f"train-{i:02d}" for i in range(96)] + [f"test-{i}" for i in range(5)]
+    assert len(set(CATALOGUE.values())) == 101
     assert set(PINNED_AREA_M2) == set(NAMES)
 
 

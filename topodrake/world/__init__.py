@@ -1,7 +1,7 @@
 """Floor plans: walls, occupancy grid, c-space, A*, houses and map loaders.
 
 ``load_world(spec)`` is the one entry point: ``spec`` is a catalogue name
-(``train-00`` .. ``train-35``, ``test-0`` .. ``test-4``), a ROS map_server
+(``train-00`` .. ``train-95``, ``test-0`` .. ``test-4``), a ROS map_server
 YAML, or a HouseExpo JSON file.
 """
 

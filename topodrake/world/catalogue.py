@@ -2,11 +2,11 @@
 
 ``load_world(spec)`` takes
 
-* a catalogue name: 36 training houses ``train-00`` .. ``train-35`` and 5
+* a catalogue name: 96 training houses ``train-00`` .. ``train-95`` and 5
   test houses ``test-0`` .. ``test-4``, procedural houses with fixed seeds
   (the training and test houses are different floor plans, like the paper's
   training and test scenes). The controllers learn in the first 12 (the
-  configs' default ``data.train_worlds``); the other 24 give RE labels in
+  configs' default ``data.train_worlds``); the others give RE labels in
   houses its controller never saw;
 * a ROS map_server map, a path ending ``.yaml`` / ``.yml``;
 * a HouseExpo floor plan, a path ending ``.json``.
@@ -26,7 +26,7 @@ from topodrake.world.world import World
 #: name -> seed of :func:`topodrake.world.houses.generate_house`. Fixed: the
 #: free areas (m^2) are pinned by ``tests/test_houses.py``; all lie in 200-460.
 CATALOGUE: dict[str, int] = {
-    **{f"train-{i:02d}": 1000 + i for i in range(36)},
+    **{f"train-{i:02d}": 1000 + i for i in range(96)},
     **{f"test-{i}": 2000 + i for i in range(5)},
 }
 
