@@ -59,3 +59,15 @@ def test_bad_input_is_refused():
         brier([0.5, 0.2], [1])
     with pytest.raises(TopodrakeError, match="no predictions"):
         ece([], [])
+
+
+def test_platt_scaling_recovers_slope_and_bias():
+    from topodrake.learning.calibration import fit_platt
+
+    rng = np.random.default_rng(0)
+    z = rng.normal(0.0, 3.0, 20000)
+    y = (rng.random(z.size) < 1 / (1 + np.exp(-(0.5 * z + 1.5)))).astype(int)
+    a, b = fit_platt(z, y)
+    assert a == pytest.approx(0.5, abs=0.05) and b == pytest.approx(1.5, abs=0.1)
+    with pytest.raises(TopodrakeError, match="0 or 1"):
+        fit_platt(z[:3], [0, 1, 2])

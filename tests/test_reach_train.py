@@ -216,6 +216,13 @@ def test_reachability_cached_pairwise_and_naive_agree():
     assert np.all(np.abs(p_soft - 0.5) <= np.abs(cached - 0.5) + 1e-9)
     anchors = re.sparsify(images, p=0.5, feats=feats)
     assert anchors[0] == 0 and anchors[-1] == 29 and np.all(np.diff(anchors) > 0)
+    # frames of one drive use the anchor calibration, other queries the temperature
+    assert soft.anchor_platt == (0.25, 0.0)
+    assert np.allclose(soft.pairwise(feats, src, rows), p_soft, atol=1e-5)
+    both = Reachability(re.model, CameraConfig(), temperature=1.0, anchor_platt=(0.25, 2.0))
+    z = np.log(p_soft / (1 - p_soft))                       # logits / 4
+    assert np.allclose(both.pairwise(feats, src, rows), 1 / (1 + np.exp(-(z + 2.0))), atol=1e-5)
+    assert np.allclose(both.probability(images[src], both.encode_target(images[rows])), cached)
 
 
 def test_reachability_estimator_system_matches_the_batched_call():
@@ -389,3 +396,46 @@ def test_label_folders_name_what_the_labels_depend_on_not_the_data_path(tmp_path
              label_folder("data", ident, "train", "random20-s0", ["train-00"], 100, 0, ReachLabelConfig()),
              label_folder("data", ident, *args, ReachLabelConfig(unjittered_sources=0.5))]
     assert len({rel.name, *(o.name for o in other)}) == 4
+
+
+def test_anchor_hops_get_their_own_temperature_also_after_training(labels, tmp_path):
+    from topodrake.learning.reach_labels import ReachLabels
+    from topodrake.learning.reach_train import (AnchorCalibration, controller_identity,
+                                                load_reachability, train_reachability)
+    from topodrake.learning.reachability import Reachability
+
+    ctrl = tmp_path / "cwp.pt"
+    ctrl.write_bytes(b"controller weights")
+    ident = controller_identity(ctrl)
+    # "anchor hops": the easy pairs (mostly reached), unlike the validation mix
+    pick = np.concatenate([np.flatnonzero(labels.label == 1), np.flatnonzero(labels.label == 0)[:2]])
+    hops = ReachLabels(labels.trajectories, {k: v[pick] for k, v in labels.fields.items()}, {})
+    none = _config(max_samples=320, anchor_calibration=AnchorCalibration(pairs=0))
+    train_reachability(none, tmp_path / "re", labels=(labels, labels), controller=ident,
+                       progress=False)
+    ck = load_reachability(tmp_path / "re" / "checkpoint.pt", ctrl)
+    assert "anchor_platt" not in ck.meta["extra"]
+    # rerunning the finished run with anchor hops only refits the calibration
+    again = train_reachability(_config(max_samples=320), tmp_path / "re",
+                               labels=(labels, labels, hops), controller=ident, progress=False)
+    assert again.samples_seen == 320 and again.train_samples_per_s > 0
+    ck2 = load_reachability(tmp_path / "re" / "checkpoint.pt", ctrl)
+    assert torch.equal(ck2.model.state_dict()["reach.0.weight"], ck.model.state_dict()["reach.0.weight"])
+    card = json.loads((tmp_path / "re" / "card.json").read_text())
+    platt = tuple(ck2.meta["extra"]["anchor_platt"])
+    assert card["anchor_platt"] == list(platt) and card["anchor_pairs"] == len(pick)
+    assert card["anchor_success_rate"] == pytest.approx(labels.label[pick].mean(), abs=1e-4)
+    # fitted to the hops: a lower BCE on them than the temperature gives
+    assert card["anchor_metrics"]["bce"] < card["anchor_metrics_temperature"]["bce"]
+    re = Reachability.from_checkpoint(tmp_path / "re" / "checkpoint.pt", ctrl)
+    assert re.temperature == card["temperature"] and re.anchor_platt == platt
+
+
+def test_anchor_calibration_config_is_checked():
+    from topodrake.learning.reach_train import AnchorCalibration
+
+    with pytest.raises(TopodrakeError, match="anchor_calibration.seed 1"):
+        _config(anchor_calibration=AnchorCalibration(seed=1)).validate()
+    with pytest.raises(TopodrakeError, match="pairs must be >= 0"):
+        _config(anchor_calibration=AnchorCalibration(pairs=-1)).validate()
+    _config(anchor_calibration=AnchorCalibration(pairs=0, seed=1)).validate()

@@ -98,6 +98,25 @@ def fit_temperature(logits, y, bounds: tuple[float, float] = (0.05, 20.0)) -> fl
     return float(np.exp(res.x))
 
 
+def fit_platt(logits, y) -> tuple[float, float]:
+    """Slope and bias (a, b) minimising the NLL of ``sigmoid(a * logits + b)``
+    (Platt scaling: a temperature plus a shift of the logit's zero, which
+    is what a different base rate of success asks for)."""
+    from scipy.optimize import minimize
+
+    z = np.asarray(logits, np.float64).ravel()
+    _, y = _check(np.full(z.shape, 0.5), y)
+
+    def nll(ab):
+        s = ab[0] * z + ab[1]
+        q = 1.0 / (1.0 + np.exp(-s)) - y           # d nll / d s
+        return float(np.mean(np.logaddexp(0.0, s) - y * s)), np.array([np.mean(q * z), np.mean(q)])
+
+    res = minimize(nll, np.array([1.0, 0.0]), jac=True, method="L-BFGS-B",
+                   bounds=[(1e-3, 50.0), (-50.0, 50.0)])
+    return float(res.x[0]), float(res.x[1])
+
+
 def calibration_summary(p, y, bins: int = 10) -> dict:
     """ECE, Brier score and AUROC (None when one class is missing) as floats."""
     p, y = _check(p, y)

@@ -64,6 +64,26 @@ class ReachLabelSets:
     more: list[MoreReachLabels] = field(default_factory=list)
 
 
+def _anchor_hops() -> ReachLabelConfig:
+    return ReachLabelConfig(same_trajectory=1.0, distance_min_m=0.0, distance_max_m=3.0,
+                            unjittered_sources=1.0)
+
+
+@dataclass
+class AnchorCalibration:
+    """Rollouts for RE's second calibration (Platt scaling), the one for
+    queries between frames of a drive (sparsification and the edges between consecutive
+    anchors): the source on an expert frame, the target up to 3 m ahead on
+    the same drive, in the validation houses. These hops are far easier than
+    the average validation pair (success about 0.9 instead of 0.45), and the
+    temperature fitted on the latter leaves RE miscalibrated on them. ``pairs: 0``: none (the main temperature
+    serves)."""
+
+    pairs: int = 2000
+    seed: int = 2
+    rollout: ReachLabelConfig = field(default_factory=_anchor_hops)
+
+
 def _reach_network() -> NetworkConfig:
     return NetworkConfig(output="reach")
 
@@ -82,6 +102,7 @@ class ReachTrainConfig(TrainConfig):
     # fit a temperature on the validation rollouts after training (kept
     # only if it lowers their BCE; Reachability applies it)
     temperature_scaling: bool = True
+    anchor_calibration: AnchorCalibration = field(default_factory=AnchorCalibration)
 
     def validate(self, where: str = "reach train config") -> "ReachTrainConfig":
         if self.network.output != "reach":
@@ -93,7 +114,15 @@ class ReachTrainConfig(TrainConfig):
         if self.init not in ("controller", "scratch"):
             raise TopodrakeError(f"{where}: init must be 'controller' or 'scratch', got {self.init!r}")
         self.labels.rollout.validate()
+        self.anchor_calibration.rollout.validate()
+        if self.anchor_calibration.pairs < 0:
+            raise TopodrakeError(f"{where}: anchor_calibration.pairs must be >= 0")
         seeds = [self.labels.seed, self.labels.seed + 1]
+        if self.anchor_calibration.pairs and self.anchor_calibration.seed in seeds:
+            raise TopodrakeError(f"{where}: anchor_calibration.seed {self.anchor_calibration.seed} "
+                                 "is a main label set's")
+        if self.anchor_calibration.pairs:
+            seeds.append(self.anchor_calibration.seed)
         for extra in self.labels.more:
             if extra.worlds is not None and (not extra.worlds
                                              or set(extra.worlds) & set(self.data.val_worlds)):
@@ -283,6 +312,12 @@ def label_folder(data_dir, controller: dict, split: str, demos: str, worlds: lis
     return Path(data_dir) / "reach-labels" / f"{controller['sha1'][:10]}-{split}-{key}"
 
 
+def _demo_root(cfg: ReachTrainConfig, data_dir) -> Path:
+    d = cfg.data
+    tag = d.demo_protocol + (f"{d.demo_count}" if d.demo_protocol == "random" else "")
+    return Path(data_dir) / "demos" / f"{tag}-s{d.demo_seed}"
+
+
 def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
                    only: str | None = None) -> tuple[ReachLabels, ReachLabels, dict]:
     """Training and validation labels of the config's controller, rolled out
@@ -297,8 +332,7 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
     if policy.is_direct_control:
         raise TopodrakeError(f"{cfg.controller} is a direct-control network; RE needs a C_WP")
     d, lab = cfg.data, cfg.labels
-    tag = d.demo_protocol + (f"{d.demo_count}" if d.demo_protocol == "random" else "")
-    demo_root = Path(data_dir) / "demos" / f"{tag}-s{d.demo_seed}"
+    demo_root = _demo_root(cfg, data_dir)
     sets = {"train": [(d.train_worlds, lab.train_pairs, lab.seed, lab.rollout)]
             + [(m.worlds or d.train_worlds, m.train_pairs, m.seed, m.rollout) for m in lab.more],
             "val": [(d.val_worlds, lab.val_pairs, lab.seed + 1, lab.rollout)]}
@@ -319,18 +353,62 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
     return out[0], out[1], ident
 
 
+def prepare_anchor_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True
+                          ) -> ReachLabels | None:
+    """The anchor-hop rollouts of :class:`AnchorCalibration` in the
+    validation houses (None when ``pairs`` is 0), made once and reused."""
+    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.samples import collect_trajectories
+
+    a, d = cfg.anchor_calibration, cfg.data
+    if not a.pairs:
+        return None
+    ident = controller_identity(cfg.controller)
+    demo_root = _demo_root(cfg, data_dir)
+    folder = label_folder(data_dir, ident, "anchor", demo_root.name, d.val_worlds, a.pairs, a.seed,
+                          a.rollout)
+    trajs = collect_trajectories(d.val_worlds, demo_root, protocol=d.demo_protocol,
+                                 count=d.demo_count, seed=d.demo_seed, progress=progress)
+    label_reachability(trajs, LearnedWaypointPolicy.from_checkpoint(cfg.controller), folder,
+                       a.pairs, seed=a.seed, controller=ident, config=a.rollout, progress=progress)
+    return load_reach_labels(folder)
+
+
+def calibrate(model, val: ReachBatcher, anchors: ReachBatcher | None, scaling: bool = True) -> dict:
+    """What training adds after the last step: the temperature of the
+    validation pairs (if ``scaling``) and the Platt scaling of the anchor
+    hops (``anchor_platt`` = [slope, bias], with the hops' metrics before
+    (under the temperature) and after)."""
+    from topodrake.learning.calibration import fit_platt
+
+    out = fit_reach_temperature(model, val) if scaling else {}
+    if anchors is not None:
+        z, y = reach_logits(model, anchors)
+        a, b = fit_platt(z.numpy(), y.numpy())
+        out.update(anchor_platt=[round(a, 5), round(b, 5)], anchor_pairs=len(anchors),
+                   anchor_success_rate=round(float(y.mean()), 4),
+                   anchor_metrics_temperature=_reach_metrics(z / out.get("temperature", 1.0), y),
+                   anchor_metrics=_reach_metrics(a * z + b, y))
+    return out
+
+
 def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resume: bool = True,
-                       progress: bool = True, labels: tuple[ReachLabels, ReachLabels] | None = None,
+                       progress: bool = True, labels: tuple[ReachLabels, ...] | None = None,
                        controller: dict | None = None, command: str | None = None):
-    """Train (or resume) RE for ``cfg.controller`` into ``out_dir``."""
+    """Train (or resume) RE for ``cfg.controller`` into ``out_dir``.
+    ``labels``: (train, validation[, anchor hops]) instead of the config's
+    rollouts."""
     from topodrake.learning.train import Task, _set_threads, train_network
 
     cfg.validate()
     _set_threads(cfg.threads)
     if labels is None:
         train_l, val_l, controller = prepare_labels(cfg, data_dir, progress)
+        anchor_l = prepare_anchor_labels(cfg, data_dir, progress)
     else:
-        (train_l, val_l), controller = labels, controller or controller_identity(cfg.controller)
+        (train_l, val_l, *rest), controller = labels, controller or controller_identity(cfg.controller)
+        anchor_l = rest[0] if rest else None
+    anchors = None if anchor_l is None else ReachBatcher(anchor_l, cfg.network, cfg.camera, cfg.lidar)
     task = Task(
         train=ReachBatcher(train_l, cfg.network, cfg.camera, cfg.lidar),
         val=ReachBatcher(val_l, cfg.network, cfg.camera, cfg.lidar),
@@ -344,7 +422,7 @@ def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resum
         meta={"controller": controller},
         init=(lambda model: init_from_controller(model, controller["checkpoint"]))
         if cfg.init == "controller" else None,
-        finish=fit_reach_temperature if cfg.temperature_scaling else None)
+        finish=lambda model, val: calibrate(model, val, anchors, cfg.temperature_scaling))
     return train_network(cfg, task, out_dir, resume=resume, progress=progress, command=command)
 
 

@@ -41,31 +41,42 @@ class Reachability(ObservationNetwork):
     """Probabilities from a trained RE (``network.output = "reach"``).
 
     ``temperature`` divides the logit (temperature scaling, fitted on
-    validation rollouts; 1 = as trained)."""
+    validation rollouts; 1 = as trained). Queries between frames of one
+    drive (:meth:`sparsify`, :meth:`pairwise`) use ``anchor_platt`` (a, b)
+    instead, ``sigmoid(a * logit + b)`` fitted on rollouts of such hops:
+    calibration holds for the pairs it was fitted on, and these hops
+    succeed far more often than the average pair (default: the temperature,
+    ``(1 / T, 0)``)."""
 
     def __init__(self, model, sensor, name: str = "", controller: dict | None = None,
-                 temperature: float = 1.0):
+                 temperature: float = 1.0, anchor_platt: tuple[float, float] | None = None):
         if model.cfg.output != "reach":
             raise ValueError("Reachability needs a network with output 'reach'")
         super().__init__(model, sensor, name)
         self.controller = controller or {}
         self.temperature = float(temperature)
+        a, b = (1.0 / self.temperature, 0.0) if anchor_platt is None else anchor_platt
+        self.anchor_platt = (float(a), float(b))
 
     @classmethod
-    def from_checkpoint(cls, path, controller_checkpoint, temperature: float | None = None
-                        ) -> "Reachability":
-        """Load an RE, refusing one trained for another controller.
-        ``temperature`` defaults to the one fitted after training (1 if none)."""
+    def from_checkpoint(cls, path, controller_checkpoint, temperature: float | None = None,
+                        anchor_platt: tuple[float, float] | None = None) -> "Reachability":
+        """Load an RE, refusing one trained for another controller. The
+        calibrations default to the ones fitted after training (T = 1 if
+        none; anchor hops fall back to the temperature)."""
         from topodrake.learning.reach_train import checkpoint_temperature, load_reachability
 
         ck = load_reachability(path, controller_checkpoint)
+        t = checkpoint_temperature(ck.meta) if temperature is None else temperature
+        extra = ck.meta.get("extra") or {}
+        if anchor_platt is None and "anchor_platt" in extra:
+            anchor_platt = tuple(extra["anchor_platt"])
         return cls(ck.model, ck.sensor, name=Path(path).parent.name,
-                   controller=(ck.meta.get("extra") or {}).get("controller"),
-                   temperature=checkpoint_temperature(ck.meta) if temperature is None
-                   else temperature)
+                   controller=extra.get("controller"), temperature=t, anchor_platt=anchor_platt)
 
-    def _prob(self, out: dict) -> np.ndarray:
-        z = out["reach_logit"][:, 0] / self.temperature
+    def _prob(self, out: dict, platt: tuple[float, float] | None = None) -> np.ndarray:
+        z = out["reach_logit"][:, 0]
+        z = z / self.temperature if platt is None else platt[0] * z + platt[1]
         return torch.sigmoid(z).numpy().astype(np.float64)
 
     @torch.inference_mode()
@@ -98,7 +109,8 @@ class Reachability(ObservationNetwork):
     @torch.inference_mode()
     def pairwise(self, feats: FrameFeatures, source: np.ndarray, context_rows: np.ndarray,
                  batch: int = 512) -> np.ndarray:
-        """RE(frame ``source[m]``, context frames ``context_rows[m]``) (M,)."""
+        """RE(frame ``source[m]``, context frames ``context_rows[m]``) (M,),
+        frames of one drive (so with the anchor calibration)."""
         source = np.asarray(source, np.int64)
         rows = np.asarray(context_rows, np.int64).reshape(len(source), -1)
         if rows.shape[1] != self.cfg.frames:
@@ -110,7 +122,7 @@ class Reachability(ObservationNetwork):
             pre = feats.target[r] + feats.current[s].unsqueeze(1)
             n, m = pre.shape[:2]
             res = self.plan.heads_of(self.plan.after_first(pre.reshape(n * m, *pre.shape[2:])), n)
-            out[lo:lo + batch] = self._prob(res)
+            out[lo:lo + batch] = self._prob(res, self.anchor_platt)
         return out
 
     def context_rows(self, n_frames: int, targets: np.ndarray) -> np.ndarray:

@@ -156,8 +156,10 @@ def _sensor(cfg: TrainConfig):
     return cfg.camera if cfg.network.modality == "camera" else cfg.lidar
 
 
-#: Settings a resumed run may change (budgets and bookkeeping).
-_RUNTIME = ("max_samples", "max_minutes", "val_every_samples", "checkpoint_every_s", "threads")
+#: Settings a resumed run may change: budgets, bookkeeping and RE's
+#: calibration after training (rerunning a finished RE's command refits it).
+_RUNTIME = ("max_samples", "max_minutes", "val_every_samples", "checkpoint_every_s", "threads",
+            "temperature_scaling", "anchor_calibration")
 
 
 def _comparable(cfg_dict: dict) -> dict:
@@ -344,6 +346,8 @@ def train_network(cfg: TrainConfig, task: Task, out_dir, *, resume: bool = True,
         task.card = {**task.card, **finished}
     write(metrics)
     seen = state["samples_seen"] - start_seen
+    if seen == 0:      # a finished run rerun (e.g. to recalibrate): its overall rate
+        seen, start_wall = state["samples_seen"], 0.0
     rate = seen / max(state["wall_time_s"] - start_wall, 1e-9)
     card = {"checkpoint": CHECKPOINT, "modality": cfg.network.modality, "k": cfg.network.k,
             "output": cfg.network.output, "samples_seen": state["samples_seen"],
