@@ -449,3 +449,13 @@ def test_cli_parsers_refuse_a_missing_config(tmp_path):
     with pytest.raises(TopodrakeError, match="none.yaml"):
         args.func(args)
     assert p.parse_args(["bench", "networks", "--json"]).json
+
+
+def test_config_diff_on_resume_reaches_into_lists_and_ignores_later_none_fields():
+    from topodrake.learning.train import _diff
+
+    old = {"lr": 1e-3, "labels": {"more": [{"seed": 10, "pairs": 5}]}}
+    assert _diff(old, {"lr": 1e-3, "labels": {"more": [{"seed": 10, "pairs": 5, "worlds": None}]}}) is None
+    assert _diff(old, {"lr": 1e-3, "labels": {"more": [{"seed": 11, "pairs": 5}]}}) == (
+        "labels.more.0.seed", 10, 11)
+    assert _diff(old, {"lr": 1e-3, "labels": {"more": []}})[0] == "labels.more"

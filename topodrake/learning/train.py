@@ -170,9 +170,17 @@ def _comparable(cfg_dict: dict) -> dict:
 
 
 def _diff(a, b, prefix=""):
+    """The first (key, old, new) where two configs differ; a key one side
+    lacks counts as None there (a field added later with a None default)."""
     if isinstance(a, dict) and isinstance(b, dict):
         for k in sorted(set(a) | set(b)):
             r = _diff(a.get(k), b.get(k), f"{prefix}{k}.")
+            if r:
+                return r
+        return None
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b)):
+            r = _diff(x, y, f"{prefix}{i}.")
             if r:
                 return r
         return None
