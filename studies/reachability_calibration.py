@@ -7,7 +7,9 @@ drawn as for the RE labels, RE's probability from the source observation,
 and the outcome of the C_WP + RMP diagram driving it (success within
 0.27 m or both overlaps > 0.7 before A*/v_min; failure on timeout,
 collision or both overlaps < 0.05). Also ``keep_ratio``: the fraction of
-test-house expert frames kept as anchors at ``--p`` (0.99).
+test-house expert frames kept as anchors at ``--p`` (0.99), with RE's
+calibration for anchor hops (the JSON file adds the ratio under the
+temperature, ``keep_ratio_temperature``).
 
     python studies/reachability_calibration.py --pairs 1000 --json
 
@@ -39,13 +41,18 @@ DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/came
 WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
 
 
-def keep_ratio(reach: str, controller: str, data_dir: str, p: float, drives: int | None) -> float:
-    """Anchors kept / frames over the test houses' successful expert drives."""
+def keep_ratio(reach: str, controller: str, data_dir: str, p: float, drives: int | None,
+               anchor_calibration: bool = True) -> float:
+    """Anchors kept / frames over the test houses' successful expert drives,
+    with RE's anchor-hop calibration (or, if not ``anchor_calibration``, its
+    temperature, as for any other pair)."""
     from topodrake.demonstrations import load_demos
     from topodrake.learning.reachability import Reachability
     from topodrake.world import load_world
 
     re = Reachability.from_checkpoint(reach, controller)
+    if not anchor_calibration:
+        re.anchor_platt = (1.0 / re.temperature, 0.0)
     kept = frames = 0
     for name in WORLDS:
         world = load_world(name)
@@ -149,6 +156,8 @@ def _run(args) -> int:
     # threads can hang the children).
     for name, (reach, controller) in estimators.items():
         ratio = keep_ratio(reach, controller, args.data, args.p, args.keep_drives)
+        details[name]["keep_ratio_temperature"] = round(keep_ratio(
+            reach, controller, args.data, args.p, args.keep_drives, anchor_calibration=False), 4)
         n = details[name]["noisy"]
         summary[name] = {"ece": round(n["ece"], 4), "brier": round(n["brier"], 4),
                          "auroc": None if n["auroc"] is None else round(n["auroc"], 4),
