@@ -439,3 +439,20 @@ def test_anchor_calibration_config_is_checked():
     with pytest.raises(TopodrakeError, match="pairs must be >= 0"):
         _config(anchor_calibration=AnchorCalibration(pairs=-1)).validate()
     _config(anchor_calibration=AnchorCalibration(pairs=0, seed=1)).validate()
+
+
+def test_limits_study_ceiling_and_hop_bins(tmp_path, capsys):
+    study = _study("reachability_limits")
+    # deterministic outcomes: the other runs predict each run perfectly
+    fixed = np.array([[1, 1, 1], [0, 0, 0], [1, 1, 1], [0, 0, 0]])
+    assert study.oracle_auroc(fixed) == 1.0
+    # coin flips: the other runs know nothing (AUROC about 0.5)
+    flips = (np.random.default_rng(0).random((400, 4)) < 0.5).astype(int)
+    assert abs(study.oracle_auroc(flips) - 0.5) < 0.08
+    with pytest.raises(TopodrakeError, match="two runs"):
+        study.oracle_auroc(fixed[:, :1])
+    bins = study.success_by_distance(np.array([0.1, 0.2, 0.7, 3.0]), np.array([1, 0, 1, 1]))
+    assert [b["n"] for b in bins] == [2, 0, 1, 0, 0, 0, 1]        # 3.0 m counts in the last bin
+    assert bins[0]["success"] == 0.5 and bins[1]["success"] is None
+    assert study.main(["--runs", "1", "--out", str(tmp_path)]) == 2
+    assert "--runs >= 2" in capsys.readouterr().err
