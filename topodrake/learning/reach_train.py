@@ -11,9 +11,13 @@ Beyond the paper's recipe (each a config switch): RE starts from its
 controller's encoder, frame combiner and overlap head (``init``); an
 auxiliary head learns the pair's geometric image overlaps at the start
 (``overlap_weight``), the cue for the many pairs that fail at once because
-the two views share nothing; and a temperature fitted on the validation
+the two views share nothing; a temperature fitted on the validation
 rollouts is stored and applied on load when it lowers their BCE
-(``temperature_scaling``).
+(``temperature_scaling``); and a second calibration, for the hops between
+frames of one drive, is fitted on rollouts of such hops
+(``anchor_calibration``). ``labels.more`` sets may come from houses the
+controller never saw (``worlds``), which is what RE's generalisation to new
+houses needs most.
 
 Config: a :class:`ReachTrainConfig` YAML (``configs/reach_*.yaml``). Its
 ``data`` section picks the demonstrations (worlds, protocol, seed) as for
@@ -72,12 +76,12 @@ def _anchor_hops() -> ReachLabelConfig:
 @dataclass
 class AnchorCalibration:
     """Rollouts for RE's second calibration (Platt scaling), the one for
-    queries between frames of a drive (sparsification and the edges between consecutive
-    anchors): the source on an expert frame, the target up to 3 m ahead on
-    the same drive, in the validation houses. These hops are far easier than
-    the average validation pair (success about 0.9 instead of 0.45), and the
-    temperature fitted on the latter leaves RE miscalibrated on them. ``pairs: 0``: none (the main temperature
-    serves)."""
+    queries between frames of a drive (sparsification and the edges between
+    consecutive anchors): the source on an expert frame, the target up to
+    3 m ahead on the same drive, in the validation houses. These hops are far
+    easier than the average validation pair (success about 0.9 instead of
+    0.45), and the temperature fitted on the latter leaves RE miscalibrated
+    on them. ``pairs: 0``: none (the temperature serves for them too)."""
 
     pairs: int = 2000
     seed: int = 2
