@@ -103,13 +103,14 @@ def fit_platt(logits, y) -> tuple[float, float]:
     (Platt scaling: a temperature plus a shift of the logit's zero, which
     is what a different base rate of success asks for)."""
     from scipy.optimize import minimize
+    from scipy.special import expit
 
     z = np.asarray(logits, np.float64).ravel()
     _, y = _check(np.full(z.shape, 0.5), y)
 
     def nll(ab):
         s = ab[0] * z + ab[1]
-        q = 1.0 / (1.0 + np.exp(-s)) - y           # d nll / d s
+        q = expit(s) - y                            # d nll / d s
         return float(np.mean(np.logaddexp(0.0, s) - y * s)), np.array([np.mean(q * z), np.mean(q)])
 
     res = minimize(nll, np.array([1.0, 0.0]), jac=True, method="L-BFGS-B",
