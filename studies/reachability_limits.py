@@ -78,13 +78,9 @@ def success_by_distance(distance: np.ndarray, success: np.ndarray,
 
 
 def _re_probabilities(re, world, trajs, pairs) -> np.ndarray:
-    from topodrake.learning.policy import context_frames
+    from topodrake.learning.reach_labels import target_contexts
 
-    lo = trajs.traj_offsets[pairs["traj"]]
-    n = trajs.traj_offsets[pairs["traj"] + 1] - lo
-    rows = lo[:, None] + context_frames(n[:, None], pairs["tgt"], re.k, re.frame_step)
-    ctx = re.observe(world, trajs.poses[rows.ravel()])
-    ctx = ctx.reshape(rows.shape + ctx.shape[1:])
+    ctx = target_contexts(world, re, trajs, pairs["traj"], pairs["tgt"])
     return re.probability(re.observe(world, pairs["src_pose"]), re.encode_target(ctx))
 
 
@@ -126,9 +122,10 @@ def measure(reach: str, controller: str, trajs, pairs_per_house: int, runs: int,
             hops = draw_pairs(world, trajs, ids, hop_pairs_per_house, rng, hop_cfg)
             seeds = np.array(trial_seeds(seed * 1000 + 500 + w, hop_pairs_per_house), np.int64)
             hop_ok.append(rollout_pairs(world, policy, trajs, hops, seeds, hop_cfg)["label"])
-            for t, s, g in zip(hops["traj"], hops["src"], hops["tgt"]):
-                arc = _arclength(trajs.poses[trajs.rows(int(t))])
-                hop_d.append(arc[g] - arc[s])
+            arcs = {int(t): _arclength(trajs.poses[trajs.rows(int(t))])
+                    for t in np.unique(hops["traj"])}
+            hop_d += [arcs[int(t)][g] - arcs[int(t)][s]
+                      for t, s, g in zip(hops["traj"], hops["src"], hops["tgt"])]
             bar.update(hop_pairs_per_house)
     bar.close()
     outcomes, p, blind = np.concatenate(outcomes).astype(int), np.concatenate(p), np.concatenate(blind)

@@ -189,7 +189,7 @@ def rollout_pairs(world, policy, trajs: TrajectorySet, pairs: dict, seeds: np.nd
     overlap = np.empty((n, 2), np.float32)
     for lo in range(0, n, cfg.batch):
         sl = slice(lo, min(lo + cfg.batch, n))
-        ctx = _target_contexts(world, policy, trajs, pairs["traj"][sl], pairs["tgt"][sl])
+        ctx = target_contexts(world, policy, trajs, pairs["traj"][sl], pairs["tgt"][sl])
         feats = policy.encode_target(ctx)
         res = engine.run(pairs["src_pose"][sl], tgt_pose[sl], feats, t_max_s=t_max[sl],
                          seeds=seeds[sl])
@@ -201,19 +201,17 @@ def rollout_pairs(world, policy, trajs: TrajectorySet, pairs: dict, seeds: np.nd
             "seed": np.asarray(seeds, np.int64)}
 
 
-def _target_contexts(world, policy, trajs, traj, tgt) -> np.ndarray:
-    """(M, 2k+1, ...) context observations (or poses, for the oracle)."""
-    from topodrake.learning.policy import context_frames
-
-    lo = trajs.traj_offsets[traj][:, None]
-    rows = lo + context_frames(trajs.traj_offsets[traj + 1][:, None] - lo, tgt, policy.k,
-                               policy.frame_step)
+def target_contexts(world, net, trajs, traj, tgt) -> np.ndarray:
+    """(M, 2k+1, ...) context observations of frames ``tgt`` of trajectories
+    ``traj``, as ``net`` (a waypoint policy or an RE) sees them (poses, for
+    the oracle)."""
+    rows = trajs.context_rows(traj, tgt, net.k, net.frame_step)
     poses = trajs.poses[rows.ravel()]
-    if policy.observation == "pose":
+    if net.observation == "pose":
         obs = poses
     else:
         from topodrake.sensing.observe import observe
-        obs = observe(world, policy.observation, poses, policy.sensor)
+        obs = observe(world, net.observation, poses, net.sensor)
     return obs.reshape(*rows.shape, *obs.shape[1:])
 
 

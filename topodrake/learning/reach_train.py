@@ -208,13 +208,8 @@ class ReachBatcher:
         return len(self.labels)
 
     def context_rows(self, idx) -> np.ndarray:
-        from topodrake.learning.policy import context_frames
-
-        t = self.labels.trajectories
-        traj, tgt = self.labels.traj[idx], self.labels.tgt[idx]
-        lo = t.traj_offsets[traj][:, None]
-        n = t.traj_offsets[traj + 1][:, None] - lo
-        return lo + context_frames(n, tgt, self.cfg.k, self.cfg.frame_step)
+        return self.labels.trajectories.context_rows(self.labels.traj[idx], self.labels.tgt[idx],
+                                                     self.cfg.k, self.cfg.frame_step)
 
     def batch(self, idx) -> ReachBatch:
         idx = np.asarray(idx, np.int64)

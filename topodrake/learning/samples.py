@@ -147,6 +147,15 @@ class TrajectorySet:
             drives += [(len(worlds) - 1, d.poses, d.controls) for d in demos]
         return cls.from_drives(worlds, drives)
 
+    def context_rows(self, traj: np.ndarray, frames: np.ndarray, k: int, frame_step: int
+                     ) -> np.ndarray:
+        """(M, 2k+1) rows of :attr:`poses` that form the contexts of frames
+        ``frames`` of trajectories ``traj`` (each clamped to its own drive)."""
+        from topodrake.learning.policy import context_frames
+
+        lo = self.traj_offsets[traj][:, None]
+        return lo + context_frames(self.traj_offsets[traj + 1][:, None] - lo, frames, k, frame_step)
+
     @classmethod
     def concat(cls, sets: list["TrajectorySet"]) -> "TrajectorySet":
         """The trajectories of ``sets``, one after another (worlds too). Sets
