@@ -169,6 +169,14 @@ def _comparable(cfg_dict: dict) -> dict:
     return {k: v for k, v in cfg_dict.items() if k not in _RUNTIME and k != unused}
 
 
+def config_change(ck, cfg_dict: dict) -> tuple | None:
+    """The first (key, trained with, config says) where checkpoint ``ck``'s
+    training config and ``cfg_dict`` differ beyond the runtime settings
+    (None when the config would resume, or rerun, that checkpoint)."""
+    return _diff(_comparable(ck.meta.get("train_config") or {"network": ck.network.to_dict()}),
+                 _comparable(cfg_dict))
+
+
 def _diff(a, b, prefix=""):
     """The first (key, old, new) where two configs differ; a key one side
     lacks counts as None there (a field added later with a None default)."""
@@ -262,8 +270,7 @@ def train_network(cfg: TrainConfig, task: Task, out_dir, *, resume: bool = True,
         if not resume:
             raise TopodrakeError(f"{ckpt_path} exists; resume it or choose another output folder")
         ck = load_checkpoint(ckpt_path, network=cfg.network)
-        diff = _diff(_comparable(ck.meta.get("train_config") or {"network": ck.network.to_dict()}),
-                     _comparable(cfg_dict))
+        diff = config_change(ck, cfg_dict)
         if diff:
             raise TopodrakeError(f"checkpoint {ckpt_path} was trained with {diff[0]} = {diff[1]!r}, "
                                  f"the config says {diff[2]!r}; use another output folder")
