@@ -156,10 +156,22 @@ def test_label_sets_join_over_shared_or_other_houses(box_world, two_lines, tmp_p
         assert np.array_equal(got, want)
         assert np.array_equal(t.traj_world[joined.src_traj[rows]],
                               [t.worlds.index(pt.worlds[w]) for w in pt.traj_world[part.src_traj]])
+    # a set over houses the others partly cover shares their drives
+    mixed = load_reach_labels(label_reachability(
+        TrajectorySet.concat([other, two_lines]), lambda w: AStarOracle(w), tmp_path / "m", 4,
+        seed=3, config=CFG, load_world=loader, progress=False))
+    joined = concat_reach_labels(made + [third, mixed])
+    t, pt = joined.trajectories, mixed.trajectories
+    assert t.worlds == ["box", "box2"] and t.count == 3 and len(joined) == 17
+    rows = slice(13, 17)
+    assert np.array_equal(t.poses[t.traj_offsets[joined.traj[rows]] + joined.tgt[rows]],
+                          pt.poses[pt.traj_offsets[mixed.traj] + mixed.tgt])
+    assert np.array_equal([t.worlds[w] for w in t.traj_world[joined.src_traj[rows]]],
+                          [pt.worlds[w] for w in pt.traj_world[mixed.src_traj]])
     # but one house cannot stand for two sets of drives
     same_house = TrajectorySet(["box"], np.array([0], np.int32), np.array([0, 100]),
                                two_lines.poses[:100], two_lines.states[:100])
-    with pytest.raises(TopodrakeError, match="share worlds"):
+    with pytest.raises(TopodrakeError, match="disagree on the drives of box"):
         concat_reach_labels([made[0], load_reach_labels(label_reachability(
             same_house, lambda w: AStarOracle(w), tmp_path / "d", 3, config=CFG, load_world=loader,
             progress=False))])

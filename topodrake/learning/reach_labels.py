@@ -331,25 +331,39 @@ def load_reach_labels(folder) -> ReachLabels:
 
 
 def concat_reach_labels(parts: list[ReachLabels]) -> ReachLabels:
-    """One label set of several (their manifests under ``meta["parts"]``).
-    Parts over the same trajectories share them; parts over other worlds
-    (e.g. extra training houses) bring theirs along, with the pairs'
-    trajectory indices moved to match."""
+    """One label set of several (their manifests under ``meta["parts"]``),
+    joined house by house: a house in several parts keeps one copy of its
+    drives (which must be the same in every part), so parts may cover the
+    same, other or partly shared houses; the pairs' trajectory indices move
+    to match."""
     from topodrake.learning.samples import TrajectorySet
 
     if not parts:
         raise TopodrakeError("no label sets to join")
     if len(parts) == 1:
         return parts[0]
-    sets, digests, shift = [], [], []
+    houses: dict[str, tuple[TrajectorySet, str]] = {}
     for part in parts:
-        d = _trajectory_digest(part.trajectories)
-        if d not in digests:
-            digests.append(d)
-            sets.append(part.trajectories)
-        shift.append(sum(ts.count for ts in sets[:digests.index(d)]))
-    trajs = TrajectorySet.concat(sets) if len(sets) > 1 else sets[0]
+        for name in part.trajectories.worlds:
+            alone = part.trajectories.select_worlds([name])
+            digest = _trajectory_digest(alone)
+            if houses.setdefault(name, (alone, digest))[1] != digest:
+                raise TopodrakeError(f"label sets disagree on the drives of {name}; were they "
+                                     "rolled out from other demonstrations?")
+    trajs = TrajectorySet.concat([alone for alone, _ in houses.values()])
+    first = dict(zip(houses, np.cumsum([0] + [alone.count for alone, _ in houses.values()])))
     fields = {k: np.concatenate([part.fields[k] for part in parts]) for k in FIELDS}
     for key in ("src_traj", "traj"):
-        fields[key] = np.concatenate([part.fields[key] + s for part, s in zip(parts, shift)])
+        fields[key] = np.concatenate([_house_order(part.trajectories, first)[part.fields[key]]
+                                      for part in parts])
     return ReachLabels(trajs, fields, {"parts": [part.meta for part in parts]})
+
+
+def _house_order(trajs: TrajectorySet, first: dict[str, int]) -> np.ndarray:
+    """Where each trajectory of ``trajs`` sits in a set that holds each
+    house's drives in one block starting at ``first[house]``."""
+    out = np.empty(trajs.count, np.int64)
+    for w, name in enumerate(trajs.worlds):
+        mine = np.flatnonzero(trajs.traj_world == w)
+        out[mine] = first[name] + np.arange(len(mine))
+    return out
