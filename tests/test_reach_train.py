@@ -456,3 +456,26 @@ def test_limits_study_ceiling_and_hop_bins(tmp_path, capsys):
     assert bins[0]["success"] == 0.5 and bins[1]["success"] is None
     assert study.main(["--runs", "1", "--out", str(tmp_path)]) == 2
     assert "--runs >= 2" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["reach_camera_k2", "reach_camera_k5", "reach_lidar_k5"])
+def test_shipped_res_were_trained_with_their_configs_and_controllers(name):
+    """A shipped RE matches its YAML (so the card's command reproduces it)
+    and the C_WP file it measured; label sets name catalogue houses only."""
+    from pathlib import Path
+
+    from topodrake.learning.checkpoint import load_checkpoint
+    from topodrake.learning.reach_train import controller_identity, load_reach_config
+    from topodrake.learning.train import config_change
+    from topodrake.world.catalogue import catalogue_names
+
+    root = Path(__file__).resolve().parents[1]
+    cfg = load_reach_config(root / "configs" / f"{name}.yaml")
+    ck = load_checkpoint(root / "checkpoints" / name / "checkpoint.pt", output="reach")
+    assert config_change(ck, cfg.to_dict()) is None
+    trained_for = ck.meta["extra"]["controller"]
+    assert trained_for["checkpoint"] == cfg.controller
+    assert trained_for["sha1"] == controller_identity(root / cfg.controller)["sha1"]
+    houses = set(catalogue_names())
+    for more in cfg.labels.more:
+        assert set(more.worlds or []) <= houses
