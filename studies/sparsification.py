@@ -7,7 +7,9 @@ C_WP it was trained for). A controller that reaches farther needs fewer
 anchors. Each anchor promises that its controller gets there from the
 previous one; ``hop_success`` checks the promise: ``--hop-runs`` noisy
 closed-loop rollouts of every hop in the batched engine
-(:func:`topodrake.topomap.hops.anchor_hop_success`).
+(:func:`topodrake.topomap.hops.anchor_hop_success`). ``--check-drives N``
+adds the same check over the first N drives of every test house
+(``test_houses`` in the output: keep ratio, hops, share made).
 
     python studies/sparsification.py --json
 
@@ -45,6 +47,30 @@ def pick_drive(lengths, drive: int | None) -> int:
     return drive
 
 
+def check_houses(re, policy, worlds, demo_root: Path, drives: int, p: float, runs: int,
+                 seed: int) -> dict:
+    """Sparsify the first ``drives`` successful drives of each house in
+    ``worlds`` and drive every hop ``runs`` times with noise."""
+    from topodrake.demonstrations import load_demos
+    from topodrake.topomap.hops import anchor_hop_success, share_made
+    from topodrake.world import load_world
+
+    kept = frames = n = 0
+    oks = [np.zeros(0, bool)]
+    for name in worlds:
+        world = load_world(name)
+        _, demos = load_demos(demo_root / name, successful_only=True)
+        for d in demos[:drives]:
+            anchors = re.sparsify(re.observe(world, d.poses), p=p)
+            kept, frames, n = kept + len(anchors), frames + len(d.poses), n + 1
+            oks.append(anchor_hop_success(world, policy, d.poses, anchors, runs=runs,
+                                          seed=seed + n).ravel())
+    ok = np.concatenate(oks)
+    return {"drives": n, "frames": frames, "anchors": kept,
+            "keep_ratio": round(kept / frames, 4) if frames else None,
+            "hops": len(ok) // runs, "hop_success": share_made(ok), "failed_runs": int((~ok).sum())}
+
+
 def plot(world, poses, results: dict, path: Path, p: float) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -73,6 +99,9 @@ def main(argv=None) -> int:
     ap.add_argument("--hop-runs", type=int, default=4,
                     help="noisy rollouts of each anchor hop (0: do not check the hops)")
     ap.add_argument("--seed", type=int, default=0, help="noise seeds of the hop rollouts")
+    ap.add_argument("--check-drives", type=int, default=0,
+                    help="also check the hops of the first N drives of every --check-worlds house")
+    ap.add_argument("--check-worlds", default="test-0,test-1,test-2,test-3,test-4")
     ap.add_argument("--data", default="data", help="cache of demonstrations")
     ap.add_argument("--demos", help="demonstration folder of the world (default: DATA/demos/pairs-s0/WORLD)")
     ap.add_argument("--out", default="results")
@@ -89,8 +118,15 @@ def _run(args) -> int:
     from topodrake.topomap.hops import anchor_hop_success, share_made
     from topodrake.world import load_world
 
-    if args.hop_runs < 0:
-        raise TopodrakeError("--hop-runs must be >= 0")
+    if args.hop_runs < 0 or args.check_drives < 0:
+        raise TopodrakeError("--hop-runs and --check-drives must be >= 0")
+    if args.check_drives and not args.hop_runs:
+        raise TopodrakeError("--check-drives needs --hop-runs >= 1")
+    check_worlds = [w for w in args.check_worlds.split(",") if w]
+    check_root = Path(args.data) / "demos" / "pairs-s0"
+    missing = [w for w in check_worlds if not (check_root / w / "manifest.json").is_file()]
+    if args.check_drives and missing:   # the houses' standard demonstrations, made once
+        collect_trajectories(missing, check_root, progress=False)
     estimators = parse_estimators(args.estimators)
     world = load_world(args.world)
     if args.demos:
@@ -115,16 +151,21 @@ def _run(args) -> int:
                                     anchors, runs=args.hop_runs, seed=args.seed)
             results[name]["hop_success"] = share_made(ok)
             results[name]["hop_successes"] = ok.sum(axis=1).tolist()
+        if args.check_drives:
+            results[name]["test_houses"] = check_houses(
+                re, LearnedWaypointPolicy.from_checkpoint(controller), check_worlds, check_root,
+                args.check_drives, args.p, args.hop_runs, args.seed)
     out = Path(args.out)
     atomic_write_json(out / "sparsification.json", {
         "command": "python studies/sparsification.py " + " ".join(sys.argv[1:]),
         "world": args.world, "demos": str(folder), "drive": drive, "frames": len(poses),
         "p_sparsify": args.p, "hop_runs": args.hop_runs, "seed": args.seed,
+        "check_drives": args.check_drives, "check_worlds": check_worlds if args.check_drives else [],
         "estimators": {k: {"reach": r, "controller": c} for k, (r, c) in estimators.items()},
         "results": results})
     plot(world, poses, results, out / "sparsification.png", args.p)
-    summary = {k: {key: r[key] for key in ("anchors", "keep_ratio", "hop_success") if key in r}
-               for k, r in results.items()}
+    summary = {k: {key: r[key] for key in ("anchors", "keep_ratio", "hop_success", "test_houses")
+                   if key in r} for k, r in results.items()}
     if args.json:
         print(json.dumps(summary))
     else:
@@ -132,6 +173,10 @@ def _run(args) -> int:
             hops = f", hops made {s['hop_success']:.3f}" if s.get("hop_success") is not None else ""
             print(f"{name:<10} {s['anchors']:4d} anchors of {len(poses)} frames "
                   f"(keep ratio {s['keep_ratio']:.3f}{hops})")
+            if "test_houses" in s:
+                c = s["test_houses"]
+                print(f"{'':<10} {c['drives']} drives of {', '.join(check_worlds)}: keep ratio "
+                      f"{c['keep_ratio']}, {c['hops']} hops, made {c['hop_success']}")
     return 0
 
 

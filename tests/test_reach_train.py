@@ -357,6 +357,21 @@ def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, 
     assert study.main(["--world", "test-1", "--demos", str(demos), "--estimators", est,
                        "--drive", "7", "--out", str(tmp_path)]) == 2
     assert "--drive must be in 0..1" in capsys.readouterr().err
+    # the same check over the first drives of each house named
+    root = tmp_path / "data" / "demos" / "pairs-s0"
+    root.mkdir(parents=True)
+    (root / "test-1").symlink_to(demos)
+    base = ["--world", "test-1", "--demos", str(demos), "--estimators", f"a={re_path}:{ctrl}",
+            "--p", "0.3", "--out", str(tmp_path), "--data", str(tmp_path / "data"), "--json",
+            "--check-worlds", "test-1"]
+    assert study.main(base + ["--hop-runs", "2", "--check-drives", "1"]) == 0
+    checked = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["a"]["test_houses"]
+    first = load_demos(demos, successful_only=True)[1][0]
+    assert checked["drives"] == 1 and checked["frames"] == len(first.poses)
+    assert checked["hops"] == checked["anchors"] - 1
+    assert checked["failed_runs"] == round(2 * checked["hops"] * (1 - checked["hop_success"]))
+    assert study.main(base + ["--hop-runs", "0", "--check-drives", "1"]) == 2
+    assert "--check-drives needs --hop-runs" in capsys.readouterr().err
 
 
 def test_calibration_study_refuses_bad_estimators(tmp_path, capsys):
