@@ -46,21 +46,14 @@ def keep_ratio(reach: str, controller: str, data_dir: str, p: float, drives: int
     """Anchors kept / frames over the test houses' successful expert drives,
     with RE's anchor-hop calibration (or, if not ``anchor_calibration``, its
     temperature, as for any other pair)."""
-    from topodrake.demonstrations import load_demos
     from topodrake.learning.reachability import Reachability
-    from topodrake.world import load_world
+    from topodrake.topomap.hops import sparsify_houses
 
     re = Reachability.from_checkpoint(reach, controller)
     if not anchor_calibration:
         re.anchor_platt = (1.0 / re.temperature, 0.0)
-    kept = frames = 0
-    for name in WORLDS:
-        world = load_world(name)
-        _, demos = load_demos(Path(data_dir) / "demos" / "pairs-s0" / name, successful_only=True)
-        for d in demos[:drives]:
-            kept += len(re.sparsify(re.observe(world, d.poses), p=p))
-            frames += len(d.poses)
-    return kept / max(frames, 1)
+    return sparsify_houses(re, list(WORLDS), Path(data_dir) / "demos" / "pairs-s0", p,
+                           drives=drives)["keep_ratio"] or 0.0
 
 
 def summarise_trials(res: list[dict]) -> dict:

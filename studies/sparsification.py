@@ -11,7 +11,7 @@ closed-loop rollouts of every hop in the batched engine
 adds the same check over the first N drives of every test house
 (``test_houses`` in the output: keep ratio, hops, share made).
 
-    python studies/sparsification.py --json
+    python studies/sparsification.py --check-drives 3 --json
 
 prints ``{"camera_k2": {"anchors": n, "keep_ratio": r, "hop_success": s}, ...}``
 and writes ``results/sparsification.json`` (anchor frames, each hop's
@@ -45,30 +45,6 @@ def pick_drive(lengths, drive: int | None) -> int:
     if not 0 <= drive < len(lengths):
         raise TopodrakeError(f"--drive must be in 0..{len(lengths) - 1}")
     return drive
-
-
-def check_houses(re, policy, worlds, demo_root: Path, drives: int, p: float, runs: int,
-                 seed: int) -> dict:
-    """Sparsify the first ``drives`` successful drives of each house in
-    ``worlds`` and drive every hop ``runs`` times with noise."""
-    from topodrake.demonstrations import load_demos
-    from topodrake.topomap.hops import anchor_hop_success, share_made
-    from topodrake.world import load_world
-
-    kept = frames = n = 0
-    oks = [np.zeros(0, bool)]
-    for name in worlds:
-        world = load_world(name)
-        _, demos = load_demos(demo_root / name, successful_only=True)
-        for d in demos[:drives]:
-            anchors = re.sparsify(re.observe(world, d.poses), p=p)
-            kept, frames, n = kept + len(anchors), frames + len(d.poses), n + 1
-            oks.append(anchor_hop_success(world, policy, d.poses, anchors, runs=runs,
-                                          seed=seed + n).ravel())
-    ok = np.concatenate(oks)
-    return {"drives": n, "frames": frames, "anchors": kept,
-            "keep_ratio": round(kept / frames, 4) if frames else None,
-            "hops": len(ok) // runs, "hop_success": share_made(ok), "failed_runs": int((~ok).sum())}
 
 
 def plot(world, poses, results: dict, path: Path, p: float) -> None:
@@ -115,7 +91,7 @@ def _run(args) -> int:
     from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.reachability import Reachability, parse_estimators
     from topodrake.learning.samples import collect_trajectories
-    from topodrake.topomap.hops import anchor_hop_success, share_made
+    from topodrake.topomap.hops import anchor_hop_success, share_made, sparsify_houses
     from topodrake.world import load_world
 
     if args.hop_runs < 0 or args.check_drives < 0:
@@ -152,9 +128,10 @@ def _run(args) -> int:
             results[name]["hop_success"] = share_made(ok)
             results[name]["hop_successes"] = ok.sum(axis=1).tolist()
         if args.check_drives:
-            results[name]["test_houses"] = check_houses(
-                re, LearnedWaypointPolicy.from_checkpoint(controller), check_worlds, check_root,
-                args.check_drives, args.p, args.hop_runs, args.seed)
+            results[name]["test_houses"] = sparsify_houses(
+                re, check_worlds, check_root, args.p, drives=args.check_drives,
+                policy=LearnedWaypointPolicy.from_checkpoint(controller), runs=args.hop_runs,
+                seed=args.seed)
     out = Path(args.out)
     atomic_write_json(out / "sparsification.json", {
         "command": "python studies/sparsification.py " + " ".join(sys.argv[1:]),

@@ -6,7 +6,9 @@ checks that promise in the batched engine: C_WP starts at rest on each
 anchor's pose, with actuation noise, and drives toward the next anchor
 (its context from the same trajectory) under the RE labels' rules
 (:func:`topodrake.learning.reach_labels.rollout_pairs`: success within
-0.27 m or both overlaps > 0.7 before A*/v_min).
+0.27 m or both overlaps > 0.7 before A*/v_min). :func:`sparsify_houses`
+sparsifies the expert drives of several houses, for their keep ratio and,
+optionally, that check of every hop.
 """
 
 from __future__ import annotations
@@ -41,6 +43,38 @@ def anchor_hop_success(world, policy, poses: np.ndarray, anchors: np.ndarray, ru
     seeds = np.array(trial_seeds(seed, len(src)), np.int64)
     out = rollout_pairs(world, policy, trajs, pairs, seeds, config or ReachLabelConfig())
     return out["label"].reshape(-1, runs).astype(bool)
+
+
+def sparsify_houses(re, worlds: list[str], demo_root, p: float = 0.99, drives: int | None = None,
+                    policy=None, runs: int = 0, seed: int = 0) -> dict:
+    """Sparsify the first ``drives`` (default all) successful expert drives
+    of each house in ``worlds`` (demonstrations in ``demo_root/<house>``)
+    with RE ``re``: ``{"drives", "frames", "anchors", "keep_ratio"}``; with
+    ``policy`` and ``runs`` > 0 every hop is also driven ``runs`` times with
+    noise (``"hops"``, ``"hop_success"``, ``"failed_runs"``)."""
+    from pathlib import Path
+
+    from topodrake.demonstrations import load_demos
+    from topodrake.world import load_world
+
+    check = policy is not None and runs > 0
+    kept = frames = n = 0
+    oks = [np.zeros(0, bool)]
+    for name in worlds:
+        world = load_world(name)
+        _, demos = load_demos(Path(demo_root) / name, successful_only=True)
+        for d in demos[:drives]:
+            anchors = re.sparsify(re.observe(world, d.poses), p=p)
+            kept, frames, n = kept + len(anchors), frames + len(d.poses), n + 1
+            if check:
+                oks.append(anchor_hop_success(world, policy, d.poses, anchors, runs=runs,
+                                              seed=seed + n).ravel())
+    out = {"drives": n, "frames": frames, "anchors": kept,
+           "keep_ratio": round(kept / frames, 4) if frames else None}
+    if check:
+        ok = np.concatenate(oks)
+        out.update(hops=len(ok) // runs, hop_success=share_made(ok), failed_runs=int((~ok).sum()))
+    return out
 
 
 def share_made(ok: np.ndarray) -> float | None:
