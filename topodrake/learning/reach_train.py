@@ -324,14 +324,12 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
     ("train" or "val") makes just that split (the other is None), so two
     processes can roll out both at once."""
     from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.samples import collect_trajectories
 
     ident = controller_identity(cfg.controller)
     policy = LearnedWaypointPolicy.from_checkpoint(cfg.controller)
     if policy.is_direct_control:
         raise TopodrakeError(f"{cfg.controller} is a direct-control network; RE needs a C_WP")
     d, lab = cfg.data, cfg.labels
-    demo_root = _demo_root(cfg, data_dir)
     sets = {"train": [(d.train_worlds, lab.train_pairs, lab.seed, lab.rollout)]
             + [(m.worlds or d.train_worlds, m.train_pairs, m.seed, m.rollout) for m in lab.more],
             "val": [(d.val_worlds, lab.val_pairs, lab.seed + 1, lab.rollout)]}
@@ -340,16 +338,26 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
         if only is not None and split != only:
             out.append(None)
             continue
-        made = []
-        for worlds, n, seed, rollout in parts:
-            folder = label_folder(data_dir, ident, split, demo_root.name, worlds, n, seed, rollout)
-            trajs = collect_trajectories(worlds, demo_root, protocol=d.demo_protocol,
-                                         count=d.demo_count, seed=d.demo_seed, progress=progress)
-            label_reachability(trajs, policy, folder, n, seed=seed, controller=ident,
-                               config=rollout, progress=progress)
-            made.append(load_reach_labels(folder))
-        out.append(concat_reach_labels(made))
+        out.append(concat_reach_labels([
+            _label_set(cfg, data_dir, policy, ident, split, worlds, n, seed, rollout, progress)
+            for worlds, n, seed, rollout in parts]))
     return out[0], out[1], ident
+
+
+def _label_set(cfg: ReachTrainConfig, data_dir, policy, ident: dict, split: str, worlds, n: int,
+               seed: int, rollout: ReachLabelConfig, progress: bool) -> ReachLabels:
+    """One label set of ``policy`` (identified by ``ident``) in ``worlds``,
+    rolled out into its :func:`label_folder` once (resumable) and loaded."""
+    from topodrake.learning.samples import collect_trajectories
+
+    d = cfg.data
+    demo_root = _demo_root(cfg, data_dir)
+    folder = label_folder(data_dir, ident, split, demo_root.name, worlds, n, seed, rollout)
+    trajs = collect_trajectories(worlds, demo_root, protocol=d.demo_protocol, count=d.demo_count,
+                                 seed=d.demo_seed, progress=progress)
+    label_reachability(trajs, policy, folder, n, seed=seed, controller=ident, config=rollout,
+                       progress=progress)
+    return load_reach_labels(folder)
 
 
 def prepare_anchor_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True
@@ -357,20 +365,13 @@ def prepare_anchor_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True
     """The anchor-hop rollouts of :class:`AnchorCalibration` in the
     validation houses (None when ``pairs`` is 0), made once and reused."""
     from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.samples import collect_trajectories
 
-    a, d = cfg.anchor_calibration, cfg.data
+    a = cfg.anchor_calibration
     if not a.pairs:
         return None
-    ident = controller_identity(cfg.controller)
-    demo_root = _demo_root(cfg, data_dir)
-    folder = label_folder(data_dir, ident, "anchor", demo_root.name, d.val_worlds, a.pairs, a.seed,
-                          a.rollout)
-    trajs = collect_trajectories(d.val_worlds, demo_root, protocol=d.demo_protocol,
-                                 count=d.demo_count, seed=d.demo_seed, progress=progress)
-    label_reachability(trajs, LearnedWaypointPolicy.from_checkpoint(cfg.controller), folder,
-                       a.pairs, seed=a.seed, controller=ident, config=a.rollout, progress=progress)
-    return load_reach_labels(folder)
+    return _label_set(cfg, data_dir, LearnedWaypointPolicy.from_checkpoint(cfg.controller),
+                      controller_identity(cfg.controller), "anchor", cfg.data.val_worlds, a.pairs,
+                      a.seed, a.rollout, progress)
 
 
 def calibrate(model, val: ReachBatcher, anchors: ReachBatcher | None, scaling: bool = True) -> dict:
