@@ -225,6 +225,62 @@ def test_reachability_cached_pairwise_and_naive_agree():
     assert np.allclose(both.probability(images[src], both.encode_target(images[rows])), cached)
 
 
+def test_mirror_average_is_the_mean_of_the_pair_and_its_mirror_image_on_every_path():
+    from topodrake.learning.networks import NetworkConfig, WaypointNetwork, mirrored
+    from topodrake.learning.reachability import Reachability
+    from topodrake.sensing.camera import Camera
+    from topodrake.sensing.config import CameraConfig
+    from topodrake.world import load_world
+
+    world = load_world(WORLD)
+    images = Camera(world).render(world.sample_free_pose(np.random.default_rng(1), 20))
+    torch.manual_seed(1)
+    model = WaypointNetwork(NetworkConfig(output="reach", k=1), 64).eval()
+    with torch.no_grad():
+        model.reach[2].weight.mul_(300.0)      # spread the untrained logits
+    plain = Reachability(model, CameraConfig())
+    both = Reachability(model, CameraConfig(), anchor_platt=(0.5, 1.0), mirror_average=True)
+    src, tgt = np.array([0, 4, 19]), np.array([7, 19, 2])
+    rows = both.context_rows(20, tgt)
+    cur, ctx = both.to_input(images[src]), both.to_input(images[rows])
+    with torch.no_grad():
+        z = [model.forward_split(c, x)["reach_logit"][:, 0].numpy()
+             for c, x in ((cur, ctx), (mirrored(cur), mirrored(ctx)))]
+    want = 1 / (1 + np.exp(-(z[0] + z[1]) / 2))
+    assert np.abs(z[0] - z[1]).max() > 0.01          # the mirror image is another pair
+    assert np.allclose(plain.probability_naive(images[src], images[rows]),
+                       1 / (1 + np.exp(-z[0])), atol=1e-5)
+    assert np.allclose(both.probability_naive(images[src], images[rows]), want, atol=1e-5)
+    target = both.encode_target(images[rows])
+    assert target.shape[1] == 2 * plain.cfg.frames
+    assert np.allclose(both.probability(images[src], target), want, atol=1e-5)
+    feats = both.frame_features(images, batch=6)
+    assert np.allclose(both.pairwise(feats, src, rows),
+                       1 / (1 + np.exp(-(0.5 * (z[0] + z[1]) / 2 + 1.0))), atol=1e-5)
+    # features or targets made for the plain RE are refused, not misread
+    with pytest.raises(TopodrakeError, match="mirror images"):
+        both.pairwise(plain.frame_features(images), src, rows)
+    with pytest.raises(TopodrakeError, match="target features have"):
+        both.probability(images[src], plain.encode_target(images[rows]))
+
+
+def test_mirror_augment_flips_both_views_of_the_chosen_pairs_only(labels):
+    from topodrake.learning.reach_train import ReachBatcher, mirror_some
+
+    b = ReachBatcher(labels, _config().network).batch(np.arange(8))
+    assert mirror_some(b, 0.0) is b
+    all_ = mirror_some(b, 1.0)
+    assert torch.equal(all_.cur, b.cur.flip(-1)) and torch.equal(all_.ctx, b.ctx.flip(-1))
+    some = mirror_some(b, 0.5, torch.Generator().manual_seed(3))
+    flipped = torch.tensor([torch.equal(some.cur[i], b.cur[i].flip(-1)) for i in range(8)])
+    kept = torch.tensor([torch.equal(some.cur[i], b.cur[i]) for i in range(8)])
+    assert flipped.any() and kept.any() and torch.all(flipped ^ kept)
+    for i in range(8):      # a pair's target context goes with its view
+        assert torch.equal(some.ctx[i], b.ctx[i].flip(-1) if flipped[i] else b.ctx[i])
+    assert torch.equal(some.label, b.label) and torch.equal(some.overlap, b.overlap)
+    assert torch.equal(b.cur, ReachBatcher(labels, _config().network).batch(np.arange(8)).cur)
+
+
 def test_reachability_estimator_system_matches_the_batched_call():
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
@@ -444,6 +500,14 @@ def test_anchor_hops_get_their_own_temperature_also_after_training(labels, tmp_p
     assert card["anchor_metrics"]["bce"] < card["anchor_metrics_temperature"]["bce"]
     re = Reachability.from_checkpoint(tmp_path / "re" / "checkpoint.pt", ctrl)
     assert re.temperature == card["temperature"] and re.anchor_platt == platt
+    assert not re.mirror_average and card["mirror_average"] is False
+    # and with mirror_average the calibrations are refitted on the averaged logit
+    train_reachability(_config(max_samples=320, mirror_average=True), tmp_path / "re",
+                       labels=(labels, labels, hops), controller=ident, progress=False)
+    card2 = json.loads((tmp_path / "re" / "card.json").read_text())
+    re2 = Reachability.from_checkpoint(tmp_path / "re" / "checkpoint.pt", ctrl)
+    assert re2.mirror_average and card2["mirror_average"] is True
+    assert re2.anchor_platt == tuple(card2["anchor_platt"]) != platt
 
 
 def test_anchor_calibration_config_is_checked():

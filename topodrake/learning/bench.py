@@ -148,8 +148,9 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
       a C_WP checkpoint; default an untrained network of the default profile,
       which costs the same per step).
 
-    The network (``config``: a ReachTrainConfig) is untrained: throughput
-    does not depend on the weights."""
+    The network (``config``: a ReachTrainConfig, whose ``mirror_average``
+    doubles both RE paths) is untrained: throughput does not depend on the
+    weights."""
     from topodrake.learning.networks import WaypointNetwork, input_size
     from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.reach_labels import ReachLabelConfig, draw_pairs, rollout_pairs
@@ -168,7 +169,8 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
         sensor = cfg.camera if net_cfg.modality == "camera" else cfg.lidar
         obs = observe(world, net_cfg.modality, poses, sensor)
         torch.manual_seed(seed)
-        re = Reachability(WaypointNetwork(net_cfg, input_size(net_cfg, cfg.lidar.beams)), sensor)
+        re = Reachability(WaypointNetwork(net_cfg, input_size(net_cfg, cfg.lidar.beams)), sensor,
+                          mirror_average=cfg.mirror_average)
         rng = np.random.default_rng(seed)
         src = rng.integers(0, len(poses), pairs)
         rows = re.context_rows(len(poses), rng.integers(0, len(poses), pairs))

@@ -317,5 +317,12 @@ def lidar_input(ranges: np.ndarray, range_m: float) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(r, np.float32)).unsqueeze(-2)
 
 
+def mirrored(x: torch.Tensor) -> torch.Tensor:
+    """Network inputs seen in a mirror: camera images flipped left-right,
+    lidar beams (spread symmetrically about the heading) reversed; both are
+    the last axis."""
+    return x.flip(-1)
+
+
 def count_parameters(model: nn.Module) -> int:
     return int(sum(p.numel() for p in model.parameters()))

@@ -40,7 +40,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.learning.calibration import calibration_summary
 from topodrake.learning.config import TrainConfig
 from topodrake.learning.data import ObservationSource, to_network_input
-from topodrake.learning.networks import NetworkConfig
+from topodrake.learning.networks import NetworkConfig, mirrored
 from topodrake.learning.reach_labels import (ReachLabelConfig, ReachLabels, concat_reach_labels,
                                              label_reachability, load_reach_labels)
 from topodrake.typed_yaml import load_typed
@@ -103,6 +103,14 @@ class ReachTrainConfig(TrainConfig):
     # weight of the auxiliary loss on the pair's starting image overlaps
     # (geometric, from the poses; 0 = the paper's RE, reach logit only)
     overlap_weight: float = 1.0
+    # probability of mirroring a training pair left-right (both views; the
+    # label and overlaps stay): the controller's task is nearly symmetric,
+    # and the mirrored pair doubles the views RE learns places from
+    # (None or 0: never; None is how configs before the switch read)
+    mirror_augment: float | None = None
+    # RE's logit is the mean of the pair's and of its mirror image's (the
+    # calibrations are fitted on that mean; doubles RE's cost)
+    mirror_average: bool = False
     # fit a temperature on the validation rollouts after training (kept
     # only if it lowers their BCE; Reachability applies it)
     temperature_scaling: bool = True
@@ -115,6 +123,9 @@ class ReachTrainConfig(TrainConfig):
             raise TopodrakeError(f"{where}: need labels.train_pairs >= batch_size and val_pairs >= 1")
         if self.overlap_weight < 0:
             raise TopodrakeError(f"{where}: overlap_weight must be >= 0, got {self.overlap_weight}")
+        if not 0.0 <= (self.mirror_augment or 0.0) <= 1.0:
+            raise TopodrakeError(f"{where}: mirror_augment must be a probability, got "
+                                 f"{self.mirror_augment}")
         if self.init not in ("controller", "scratch"):
             raise TopodrakeError(f"{where}: init must be 'controller' or 'scratch', got {self.init!r}")
         self.labels.rollout.validate()
@@ -242,6 +253,17 @@ def start_overlaps(labels: ReachLabels) -> np.ndarray:
     return out
 
 
+def mirror_some(batch: ReachBatch, p: float, generator: torch.Generator | None = None
+                ) -> ReachBatch:
+    """``batch`` with each pair mirrored (both views) with probability ``p``."""
+    if not p:
+        return batch
+    flip = torch.rand(len(batch), generator=generator) < p
+    cur, ctx = batch.cur.clone(), batch.ctx.clone()
+    cur[flip], ctx[flip] = mirrored(cur[flip]), mirrored(ctx[flip])
+    return ReachBatch(cur, ctx, batch.label, batch.overlap)
+
+
 def reach_loss(model, batch: ReachBatch, overlap_weight: float = 1.0
                ) -> tuple[torch.Tensor, dict]:
     out = model.forward_split(batch.cur, batch.ctx)
@@ -253,14 +275,18 @@ def reach_loss(model, batch: ReachBatch, overlap_weight: float = 1.0
 
 
 @torch.no_grad()
-def reach_logits(model, batcher: ReachBatcher, batch_size: int = 256
+def reach_logits(model, batcher: ReachBatcher, batch_size: int = 256, mirror: bool = False
                  ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(logits, labels) of every pair of ``batcher``."""
+    """(logits, labels) of every pair of ``batcher``; ``mirror``: the mean
+    of each pair's logit and its mirror image's."""
     model.eval()
     logits, labels = [], []
     for start in range(0, len(batcher), batch_size):
         b = batcher.batch(np.arange(start, min(start + batch_size, len(batcher))))
-        logits.append(model.forward_split(b.cur, b.ctx)["reach_logit"][:, 0])
+        z = model.forward_split(b.cur, b.ctx)["reach_logit"][:, 0]
+        if mirror:
+            z = 0.5 * (z + model.forward_split(mirrored(b.cur), mirrored(b.ctx))["reach_logit"][:, 0])
+        logits.append(z)
         labels.append(b.label)
     return torch.cat(logits), torch.cat(labels)
 
@@ -278,13 +304,13 @@ def evaluate_reach(model, batcher: ReachBatcher, batch_size: int = 256) -> dict:
     return _reach_metrics(*reach_logits(model, batcher, batch_size))
 
 
-def fit_reach_temperature(model, batcher: ReachBatcher) -> dict:
+def fit_reach_temperature(model, batcher: ReachBatcher, mirror: bool = False) -> dict:
     """Temperature scaling on the validation pairs, kept only if it lowers
     their BCE: ``{"temperature": T, "calibrated_metrics": ...}`` (T = 1
     when it does not help)."""
     from topodrake.learning.calibration import fit_temperature
 
-    z, y = reach_logits(model, batcher)
+    z, y = reach_logits(model, batcher, mirror=mirror)
     t = fit_temperature(z.numpy(), y.numpy())
     before, after = _reach_metrics(z, y), _reach_metrics(z / t, y)
     if not after["bce"] < before["bce"]:
@@ -374,16 +400,21 @@ def prepare_anchor_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True
                       a.seed, a.rollout, progress)
 
 
-def calibrate(model, val: ReachBatcher, anchors: ReachBatcher | None, scaling: bool = True) -> dict:
+def calibrate(model, val: ReachBatcher, anchors: ReachBatcher | None, scaling: bool = True,
+              mirror: bool = False) -> dict:
     """What training adds after the last step: the temperature of the
     validation pairs (if ``scaling``) and the Platt scaling of the anchor
     hops (``anchor_platt`` = [slope, bias], with the hops' metrics before
-    (under the temperature) and after)."""
+    (under the temperature) and after), both of the mirror-averaged logit
+    if ``mirror`` (recorded as ``mirror_average``, which
+    :class:`~topodrake.learning.reachability.Reachability` follows)."""
     from topodrake.learning.calibration import fit_platt
 
-    out = fit_reach_temperature(model, val) if scaling else {}
+    out = {"mirror_average": bool(mirror)}
+    if scaling:
+        out.update(fit_reach_temperature(model, val, mirror=mirror))
     if anchors is not None:
-        z, y = reach_logits(model, anchors)
+        z, y = reach_logits(model, anchors, mirror=mirror)
         a, b = fit_platt(z.numpy(), y.numpy())
         out.update(anchor_platt=[round(a, 5), round(b, 5)], anchor_pairs=len(anchors),
                    anchor_success_rate=round(float(y.mean()), 4),
@@ -412,7 +443,8 @@ def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resum
     task = Task(
         train=ReachBatcher(train_l, cfg.network, cfg.camera, cfg.lidar),
         val=ReachBatcher(val_l, cfg.network, cfg.camera, cfg.lidar),
-        loss=lambda model, b: reach_loss(model, b, cfg.overlap_weight),
+        loss=lambda model, b: reach_loss(model, mirror_some(b, cfg.mirror_augment or 0.0),
+                                         cfg.overlap_weight),
         evaluate=evaluate_reach, metric="ece",
         card={"controller": controller,
               "data": {"train_worlds": train_l.trajectories.worlds, "val_worlds": cfg.data.val_worlds,
@@ -422,7 +454,8 @@ def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resum
         meta={"controller": controller},
         init=(lambda model: init_from_controller(model, controller["checkpoint"]))
         if cfg.init == "controller" else None,
-        finish=lambda model, val: calibrate(model, val, anchors, cfg.temperature_scaling))
+        finish=lambda model, val: calibrate(model, val, anchors, cfg.temperature_scaling,
+                                            cfg.mirror_average))
     return train_network(cfg, task, out_dir, resume=resume, progress=progress, command=command)
 
 

@@ -11,6 +11,12 @@ half ``W_c * o`` and the target half ``W_t * o + b``), and
 :meth:`Reachability.pairwise` adds them for any list of (source frame,
 context frames) without touching an image again. :meth:`sparsify` runs the
 greedy anchor selection of :mod:`topodrake.topomap.sparsify` on top of it.
+
+An RE calibrated with ``mirror_average`` (see
+:mod:`topodrake.learning.reach_train`) answers with the mean of the pair's
+logit and of its mirror image's (both views flipped left-right), which
+ranks pairs better than either alone; every path here (single pairs,
+cached targets, all pairs) does the same, at twice the cost.
 """
 
 from __future__ import annotations
@@ -23,15 +29,18 @@ import torch
 
 from topodrake.errors import TopodrakeError
 from topodrake.learning.inference import ObservationNetwork
+from topodrake.learning.networks import mirrored
 
 
 @dataclass
 class FrameFeatures:
     """First-layer halves of T images: ``current`` (T, C0, ...) and
-    ``target`` (T, C0, ...)."""
+    ``target`` (T, C0, ...); ``mirrored``: the same of the mirrored images
+    (for an RE with ``mirror_average``)."""
 
     current: torch.Tensor
     target: torch.Tensor
+    mirrored: "FrameFeatures | None" = None
 
     def __len__(self) -> int:
         return len(self.current)
@@ -46,10 +55,12 @@ class Reachability(ObservationNetwork):
     instead, ``sigmoid(a * logit + b)`` fitted on rollouts of such hops:
     calibration holds for the pairs it was fitted on, and these hops
     succeed far more often than the average pair (default: the temperature,
-    ``(1 / T, 0)``)."""
+    ``(1 / T, 0)``). ``mirror_average``: the logit is the mean of the pair's
+    and its mirror image's (what the calibrations were fitted on)."""
 
     def __init__(self, model, sensor, name: str = "", controller: dict | None = None,
-                 temperature: float = 1.0, anchor_platt: tuple[float, float] | None = None):
+                 temperature: float = 1.0, anchor_platt: tuple[float, float] | None = None,
+                 mirror_average: bool = False):
         if model.cfg.output != "reach":
             raise ValueError("Reachability needs a network with output 'reach'")
         super().__init__(model, sensor, name)
@@ -57,6 +68,7 @@ class Reachability(ObservationNetwork):
         self.temperature = float(temperature)
         a, b = (1.0 / self.temperature, 0.0) if anchor_platt is None else anchor_platt
         self.anchor_platt = (float(a), float(b))
+        self.mirror_average = bool(mirror_average)
 
     @classmethod
     def from_checkpoint(cls, path, controller_checkpoint, temperature: float | None = None,
@@ -72,19 +84,44 @@ class Reachability(ObservationNetwork):
         if anchor_platt is None and "anchor_platt" in extra:
             anchor_platt = tuple(extra["anchor_platt"])
         return cls(ck.model, ck.sensor, name=Path(path).parent.name,
-                   controller=extra.get("controller"), temperature=t, anchor_platt=anchor_platt)
+                   controller=extra.get("controller"), temperature=t, anchor_platt=anchor_platt,
+                   mirror_average=bool(extra.get("mirror_average", False)))
 
-    def _prob(self, out: dict, platt: tuple[float, float] | None = None) -> np.ndarray:
-        z = out["reach_logit"][:, 0]
+    def _prob(self, z: torch.Tensor, platt: tuple[float, float] | None = None) -> np.ndarray:
         z = z / self.temperature if platt is None else platt[0] * z + platt[1]
         return torch.sigmoid(z).numpy().astype(np.float64)
+
+    def _averaged(self, logit, cur: torch.Tensor, other) -> torch.Tensor:
+        """``logit(cur, other)``, or its mean with the mirror images' when
+        ``mirror_average`` (``other`` is then a (plain, mirrored) pair)."""
+        if not self.mirror_average:
+            return logit(cur, other)
+        return 0.5 * (logit(cur, other[0]) + logit(mirrored(cur), other[1]))
+
+    @torch.inference_mode()
+    def encode_target(self, context: np.ndarray) -> torch.Tensor:
+        """Target features (N, 2k+1, C0, ...); with ``mirror_average`` the
+        mirrored context's follow on the same axis (N, 2 (2k+1), C0, ...)."""
+        plain = super().encode_target(context)
+        if not self.mirror_average:
+            return plain
+        flipped = self.plan.encode_target(mirrored(self.to_input(np.asarray(context))))
+        return torch.cat([plain, flipped], dim=1)
 
     @torch.inference_mode()
     def probability(self, observation: np.ndarray, target) -> np.ndarray:
         """(N,) for current observations (N or 1, ...) and target features
-        (N or 1, 2k+1, ...) from :meth:`encode_target`."""
+        (N or 1, ...) from :meth:`encode_target`."""
         cur = self.to_input(np.asarray(observation))
-        return self._prob(self.plan.cached(cur, torch.as_tensor(target)))
+        target = torch.as_tensor(target)
+        want = self.cfg.frames * (2 if self.mirror_average else 1)
+        if target.shape[1] != want:
+            raise TopodrakeError(f"target features have {target.shape[1]} frames, this RE needs "
+                                 f"{want}: encode targets with this RE's encode_target")
+        if self.mirror_average:
+            target = torch.split(target, self.cfg.frames, dim=1)
+        return self._prob(self._averaged(lambda c, t: self.plan.cached(c, t)["reach_logit"][:, 0],
+                                         cur, target))
 
     @torch.inference_mode()
     def probability_naive(self, observation: np.ndarray, context: np.ndarray) -> np.ndarray:
@@ -93,18 +130,32 @@ class Reachability(ObservationNetwork):
         ctx = self.to_input(np.asarray(context))
         if cur.shape[0] == 1 and ctx.shape[0] > 1:
             cur = cur.expand(ctx.shape[0], *cur.shape[1:])
-        return self._prob(self.plan.naive(cur, ctx))
+        if self.mirror_average:
+            ctx = (ctx, mirrored(ctx))
+        return self._prob(self._averaged(lambda c, x: self.plan.naive(c, x)["reach_logit"][:, 0],
+                                         cur, ctx))
 
     # -- all pairs -------------------------------------------------------------
     @torch.inference_mode()
     def frame_features(self, observations: np.ndarray, batch: int = 256) -> FrameFeatures:
-        """Both first-layer halves of every image (T, ...), once."""
-        cur, tgt = [], []
+        """Both first-layer halves of every image (T, ...), once (and of
+        its mirror image with ``mirror_average``)."""
+        views = (lambda x: x, mirrored) if self.mirror_average else (lambda x: x,)
+        halves = [([], []) for _ in views]
         for lo in range(0, len(observations), batch):
             x = self.to_input(np.asarray(observations[lo:lo + batch]))
-            cur.append(self.plan.first_current(x))
-            tgt.append(self.plan.first_target(x))
-        return FrameFeatures(torch.cat(cur), torch.cat(tgt))
+            for view, (cur, tgt) in zip(views, halves):
+                cur.append(self.plan.first_current(view(x)))
+                tgt.append(self.plan.first_target(view(x)))
+        feats = [FrameFeatures(torch.cat(cur), torch.cat(tgt)) for cur, tgt in halves]
+        return FrameFeatures(feats[0].current, feats[0].target,
+                             feats[1] if self.mirror_average else None)
+
+    def _pair_logits(self, feats: FrameFeatures, s: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+        pre = feats.target[r] + feats.current[s].unsqueeze(1)
+        n, m = pre.shape[:2]
+        return self.plan.heads_of(self.plan.after_first(pre.reshape(n * m, *pre.shape[2:])),
+                                  n)["reach_logit"][:, 0]
 
     @torch.inference_mode()
     def pairwise(self, feats: FrameFeatures, source: np.ndarray, context_rows: np.ndarray,
@@ -115,14 +166,17 @@ class Reachability(ObservationNetwork):
         rows = np.asarray(context_rows, np.int64).reshape(len(source), -1)
         if rows.shape[1] != self.cfg.frames:
             raise ValueError(f"context rows need {self.cfg.frames} frames, got {rows.shape[1]}")
+        if self.mirror_average and feats.mirrored is None:
+            raise TopodrakeError("these frame features lack the mirror images this RE averages "
+                                 "over; make them with its frame_features")
         out = np.empty(len(source))
         for lo in range(0, len(source), batch):
             s = torch.from_numpy(source[lo:lo + batch])
             r = torch.from_numpy(rows[lo:lo + batch])
-            pre = feats.target[r] + feats.current[s].unsqueeze(1)
-            n, m = pre.shape[:2]
-            res = self.plan.heads_of(self.plan.after_first(pre.reshape(n * m, *pre.shape[2:])), n)
-            out[lo:lo + batch] = self._prob(res, self.anchor_platt)
+            z = self._pair_logits(feats, s, r)
+            if self.mirror_average:
+                z = 0.5 * (z + self._pair_logits(feats.mirrored, s, r))
+            out[lo:lo + batch] = self._prob(z, self.anchor_platt)
         return out
 
     def context_rows(self, n_frames: int, targets: np.ndarray) -> np.ndarray:

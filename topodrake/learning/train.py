@@ -159,7 +159,7 @@ def _sensor(cfg: TrainConfig):
 #: Settings a resumed run may change: budgets, bookkeeping and RE's
 #: calibration after training (rerunning a finished RE's command refits it).
 _RUNTIME = ("max_samples", "max_minutes", "val_every_samples", "checkpoint_every_s", "threads",
-            "temperature_scaling", "anchor_calibration")
+            "temperature_scaling", "anchor_calibration", "mirror_average")
 
 
 def _comparable(cfg_dict: dict) -> dict:
