@@ -481,13 +481,14 @@ def test_anchor_hops_get_their_own_temperature_also_after_training(labels, tmp_p
     # "anchor hops": the easy pairs (mostly reached), unlike the validation mix
     pick = np.concatenate([np.flatnonzero(labels.label == 1), np.flatnonzero(labels.label == 0)[:2]])
     hops = ReachLabels(labels.trajectories, {k: v[pick] for k, v in labels.fields.items()}, {})
-    none = _config(max_samples=320, anchor_calibration=AnchorCalibration(pairs=0))
+    none = _config(max_samples=320, anchor_calibration=AnchorCalibration(pairs=0),
+                   mirror_average=False)
     train_reachability(none, tmp_path / "re", labels=(labels, labels), controller=ident,
                        progress=False)
     ck = load_reachability(tmp_path / "re" / "checkpoint.pt", ctrl)
     assert "anchor_platt" not in ck.meta["extra"]
     # rerunning the finished run with anchor hops only refits the calibration
-    again = train_reachability(_config(max_samples=320), tmp_path / "re",
+    again = train_reachability(_config(max_samples=320, mirror_average=False), tmp_path / "re",
                                labels=(labels, labels, hops), controller=ident, progress=False)
     assert again.samples_seen == 320 and again.train_samples_per_s > 0
     ck2 = load_reachability(tmp_path / "re" / "checkpoint.pt", ctrl)
@@ -552,6 +553,10 @@ def test_shipped_res_were_trained_with_their_configs_and_controllers(name):
     cfg = load_reach_config(root / "configs" / f"{name}.yaml")
     ck = load_checkpoint(root / "checkpoints" / name / "checkpoint.pt", output="reach")
     assert config_change(ck, cfg.to_dict()) is None
+    # calibrated as the config says (a calibration switch changed without
+    # rerunning the command would leave the shipped calibration stale)
+    assert ck.meta["extra"].get("mirror_average", False) == cfg.mirror_average
+    assert ("anchor_platt" in ck.meta["extra"]) == bool(cfg.anchor_calibration.pairs)
     trained_for = ck.meta["extra"]["controller"]
     assert trained_for["checkpoint"] == cfg.controller
     assert trained_for["sha1"] == controller_identity(root / cfg.controller)["sha1"]
