@@ -281,7 +281,8 @@ def test_mirror_augment_flips_both_views_of_the_chosen_pairs_only(labels):
     assert torch.equal(b.cur, ReachBatcher(labels, _config().network).batch(np.arange(8)).cur)
 
 
-def test_reachability_estimator_system_matches_the_batched_call():
+@pytest.mark.parametrize("mirror_average", [False, True])
+def test_reachability_estimator_system_matches_the_batched_call(mirror_average):
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
 
@@ -298,7 +299,8 @@ def test_reachability_estimator_system_matches_the_batched_call():
 
     world = load_world(WORLD)
     torch.manual_seed(3)
-    re = Reachability(WaypointNetwork(NetworkConfig(output="reach", k=1), 64), CameraConfig())
+    re = Reachability(WaypointNetwork(NetworkConfig(output="reach", k=1), 64), CameraConfig(),
+                      mirror_average=mirror_average)
     poses = world.sample_free_pose(np.random.default_rng(4), 4)
     images = Camera(world).render(poses)
     b = DiagramBuilder()

@@ -91,12 +91,11 @@ class Reachability(ObservationNetwork):
         z = z / self.temperature if platt is None else platt[0] * z + platt[1]
         return torch.sigmoid(z).numpy().astype(np.float64)
 
-    def _averaged(self, logit, cur: torch.Tensor, other) -> torch.Tensor:
-        """``logit(cur, other)``, or its mean with the mirror images' when
-        ``mirror_average`` (``other`` is then a (plain, mirrored) pair)."""
-        if not self.mirror_average:
-            return logit(cur, other)
-        return 0.5 * (logit(cur, other[0]) + logit(mirrored(cur), other[1]))
+    def _mean_logit(self, logit, plain: tuple, mirror) -> torch.Tensor:
+        """``logit(*plain)``, or with ``mirror_average`` its mean with
+        ``logit(*mirror())`` (the same pairs seen in a mirror)."""
+        z = logit(*plain)
+        return 0.5 * (z + logit(*mirror())) if self.mirror_average else z
 
     @torch.inference_mode()
     def encode_target(self, context: np.ndarray) -> torch.Tensor:
@@ -118,10 +117,9 @@ class Reachability(ObservationNetwork):
         if target.shape[1] != want:
             raise TopodrakeError(f"target features have {target.shape[1]} frames, this RE needs "
                                  f"{want}: encode targets with this RE's encode_target")
-        if self.mirror_average:
-            target = torch.split(target, self.cfg.frames, dim=1)
-        return self._prob(self._averaged(lambda c, t: self.plan.cached(c, t)["reach_logit"][:, 0],
-                                         cur, target))
+        parts = torch.split(target, self.cfg.frames, dim=1)     # (plain,) or (plain, mirrored)
+        return self._prob(self._mean_logit(lambda c, t: self.plan.cached(c, t)["reach_logit"][:, 0],
+                                           (cur, parts[0]), lambda: (mirrored(cur), parts[-1])))
 
     @torch.inference_mode()
     def probability_naive(self, observation: np.ndarray, context: np.ndarray) -> np.ndarray:
@@ -130,10 +128,8 @@ class Reachability(ObservationNetwork):
         ctx = self.to_input(np.asarray(context))
         if cur.shape[0] == 1 and ctx.shape[0] > 1:
             cur = cur.expand(ctx.shape[0], *cur.shape[1:])
-        if self.mirror_average:
-            ctx = (ctx, mirrored(ctx))
-        return self._prob(self._averaged(lambda c, x: self.plan.naive(c, x)["reach_logit"][:, 0],
-                                         cur, ctx))
+        return self._prob(self._mean_logit(lambda c, x: self.plan.naive(c, x)["reach_logit"][:, 0],
+                                           (cur, ctx), lambda: (mirrored(cur), mirrored(ctx))))
 
     # -- all pairs -------------------------------------------------------------
     @torch.inference_mode()
@@ -173,9 +169,7 @@ class Reachability(ObservationNetwork):
         for lo in range(0, len(source), batch):
             s = torch.from_numpy(source[lo:lo + batch])
             r = torch.from_numpy(rows[lo:lo + batch])
-            z = self._pair_logits(feats, s, r)
-            if self.mirror_average:
-                z = 0.5 * (z + self._pair_logits(feats.mirrored, s, r))
+            z = self._mean_logit(self._pair_logits, (feats, s, r), lambda: (feats.mirrored, s, r))
             out[lo:lo + batch] = self._prob(z, self.anchor_platt)
         return out
 
