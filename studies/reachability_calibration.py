@@ -41,19 +41,19 @@ DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/came
 WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
 
 
-def keep_ratio(reach: str, controller: str, data_dir: str, p: float, drives: int | None,
-               anchor_calibration: bool = True) -> float:
+def keep_ratios(reach: str, controller: str, data_dir: str, p: float,
+                drives: int | None) -> tuple[float, float]:
     """Anchors kept / frames over the test houses' successful expert drives,
-    with RE's anchor-hop calibration (or, if not ``anchor_calibration``, its
-    temperature, as for any other pair)."""
+    with RE's anchor-hop calibration and with its temperature (as for any
+    other pair), from one pass over the drives."""
     from topodrake.learning.reachability import Reachability
     from topodrake.topomap.hops import sparsify_houses
 
     re = Reachability.from_checkpoint(reach, controller)
-    if not anchor_calibration:
-        re.anchor_platt = (1.0 / re.temperature, 0.0)
-    return sparsify_houses(re, list(WORLDS), Path(data_dir) / "demos" / "pairs-s0", p,
-                           drives=drives)["keep_ratio"] or 0.0
+    out = sparsify_houses(re, list(WORLDS), Path(data_dir) / "demos" / "pairs-s0", p,
+                          drives=drives,
+                          other_calibrations={"temperature": (1.0 / re.temperature, 0.0)})
+    return out["keep_ratio"] or 0.0, out["keep_ratios"]["temperature"] or 0.0
 
 
 def summarise_trials(res: list[dict]) -> dict:
@@ -148,9 +148,8 @@ def _run(args) -> int:
     # forked Monte Carlo block (a fork after torch has started its OpenMP
     # threads can hang the children).
     for name, (reach, controller) in estimators.items():
-        ratio = keep_ratio(reach, controller, args.data, args.p, args.keep_drives)
-        details[name]["keep_ratio_temperature"] = round(keep_ratio(
-            reach, controller, args.data, args.p, args.keep_drives, anchor_calibration=False), 4)
+        ratio, under_t = keep_ratios(reach, controller, args.data, args.p, args.keep_drives)
+        details[name]["keep_ratio_temperature"] = round(under_t, 4)
         n = details[name]["noisy"]
         summary[name] = {"ece": round(n["ece"], 4), "brier": round(n["brier"], 4),
                          "auroc": None if n["auroc"] is None else round(n["auroc"], 4),

@@ -432,6 +432,21 @@ def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, 
     assert "--check-drives needs --hop-runs" in capsys.readouterr().err
 
 
+def test_houses_are_sparsified_under_other_calibrations_from_the_same_features(tiny_re, tmp_path):
+    from topodrake.learning.reachability import Reachability
+    from topodrake.topomap.hops import sparsify_houses
+
+    demos, re_path, ctrl = tiny_re
+    (tmp_path / "test-1").symlink_to(demos)
+    re = Reachability.from_checkpoint(re_path, ctrl)
+    out = sparsify_houses(re, ["test-1"], tmp_path, p=0.3, other_calibrations={
+        "same": re.anchor_platt, "doubtful": (re.anchor_platt[0], re.anchor_platt[1] - 5.0)})
+    assert out["keep_ratios"]["same"] == out["keep_ratio"]
+    # lower probabilities everywhere: every frame fails p, so every frame is kept
+    assert out["keep_ratios"]["doubtful"] == 1.0 > out["keep_ratio"]
+    assert "keep_ratios" not in sparsify_houses(re, ["test-1"], tmp_path, p=0.3)
+
+
 def test_calibration_study_refuses_bad_estimators(tmp_path, capsys):
     study = _study("reachability_calibration")
     assert study.main(["--estimators", "x=only-one-path", "--out", str(tmp_path)]) == 2

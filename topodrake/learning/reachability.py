@@ -155,9 +155,9 @@ class Reachability(ObservationNetwork):
 
     @torch.inference_mode()
     def pairwise(self, feats: FrameFeatures, source: np.ndarray, context_rows: np.ndarray,
-                 batch: int = 512) -> np.ndarray:
+                 batch: int = 512, platt: tuple[float, float] | None = None) -> np.ndarray:
         """RE(frame ``source[m]``, context frames ``context_rows[m]``) (M,),
-        frames of one drive (so with the anchor calibration)."""
+        frames of one drive (so with the anchor calibration, or ``platt``)."""
         source = np.asarray(source, np.int64)
         rows = np.asarray(context_rows, np.int64).reshape(len(source), -1)
         if rows.shape[1] != self.cfg.frames:
@@ -170,7 +170,7 @@ class Reachability(ObservationNetwork):
             s = torch.from_numpy(source[lo:lo + batch])
             r = torch.from_numpy(rows[lo:lo + batch])
             z = self._mean_logit(self._pair_logits, (feats, s, r), lambda: (feats.mirrored, s, r))
-            out[lo:lo + batch] = self._prob(z, self.anchor_platt)
+            out[lo:lo + batch] = self._prob(z, platt or self.anchor_platt)
         return out
 
     def context_rows(self, n_frames: int, targets: np.ndarray) -> np.ndarray:
@@ -180,14 +180,17 @@ class Reachability(ObservationNetwork):
         return context_frames(n_frames, np.asarray(targets, np.int64), self.k, self.frame_step)
 
     def sparsify(self, observations: np.ndarray, p: float = 0.99, window: int = 4,
-                 feats: FrameFeatures | None = None) -> np.ndarray:
-        """Anchor frames of one trajectory's observations (T, ...)."""
+                 feats: FrameFeatures | None = None,
+                 platt: tuple[float, float] | None = None) -> np.ndarray:
+        """Anchor frames of one trajectory's observations (T, ...) (with
+        the anchor calibration, or ``platt``)."""
         from topodrake.topomap.sparsify import sparsify
 
         feats = feats or self.frame_features(observations)
         n = len(feats)
         return sparsify(n, lambda i, js: self.pairwise(feats, np.full(len(js), i),
-                                                       self.context_rows(n, js)), p, window)
+                                                       self.context_rows(n, js), platt=platt),
+                        p, window)
 
 
 def parse_estimators(text: str) -> dict:

@@ -46,31 +46,43 @@ def anchor_hop_success(world, policy, poses: np.ndarray, anchors: np.ndarray, ru
 
 
 def sparsify_houses(re, worlds: list[str], demo_root, p: float = 0.99, drives: int | None = None,
-                    policy=None, runs: int = 0, seed: int = 0) -> dict:
+                    policy=None, runs: int = 0, seed: int = 0,
+                    other_calibrations: dict[str, tuple[float, float]] | None = None) -> dict:
     """Sparsify the first ``drives`` (default all) successful expert drives
     of each house in ``worlds`` (demonstrations in ``demo_root/<house>``)
     with RE ``re``: ``{"drives", "frames", "anchors", "keep_ratio"}``; with
     ``policy`` and ``runs`` > 0 every hop is also driven ``runs`` times with
-    noise (``"hops"``, ``"hop_success"``, ``"failed_runs"``)."""
+    noise (``"hops"``, ``"hop_success"``, ``"failed_runs"``).
+    ``other_calibrations`` ({name: Platt (a, b)}): also the keep ratio under
+    each of them, from the same observations and features
+    (``"keep_ratios": {name: ratio}``)."""
     from pathlib import Path
 
     from topodrake.demonstrations import load_demos
     from topodrake.world import load_world
 
     check = policy is not None and runs > 0
+    others = other_calibrations or {}
     kept = frames = n = 0
+    kept_other = dict.fromkeys(others, 0)
     oks = [np.zeros(0, bool)]
     for name in worlds:
         world = load_world(name)
         _, demos = load_demos(Path(demo_root) / name, successful_only=True)
         for d in demos[:drives]:
-            anchors = re.sparsify(re.observe(world, d.poses), p=p)
+            observations = re.observe(world, d.poses)
+            feats = re.frame_features(observations)
+            anchors = re.sparsify(observations, p=p, feats=feats)
+            for key, platt in others.items():
+                kept_other[key] += len(re.sparsify(observations, p=p, feats=feats, platt=platt))
             kept, frames, n = kept + len(anchors), frames + len(d.poses), n + 1
             if check:
                 oks.append(anchor_hop_success(world, policy, d.poses, anchors, runs=runs,
                                               seed=seed + n).ravel())
-    out = {"drives": n, "frames": frames, "anchors": kept,
-           "keep_ratio": round(kept / frames, 4) if frames else None}
+    ratio = (lambda k: round(k / frames, 4) if frames else None)
+    out = {"drives": n, "frames": frames, "anchors": kept, "keep_ratio": ratio(kept)}
+    if others:
+        out["keep_ratios"] = {key: ratio(k) for key, k in kept_other.items()}
     if check:
         ok = np.concatenate(oks)
         out.update(hops=len(ok) // runs, hop_success=share_made(ok), failed_runs=int((~ok).sum()))
