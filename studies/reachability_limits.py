@@ -16,13 +16,21 @@ C_WP), in the test houses, with the batched engine
   well RE's probability tells them from the rest.
 * **anchor hops**: ``--hop-pairs`` pairs in the regime of sparsification
   (source on an expert frame, target up to 3 m ahead on the same drive), one
-  run each: the controller's success rate by hop length, which bounds the
-  keep ratio any calibrated RE can reach at p = 0.99.
+  run each: the controller's success rate by hop length.
+* **keep ratio the controller allows**: ``--keep-drives`` expert drives per
+  house sparsified with the controller's own outcomes in RE's place
+  (:func:`topodrake.topomap.hops.controller_sparsify`: a frame passes when
+  all ``--keep-runs`` noisy runs toward it are made, hops capped at 2 m),
+  each resulting hop then driven ``--keep-runs`` more times with fresh
+  seeds (``hop_success``, which should be about p_sparsify) and RE's own
+  keep ratio on the same drives: how far RE is from the keep ratio a perfect
+  estimator of this controller would reach.
 
     python studies/reachability_limits.py --json
 
 prints ``{"camera_k5": {"oracle_auroc", "re_auroc", "re_auroc_blind_known",
-"share_blind", ...}, ...}`` and writes ``results/reachability_limits.json``.
+"share_blind", ..., "controller_keep": {...}}, ...}`` and writes
+``results/reachability_limits.json``.
 """
 
 from __future__ import annotations
@@ -42,6 +50,7 @@ DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/came
            "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
 WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
 HOP_BINS_M = (0.0, 0.25, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
+MAX_HOP_FRAMES = 40     # 2 m of expert drive: the controller-sparsified hops' cap
 
 
 def oracle_auroc(outcomes: np.ndarray) -> float:
@@ -84,8 +93,43 @@ def _re_probabilities(re, world, trajs, pairs) -> np.ndarray:
     return re.probability(re.observe(world, pairs["src_pose"]), re.encode_target(ctx))
 
 
+def controller_keep(re, policy, trajs, drives_per_house: int, runs: int, seed: int,
+                    progress: bool = True) -> dict:
+    """Keep ratio of the first ``drives_per_house`` drives of each house of
+    ``trajs`` sparsified by the controller's own outcomes, the success of
+    those hops on fresh seeds, and RE's keep ratio on the same drives."""
+    from tqdm import tqdm
+
+    from topodrake.topomap.hops import anchor_hop_success, controller_sparsify, share_made
+    from topodrake.world import load_world
+
+    frames = kept = kept_re = rollouts = 0
+    oks = [np.zeros(0, bool)]
+    bar = tqdm(total=len(trajs.worlds) * drives_per_house, desc="controller keep ratio",
+               unit="drive", disable=not progress)
+    for w, name in enumerate(trajs.worlds):
+        world = load_world(name)
+        for n, t in enumerate(np.flatnonzero(trajs.traj_world == w)[:drives_per_house]):
+            poses = trajs.poses[trajs.rows(int(t))]
+            anchors, spent = controller_sparsify(world, policy, poses, runs=runs,
+                                                 max_hop=MAX_HOP_FRAMES, seed=seed + 7 * w + n)
+            oks.append(anchor_hop_success(world, policy, poses, anchors, runs=runs,
+                                          seed=seed + 50_000 + 7 * w + n).ravel())
+            kept_re += len(re.sparsify(re.observe(world, poses)))
+            frames, kept, rollouts = frames + len(poses), kept + len(anchors), rollouts + spent
+            bar.update()
+    bar.close()
+    ok = np.concatenate(oks)
+    ratio = (lambda k: round(k / frames, 4) if frames else None)
+    return {"drives": len(trajs.worlds) * drives_per_house, "frames": frames, "runs": runs,
+            "max_hop_frames": MAX_HOP_FRAMES, "keep_ratio": ratio(kept),
+            "hop_success": share_made(ok), "re_keep_ratio": ratio(kept_re),
+            "scan_rollouts": rollouts}
+
+
 def measure(reach: str, controller: str, trajs, pairs_per_house: int, runs: int,
-            hop_pairs_per_house: int, seed: int, progress: bool = True) -> dict:
+            hop_pairs_per_house: int, seed: int, keep_drives: int = 0, keep_runs: int = 16,
+            progress: bool = True) -> dict:
     from tqdm import tqdm
 
     from topodrake.learning.calibration import auroc
@@ -143,6 +187,9 @@ def measure(reach: str, controller: str, trajs, pairs_per_house: int, runs: int,
            if 0 < blind.sum() < len(blind) else None}
     if hop_pairs_per_house:
         out["anchor_hops"] = success_by_distance(np.array(hop_d), np.concatenate(hop_ok))
+    if keep_drives:
+        out["controller_keep"] = controller_keep(re, policy, trajs, keep_drives, keep_runs, seed,
+                                                 progress=progress)
     return out
 
 
@@ -154,6 +201,10 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", type=int, default=1000, help="pairs for the noise ceiling")
     ap.add_argument("--runs", type=int, default=8, help="noisy runs per pair")
     ap.add_argument("--hop-pairs", type=int, default=2000, help="anchor hops (one run each)")
+    ap.add_argument("--keep-drives", type=int, default=1,
+                    help="drives per house sparsified by the controller's own outcomes (0: skip)")
+    ap.add_argument("--keep-runs", type=int, default=16,
+                    help="noisy runs per candidate frame (all must be made) and per hop")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--data", default="data", help="cache of demonstrations (test houses)")
     ap.add_argument("--out", default="results")
@@ -171,13 +222,16 @@ def _run(args) -> int:
 
     if args.pairs < len(WORLDS) or args.runs < 2 or args.hop_pairs < 0:
         raise TopodrakeError(f"need --pairs >= {len(WORLDS)}, --runs >= 2 and --hop-pairs >= 0")
+    if args.keep_drives < 0 or args.keep_runs < 1:
+        raise TopodrakeError("need --keep-drives >= 0 and --keep-runs >= 1")
     estimators = parse_estimators(args.estimators)
     torch.set_num_threads(1)
     trajs = collect_trajectories(list(WORLDS), Path(args.data) / "demos" / "pairs-s0",
                                  progress=not args.quiet)
     t0 = time.perf_counter()
     summary = {name: measure(reach, controller, trajs, args.pairs // len(WORLDS), args.runs,
-                             args.hop_pairs // len(WORLDS), args.seed, progress=not args.quiet)
+                             args.hop_pairs // len(WORLDS), args.seed, args.keep_drives,
+                             args.keep_runs, progress=not args.quiet)
                for name, (reach, controller) in estimators.items()}
     atomic_write_json(Path(args.out) / "reachability_limits.json", {
         "command": "python studies/reachability_limits.py " + " ".join(sys.argv[1:]),
@@ -191,6 +245,10 @@ def _run(args) -> int:
             print(f"{name:<10} oracle AUROC {s['oracle_auroc']:.3f}  RE {s['re_auroc']:.3f}  "
                   f"RE with blind starts known {s['re_auroc_blind_known']:.3f}  "
                   f"blind {s['share_blind']:.0%}")
+            if "controller_keep" in s:
+                k = s["controller_keep"]
+                print(f"{'':<10} keep ratio: controller's own outcomes {k['keep_ratio']:.3f} "
+                      f"(hops made {k['hop_success']:.3f}), RE {k['re_keep_ratio']:.3f}")
     return 0
 
 

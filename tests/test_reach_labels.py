@@ -126,6 +126,26 @@ def test_anchor_hops_are_checked_by_closed_loop_rollouts(box_world):
         anchor_hop_success(box_world, AStarOracle(box_world), poses, np.array([0, 5]), config=CFG)
 
 
+def test_controller_sparsify_passes_frames_by_the_controllers_own_runs(box_world):
+    from topodrake.learning.policy import AStarOracle
+    from topodrake.topomap.hops import controller_sparsify
+
+    # frames 0.2 m apart along y = 2, the last one behind the partition wall:
+    # every hop is made except those to the last frame (a blind start)
+    x = np.arange(3.0, 4.5, 0.2)
+    poses = np.column_stack([np.append(x, 6.0), np.full(len(x) + 1, 2.0), np.zeros(len(x) + 1)])
+    anchors, rollouts = controller_sparsify(box_world, AStarOracle(box_world), poses, runs=2,
+                                            max_hop=3, seed=1, config=CFG)
+    # 0 -> 3 -> 6 (max_hop), 6 -> 7 (8 fails), then 8 as the last frame
+    assert anchors.tolist() == [0, 3, 6, 7, 8]
+    assert rollouts == 2 * (3 + 3 + 2 + 1)          # frames beyond max_hop are not driven
+    longer, _ = controller_sparsify(box_world, AStarOracle(box_world), poses, runs=2, max_hop=7,
+                                    seed=1, config=CFG)
+    assert longer.tolist() == [0, 7, 8]
+    with pytest.raises(TopodrakeError, match="failures < runs"):
+        controller_sparsify(box_world, AStarOracle(box_world), poses, runs=2, failures=2)
+
+
 def test_label_sets_join_over_shared_or_other_houses(box_world, two_lines, tmp_path):
     from dataclasses import replace
 

@@ -447,6 +447,26 @@ def test_houses_are_sparsified_under_other_calibrations_from_the_same_features(t
     assert "keep_ratios" not in sparsify_houses(re, ["test-1"], tmp_path, p=0.3)
 
 
+def test_houses_report_the_share_of_hops_that_advance_one_frame(tiny_re, tmp_path):
+    from topodrake.demonstrations import load_demos
+    from topodrake.learning.reachability import Reachability
+    from topodrake.topomap.hops import sparsify_houses
+    from topodrake.world import load_world
+
+    demos, re_path, ctrl = tiny_re
+    (tmp_path / "test-1").symlink_to(demos)
+    re = Reachability.from_checkpoint(re_path, ctrl)
+    hops = []
+    for d in load_demos(demos, successful_only=True)[1]:
+        hops.append(np.diff(re.sparsify(re.observe(load_world("test-1"), d.poses), p=0.3)))
+    hops = np.concatenate(hops)
+    out = sparsify_houses(re, ["test-1"], tmp_path, p=0.3)
+    assert out["one_frame_hops"] == round(float(np.mean(hops == 1)), 4)
+    # a bar no pair clears keeps every frame: every hop advances one frame
+    stalled = sparsify_houses(re, ["test-1"], tmp_path, p=1.0 - 1e-12)
+    assert stalled["keep_ratio"] == 1.0 and stalled["one_frame_hops"] == 1.0
+
+
 def test_calibration_study_refuses_bad_estimators(tmp_path, capsys):
     study = _study("reachability_calibration")
     assert study.main(["--estimators", "x=only-one-path", "--out", str(tmp_path)]) == 2
@@ -553,6 +573,30 @@ def test_limits_study_ceiling_and_hop_bins(tmp_path, capsys):
     assert bins[0]["success"] == 0.5 and bins[1]["success"] is None
     assert study.main(["--runs", "1", "--out", str(tmp_path)]) == 2
     assert "--runs >= 2" in capsys.readouterr().err
+    assert study.main(["--keep-runs", "0", "--out", str(tmp_path)]) == 2
+    assert "--keep-runs >= 1" in capsys.readouterr().err
+
+
+def test_limits_study_compares_res_keep_ratio_with_the_controllers_own(tiny_re):
+    from topodrake.demonstrations import load_demos
+    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.samples import TrajectorySet
+    from topodrake.world import load_world
+
+    study = _study("reachability_limits")
+    demos, re_path, ctrl = tiny_re
+    poses = load_demos(demos, successful_only=True)[1][0].poses[:60]
+    trajs = TrajectorySet(["test-1"], np.zeros(1, np.int32), np.array([0, 60]), poses,
+                          np.column_stack([poses, np.zeros((60, 2))]))
+    world = load_world("test-1")
+    re = Reachability.from_checkpoint(re_path, ctrl)
+    out = study.controller_keep(re, AStarOracle(world), trajs, 1, runs=2, seed=0, progress=False)
+    assert out["drives"] == 1 and out["frames"] == 60 and out["runs"] == 2
+    # hops of at most MAX_HOP_FRAMES: at least 0, 40, 59 are kept
+    assert out["keep_ratio"] >= round(3 / 60, 4) and 0.0 <= out["hop_success"] <= 1.0
+    assert out["scan_rollouts"] > 0 and out["scan_rollouts"] % 2 == 0
+    assert out["re_keep_ratio"] == round(len(re.sparsify(re.observe(world, poses))) / 60, 4)
 
 
 @pytest.mark.parametrize("name", ["reach_camera_k2", "reach_camera_k5", "reach_lidar_k5"])
