@@ -100,7 +100,8 @@ def controller_keep(re, policy, trajs, drives_per_house: int, runs: int, seed: i
     those hops on fresh seeds, and RE's keep ratio on the same drives."""
     from tqdm import tqdm
 
-    from topodrake.topomap.hops import anchor_hop_success, controller_sparsify, share_made
+    from topodrake.topomap.hops import (anchor_hop_success, controller_sparsify, keep_ratio,
+                                        share_made)
     from topodrake.world import load_world
 
     frames = kept = kept_re = rollouts = 0
@@ -119,11 +120,10 @@ def controller_keep(re, policy, trajs, drives_per_house: int, runs: int, seed: i
             frames, kept, rollouts = frames + len(poses), kept + len(anchors), rollouts + spent
             bar.update()
     bar.close()
-    ok = np.concatenate(oks)
-    ratio = (lambda k: round(k / frames, 4) if frames else None)
     return {"drives": len(trajs.worlds) * drives_per_house, "frames": frames, "runs": runs,
-            "max_hop_frames": MAX_HOP_FRAMES, "keep_ratio": ratio(kept),
-            "hop_success": share_made(ok), "re_keep_ratio": ratio(kept_re),
+            "max_hop_frames": MAX_HOP_FRAMES, "keep_ratio": keep_ratio(kept, frames),
+            "hop_success": share_made(np.concatenate(oks)),
+            "re_keep_ratio": keep_ratio(kept_re, frames),
             "scan_rollouts": rollouts}
 
 

@@ -131,7 +131,7 @@ def sparsify_houses(re, worlds: list[str], demo_root, p: float = 0.99, drives: i
             if check:
                 oks.append(anchor_hop_success(world, policy, d.poses, anchors, runs=runs,
                                               seed=seed + n).ravel())
-    ratio = (lambda k: round(k / frames, 4) if frames else None)
+    ratio = (lambda k: keep_ratio(k, frames))
     out = {"drives": n, "frames": frames, "anchors": kept, "keep_ratio": ratio(kept),
            "one_frame_hops": round(single / (kept - n), 4) if kept > n else None}
     if others:
@@ -140,6 +140,11 @@ def sparsify_houses(re, worlds: list[str], demo_root, p: float = 0.99, drives: i
         ok = np.concatenate(oks)
         out.update(hops=len(ok) // runs, hop_success=share_made(ok), failed_runs=int((~ok).sum()))
     return out
+
+
+def keep_ratio(anchors: int, frames: int) -> float | None:
+    """Anchors kept per frame (4 decimals), None when there are no frames."""
+    return round(anchors / frames, 4) if frames else None
 
 
 def share_made(ok: np.ndarray) -> float | None:
