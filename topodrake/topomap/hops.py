@@ -131,11 +131,10 @@ def sparsify_houses(re, worlds: list[str], demo_root, p: float = 0.99, drives: i
             if check:
                 oks.append(anchor_hop_success(world, policy, d.poses, anchors, runs=runs,
                                               seed=seed + n).ravel())
-    ratio = (lambda k: keep_ratio(k, frames))
-    out = {"drives": n, "frames": frames, "anchors": kept, "keep_ratio": ratio(kept),
+    out = {"drives": n, "frames": frames, "anchors": kept, "keep_ratio": keep_ratio(kept, frames),
            "one_frame_hops": round(single / (kept - n), 4) if kept > n else None}
     if others:
-        out["keep_ratios"] = {key: ratio(k) for key, k in kept_other.items()}
+        out["keep_ratios"] = {key: keep_ratio(k, frames) for key, k in kept_other.items()}
     if check:
         ok = np.concatenate(oks)
         out.update(hops=len(ok) // runs, hop_success=share_made(ok), failed_runs=int((~ok).sum()))
