@@ -144,6 +144,49 @@ def test_re_starts_from_its_controller_and_keeps_a_temperature_that_helps(labels
         init_from_controller(wide, tmp_path / "cwp.pt")
 
 
+def test_re_warm_starts_from_an_earlier_re_of_the_same_controller_only(labels, tmp_path):
+    from topodrake.learning.reach_train import (controller_identity, evaluate_reach, file_sha1,
+                                                load_reachability, train_reachability, ReachBatcher)
+
+    ctrl, other = tmp_path / "cwp.pt", tmp_path / "other.pt"
+    ctrl.write_bytes(b"controller weights")
+    other.write_bytes(b"another controller")
+    ident = controller_identity(ctrl)
+    base = train_reachability(_config(max_samples=1600), tmp_path / "base",
+                              labels=(labels, labels), controller=ident, progress=False)
+    base_path = tmp_path / "base" / "checkpoint.pt"
+    warm = train_reachability(_config(max_samples=16, init=str(base_path)), tmp_path / "warm",
+                              labels=(labels, labels), controller=ident, progress=False)
+    cold = train_reachability(_config(max_samples=16), tmp_path / "cold",
+                              labels=(labels, labels), controller=ident, progress=False)
+    # one Adam step (lr 3e-3) away from the earlier RE's weights, so about as good
+    # (weights; the batch-norm statistics move by their momentum)
+    theirs = dict(load_reachability(base_path, ctrl).model.named_parameters())
+    mine = dict(load_reachability(tmp_path / "warm" / "checkpoint.pt", ctrl).model.named_parameters())
+    assert set(theirs) == set(mine)
+    for key in theirs:
+        assert (theirs[key] - mine[key]).abs().max() <= 2 * 3e-3, key
+    assert warm.metrics["bce"] < cold.metrics["bce"]
+    assert warm.metrics["bce"] == pytest.approx(base.metrics["bce"], abs=0.1)
+    card = json.loads((tmp_path / "warm" / "card.json").read_text())
+    assert card["init"] == {"checkpoint": str(base_path), "sha1": file_sha1(base_path),
+                            "samples_seen": 1600}
+    assert json.loads((tmp_path / "cold" / "card.json").read_text())["init"] == "scratch"
+    # an RE of another controller, or of another profile, is refused before any step
+    with pytest.raises(TopodrakeError, match="trained for controller"):
+        train_reachability(_config(max_samples=16, init=str(base_path)), tmp_path / "x",
+                           labels=(labels, labels), controller=controller_identity(other),
+                           progress=False)
+    wide = _config(max_samples=16, init=str(base_path))
+    wide.network.channels = [8, 16, 16]
+    with pytest.raises(TopodrakeError, match="network profile differs"):
+        train_reachability(wide, tmp_path / "y", labels=(labels, labels), controller=ident,
+                           progress=False)
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+    with pytest.raises(TopodrakeError, match="existing RE checkpoint"):
+        _config(init=str(tmp_path / "missing.pt")).validate()
+
+
 def test_reach_batches_carry_the_starting_overlaps(labels):
     from topodrake.learning.reach_train import ReachBatcher, start_overlaps
     from topodrake.sensing.overlap import mutual_overlap

@@ -98,7 +98,9 @@ class ReachTrainConfig(TrainConfig):
     controller: str = "checkpoints/camera_k5/checkpoint.pt"   # the C_WP it describes
     labels: ReachLabelSets = field(default_factory=ReachLabelSets)
     # "controller": start from the C_WP's encoder and frame combiner (same
-    # profile needed); "scratch": random initialisation
+    # profile needed); "scratch": random initialisation; or the path of an
+    # RE checkpoint for the same controller and profile: a warm start from
+    # all its weights with a fresh optimizer (fine-tuning on new labels)
     init: str = "controller"
     # weight of the auxiliary loss on the pair's starting image overlaps
     # (geometric, from the poses; 0 = the paper's RE, reach logit only)
@@ -127,8 +129,9 @@ class ReachTrainConfig(TrainConfig):
         if not 0.0 <= (self.mirror_augment or 0.0) <= 1.0:
             raise TopodrakeError(f"{where}: mirror_augment must be a probability, got "
                                  f"{self.mirror_augment}")
-        if self.init not in ("controller", "scratch"):
-            raise TopodrakeError(f"{where}: init must be 'controller' or 'scratch', got {self.init!r}")
+        if self.init not in ("controller", "scratch") and not Path(self.init).is_file():
+            raise TopodrakeError(f"{where}: init must be 'controller', 'scratch' or an existing RE "
+                                 f"checkpoint to start from, got {self.init!r}")
         self.labels.rollout.validate()
         self.anchor_calibration.rollout.validate()
         if self.anchor_calibration.pairs < 0:
@@ -188,6 +191,38 @@ def init_from_controller(model, controller_path) -> None:
         raise TopodrakeError(f"cannot start RE from {controller_path}: its network profile differs "
                              f"(e.g. {bad[0]}); give RE the controller's profile or set init: scratch")
     model.load_state_dict(src, strict=False)
+
+
+def init_from_reachability(model, re_path, controller_path) -> dict:
+    """Copy every weight of the RE checkpoint ``re_path`` (trained for
+    ``controller_path``, same profile) into ``model``: a warm start for
+    fine-tuning on new labels. Returns its identity for the card (path,
+    SHA-1 and the samples it had seen)."""
+    ck = load_reachability(re_path, controller_path)
+    src, dst = ck.model.state_dict(), model.state_dict()
+    bad = sorted(set(src) ^ set(dst)) or [k for k in src if src[k].shape != dst[k].shape]
+    if bad:
+        raise TopodrakeError(f"cannot start RE from {re_path}: its network profile differs "
+                             f"(e.g. {bad[0]}); give the config that RE's network section")
+    model.load_state_dict(src)
+    return {"checkpoint": str(re_path), "sha1": file_sha1(re_path),
+            "samples_seen": ck.meta.get("samples_seen")}
+
+
+def _init(cfg: ReachTrainConfig, controller: dict):
+    """``(Task.init, card entry)`` for ``cfg.init``. A warm start is checked
+    here, before any rollout: an RE of another controller or profile is
+    refused at once."""
+    if cfg.init == "scratch":
+        return None, {"init": "scratch"}
+    if cfg.init == "controller":
+        return (lambda model: init_from_controller(model, controller["checkpoint"])), \
+            {"init": "controller"}
+    from topodrake.learning.networks import WaypointNetwork, input_size
+
+    probe = WaypointNetwork(cfg.network, input_size(cfg.network, cfg.lidar.beams))
+    ident = init_from_reachability(probe, cfg.init, controller["checkpoint"])
+    return (lambda model: model.load_state_dict(probe.state_dict())), {"init": ident}
 
 
 # ---------------------------------------------------------------- batches
@@ -434,11 +469,13 @@ def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resum
 
     cfg.validate()
     _set_threads(cfg.threads)
+    controller = controller or controller_identity(cfg.controller)
+    init, init_card = _init(cfg, controller)
     if labels is None:
         train_l, val_l, controller = prepare_labels(cfg, data_dir, progress)
         anchor_l = prepare_anchor_labels(cfg, data_dir, progress)
     else:
-        (train_l, val_l, *rest), controller = labels, controller or controller_identity(cfg.controller)
+        train_l, val_l, *rest = labels
         anchor_l = rest[0] if rest else None
     anchors = None if anchor_l is None else ReachBatcher(anchor_l, cfg.network, cfg.camera, cfg.lidar)
     task = Task(
@@ -451,10 +488,10 @@ def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resum
               "data": {"train_worlds": train_l.trajectories.worlds, "val_worlds": cfg.data.val_worlds,
                        "train_pairs": len(train_l), "val_pairs": len(val_l),
                        "train_success_rate": round(float(train_l.label.mean()), 4),
-                       "val_success_rate": round(float(val_l.label.mean()), 4)}},
+                       "val_success_rate": round(float(val_l.label.mean()), 4)},
+              **init_card},
         meta={"controller": controller},
-        init=(lambda model: init_from_controller(model, controller["checkpoint"]))
-        if cfg.init == "controller" else None,
+        init=init,
         finish=lambda model, val: calibrate(model, val, anchors, cfg.temperature_scaling,
                                             cfg.mirror_average))
     return train_network(cfg, task, out_dir, resume=resume, progress=progress, command=command)
