@@ -8,8 +8,9 @@ checkpoint names its controller (path and SHA-1 of the C_WP checkpoint), and
 :func:`load_reachability` refuses an RE next to another controller.
 
 Beyond the paper's recipe (each a config switch): RE starts from its
-controller's encoder, frame combiner and overlap head (``init``); an
-auxiliary head learns the pair's geometric image overlaps at the start
+controller's encoder, frame combiner and overlap head (``init``), or from
+all the weights of an earlier RE of the same controller, to fine-tune it on
+new labels; an auxiliary head learns the pair's geometric image overlaps at the start
 (``overlap_weight``), the cue for the many pairs that fail at once because
 the two views share nothing; a temperature fitted on the validation
 rollouts is stored and applied on load when it lowers their BCE
