@@ -183,8 +183,11 @@ def test_re_warm_starts_from_an_earlier_re_of_the_same_controller_only(labels, t
         train_reachability(wide, tmp_path / "y", labels=(labels, labels), controller=ident,
                            progress=False)
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
-    with pytest.raises(TopodrakeError, match="existing RE checkpoint"):
-        _config(init=str(tmp_path / "missing.pt")).validate()
+    with pytest.raises(TopodrakeError, match="missing.pt does not exist"):
+        train_reachability(_config(max_samples=16, init=str(tmp_path / "missing.pt")),
+                           tmp_path / "z", labels=(labels, labels), controller=ident, progress=False)
+    with pytest.raises(TopodrakeError, match="init must be"):
+        _config(init="").validate()
 
 
 def test_reach_batches_carry_the_starting_overlaps(labels):

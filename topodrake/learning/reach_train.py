@@ -130,9 +130,9 @@ class ReachTrainConfig(TrainConfig):
         if not 0.0 <= (self.mirror_augment or 0.0) <= 1.0:
             raise TopodrakeError(f"{where}: mirror_augment must be a probability, got "
                                  f"{self.mirror_augment}")
-        if self.init not in ("controller", "scratch") and not Path(self.init).is_file():
-            raise TopodrakeError(f"{where}: init must be 'controller', 'scratch' or an existing RE "
-                                 f"checkpoint to start from, got {self.init!r}")
+        if not self.init:
+            raise TopodrakeError(f"{where}: init must be 'controller', 'scratch' or the path of an "
+                                 "RE checkpoint to start from")
         self.labels.rollout.validate()
         self.anchor_calibration.rollout.validate()
         if self.anchor_calibration.pairs < 0:
@@ -221,6 +221,9 @@ def _init(cfg: ReachTrainConfig, controller: dict):
             {"init": "controller"}
     from topodrake.learning.networks import WaypointNetwork, input_size
 
+    if not Path(cfg.init).is_file():
+        raise TopodrakeError(f"init: RE checkpoint {cfg.init} does not exist (init must be "
+                             "'controller', 'scratch' or the path of an RE checkpoint)")
     probe = WaypointNetwork(cfg.network, input_size(cfg.network, cfg.lidar.beams))
     ident = init_from_reachability(probe, cfg.init, controller["checkpoint"])
     return (lambda model: model.load_state_dict(probe.state_dict())), {"init": ident}
