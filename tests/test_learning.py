@@ -197,6 +197,28 @@ def test_inference_plan_equals_the_module(modality, output, pool):
         InferencePlan(net)
 
 
+@pytest.mark.parametrize("shape", [(5, 3, 17, 17), (4, 2, 16, 9), (6, 4, 31)])
+@pytest.mark.parametrize("k", [2, 3])
+def test_max_pool_is_torchs_pooling_to_the_bit_with_its_gradient(shape, k):
+    from torch.nn import functional as F
+
+    from topodrake.learning.networks import max_pool
+
+    torch.manual_seed(0)
+    x = torch.randn(*shape).relu().requires_grad_()    # after a ReLU: many tied zeros
+    ref = (F.max_pool2d if len(shape) == 4 else F.max_pool1d)(x, k)
+    out = max_pool(x, k)
+    assert out.shape == ref.shape and torch.equal(out, ref)
+    w = torch.randn(ref.shape)
+    g_ref, = torch.autograd.grad((ref * w).sum(), x)
+    g_out, = torch.autograd.grad((out * w).sum(), x)
+    # the gradient reaches the maximum; tied zeros (below the ReLU's kink) differ only where
+    # the ReLU passes no gradient on
+    live = x.detach() > 0
+    assert torch.allclose(g_out[live], g_ref[live])
+    assert max_pool(x, 1) is x
+
+
 @pytest.mark.parametrize("modality", ["camera", "lidar"])
 def test_batchnorm_split_and_folding_are_exact(modality):
     from topodrake.learning.networks import fold_batchnorm

@@ -238,6 +238,7 @@ class PolicyRollout:
         overlap = mutual_overlap(self.world, starts, targets, cfg.camera) if n else np.zeros((0, 2))
         clearance = self.world.grid.clearance_at
         direct = bool(getattr(self.policy, "is_direct_control", False))
+        feats, feats_cars = target_features, np.arange(n)
         for k in range(t_steps):
             outcome[(outcome == RUNNING) & (limit <= k)] = TIMEOUT
             active = np.flatnonzero(outcome == RUNNING)
@@ -245,8 +246,11 @@ class PolicyRollout:
                 break
             st = state[active]
             ranges = self.lidar.scan(st[:, :3])
-            feats = (target_features.index_select(0, _torch_index(active)) if is_torch
-                     else target_features[active])
+            if active.size != feats_cars.size:
+                # cars only ever stop, so the features are gathered again only when some did
+                keep = np.searchsorted(feats_cars, active)
+                feats = feats.index_select(0, _torch_index(keep)) if is_torch else feats[keep]
+                feats_cars = active
             pred = self.policy.predict(self._observe(st, ranges), feats)
             if direct:
                 u = np.asarray(pred.controls, np.float64)

@@ -20,7 +20,8 @@ from torch import nn
 from torch.nn import functional as F
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.networks import HEADS, camera_input, fold_batchnorm, lidar_input
+from topodrake.learning.networks import (HEADS, camera_input, fold_batchnorm, lidar_input,
+                                         max_pool)
 
 
 class InferencePlan:
@@ -35,7 +36,7 @@ class InferencePlan:
         self.two_d = isinstance(enc.first, nn.Conv2d)
         self.conv = F.conv2d if self.two_d else F.conv1d
         self.pool = enc.pool
-        self.pool_fn = enc.pool_fn
+        self._buffer = None
         with torch.no_grad():
             w_cur, w_tgt = (w.detach().clone().contiguous() for w in enc.split_weights())
             self.w_cur, self.w_tgt = w_cur, w_tgt
@@ -58,6 +59,16 @@ class InferencePlan:
                              torch.cat([h[2].bias for h in heads]).detach().clone())
             self.head_sizes = [h[2].out_features for h in heads]
 
+    def _scratch(self, shape) -> torch.Tensor:
+        """A reused buffer for the summed first layer of a cached step. At a
+        batch of cars it is tens of MB, which a fresh allocation would map
+        from the kernel page by page at every step; everything computed from
+        it is a new tensor, so reusing it is safe."""
+        numel = int(np.prod(shape))
+        if self._buffer is None or self._buffer.numel() < numel:
+            self._buffer = torch.empty(numel)
+        return self._buffer[:numel].view(shape)
+
     # -- pieces -------------------------------------------------------------------
     def first_current(self, cur: torch.Tensor) -> torch.Tensor:
         stride, padding = self.first_args
@@ -68,9 +79,8 @@ class InferencePlan:
         return self.conv(ctx, self.w_tgt, self.b_first, stride=stride, padding=padding)
 
     def after_first(self, pre: torch.Tensor) -> torch.Tensor:
-        x = pre.relu_()
-        if self.pool > 1:
-            x = self.pool_fn(x, self.pool)
+        # pooling first: ReLU and max commute, so the ReLU runs on the smaller maps
+        x = max_pool(pre, self.pool).relu_()
         for w, b, stride, padding in self.rest:
             x = self.conv(x, w, b, stride=stride, padding=padding).relu_()
         return F.linear(x.flatten(1), *self.fc).relu_()
@@ -90,7 +100,9 @@ class InferencePlan:
 
     def cached(self, cur: torch.Tensor, target: torch.Tensor) -> dict:
         """``cur`` (N or 1, C, ...), ``target`` (N or 1, 2k+1, C0, ...)."""
-        pre = target + self.first_current(cur).unsqueeze(1)
+        term = self.first_current(cur).unsqueeze(1)
+        shape = torch.broadcast_shapes(target.shape, term.shape)
+        pre = torch.add(target, term, out=self._scratch(shape))
         n, m = pre.shape[:2]
         return self.heads_of(self.after_first(pre.view(n * m, *pre.shape[2:])), n)
 

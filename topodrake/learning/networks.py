@@ -106,6 +106,25 @@ def _conv_out(n: int, kernel: int, stride: int) -> int:
     return (n + 2 * (kernel // 2) - kernel) // stride + 1
 
 
+def max_pool(x: torch.Tensor, k: int) -> torch.Tensor:
+    """Max-pool the spatial axes of ``x`` ((B, C, H, W) or (B, C, L)) by ``k``
+    with stride ``k``, dropping a remainder: what ``F.max_pool2d`` /
+    ``F.max_pool1d`` compute, to the bit. It is the maximum of the k^2 (k)
+    strided views, which on this CPU runs about 4x faster than torch's
+    pooling kernel on the first layer's many small maps (the pool was a
+    quarter of a labelling rollout's time)."""
+    if k == 1:
+        return x
+    dims = x.dim() - 2
+    stop = [n - n % k for n in x.shape[2:]]
+    views = [x[(..., *(slice(o, n, k) for o, n in zip(offset, stop)))]
+             for offset in np.ndindex(*(k,) * dims)]
+    out = torch.maximum(views[0], views[1])
+    for view in views[2:]:
+        out = torch.maximum(out, view) if out.requires_grad else torch.maximum(out, view, out=out)
+    return out
+
+
 class PairEncoder(nn.Module):
     """Shared encoder of one (current, context frame) pair; 2-D (camera) or 1-D (lidar)."""
 
@@ -115,7 +134,6 @@ class PairEncoder(nn.Module):
         conv = nn.Conv2d if two_d else nn.Conv1d
         bn = nn.BatchNorm2d if two_d else nn.BatchNorm1d
         norm = cfg.norm == "batch"
-        self.pool_fn = F.max_pool2d if two_d else F.max_pool1d
         self.sensor_channels = 3 if two_d else 1
         self.pool = cfg.first_pool
         ch = cfg.channels
@@ -160,10 +178,7 @@ class PairEncoder(nn.Module):
 
     def after_first(self, pre: torch.Tensor) -> torch.Tensor:
         """Everything after the first layer's linear part: (B, C0, ...) -> (B, F)."""
-        x = F.relu(self.first_norm(pre))
-        if self.pool > 1:
-            x = self.pool_fn(x, self.pool)
-        x = self.rest(x)
+        x = self.rest(max_pool(F.relu(self.first_norm(pre)), self.pool))
         return F.relu(self.fc(x.flatten(1)))
 
     def forward(self, cur: torch.Tensor, other: torch.Tensor) -> torch.Tensor:
