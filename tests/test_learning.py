@@ -207,19 +207,18 @@ def test_max_pool_is_torchs_pooling_to_the_bit_with_its_gradient(shape, k):
     torch.manual_seed(0)
     x = torch.randn(*shape).relu().requires_grad_()    # after a ReLU: many tied zeros
     ref = (F.max_pool2d if len(shape) == 4 else F.max_pool1d)(x, k)
-    out = max_pool(x, k)
-    assert out.shape == ref.shape and torch.equal(out, ref)
+    with torch.no_grad():                                 # the strided views (inference)
+        fast = max_pool(x, k)
+    assert fast.shape == ref.shape and torch.equal(fast, ref)
+    out = max_pool(x, k)                                  # in training, with its gradient
+    assert torch.equal(out, ref)
     w = torch.randn(ref.shape)
     g_ref, = torch.autograd.grad((ref * w).sum(), x)
     g_out, = torch.autograd.grad((out * w).sum(), x)
-    # the gradient reaches the maximum; tied zeros (below the ReLU's kink) differ only where
-    # the ReLU passes no gradient on
-    live = x.detach() > 0
-    assert torch.allclose(g_out[live], g_ref[live])
+    assert torch.equal(g_out, g_ref)
     assert max_pool(x, 1) is x
 
 
-@pytest.mark.parametrize("modality", ["camera", "lidar"])
 def test_batchnorm_split_and_folding_are_exact(modality):
     from topodrake.learning.networks import fold_batchnorm
 
