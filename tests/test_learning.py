@@ -219,6 +219,7 @@ def test_max_pool_is_torchs_pooling_to_the_bit_with_its_gradient(shape, k):
     assert max_pool(x, 1) is x
 
 
+@pytest.mark.parametrize("modality", ["camera", "lidar"])
 def test_batchnorm_split_and_folding_are_exact(modality):
     from topodrake.learning.networks import fold_batchnorm
 
