@@ -645,14 +645,15 @@ def test_limits_study_compares_res_keep_ratio_with_the_controllers_own(tiny_re):
     assert out["re_keep_ratio"] == round(len(re.sparsify(re.observe(world, poses))) / 60, 4)
 
 
-@pytest.mark.parametrize("name", ["reach_camera_k2", "reach_camera_k5", "reach_lidar_k5"])
+@pytest.mark.parametrize("name", ["reach_camera_k2", "reach_camera_k5_base", "reach_camera_k5",
+                                  "reach_lidar_k5"])
 def test_shipped_res_were_trained_with_their_configs_and_controllers(name):
     """A shipped RE matches its YAML (so the card's command reproduces it)
     and the C_WP file it measured; label sets name catalogue houses only."""
     from pathlib import Path
 
     from topodrake.learning.checkpoint import load_checkpoint
-    from topodrake.learning.reach_train import controller_identity, load_reach_config
+    from topodrake.learning.reach_train import controller_identity, file_sha1, load_reach_config
     from topodrake.learning.train import config_change
     from topodrake.world.catalogue import catalogue_names
 
@@ -670,3 +671,6 @@ def test_shipped_res_were_trained_with_their_configs_and_controllers(name):
     houses = set(catalogue_names())
     for more in cfg.labels.more:
         assert set(more.worlds or []) <= houses
+    if cfg.init not in ("controller", "scratch"):     # fine-tuned from the RE it names, as shipped
+        card = json.loads((root / "checkpoints" / name / "card.json").read_text())
+        assert card["init"]["sha1"] == file_sha1(root / cfg.init)
