@@ -260,6 +260,16 @@ def test_policy_cached_equals_naive_on_rendered_images():
     a = policy.predict(images[:1], policy.encode_target(ctx))
     b = policy.predict_naive(images[:1], ctx)
     assert np.allclose(a.waypoint, b.waypoint, atol=1e-5)
+    # features regathered by index_select (as the batched engine does when cars
+    # stop) come back NCHW, not channels-last: same answers, at any batch size
+    two = policy.encode_target(np.concatenate([ctx[:, ::-1], ctx]))
+    regathered = two.index_select(0, torch.tensor([1, 0, 1]))
+    assert regathered.is_contiguous() and not two.is_contiguous()      # NCHW vs channels-last
+    c = policy.predict(np.repeat(images[:1], 3, 0), regathered)
+    assert np.allclose(c.waypoint[[0, 2]], a.waypoint, atol=1e-5)
+    assert not np.allclose(c.waypoint[1], a.waypoint[0], atol=1e-5)     # the other target
+    assert np.allclose(policy.predict(images[:1], policy.encode_target(ctx)).waypoint, a.waypoint,
+                       atol=1e-6)
     # Without BatchNorm (nothing to fold) the policy still freezes its own
     # copy: training the model further leaves it consistent, not stale.
     plain = WaypointNetwork(NetworkConfig(k=5, norm="none"), 64)

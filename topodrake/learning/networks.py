@@ -41,6 +41,8 @@ Observations enter as float tensors: camera ``(N, 3, S, S)`` in [-0.5, 0.5]
 
 from __future__ import annotations
 
+import functools
+import itertools
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -119,13 +121,20 @@ def max_pool(x: torch.Tensor, k: int) -> torch.Tensor:
     dims = x.dim() - 2
     if x.requires_grad and torch.is_grad_enabled():
         return (F.max_pool2d if dims == 2 else F.max_pool1d)(x, k)
-    stop = [n - n % k for n in x.shape[2:]]
-    views = [x[(..., *(slice(o, n, k) for o, n in zip(offset, stop)))]
-             for offset in np.ndindex(*(k,) * dims)]
-    out = torch.maximum(views[0], views[1])
-    for view in views[2:]:
+    first, second, *rest = (x[index] for index in _pool_windows(k, tuple(x.shape[2:])))
+    out = torch.maximum(first, second)
+    for view in rest:
         torch.maximum(out, view, out=out)
     return out
+
+
+@functools.lru_cache(maxsize=64)
+def _pool_windows(k: int, spatial: tuple) -> tuple:
+    """The k^d strided-view indices of :func:`max_pool` (cached: building
+    them cost more than the pool itself at batch 1)."""
+    stop = [n - n % k for n in spatial]
+    return tuple((..., *(slice(o, n, k) for o, n in zip(offset, stop)))
+                 for offset in itertools.product(range(k), repeat=len(spatial)))
 
 
 class PairEncoder(nn.Module):
