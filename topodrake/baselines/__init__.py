@@ -1,0 +1,1 @@
+"""Baselines the topological navigation is compared with (SPTM)."""

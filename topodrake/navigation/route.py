@@ -1,0 +1,86 @@
+"""A route: what a follower needs to drive a plan, whoever made it.
+
+The planner (:mod:`topodrake.topomap.plan`) turns a map path into a
+:class:`Route`; a single demonstration sparsified into anchors is a route
+too (:func:`route_from_trajectory`). The follower reads only the anchors'
+observation contexts (and the edge probabilities); the poses ride along as
+privileged metadata for plots and evaluation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+
+
+@dataclass
+class Route:
+    """Anchors in driving order.
+
+    ``contexts`` (A, 2k+1, ...): each anchor's target context, past to
+    future (camera uint8 images (H, W, 3), lidar ranges (beams,) or, for
+    the pose oracle, poses (3,)); ``poses`` (A, 3): where each anchor was
+    taken (metadata, never read by the follower); ``vertices``: the map
+    vertex of each anchor (-1 when the route does not come from a map);
+    ``edge_probability`` (A - 1,): the predicted probability of each hop;
+    ``probability``: the whole route's (the product of its hops, and of the
+    start and goal links when planned)."""
+
+    contexts: np.ndarray
+    poses: np.ndarray
+    vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    edge_probability: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    probability: float = 1.0
+    modality: str = "camera"
+
+    def __post_init__(self) -> None:
+        self.contexts = np.asarray(self.contexts)
+        self.poses = np.asarray(self.poses, np.float64).reshape(-1, 3)
+        n = len(self.contexts)
+        if n < 1:
+            raise TopodrakeError("a route needs at least one anchor")
+        if len(self.poses) != n:
+            raise TopodrakeError(f"a route of {n} anchors has {len(self.poses)} poses")
+        if len(self.vertices) == 0:
+            self.vertices = np.full(n, -1, np.int64)
+        if len(self.edge_probability) == 0:
+            self.edge_probability = np.ones(n - 1)
+        self.vertices = np.asarray(self.vertices, np.int64)
+        self.edge_probability = np.asarray(self.edge_probability, np.float64)
+        if len(self.vertices) != n or len(self.edge_probability) != n - 1:
+            raise TopodrakeError(f"a route of {n} anchors needs {n} vertices and {n - 1} edge "
+                                 f"probabilities, got {len(self.vertices)} and "
+                                 f"{len(self.edge_probability)}")
+
+    def __len__(self) -> int:
+        return len(self.contexts)
+
+    @property
+    def goal_pose(self) -> np.ndarray:
+        return self.poses[-1]
+
+
+def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network) -> Route:
+    """The route along frames ``anchors`` of one trajectory (``poses`` (T, 3)),
+    with each anchor's context rendered for ``network`` (its ``observation``,
+    ``k``, ``frame_step`` and ``sensor``; a pose oracle gets the poses)."""
+    from topodrake.learning.policy import context_frames
+
+    poses = np.asarray(poses, np.float64)
+    anchors = np.asarray(anchors, np.int64)
+    if len(anchors) == 0 or anchors.min() < 0 or anchors.max() >= len(poses):
+        raise TopodrakeError(f"anchors must be frames 0..{len(poses) - 1} of the trajectory")
+    rows = context_frames(len(poses), anchors, network.k, network.frame_step)   # (A, 2k+1)
+    ctx_poses = poses[rows]
+    if network.observation == "pose":
+        contexts = ctx_poses
+    else:
+        from topodrake.sensing.observe import observe
+
+        obs = observe(world, network.observation, ctx_poses.reshape(-1, 3),
+                      getattr(network, "sensor", None))
+        contexts = obs.reshape(*rows.shape, *obs.shape[1:])
+    return Route(contexts, poses[anchors], modality=network.observation)
