@@ -17,6 +17,12 @@ if "NUMBA_THREADING_LAYER" not in _os.environ:
 
     _numba.config.THREADING_LAYER = "workqueue"
 
+# Compiled kernels are cached between processes in a directory keyed by their
+# sources (see topodrake.jitcache); this must precede every kernel module.
+from topodrake import jitcache as _jitcache  # noqa: E402
+
+_jitcache.configure()
+
 from topodrake.errors import TopodrakeError  # noqa: E402
 
 __all__ = ["TopodrakeError"]

@@ -20,7 +20,7 @@ from topodrake.sensing.config import LidarConfig
 from topodrake.vehicle import VehicleConfig
 
 
-@nb.njit(cache=False)
+@nb.njit(cache=True)
 def _expert_car(i, clear, ox, oy, res, points, offsets, arclen, cars, progress, memory,
                 poses, has_heading, obs_all, omask_all, eprm, prm, pts, buf, bmask, sc,
                 out_wp, out_progress, stats):
@@ -127,7 +127,7 @@ def _expert_car(i, clear, ox, oy, res, points, offsets, arclen, cars, progress, 
         mem[_M_TRUST] = eprm[_E_TRUST]
 
 
-@nb.njit(cache=False)
+@nb.njit(cache=True)
 def _expert(clear, ox, oy, res, points, offsets, arclen, cars, progress, memory,
             poses, has_heading, obs_all, omask_all, faces, cstart, cfaces, sgrid, beams,
             eprm, prm, pts, out_wp, out_progress, stats):
@@ -141,7 +141,7 @@ def _expert(clear, ox, oy, res, points, offsets, arclen, cars, progress, memory,
                     out_wp, out_progress, stats)
 
 
-@nb.njit(cache=False, parallel=True)
+@nb.njit(cache=True, parallel=True)
 def _expert_parallel(clear, ox, oy, res, points, offsets, arclen, cars, progress, memory,
                      poses, has_heading, obs_all, omask_all, faces, cstart, cfaces, sgrid, beams,
                      eprm, prm, pts, out_wp, out_progress, stats):

@@ -61,7 +61,7 @@ def _local_obstacles(obs, omask, eprm, x, y, c, s, buf, bmask):
     return k
 
 
-@nb.njit(cache=False)
+@nb.njit(cache=True)
 def _rollout(clear, ox, oy, res, eprm, prm, pts, obs, omask, buf, bmask, sc, points, arclen, hi,
              p, x, y, th, v, d, wx, wy, steps, follow):
     """Roll the noise-free RMP and bicycle model forward for ``steps``
@@ -142,7 +142,7 @@ def _rank(cls, value):
     return 1000.0 * cls + value
 
 
-@nb.njit(cache=False)
+@nb.njit(cache=True)
 def _follow(clear, ox, oy, res, eprm, prm, pts, obs, omask, buf, bmask, sc, points, arclen, lo,
             hi, p, x, y, th, v, d, steps, s_ref, t0):
     """Predicted path following for ``steps`` periods from state (x, y, th,
@@ -169,7 +169,7 @@ def _follow(clear, ox, oy, res, eprm, prm, pts, obs, omask, buf, bmask, sc, poin
     return _rank(_STALLS, s1 - s_ref)
 
 
-@nb.njit(cache=False)
+@nb.njit(cache=True)
 def _leg(clear, ox, oy, res, eprm, prm, pts, obs, omask, buf, bmask, sc, points, arclen, hi, p,
          x, y, th, v, d, angle):
     """A manoeuvre leg: ``manoeuvre_s`` toward the auxiliary waypoint at
@@ -180,7 +180,7 @@ def _leg(clear, ox, oy, res, eprm, prm, pts, obs, omask, buf, bmask, sc, points,
                     y + rad * math.sin(th + angle), int(eprm[_E_MSTEPS]), False)
 
 
-@nb.njit(cache=False)
+@nb.njit(cache=True)
 def _search(clear, ox, oy, res, eprm, prm, pts, obs, omask, buf, bmask, sc, points, arclen, lo, hi,
             p, x, y, th, v, d, s_ref):
     """Best manoeuvre of one or two legs, each toward an auxiliary waypoint
