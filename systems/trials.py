@@ -23,13 +23,14 @@ def _runner(world: str, noise_std: float, camera: bool):
 def expert_trial(seed: int, world: str = "test-0", start_place: int = 0, goal_place: int = 1,
                  noise_std: float = 0.33, camera: bool = False, t_max_s: float = 150.0) -> dict:
     """One expert drive between two places of ``world``; returns its summary
-    (without the wall time, so results compare across machines)."""
+    (without the wall and start-up times, so results compare across machines)."""
     runner = _runner(world, float(noise_std), bool(camera))
     w = runner.built.world
     result = runner.run(start=w.places[start_place], goal=w.places[goal_place, :2],
                         seed=seed, t_max_s=t_max_s)
     summary = result.summary()
     summary.pop("wall_time_s")
+    summary.pop("startup_s")
     summary["seed"] = seed
     return summary
 
@@ -107,6 +108,7 @@ def controller_trial(seed: int, checkpoint: str = "oracle", noise_std: float = 0
                         t_max_s=pair.t_max_s)
     out = result.summary()
     out.pop("wall_time_s")
+    out.pop("startup_s")
     out.update(seed=seed, pair=pair.summary())
     return out
 
