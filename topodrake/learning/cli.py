@@ -85,6 +85,27 @@ def add_train_parser(sub) -> None:
         tw.add_argument("--quiet", action="store_true", help="no progress bar")
         tw.add_argument("--json", action="store_true", help="print the result as one JSON object")
         tw.set_defaults(func=func)
+    tp = tsub.add_parser("place", help="train the place embedding that ranks map vertices")
+    tp.add_argument("config", help="training YAML (see configs/place_*.yaml)")
+    tp.add_argument("--out", help="output folder (default: checkpoints/<config name>)")
+    tp.add_argument("--data", default="data", help="cache of demonstrations")
+    tp.add_argument("--quiet", action="store_true", help="no progress lines")
+    tp.set_defaults(func=cmd_train_place)
+
+
+def cmd_train_place(args) -> None:
+    from pathlib import Path
+
+    from topodrake.topomap.embedding_train import load_place_config, train_place
+
+    out = args.out or str(Path("checkpoints") / Path(args.config).stem)
+    command = f"topodrake train place {args.config}" + (f" --out {args.out}" if args.out else "")
+    if args.data != "data":
+        command += f" --data {args.data}"
+    result = train_place(load_place_config(args.config), out, args.data,
+                         progress=not args.quiet, command=command)
+    print(json.dumps({"checkpoint": str(result.checkpoint), "steps": result.steps,
+                      "wall_time_s": round(result.wall_time_s, 1), "metrics": result.metrics}))
 
 
 def cmd_bench_networks(args) -> None:
@@ -147,3 +168,19 @@ def add_bench_parser(bsub) -> None:
     br.add_argument("--seed", type=int, default=0)
     br.add_argument("--json", action="store_true")
     br.set_defaults(func=cmd_bench_reachability)
+    bp = bsub.add_parser("place", help="place-embedding recall@K against a thumbnail baseline, "
+                                       "and search time at 100,000 vertices")
+    bp.add_argument("--checkpoint", default="checkpoints/place_camera/checkpoint.pt")
+    bp.add_argument("--world", default="test-0")
+    bp.add_argument("--data", default="data", help="cache of demonstrations")
+    bp.add_argument("--threads", type=int, default=1)
+    bp.add_argument("--seed", type=int, default=0)
+    bp.add_argument("--json", action="store_true")
+    bp.set_defaults(func=cmd_bench_place)
+
+
+def cmd_bench_place(args) -> None:
+    from topodrake.topomap.embedding_eval import bench_place
+
+    _print_figures(args, bench_place(args.checkpoint, args.world, args.data, args.seed,
+                                     args.threads))
