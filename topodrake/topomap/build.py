@@ -1,0 +1,238 @@
+"""Grow a map one trajectory at a time (the paper's "Building a Topological Map").
+
+For each new drive, from its observations only:
+
+1. **Sparsify** it into anchors at ``p_sparsify``
+   (:func:`topodrake.topomap.sparsify.sparsify`).
+2. **Reuse** vertices: an existing vertex v replaces a new anchor when
+   RE(prev, v) and RE(v, next) both exceed ``p_reuse`` (prev: the chain's
+   previous node, next: the drive's next anchor; the anchor itself at the
+   ends); the largest product wins. Vertices reused from one older drive
+   must keep that drive's order, and no vertex is used twice in a chain.
+3. **Link** consecutive chain nodes with trajectory edges (p = RE).
+4. **Cross edges** between every new vertex x and the map, both ways: the
+   candidates are the ``retrieval_k`` vertices nearest in the place
+   embedding; RE checks each single pair; pairs above ``p_edge`` are
+   **sequence matched**: the minimum RE over the aligned chain neighbours up
+   to ``sequence_window`` anchors either side (where both chains have them)
+   must exceed ``p_edge`` too. An edge keeps the single pair's RE as its p.
+
+With ``audit=True`` step 4 also scores every vertex of the map (not only
+the retrieved ones) and records which cross edges the exhaustive pass
+makes, so the retrieval's recall is measured on the same map
+(:attr:`BuildStats.exhaustive_edges`, :attr:`BuildStats.found_edges`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.topomap.graph import TopoMap, Trajectory
+from topodrake.topomap.sparsify import sparsify
+
+
+@dataclass
+class BuildStats:
+    """What adding trajectories did (cumulative when reused)."""
+
+    trajectories: int = 0
+    frames: int = 0
+    anchors: int = 0
+    reused: int = 0
+    new_vertices: int = 0
+    cross_edges: int = 0
+    re_pairs: int = 0
+    exhaustive_edges: int = 0     # audit: cross edges the exhaustive pass makes
+    found_edges: int = 0          # audit: ... of which the retrieval pass made too
+
+    @property
+    def recall(self) -> float | None:
+        return self.found_edges / self.exhaustive_edges if self.exhaustive_edges else None
+
+
+def context_rows(n_frames: int, frames: np.ndarray, k: int, step: int) -> np.ndarray:
+    from topodrake.learning.policy import context_frames
+
+    return context_frames(n_frames, np.asarray(frames, np.int64), k, step).reshape(-1, 2 * k + 1)
+
+
+class _Scored:
+    """Counts RE pairs while scoring bank rows."""
+
+    def __init__(self, topomap: TopoMap, stats: BuildStats):
+        self.bank = topomap.bank
+        self.stats = stats
+
+    def __call__(self, source, rows) -> np.ndarray:
+        source = np.asarray(source, np.int64).reshape(-1)
+        self.stats.re_pairs += len(source)
+        return self.bank.score(source, rows)
+
+
+def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray | None = None,
+                   name: str = "", stats: BuildStats | None = None,
+                   audit: bool = False) -> BuildStats:
+    """Add one drive (its observations (T, ...) in time order; ``poses``
+    (T, 3) only ride along as metadata) to ``topomap``."""
+    m, cfg = topomap, topomap.config
+    stats = stats or BuildStats()
+    obs = np.asarray(observations)
+    n = len(obs)
+    if n < 1:
+        raise TopodrakeError(f"trajectory {name!r} has no frames")
+    score = _Scored(m, stats)
+    k, step = m.k, m.frame_step
+    start = len(m.bank)
+    rows = m.bank.append(obs, poses)
+    m.bank.ensure(rows)
+    ctx_local = context_rows(n, np.arange(n), k, step)
+    anchors = sparsify(n, lambda i, js: score(np.full(len(js), start + i), start + ctx_local[js]),
+                       cfg.p_sparsify, cfg.sparsify_window)
+    emb = m.embedding.embed(obs[anchors])
+
+    # -- reuse: the chain as ("v", vertex) or ("a", anchor index) nodes
+    def src(node) -> int:
+        return m.graph.nodes[node[1]]["center"] if node[0] == "v" else start + anchors[node[1]]
+
+    def ctx(node) -> np.ndarray:
+        return m.graph.nodes[node[1]]["context"] if node[0] == "v" else start + ctx_local[anchors[node[1]]]
+
+    chain: list[tuple[str, int]] = []
+    used: set[int] = set()
+    for i in range(len(anchors)):
+        here = ("a", i)
+        choice = here
+        if cfg.reuse and len(m.index):
+            prev = chain[-1] if chain else here
+            nxt = ("a", i + 1) if i + 1 < len(anchors) else here
+            cands = m.index.search(emb[i], cfg.retrieval_k, exclude=np.fromiter(used, np.int64))[0]
+            if prev[0] == "v":      # keep the order of a drive we reuse from
+                u = m.graph.nodes[prev[1]]
+                cands = np.array([v for v in cands if m.graph.nodes[v]["traj"] != u["traj"]
+                                  or m.graph.nodes[v]["pos"] > u["pos"]], np.int64)
+            if len(cands):
+                s1 = score(np.full(len(cands), src(prev)), m.contexts(cands))
+                ok = cands[s1 > cfg.p_reuse]
+                if len(ok):
+                    s2 = score(m.centers(ok), np.repeat(ctx(nxt)[None], len(ok), 0))
+                    both = s2 > cfg.p_reuse
+                    if both.any():
+                        prod = s1[s1 > cfg.p_reuse] * s2
+                        prod[~both] = -1.0
+                        best = int(ok[np.argmax(prod)])
+                        choice = ("v", best)
+                        used.add(best)
+                        stats.reused += 1
+        chain.append(choice)
+
+    # -- keep the frames the new vertices need, create them
+    new_idx = [node[1] for node in chain if node[0] == "a"]
+    keep = np.unique(start + ctx_local[anchors[new_idx]]) if new_idx else np.zeros(0, np.int64)
+    remap = m.bank.keep_tail(start, keep)
+    t = len(m.trajectories)
+    traj = Trajectory(name or f"trajectory-{t}", n)
+    m.trajectories.append(traj)
+    ids: list[int] = []
+    new_vertices: list[int] = []
+    for pos, node in enumerate(chain):
+        if node[0] == "v":
+            ids.append(node[1])
+            continue
+        a = int(anchors[node[1]])
+        v = m.add_vertex(t, a, pos, remap[a], remap[ctx_local[a]])
+        ids.append(v)
+        new_vertices.append(v)
+    traj.chain = ids
+    m.raw_frames += n
+    stats.trajectories += 1
+    stats.frames += n
+    stats.anchors += len(anchors)
+    stats.new_vertices += len(new_vertices)
+
+    # -- trajectory edges between consecutive chain nodes
+    pairs = [(u, v) for u, v in zip(ids[:-1], ids[1:]) if u != v]
+    if pairs:
+        us, vs = np.array(pairs).T
+        for u, v, p in zip(us, vs, score(m.centers(us), m.contexts(vs))):
+            m.add_edge(int(u), int(v), float(p), "trajectory")
+
+    if new_vertices:
+        new_pos = [ids.index(v) for v in new_vertices]
+        m.index.add(np.array(new_vertices), emb[[chain[p][1] for p in new_pos]])
+        for v, pos in zip(new_vertices, new_pos):
+            _cross_edges(m, v, ids, pos, emb[chain[pos][1]], score, stats, audit)
+    return stats
+
+
+def _cross_edges(m: TopoMap, x: int, chain: list[int], pos: int, query: np.ndarray, score,
+                 stats: BuildStats, audit: bool) -> None:
+    cfg = m.config
+    near = {chain[j] for j in range(max(0, pos - 1), min(len(chain), pos + 2))}
+    exclude = np.fromiter(near, np.int64)
+    found = _passing(m, x, chain, pos, m.index.search(query, cfg.retrieval_k, exclude)[0], score)
+    for (u, v), p in found.items():
+        m.add_edge(u, v, p, "cross")
+    stats.cross_edges += len(found)
+    if audit:
+        everyone = m.index.ids[~np.isin(m.index.ids, exclude)]
+        every = _passing(m, x, chain, pos, everyone, score, count=False)
+        stats.exhaustive_edges += len(every)
+        stats.found_edges += len(set(every) & set(found))
+
+
+def _passing(m: TopoMap, x: int, chain: list[int], pos: int, cands: np.ndarray, score,
+             count: bool = True) -> dict:
+    """Cross edges {(u, v): p} between vertex ``x`` (at ``pos`` of ``chain``)
+    and candidates ``cands`` that pass the single RE and sequence matching."""
+    cfg = m.config
+    if len(cands) == 0:
+        return {}
+    run = score if count else (lambda s, r: m.bank.score(s, r))
+    cx = np.full(len(cands), m.graph.nodes[x]["center"])
+    p_out = run(cx, m.contexts(cands))                                         # x -> v
+    p_in = run(m.centers(cands), np.repeat(m.contexts([x]), len(cands), 0))    # v -> x
+    # sequence matching over the aligned neighbours of the single pairs that pass
+    src, dst, owner = [], [], []
+    tests = []
+    for c, v in enumerate(cands):
+        other, j = m.origin_chain(int(v))
+        offsets = [d for d in range(-cfg.sequence_window, cfg.sequence_window + 1)
+                   if d and 0 <= pos + d < len(chain) and 0 <= j + d < len(other)]
+        for forward, p in ((True, p_out[c]), (False, p_in[c])):
+            if p <= cfg.p_edge:
+                continue
+            tests.append((c, forward))
+            for d in offsets:
+                a, b = chain[pos + d], other[j + d]
+                src.append(a if forward else b)
+                dst.append(b if forward else a)
+                owner.append(len(tests) - 1)
+    if not tests:
+        return {}
+    low = np.ones(len(tests))
+    if src:
+        ps = run(m.centers(src), m.contexts(dst))
+        np.minimum.at(low, np.array(owner), ps)
+    out = {}
+    for (c, forward), lowest in zip(tests, low):
+        if lowest > cfg.p_edge:
+            v = int(cands[c])
+            out[(x, v) if forward else (v, x)] = float(p_out[c] if forward else p_in[c])
+    return out
+
+
+def build_map(topomap: TopoMap, trajectories, progress: bool = True, audit: bool = False,
+              desc: str = "map build") -> BuildStats:
+    """Add ``trajectories`` (an iterable of (observations, poses, name)) one by one."""
+    from tqdm import tqdm
+
+    items = list(trajectories) if not hasattr(trajectories, "__len__") else trajectories
+    stats = BuildStats()
+    bar = tqdm(items, desc=desc, disable=not progress, unit="traj")
+    for obs, poses, name in bar:
+        add_trajectory(topomap, obs, poses, name, stats, audit)
+        bar.set_postfix(vertices=len(topomap), edges=topomap.n_edges)
+    return stats

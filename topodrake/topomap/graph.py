@@ -1,0 +1,162 @@
+"""The topological map: anchors as vertices of a networkx DiGraph.
+
+A vertex is an anchor frame of a driven trajectory. It knows the trajectory
+and frame it came from, its position in that trajectory's chain, and the
+rows of its observation context in the map's
+:class:`~topodrake.topomap.bank.FrameBank` (``center``: the anchor frame
+itself, ``context``: the 2k+1 frames a target needs). Building and
+planning read observations (through RE) only; where a frame was taken
+(``TopoMap.pose``) is privileged metadata for plots and evaluation.
+
+An edge u -> v carries ``p``, the predicted probability that the controller
+drives from u to v, ``weight`` = -log p (what Dijkstra adds up) and
+``kind``: ``"trajectory"`` (consecutive anchors of one drive) or
+``"cross"`` (found between drives).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import networkx as nx
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.topomap.bank import FrameBank
+from topodrake.topomap.retrieval import VertexIndex
+
+EDGE_KINDS = ("trajectory", "cross")
+
+
+@dataclass
+class MapConfig:
+    """How a map is built and queried (the paper's settings by default)."""
+
+    p_sparsify: float = 0.99     # anchors: the next one is the last frame RE passes above this
+    p_reuse: float = 0.99        # an existing vertex replaces a new anchor above this (both hops)
+    p_edge: float = 0.99         # cross edges: sequence-matched RE above this
+    sequence_window: int = 2     # aligned anchors on each side for sequence matching
+    retrieval_k: int = 32        # vertices ranked by the embedding that RE checks
+    p_link: float = 0.5          # planning: start and goal links above this
+    sparsify_window: int = 4     # first window of candidates in the greedy scan
+    reuse: bool = True
+
+    def validate(self, where: str = "map config") -> "MapConfig":
+        for name in ("p_sparsify", "p_reuse", "p_edge", "p_link"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
+                raise TopodrakeError(f"{where}: {name} must be in (0, 1), got {v}")
+        for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1)):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < low:
+                raise TopodrakeError(f"{where}: {name} must be an integer >= {low}, got {v}")
+        return self
+
+
+@dataclass
+class Trajectory:
+    """A drive added to the map: its name, length and chain of vertices."""
+
+    name: str
+    frames: int
+    chain: list[int] = field(default_factory=list)
+
+
+class TopoMap:
+    """Vertices, edges, the kept frames and the retrieval index of one map."""
+
+    def __init__(self, scorer, embedding, config: MapConfig | None = None, world: str = "",
+                 identity: dict | None = None):
+        self.scorer = scorer
+        self.embedding = embedding
+        self.config = (config or MapConfig()).validate()
+        self.world = world
+        self.identity = identity if identity is not None else dict(scorer.identity)
+        self.graph = nx.DiGraph()
+        self.bank = FrameBank(scorer)
+        self.index = VertexIndex(embedding)
+        self.trajectories: list[Trajectory] = []
+        self.raw_frames = 0
+
+    # -- shape ------------------------------------------------------------------
+    @property
+    def modality(self) -> str:
+        return self.scorer.observation
+
+    @property
+    def k(self) -> int:
+        return self.scorer.k
+
+    @property
+    def frame_step(self) -> int:
+        return self.scorer.frame_step
+
+    def __len__(self) -> int:
+        return self.graph.number_of_nodes()
+
+    @property
+    def n_edges(self) -> int:
+        return self.graph.number_of_edges()
+
+    def edge_counts(self) -> dict:
+        out = dict.fromkeys(EDGE_KINDS, 0)
+        for _, _, kind in self.graph.edges(data="kind"):
+            out[kind] += 1
+        return out
+
+    # -- vertices -----------------------------------------------------------------
+    def add_vertex(self, traj: int, frame: int, pos: int, center: int, context: np.ndarray) -> int:
+        v = self.graph.number_of_nodes()
+        while v in self.graph:
+            v += 1
+        self.graph.add_node(v, traj=int(traj), frame=int(frame), pos=int(pos), center=int(center),
+                            context=np.asarray(context, np.int64))
+        return v
+
+    def centers(self, vertices) -> np.ndarray:
+        return np.array([self.graph.nodes[v]["center"] for v in vertices], np.int64)
+
+    def contexts(self, vertices) -> np.ndarray:
+        rows = [self.graph.nodes[v]["context"] for v in vertices]
+        return np.array(rows, np.int64).reshape(len(rows), 2 * self.k + 1)
+
+    def pose(self, vertices) -> np.ndarray:
+        """Where the anchors were taken (metadata; NaN when unknown)."""
+        return self.bank.poses[self.centers(vertices)]
+
+    def origin_chain(self, v: int) -> tuple[list[int], int]:
+        """The chain of the drive that created vertex ``v``, and its position there."""
+        node = self.graph.nodes[v]
+        return self.trajectories[node["traj"]].chain, node["pos"]
+
+    # -- edges --------------------------------------------------------------------
+    def add_edge(self, u: int, v: int, p: float, kind: str) -> None:
+        """Add u -> v; an existing edge keeps the larger probability, and a
+        trajectory edge is never demoted to a cross edge."""
+        if kind not in EDGE_KINDS:
+            raise ValueError(f"edge kind must be one of {EDGE_KINDS}")
+        if u == v:
+            return
+        p = float(min(max(p, 1e-12), 1.0))
+        old = self.graph.get_edge_data(u, v)
+        if old is not None:
+            p = max(p, old["p"])
+            if old["kind"] == "trajectory":
+                kind = "trajectory"
+        self.graph.add_edge(u, v, p=p, weight=-math.log(p), kind=kind)
+
+    def set_edge_probability(self, u: int, v: int, p: float) -> None:
+        p = float(min(max(p, 1e-12), 1.0))
+        self.graph.edges[u, v].update(p=p, weight=-math.log(p))
+
+    # -- summary ------------------------------------------------------------------
+    def info(self) -> dict:
+        n, e = len(self), self.n_edges
+        return {"world": self.world, "modality": self.modality, "vertices": n, "edges": e,
+                "edge_kinds": self.edge_counts(), "trajectories": len(self.trajectories),
+                "raw_frames": self.raw_frames,
+                "keep_ratio": round(n / self.raw_frames, 5) if self.raw_frames else 0.0,
+                "kept_frames": len(self.bank),
+                "checkpoints": {k: v for k, v in self.identity.items()},
+                "embedding": self.embedding.name, "config": asdict(self.config)}

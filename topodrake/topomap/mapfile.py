@@ -1,0 +1,186 @@
+"""The map file (``.tdmap``): one versioned file, written atomically.
+
+A map file is a compressed NumPy archive (zip) without pickled objects:
+
+==================  ==========================================================
+``meta``            JSON (UTF-8 bytes): ``format`` "topodrake-map", ``version``,
+                    ``world``, ``modality``, ``k``, ``frame_step``, ``config``
+                    (:class:`~topodrake.topomap.graph.MapConfig`), ``identity``
+                    (the RE and C_WP checkpoints and their SHA-1, or the
+                    oracle), ``embedding`` (name and fingerprint),
+                    ``raw_frames``, ``trajectories`` (name and frames each)
+``observations``    (F, ...) kept frames: camera uint8 (H, W, 3), lidar ranges
+                    in millimetres uint16 (65535 = no hit), oracle poses
+``poses``           (F, 3) where each frame was taken (metadata)
+``vertex_*``        per vertex: ``id``, ``center`` row, ``context`` rows
+                    (V, 2k+1), origin ``traj``, ``frame`` and chain ``pos``
+``edge_*``          per edge: ``src``, ``dst``, ``p``, ``kind`` (0 trajectory, 1 cross)
+``chain_ids``       every trajectory's chain of vertices, concatenated;
+``chain_offsets``   (trajectories + 1,) into it
+``embeddings``      (V, D) the vertices' place embeddings
+==================  ==========================================================
+
+:func:`load_map` refuses a truncated or foreign file, an unknown version, and
+a map built for another RE or controller than the one given, each with one
+line naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.fileio import atomic_write_bytes
+from topodrake.topomap.graph import EDGE_KINDS, MapConfig, TopoMap, Trajectory
+
+FORMAT = "topodrake-map"
+VERSION = 1
+_NO_HIT_MM = 65535
+
+
+def _encode_observations(modality: str, obs: np.ndarray) -> np.ndarray:
+    if modality == "camera":
+        return np.asarray(obs, np.uint8)
+    if modality == "lidar":
+        mm = np.round(np.asarray(obs, np.float64) * 1000.0)
+        return np.where(np.isfinite(mm) & (mm < _NO_HIT_MM), mm, _NO_HIT_MM).astype(np.uint16)
+    return np.asarray(obs, np.float64)
+
+
+def _decode_observations(modality: str, stored: np.ndarray) -> np.ndarray:
+    if modality == "lidar":
+        return np.where(stored == _NO_HIT_MM, np.inf, stored / 1000.0).astype(np.float32)
+    return stored
+
+
+def save_map(topomap: TopoMap, path) -> Path:
+    """Write ``topomap`` to ``path`` atomically (the old file stays until the new one is whole)."""
+    m = topomap
+    verts = np.array(sorted(m.graph.nodes), np.int64)
+    nodes = [m.graph.nodes[v] for v in verts]
+    edges = list(m.graph.edges(data=True))
+    chains = [t.chain for t in m.trajectories]
+    emb = np.zeros((0, m.index.vectors.shape[1]), np.float32)
+    if len(verts):
+        order = {int(v): i for i, v in enumerate(m.index.ids)}
+        emb = m.index.vectors[[order[int(v)] for v in verts]]
+    meta = {"format": FORMAT, "version": VERSION, "world": m.world, "modality": m.modality,
+            "k": m.k, "frame_step": m.frame_step, "config": asdict(m.config),
+            "identity": m.identity,
+            "embedding": {"name": m.embedding.name, "fingerprint": m.embedding.fingerprint()},
+            "raw_frames": m.raw_frames,
+            "trajectories": [{"name": t.name, "frames": t.frames} for t in m.trajectories]}
+    buf = io.BytesIO()
+    np.savez_compressed(
+        buf, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8),
+        observations=_encode_observations(m.modality, m.bank.observations),
+        poses=m.bank.poses,
+        vertex_id=verts, vertex_center=np.array([n["center"] for n in nodes], np.int64),
+        vertex_context=np.array([n["context"] for n in nodes], np.int64).reshape(len(verts), -1),
+        vertex_traj=np.array([n["traj"] for n in nodes], np.int64),
+        vertex_frame=np.array([n["frame"] for n in nodes], np.int64),
+        vertex_pos=np.array([n["pos"] for n in nodes], np.int64),
+        edge_src=np.array([u for u, _, _ in edges], np.int64),
+        edge_dst=np.array([v for _, v, _ in edges], np.int64),
+        edge_p=np.array([d["p"] for _, _, d in edges], np.float64),
+        edge_kind=np.array([EDGE_KINDS.index(d["kind"]) for _, _, d in edges], np.uint8),
+        chain_ids=np.array([v for c in chains for v in c], np.int64),
+        chain_offsets=np.cumsum([0] + [len(c) for c in chains]).astype(np.int64),
+        embeddings=emb)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def read_map_meta(path) -> dict:
+    """The ``meta`` of a map file, checked (format and version)."""
+    meta, _ = _read(path, arrays=False)
+    return meta
+
+
+def _read(path, arrays: bool = True) -> tuple[dict, dict]:
+    path = Path(path)
+    if not path.is_file():
+        raise TopodrakeError(f"map file {path} does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(bytes(z["meta"]).decode())
+            if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+                raise TopodrakeError(f"{path} is not a topodrake map file")
+            if meta.get("version") != VERSION:
+                raise TopodrakeError(f"{path} has map format version {meta.get('version')}; "
+                                     f"this topodrake reads version {VERSION}")
+            data = {name: z[name] for name in z.files if name != "meta"} if arrays else {}
+    except TopodrakeError:
+        raise
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as e:
+        raise TopodrakeError(f"{path} is truncated or not a topodrake map file "
+                             f"({type(e).__name__})") from None
+    return meta, data
+
+
+def check_identity(path, meta: dict, identity: dict) -> None:
+    """Refuse a map built for another RE or controller than ``identity``."""
+    have = meta.get("identity", {})
+    for key, what in (("reach", "reachability estimator"), ("controller", "controller")):
+        sha = f"{key}_sha1"
+        if sha in have or sha in identity:
+            if have.get(sha) != identity.get(sha):
+                raise TopodrakeError(
+                    f"{path} was built for the {what} {have.get(key, '?')} "
+                    f"(sha1 {str(have.get(sha, '?'))[:10]}), not {identity.get(key, '?')} "
+                    f"(sha1 {str(identity.get(sha, '?'))[:10]})")
+        elif have.get(key) != identity.get(key):
+            raise TopodrakeError(f"{path} was built for the {what} {have.get(key, '?')}, "
+                                 f"not {identity.get(key, '?')}")
+
+
+def load_map(path, scorer, embedding=None) -> TopoMap:
+    """Read a map file for ``scorer`` (its identity must match the file's).
+    ``embedding`` defaults to the shipped one of the map's modality; if its
+    fingerprint differs from the file's, the vertices are embedded anew."""
+    from topodrake.topomap.retrieval import default_embedding
+
+    meta, z = _read(path)
+    check_identity(path, meta, scorer.identity)
+    try:
+        modality, k = meta["modality"], int(meta["k"])
+        if modality != scorer.observation or k != scorer.k:
+            raise TopodrakeError(f"{path} is a {modality} map with k={k}; the reachability "
+                                 f"given is {scorer.observation} with k={scorer.k}")
+        config = MapConfig(**meta["config"]).validate(f"{path}: config")
+        embedding = embedding or default_embedding(modality)
+        m = TopoMap(scorer, embedding, config, meta.get("world", ""), meta["identity"])
+        obs = _decode_observations(modality, z["observations"])
+        m.bank.append(obs, z["poses"])
+        n_rows = len(obs)
+        for v, c, ctx, t, f, p in zip(z["vertex_id"], z["vertex_center"], z["vertex_context"],
+                                      z["vertex_traj"], z["vertex_frame"], z["vertex_pos"]):
+            if not (0 <= c < n_rows and ctx.min(initial=0) >= 0 and ctx.max(initial=0) < n_rows):
+                raise TopodrakeError(f"{path}: vertex {v} refers to frames outside the file")
+            m.graph.add_node(int(v), traj=int(t), frame=int(f), pos=int(p), center=int(c),
+                             context=np.asarray(ctx, np.int64))
+        for u, v, p, kind in zip(z["edge_src"], z["edge_dst"], z["edge_p"], z["edge_kind"]):
+            m.add_edge(int(u), int(v), float(p), EDGE_KINDS[int(kind)])
+        off, ids = z["chain_offsets"], z["chain_ids"]
+        for i, t in enumerate(meta["trajectories"]):
+            m.trajectories.append(Trajectory(t["name"], int(t["frames"]),
+                                             [int(v) for v in ids[off[i]:off[i + 1]]]))
+        m.raw_frames = int(meta["raw_frames"])
+        verts = z["vertex_id"]
+        if (meta.get("embedding", {}).get("fingerprint") == embedding.fingerprint()
+                and len(z["embeddings"]) == len(verts)):
+            vectors = z["embeddings"]
+        else:
+            vectors = embedding.embed(m.bank.observations[z["vertex_center"]]) if len(verts) \
+                else np.zeros((0, embedding.dim), np.float32)
+        m.index.add(verts, vectors)
+    except TopodrakeError:
+        raise
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        raise TopodrakeError(f"{path} is an inconsistent map file ({type(e).__name__}: {e})") from None
+    return m

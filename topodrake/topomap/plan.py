@@ -1,0 +1,133 @@
+"""Plan on a map (the paper's "Planning"): Dijkstra on -log p.
+
+The start is the car's current observation and the goal an observation of
+the destination; neither needs to be a vertex. Both become temporary
+vertices: the start is linked to the map vertices v with RE(start, v) above
+``p_link`` (0.5), and the vertices v with RE(v, goal) above it are linked to
+the goal (whose context is the goal observation repeated, or a full context
+when one is given); the candidates come from the same retrieval as map
+building. Dijkstra on the edge weights -log p gives the most probable path;
+its probability is exp(-cost). An unreachable goal is a result
+(:attr:`PlanResult.reachable` False with a reason), never an exception.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import networkx as nx
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.navigation.route import Route
+from topodrake.topomap.graph import TopoMap
+
+START, GOAL = -1, -2
+
+
+@dataclass
+class PlanResult:
+    reachable: bool
+    probability: float = 0.0
+    vertices: list[int] = field(default_factory=list)   # map vertices in driving order
+    route: Route | None = None                          # vertices' contexts + the goal
+    reason: str = ""
+    start_links: int = 0
+    goal_links: int = 0
+
+    def summary(self) -> dict:
+        return {"reachable": self.reachable, "path": [int(v) for v in self.vertices],
+                "probability": round(self.probability, 6), "start_links": self.start_links,
+                "goal_links": self.goal_links, **({"reason": self.reason} if self.reason else {})}
+
+
+def _check_observation(topomap: TopoMap, obs: np.ndarray, what: str) -> np.ndarray:
+    obs = np.asarray(obs)
+    want = topomap.bank.observations.shape[1:]
+    if obs.shape != want:
+        raise TopodrakeError(f"the {what} observation has shape {obs.shape}; this "
+                             f"{topomap.modality} map needs {want}")
+    return obs
+
+
+def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation: np.ndarray,
+              goal_context: np.ndarray | None = None, start_pose=None, goal_pose=None,
+              excluded_edges=(), retrieval_k: int | None = None) -> PlanResult:
+    """The most probable path from ``start_observation`` to the goal.
+
+    ``goal_context`` (2k+1, ...) replaces the repeated goal observation as
+    the goal's target; ``start_pose``/``goal_pose`` are metadata for the
+    route (plots, evaluation); ``excluded_edges``: (u, v) map edges to
+    ignore (a replanning follower's failed ones)."""
+    m = topomap
+    if len(m) == 0:
+        raise TopodrakeError("the map has no vertices")
+    k = retrieval_k or m.config.retrieval_k
+    frames = 2 * m.k + 1
+    start_obs = _check_observation(m, start_observation, "start")
+    goal_obs = _check_observation(m, goal_observation, "goal")
+    if goal_context is None:
+        goal_context = np.repeat(goal_obs[None], frames, 0)
+    goal_context = np.asarray(goal_context)
+    if goal_context.shape != (frames, *goal_obs.shape):
+        raise TopodrakeError(f"the goal context must hold {frames} observations")
+    nan_pose = np.full(3, np.nan)
+    first = len(m.bank)
+    m.bank.append(np.concatenate([start_obs[None], goal_context]),
+                  np.vstack([start_pose if start_pose is not None else nan_pose,
+                             np.repeat([goal_pose if goal_pose is not None else nan_pose],
+                                       frames, 0)]))
+    s_row, g_rows = first, np.arange(first + 1, first + 1 + frames)
+    g = m.graph
+    try:
+        emb = m.embedding.embed(np.stack([start_obs, goal_obs]))
+        from_start, to_goal = m.index.search(emb, k)
+        p_start = m.bank.score(np.full(len(from_start), s_row), m.contexts(from_start))
+        p_goal = m.bank.score(m.centers(to_goal), np.repeat(g_rows[None], len(to_goal), 0))
+        p_direct = float(m.bank.score([s_row], g_rows[None])[0])
+        links_s = [(int(v), float(p)) for v, p in zip(from_start, p_start) if p > m.config.p_link]
+        links_g = [(int(v), float(p)) for v, p in zip(to_goal, p_goal) if p > m.config.p_link]
+        result = PlanResult(False, start_links=len(links_s), goal_links=len(links_g))
+        if not links_s and p_direct <= m.config.p_link:
+            result.reason = (f"no map vertex is reachable from the start (best RE "
+                             f"{max(p_start, default=0.0):.2f} <= {m.config.p_link})")
+            return result
+        if not links_g and p_direct <= m.config.p_link:
+            result.reason = (f"the goal is reachable from no map vertex (best RE "
+                             f"{max(p_goal, default=0.0):.2f} <= {m.config.p_link})")
+            return result
+        g.add_node(START)
+        g.add_node(GOAL)
+        for v, p in links_s:
+            g.add_edge(START, v, p=p, weight=-math.log(p), kind="start")
+        for v, p in links_g:
+            g.add_edge(v, GOAL, p=p, weight=-math.log(p), kind="goal")
+        if p_direct > m.config.p_link:
+            g.add_edge(START, GOAL, p=p_direct, weight=-math.log(p_direct), kind="direct")
+        banned = {(int(u), int(v)) for u, v in excluded_edges}
+        weight = (lambda u, v, d: None if (u, v) in banned else d["weight"]) if banned else "weight"
+        try:
+            cost, path = nx.single_source_dijkstra(g, START, GOAL, weight=weight)
+        except nx.NetworkXNoPath:
+            result.reason = "no path of the map joins the start's links to the goal's"
+            return result
+        probs = [g.edges[u, v]["p"] for u, v in zip(path[:-1], path[1:])]
+        vertices = [int(v) for v in path[1:-1]]
+        route = Route(
+            contexts=np.concatenate([m.bank.observations[m.contexts(vertices)],
+                                     goal_context[None]]) if vertices else goal_context[None],
+            poses=np.vstack([m.pose(vertices).reshape(-1, 3),
+                             (goal_pose if goal_pose is not None else nan_pose)[None]]),
+            vertices=np.array(vertices + [-1], np.int64),
+            edge_probability=np.array(probs[1:]),
+            probability=math.exp(-cost), modality=m.modality)
+        result.reachable, result.probability = True, math.exp(-cost)
+        result.vertices, result.route = vertices, route
+        return result
+    finally:
+        if START in g:
+            g.remove_node(START)
+        if GOAL in g:
+            g.remove_node(GOAL)
+        m.bank.keep_tail(first, np.zeros(0, np.int64))

@@ -1,0 +1,146 @@
+"""Reachability as the map asks it: any pair of kept frames, by row.
+
+A map keeps the raw observations of its anchors' context frames in one
+:class:`~topodrake.topomap.bank.FrameBank`. Building and planning ask
+"does the controller get from the frame at row ``s`` to the target whose
+context is rows ``c`` (2k+1)?" for batches of such pairs. A
+:class:`MapScorer` answers from per-frame features computed once per frame:
+
+* :class:`LearnedScorer` wraps the learned RE
+  (:class:`~topodrake.learning.reachability.Reachability`): the features
+  are the first layer's two halves of each image (and of its mirror image),
+  the pairs use the RE's anchor-hop calibration (map edges are short hops);
+* :class:`OracleScorer` is a privileged reachability from geometry (the
+  observation is the pose): straight-line distance, heading change, line of
+  sight and image overlap. It lets map tests run in seconds and separates
+  perception errors from planning errors in studies.
+
+Both carry an ``identity`` (content hashes of the RE and C_WP checkpoints,
+or the oracle's name and parameters) that a map file records and checks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Protocol
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+
+
+class MapScorer(Protocol):
+    observation: str        # "camera" | "lidar" | "pose"
+    k: int
+    frame_step: int
+    identity: dict
+
+    def features(self, observations: np.ndarray) -> dict: ...
+
+    def score(self, feats: dict, source: np.ndarray, context_rows: np.ndarray) -> np.ndarray: ...
+
+
+class LearnedScorer:
+    """The learned RE over bank rows (``features``: first-layer halves)."""
+
+    def __init__(self, reach, identity: dict | None = None):
+        self.reach = reach
+        self.observation = reach.observation
+        self.k = reach.k
+        self.frame_step = reach.frame_step
+        self.sensor = reach.sensor
+        self.identity = identity or {"reach": reach.name}
+
+    @classmethod
+    def from_checkpoints(cls, reach_path, controller_path) -> "LearnedScorer":
+        from topodrake.learning.reach_train import file_sha1
+        from topodrake.learning.reachability import Reachability
+
+        reach = Reachability.from_checkpoint(reach_path, controller_path)
+        return cls(reach, {"reach": str(reach_path), "reach_sha1": file_sha1(reach_path),
+                           "controller": str(controller_path),
+                           "controller_sha1": file_sha1(controller_path)})
+
+    def features(self, observations: np.ndarray) -> dict:
+        ff = self.reach.frame_features(observations)
+        out = {"current": ff.current, "target": ff.target}
+        if ff.mirrored is not None:
+            out["m_current"], out["m_target"] = ff.mirrored.current, ff.mirrored.target
+        return out
+
+    def score(self, feats: dict, source: np.ndarray, context_rows: np.ndarray) -> np.ndarray:
+        from topodrake.learning.reachability import FrameFeatures
+
+        mirrored = (FrameFeatures(feats["m_current"], feats["m_target"])
+                    if "m_current" in feats else None)
+        ff = FrameFeatures(feats["current"], feats["target"], mirrored)
+        return self.reach.pairwise(ff, np.asarray(source), np.asarray(context_rows))
+
+
+@dataclass
+class OracleConfig:
+    """The geometric oracle: p = p_max * s(reach_m - d) * s(turn_rad - |dtheta|)
+    * s(overlap - min_overlap), each s a logistic of the given softness, and
+    0 without a clear straight line between the two positions."""
+
+    p_max: float = 0.9995
+    reach_m: float = 2.5
+    reach_soft_m: float = 0.2
+    turn_rad: float = 1.2
+    turn_soft_rad: float = 0.1
+    min_overlap: float = 0.3
+    overlap_soft: float = 0.05
+    sight_clearance_m: float = 0.12
+
+
+def _logistic(x: np.ndarray) -> np.ndarray:
+    return 0.5 * (1.0 + np.tanh(0.5 * x))
+
+
+class OracleScorer:
+    """Privileged reachability from the poses (``observation = "pose"``):
+    reads the source pose and the context's centre pose only."""
+
+    observation = "pose"
+
+    def __init__(self, world, k: int = 5, frame_step: int = 3, config: OracleConfig | None = None):
+        self.world = world
+        self.k = k
+        self.frame_step = frame_step
+        self.sensor = None
+        self.config = config or OracleConfig()
+        self.identity = {"reach": "oracle-geometry", "config": asdict(self.config)}
+
+    def features(self, observations: np.ndarray) -> dict:
+        poses = np.asarray(observations, np.float64)
+        if poses.ndim != 2 or poses.shape[1] != 3:
+            raise TopodrakeError(f"the oracle's observations are poses (N, 3), got {poses.shape}")
+        return {"pose": poses}
+
+    def probability(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """p(car at poses ``a`` (N, 3) reaches poses ``b`` (N, 3))."""
+        from topodrake.expert.sight import segment_clear
+        from topodrake.sensing.overlap import mutual_overlap
+
+        c = self.config
+        a = np.asarray(a, np.float64).reshape(-1, 3)
+        b = np.asarray(b, np.float64).reshape(-1, 3)
+        d = np.hypot(*(b[:, :2] - a[:, :2]).T)
+        turn = np.abs((b[:, 2] - a[:, 2] + np.pi) % (2 * np.pi) - np.pi)
+        p = (c.p_max * _logistic((c.reach_m - d) / c.reach_soft_m)
+             * _logistic((c.turn_rad - turn) / c.turn_soft_rad))
+        near = np.flatnonzero(p > 1e-4)
+        if len(near):
+            g = self.world.grid
+            clear, (ox, oy), res = g.clearance, g.origin, g.resolution
+            sight = np.array([segment_clear(clear, ox, oy, res, c.sight_clearance_m,
+                                            *a[i, :2], *b[i, :2]) for i in near])
+            ov = mutual_overlap(self.world, a[near], b[near]).min(axis=1)
+            p[near] *= sight * _logistic((ov - c.min_overlap) / c.overlap_soft)
+        p[(d < 1e-9) & (turn < 1e-6)] = c.p_max
+        return p
+
+    def score(self, feats: dict, source: np.ndarray, context_rows: np.ndarray) -> np.ndarray:
+        poses = feats["pose"]
+        rows = np.asarray(context_rows, np.int64).reshape(len(source), -1)
+        return self.probability(poses[np.asarray(source, np.int64)], poses[rows[:, rows.shape[1] // 2]])
