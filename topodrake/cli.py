@@ -191,6 +191,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_train_parser(sub)
     add_sparsify_parser(sub)
+    from topodrake.topomap.map_cli import add_map_parser
+
+    add_map_parser(sub)
 
     bench = sub.add_parser("bench", help="benchmarks that print the issues' figures")
     bsub = bench.add_subparsers(dest="bench_command", required=True)

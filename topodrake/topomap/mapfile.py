@@ -102,6 +102,11 @@ def read_map_meta(path) -> dict:
     return meta
 
 
+def read_map_arrays(path) -> tuple[dict, dict]:
+    """``(meta, arrays)`` of a map file, checked, without building the map."""
+    return _read(path)
+
+
 def _read(path, arrays: bool = True) -> tuple[dict, dict]:
     path = Path(path)
     if not path.is_file():

@@ -1,0 +1,224 @@
+"""``topodrake map``: build, inspect, plot and plan on topological maps.
+
+    topodrake map build test-0 --modality camera --trajectories 90 --out t0.tdmap
+    topodrake map build test-0 --modality camera --add --out t0.tdmap   (grow it)
+    topodrake map info t0.tdmap --json
+    topodrake map plot t0.tdmap --out t0.png
+    topodrake map plan t0.tdmap --start 1.0,2.0,0 --goal 8.5,3.0,1.57 --json
+
+A plan that finds no path prints why and exits with status 1; a bad map
+file, pose or option exits with status 2.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+
+
+class Unreachable(TopodrakeError):
+    """The goal cannot be reached on the map (exit status 1)."""
+
+    exit_code = 1
+
+
+def parse_pose(text: str, what: str) -> np.ndarray:
+    """``"X,Y,YAW"`` -> (3,) (metres, metres, radians)."""
+    try:
+        values = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not np.all(np.isfinite(values)):
+        raise TopodrakeError(f"--{what} must be X,Y,YAW (three finite numbers), got {text!r}")
+    return np.array(values)
+
+
+def _load_config(path):
+    from topodrake.topomap.graph import MapConfig
+    from topodrake.typed_yaml import load_typed
+
+    return (load_typed(MapConfig, path, "map config") if path else MapConfig()).validate()
+
+
+def cmd_map_build(args) -> None:
+    from topodrake.topomap.build import build_map
+    from topodrake.topomap.graph import TopoMap
+    from topodrake.topomap.mapfile import load_map, save_map
+    from topodrake.topomap.retrieval import default_embedding
+    from topodrake.topomap.sources import demo_drives, drive_observations, make_scorer, scorer_for_map
+    from topodrake.world import load_world
+
+    wall = time.perf_counter()
+    if args.trajectories is not None and args.trajectories < 1:
+        raise TopodrakeError(f"--trajectories must be >= 1, got {args.trajectories}")
+    world = load_world(args.world)
+    out = Path(args.out)
+    if args.add:
+        if not out.is_file():
+            raise TopodrakeError(f"--add grows an existing map, and {out} does not exist")
+        scorer = scorer_for_map(out, args.reach, args.controller)
+        topomap = load_map(out, scorer)
+        if topomap.world != args.world:
+            raise TopodrakeError(f"{out} is a map of {topomap.world!r}, not of {args.world!r}")
+    else:
+        scorer = make_scorer(args.modality, world, args.reach, args.controller)
+        topomap = TopoMap(scorer, default_embedding(scorer.observation), _load_config(args.config),
+                          world=args.world)
+    folder, drives = demo_drives(args.world, args.demos, progress=not args.quiet)
+    have = {t.name for t in topomap.trajectories}
+    names = [f"{folder.name}/{i}" for i in range(len(drives))]
+    todo = [i for i, n in enumerate(names) if n not in have]
+    if args.trajectories is not None:
+        todo = todo[:args.trajectories]
+    if not todo:
+        raise TopodrakeError(f"every drive of {folder} is in the map already")
+    items = ((drive_observations(world, scorer, drives[i].poses), drives[i].poses, names[i])
+             for i in todo)
+    stats = build_map(topomap, _Sized(items, len(todo)), progress=not args.quiet,
+                      desc=f"map {world.name}")
+    save_map(topomap, out)
+    info = topomap.info()
+    summary = {"out": str(out), "vertices": info["vertices"], "edges": info["edges"],
+               "trajectories": info["trajectories"], "raw_frames": info["raw_frames"],
+               "keep_ratio": info["keep_ratio"], "added": stats.trajectories,
+               "reused": stats.reused, "re_pairs": stats.re_pairs,
+               "wall_s": round(time.perf_counter() - wall, 1)}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"wrote {out}: {summary['vertices']} vertices, {summary['edges']} edges from "
+              f"{summary['trajectories']} trajectories ({summary['raw_frames']} frames, keep "
+              f"ratio {summary['keep_ratio']:.4f}) in {summary['wall_s']} s")
+
+
+class _Sized:
+    """An iterator with a length (for the progress bar)."""
+
+    def __init__(self, items, n):
+        self.items, self.n = items, n
+
+    def __iter__(self):
+        return iter(self.items)
+
+    def __len__(self):
+        return self.n
+
+
+def map_info(path) -> dict:
+    from topodrake.topomap.mapfile import VERSION, read_map_arrays
+
+    meta, z = read_map_arrays(path)
+    v, e = len(z["vertex_id"]), len(z["edge_src"])
+    kinds = np.bincount(z["edge_kind"], minlength=2)
+    return {"file": str(path), "version": VERSION, "world": meta["world"],
+            "modality": meta["modality"], "vertices": v, "edges": e,
+            "trajectory_edges": int(kinds[0]), "cross_edges": int(kinds[1]),
+            "trajectories": len(meta["trajectories"]), "raw_frames": meta["raw_frames"],
+            "keep_ratio": round(v / meta["raw_frames"], 5) if meta["raw_frames"] else 0.0,
+            "kept_frames": len(z["observations"]), "checkpoints": meta["identity"],
+            "embedding": meta["embedding"]["name"], "config": meta["config"]}
+
+
+def cmd_map_info(args) -> None:
+    info = map_info(args.file)
+    if args.json:
+        print(json.dumps(info))
+        return
+    for key, value in info.items():
+        print(f"{key:<17} {json.dumps(value) if isinstance(value, dict) else value}")
+
+
+def cmd_map_plot(args) -> None:
+    from topodrake.topomap.plot import plot_map_file
+
+    plot_map_file(args.file, args.out)
+    print(f"wrote {args.out}")
+
+
+def cmd_map_plan(args) -> None:
+    from topodrake.topomap.mapfile import load_map, read_map_meta
+    from topodrake.topomap.plan import plan_path
+    from topodrake.topomap.sources import drive_observations, scorer_for_map
+    from topodrake.world import load_world
+
+    start, goal = parse_pose(args.start, "start"), parse_pose(args.goal, "goal")
+    meta = read_map_meta(args.file)
+    world = load_world(meta["world"])
+    world.check_pose(start, "start")
+    world.check_pose(goal, "goal")
+    topomap = load_map(args.file, scorer_for_map(args.file, args.reach, args.controller))
+    obs = drive_observations(world, topomap.scorer, np.stack([start, goal]))
+    wall = time.perf_counter()
+    result = plan_path(topomap, obs[0], obs[1], start_pose=start, goal_pose=goal)
+    query_s = time.perf_counter() - wall
+    if args.plot:
+        from topodrake.topomap.plot import plot_plan
+
+        plot_plan(topomap, result, start, goal, args.plot)
+    out = {"path": [int(v) for v in result.vertices], "probability": round(result.probability, 6),
+           "reachable": result.reachable, "query_s": round(query_s, 3)}
+    if not result.reachable:
+        out["reason"] = result.reason
+    if args.json:
+        print(json.dumps(out))
+    elif result.reachable:
+        print(f"path of {len(result.vertices)} anchors, probability {result.probability:.4f}: "
+              f"{' '.join(map(str, result.vertices))}")
+    if not result.reachable:
+        raise Unreachable(f"no plan: {result.reason}")
+
+
+def _checkpoint_options(p) -> None:
+    p.add_argument("--reach", help="RE checkpoint (default: the shipped RE of the modality, or "
+                                   "the one the map was built for)")
+    p.add_argument("--controller", help="the C_WP checkpoint that RE was trained for "
+                                        "(default: as --reach)")
+
+
+def add_map_parser(sub) -> None:
+    mp = sub.add_parser("map", help="build, inspect, plot and plan on topological maps")
+    msub = mp.add_subparsers(dest="map_command", required=True)
+
+    b = msub.add_parser("build", help="build a map from a world's demonstrations (or grow one)")
+    b.add_argument("world", help="catalogue name or ROS map YAML")
+    b.add_argument("--modality", choices=["camera", "lidar", "oracle"], default="camera",
+                   help="observations and RE: the shipped camera k=5 or lidar k=5 RE, or the "
+                        "geometric oracle (default: camera)")
+    b.add_argument("--demos", help="demonstration folder (default: data/demos/pairs-s0/WORLD, "
+                                   "collected first when missing)")
+    b.add_argument("--trajectories", type=int,
+                   help="add at most this many drives, in order (default: all)")
+    b.add_argument("--out", required=True, help="map file to write (.tdmap)")
+    b.add_argument("--add", action="store_true",
+                   help="grow the map in --out with drives it does not hold yet")
+    b.add_argument("--config", help="MapConfig YAML (default: p_sparsify = p_reuse = p_edge = "
+                                    "0.99, retrieval_k 32)")
+    _checkpoint_options(b)
+    b.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    b.add_argument("--quiet", action="store_true", help="no progress bars")
+    b.set_defaults(func=cmd_map_build)
+
+    i = msub.add_parser("info", help="vertices, edges, keep ratio, checkpoints and config of a map")
+    i.add_argument("file", help="map file")
+    i.add_argument("--json", action="store_true", help="print one JSON object")
+    i.set_defaults(func=cmd_map_info)
+
+    pl = msub.add_parser("plot", help="the map over the floor plan, edges coloured by probability")
+    pl.add_argument("file", help="map file")
+    pl.add_argument("--out", required=True, help="PNG to write")
+    pl.set_defaults(func=cmd_map_plot)
+
+    pn = msub.add_parser("plan", help="plan between two poses (their observations) on a map")
+    pn.add_argument("file", help="map file")
+    pn.add_argument("--start", required=True, help="start pose X,Y,YAW (m, m, rad)")
+    pn.add_argument("--goal", required=True, help="goal pose X,Y,YAW (m, m, rad)")
+    pn.add_argument("--plot", help="also draw the plan over the map into this PNG")
+    _checkpoint_options(pn)
+    pn.add_argument("--json", action="store_true",
+                    help='print {"path": [...], "probability": p, ...}')
+    pn.set_defaults(func=cmd_map_plan)

@@ -1,0 +1,122 @@
+"""Where maps come from: the shipped estimators and the demonstrations.
+
+``make_scorer`` gives the reachability a map is built with: the shipped
+learned RE of a modality (camera k=5 or lidar k=5, with the C_WP it was
+trained for), explicit checkpoints, or the geometric oracle.
+``scorer_for_map`` gives the one a map file was built for.
+``demo_trajectories`` reads (collecting them first if needed) a world's
+expert demonstrations and renders each drive's observations lazily.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+
+ROOT = Path(__file__).resolve().parents[2]
+#: modality -> (RE checkpoint folder, C_WP checkpoint folder) shipped in checkpoints/
+SHIPPED = {"camera": ("reach_camera_k5", "camera_k5"), "lidar": ("reach_lidar_k5", "lidar_k5")}
+MODALITIES = ("camera", "lidar", "oracle")
+
+
+def shipped_checkpoint(name: str) -> Path:
+    """``checkpoints/<name>/checkpoint.pt`` of this installation."""
+    path = ROOT / "checkpoints" / name / "checkpoint.pt"
+    if not path.is_file():
+        raise TopodrakeError(f"shipped checkpoint {path} is missing")
+    return path
+
+
+def _relative(path) -> str:
+    """A checkpoint path as recorded in a map: relative to the installation when inside it."""
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(ROOT))
+    except ValueError:
+        return str(p)
+
+
+def _resolve(recorded: str) -> Path:
+    p = Path(recorded)
+    return p if p.is_absolute() else ROOT / p
+
+
+def make_scorer(modality: str, world=None, reach=None, controller=None):
+    """The reachability to build a ``modality`` map with (``"oracle"`` needs ``world``)."""
+    from topodrake.topomap.scorer import LearnedScorer, OracleScorer
+
+    if modality == "oracle":
+        if world is None:
+            raise TopodrakeError("the oracle reachability needs the world")
+        return OracleScorer(world)
+    if modality not in SHIPPED:
+        raise TopodrakeError(f"modality must be one of {MODALITIES}, got {modality!r}")
+    if (reach is None) != (controller is None):
+        raise TopodrakeError("give both --reach and --controller, or neither")
+    reach = Path(reach) if reach else shipped_checkpoint(SHIPPED[modality][0])
+    controller = Path(controller) if controller else shipped_checkpoint(SHIPPED[modality][1])
+    for p in (reach, controller):
+        if not p.is_file():
+            raise TopodrakeError(f"checkpoint {p} does not exist")
+    scorer = LearnedScorer.from_checkpoints(reach, controller)
+    if scorer.observation != modality:
+        raise TopodrakeError(f"{reach} is a {scorer.observation} RE, not a {modality} one")
+    scorer.identity.update(reach=_relative(reach), controller=_relative(controller))
+    return scorer
+
+
+def scorer_for_map(path, reach=None, controller=None):
+    """The reachability a map file was built for (its recorded checkpoints,
+    or the ones given, which must be the same files)."""
+    from topodrake.topomap.mapfile import read_map_meta
+    from topodrake.world import load_world
+
+    meta = read_map_meta(path)
+    ident = meta.get("identity", {})
+    if meta.get("modality") == "pose":
+        return make_scorer("oracle", load_world(meta["world"]))
+    reach = reach or _resolve(ident.get("reach", ""))
+    controller = controller or _resolve(ident.get("controller", ""))
+    for p, what in ((reach, "reachability estimator"), (controller, "controller")):
+        if not Path(p).is_file():
+            raise TopodrakeError(f"{path} was built for the {what} {p}, which does not exist "
+                                 f"here; pass it with --reach/--controller")
+    return make_scorer(meta["modality"], reach=reach, controller=controller)
+
+
+def demo_folder(world_spec: str, demos=None) -> Path:
+    """``demos``, or ``data/demos/pairs-s0/<world>`` (a map file's folder and stem)."""
+    if demos:
+        return Path(demos)
+    p = Path(world_spec)
+    name = f"{p.parent.name}-{p.stem}" if p.suffix in (".yaml", ".yml", ".json") else world_spec
+    return Path("data/demos/pairs-s0") / name
+
+
+def demo_drives(world_spec: str, demos=None, progress: bool = True) -> tuple[Path, list]:
+    """The successful expert drives of a world, collected first (all ordered
+    pairs of its places, seed 0) when ``demos`` is not given and the default
+    folder holds none."""
+    from topodrake.demonstrations import collect, load_demos
+
+    folder = demo_folder(world_spec, demos)
+    if not (folder / "manifest.json").is_file():
+        if demos:
+            raise TopodrakeError(f"no demonstrations in {folder}")
+        collect(world_spec, folder, progress=progress)
+    _, drives = load_demos(folder, successful_only=True)
+    if not drives:
+        raise TopodrakeError(f"{folder} holds no successful drive")
+    return folder, drives
+
+
+def drive_observations(world, scorer, poses: np.ndarray) -> np.ndarray:
+    """What ``scorer`` observes along a drive (poses for the oracle)."""
+    if scorer.observation == "pose":
+        return np.asarray(poses, np.float64)
+    from topodrake.sensing.observe import observe
+
+    return observe(world, scorer.observation, poses, scorer.sensor)
