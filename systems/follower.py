@@ -1,0 +1,143 @@
+"""FollowerFsm: the follower state machine as a Drake system, and WaypointSelect.
+
+A thin wrapper over :func:`topodrake.navigation.follower.follower_step`
+(batch of one; the batched engine calls the same function for N cars).
+
+Timing (10 Hz, sample and hold). The period's decision is a cache entry
+computed from the held observation, the held car state and the follower's
+abstract state (a :class:`~topodrake.navigation.follower.FollowerState` of
+one car: mode, active and last visited anchor, the held waypoint, counters),
+never from time or the continuous state: it is computed once per period from
+the observation sampled at the period's start. A periodic unrestricted
+update at the end of each period (offset = one period) commits it, and
+ends the run with ``EventStatus.ReachedTermination`` when the follower
+reached the last anchor or gave up. The route's anchor features are
+computed once at construction (per route, not state).
+
+Outputs: ``target`` (the active anchor's
+:class:`~topodrake.learning.policy.TargetContext` for WaypointNet; key = the
+anchor index, -1 = none), ``held_waypoint`` (the Dead reckoning waypoint,
+NaN otherwise) and ``mode`` (1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
+
+from topodrake.learning.policy import TargetContext
+from topodrake.navigation.evaluate import Evaluator, encode_routes, network_context
+from topodrake.navigation.follower import (DEAD_RECKONING, FAILED, MODES, REACHED, REASONS,
+                                           FollowerConfig, FollowerState, follower_step)
+
+
+class FollowerFsm(LeafSystem):
+    """Inputs ``observation`` (camera image / lidar ranges; absent for pose
+    oracles) and ``state`` (held car state, 5)."""
+
+    def __init__(self, route, policy, reach, config: FollowerConfig | None = None,
+                 period: float = 0.1, camera=None, lidar=None):
+        super().__init__()
+        from topodrake.sensing.config import CameraConfig, LidarConfig
+
+        self.route = route
+        self.policy = policy
+        self.reach = reach
+        self.config = (config or FollowerConfig()).check()
+        wide = policy if policy.k >= reach.k else reach
+        self.features = encode_routes([route], policy, reach)
+        self.policy_contexts = network_context(route.contexts, wide.k, wide.frame_step, policy)
+        kind = policy.observation
+        if reach.observation != kind:
+            raise ValueError(f"C_WP observes {kind}, RE {reach.observation}")
+        self.kind = kind
+        if kind == "camera":
+            c = camera or getattr(policy, "sensor", None) or CameraConfig()
+            self.observation_port = self.DeclareAbstractInputPort(
+                "observation", AbstractValue.Make(np.zeros((c.height, c.width, 3), np.uint8)))
+        elif kind == "lidar":
+            beams = (lidar or getattr(policy, "sensor", None) or LidarConfig()).beams
+            self.observation_port = self.DeclareVectorInputPort("observation", beams)
+        else:
+            self.observation_port = None
+        self.state_port = self.DeclareVectorInputPort("state", 5)
+        self.fsm_index = self.DeclareAbstractState(AbstractValue.Make(FollowerState.initial(1)))
+        prereq = {self.input_port_ticket(p.get_index())
+                  for p in (self.state_port, self.observation_port) if p is not None}
+        prereq.add(self.abstract_state_ticket(self.fsm_index))
+        self._decision = self.DeclareCacheEntry(
+            "decision", ValueProducer(allocate=lambda: AbstractValue.Make((None, None)),
+                                      calc=self._calc_decision), prereq)
+        ticket = {self._decision.ticket()}
+        self.target_port = self.DeclareAbstractOutputPort(
+            "target", lambda: AbstractValue.Make(TargetContext()), self._out_target,
+            prerequisites_of_calc=ticket)
+        self.held_waypoint_port = self.DeclareVectorOutputPort(
+            "held_waypoint", 2, self._out_held, prerequisites_of_calc=ticket)
+        self.mode_port = self.DeclareVectorOutputPort(
+            "mode", 1, lambda c, o: o.SetFromVector([float(self.decision(c)[0].mode[0])]),
+            prerequisites_of_calc=ticket)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, period, self._commit)
+
+    def follower_state(self, context) -> FollowerState:
+        return context.get_abstract_state(self.fsm_index).get_value()
+
+    def decision(self, context):
+        """(the follower's state after this period, its StepOutput)."""
+        return self._decision.Eval(context)
+
+    def _calc_decision(self, context, value):
+        state = self.follower_state(context)
+        car = np.asarray(self.state_port.Eval(context))[None]
+        obs = None if self.observation_port is None else \
+            np.asarray(self.observation_port.Eval(context))[None]
+        ev = Evaluator(self.policy, self.reach, self.features, np.zeros(1, np.int64), obs,
+                       poses=car[:, :3])
+        value.set_value(follower_step(state, self.features.n_anchors, car, ev, self.config))
+
+    def _out_target(self, context, output):
+        fs, out = self.decision(context)
+        a = int(out.target[0])
+        if a < 0:
+            output.set_value(TargetContext())
+            return
+        ctx = self.policy_contexts[a]
+        pose = self.kind == "pose"
+        output.set_value(TargetContext(key=a, observations=None if pose else ctx,
+                                       poses=ctx if pose else None))
+
+    def _out_held(self, context, output):
+        fs, out = self.decision(context)
+        wp = out.waypoint[0] if fs.mode[0] == DEAD_RECKONING else np.full(2, np.nan)
+        output.SetFromVector(wp)
+
+    def _commit(self, context, state):
+        fs, _ = self.decision(context)
+        state.get_mutable_abstract_state(self.fsm_index).set_value(fs.copy())
+        m = int(fs.mode[0])
+        if m == REACHED:
+            return EventStatus.ReachedTermination(self, "reached the last anchor")
+        if m == FAILED:
+            return EventStatus.ReachedTermination(self, REASONS[int(fs.reason[0])])
+        return EventStatus.Succeeded()
+
+
+class WaypointSelect(LeafSystem):
+    """The waypoint the RMP drives to: ``held`` (FollowerFsm's Dead reckoning
+    waypoint) when it is finite, else ``net`` (WaypointNet's)."""
+
+    def __init__(self):
+        super().__init__()
+        self.net_port = self.DeclareVectorInputPort("net", 2)
+        self.held_port = self.DeclareVectorInputPort("held", 2)
+        self.waypoint_port = self.DeclareVectorOutputPort(
+            "waypoint", 2, self._calc, prerequisites_of_calc={
+                self.input_port_ticket(p.get_index()) for p in (self.net_port, self.held_port)})
+
+    def _calc(self, context, output):
+        held = self.held_port.Eval(context)
+        output.SetFromVector(held if np.all(np.isfinite(held)) else self.net_port.Eval(context))
+
+
+__all__ = ["FollowerFsm", "WaypointSelect", "MODES"]

@@ -1,0 +1,185 @@
+"""The navigation diagram (a route followed by FollowerFsm + C_WP + RMP) and its runner.
+
+::
+
+    CarPlant --pose--> LidarSensor, CameraSensor (10 Hz, sample and hold)
+    CarPlant --state--> ZeroOrderHold --> FollowerFsm, WaypointNet, RmpController
+    CameraSensor (or LidarSensor) --observation--> FollowerFsm, WaypointNet
+    FollowerFsm --target--> WaypointNet --waypoint--> WaypointSelect <--held_waypoint-- FollowerFsm
+    WaypointSelect --> RmpController <--ranges-- LidarSensor
+    RmpController --> ActuationNoise <-- RandomSource; ActuationNoise --> CarPlant
+
+FollowerFsm runs RE itself (on the route's cached anchor features), so no
+separate ReachabilityEstimator system is wired. :class:`NavigationRunner`
+runs it until the follower ends the run (reached, or gave up), a collision
+or the time limit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.navigation.follower import FollowerConfig
+from topodrake.systems.scenario import Scenario
+from topodrake.systems.run import DiagramRunner, RunResult
+
+
+@dataclass
+class NavigationScenario(Scenario):
+    """A :class:`Scenario` plus the learned follower: C_WP and RE
+    checkpoints and the follower's thresholds (YAML keys ``controller``,
+    ``reach``, ``follower``)."""
+
+    controller: str = "checkpoints/camera_k5/checkpoint.pt"
+    reach: str = "checkpoints/reach_camera_k5/checkpoint.pt"
+    follower: FollowerConfig = field(default_factory=FollowerConfig)
+    t_max_s: float = 150.0
+
+
+def load_networks(scenario: NavigationScenario):
+    """(C_WP policy, RE) from the scenario's checkpoints."""
+    from pathlib import Path
+
+    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.reachability import Reachability
+
+    for what, path in (("controller", scenario.controller), ("reach", scenario.reach)):
+        if not Path(path).is_file():
+            raise TopodrakeError(f"{what} checkpoint {path} does not exist")
+    return (LearnedWaypointPolicy.from_checkpoint(scenario.controller),
+            Reachability.from_checkpoint(scenario.reach, scenario.controller))
+
+
+@dataclass
+class NavigationDiagram:
+    diagram: object
+    car: object
+    follower: object
+    waypoint_net: object
+    pose_logger: object
+    noise_logger: object
+    mode_logger: object
+    world: object
+    scenario: object
+    route: object
+
+
+def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *, world=None,
+                            policy=None, reach=None) -> NavigationDiagram:
+    """CarPlant + sensors + FollowerFsm + WaypointNet + RmpController +
+    ActuationNoise following ``plan`` (a :class:`~topodrake.navigation.route.Route`).
+    ``policy`` and ``reach`` default to the scenario's checkpoints (pass
+    oracles or loaded networks to skip loading). Exported outputs: ``pose``,
+    ``state``, ``ranges``, ``controls``, ``waypoint``, ``mode`` and (camera)
+    ``image``."""
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import LogVectorOutput
+
+    from topodrake.systems.control import RmpController
+    from topodrake.systems.diagram import add_chassis
+    from topodrake.systems.follower import FollowerFsm, WaypointSelect
+    from topodrake.systems.waypoint_net import WaypointNet
+    from topodrake.world import load_world
+
+    if policy is None or reach is None:
+        loaded = load_networks(scenario)
+        policy = policy or loaded[0]
+        reach = reach or loaded[1]
+    world = world or load_world(scenario.world)
+    dt = scenario.vehicle.dt
+    b = DiagramBuilder()
+    c = add_chassis(b, scenario, world, camera=policy.observation == "camera", meshcat=meshcat)
+    fsm = b.AddNamedSystem("follower", FollowerFsm(plan, policy, reach, scenario.follower, dt,
+                                                   scenario.camera, scenario.lidar))
+    net = b.AddNamedSystem("waypoint_net", WaypointNet(policy, dt, scenario.camera, scenario.lidar))
+    select = b.AddNamedSystem("waypoint_select", WaypointSelect())
+    rmp = b.AddNamedSystem("rmp", RmpController(scenario.lidar, scenario.rmp, scenario.vehicle))
+    b.Connect(c.hold.get_output_port(), fsm.state_port)
+    b.Connect(c.hold.get_output_port(), net.state_port)
+    b.Connect(c.hold.get_output_port(), rmp.state_port)
+    obs = {"camera": c.camera.image_port if c.camera is not None else None,
+           "lidar": c.lidar.ranges_port}.get(policy.observation)
+    if obs is not None:
+        b.Connect(obs, fsm.observation_port)
+        b.Connect(obs, net.observation_port)
+    b.Connect(fsm.target_port, net.target_port)
+    b.Connect(net.waypoint_port, select.net_port)
+    b.Connect(fsm.held_waypoint_port, select.held_port)
+    b.Connect(select.waypoint_port, rmp.waypoint_port)
+    b.Connect(c.lidar.ranges_port, rmp.ranges_port)
+    b.Connect(rmp.controls_port, c.noise.controls_port)
+    b.ExportOutput(select.waypoint_port, "waypoint")
+    b.ExportOutput(fsm.mode_port, "mode")
+    mode_logger = LogVectorOutput(fsm.mode_port, b, dt)
+    mode_logger.set_name("mode_log")
+    diagram = b.Build()
+    diagram.set_name("topodrake_navigation")
+    return NavigationDiagram(diagram, c.car, fsm, net, c.pose_logger, c.noise_logger, mode_logger,
+                             world, scenario, plan)
+
+
+@dataclass
+class NavigationRunResult(RunResult):
+    """A run along a route: ``outcome`` is "reached", "collision",
+    "timeout", "search_failed" or "dead_reckoning_gave_up"; ``modes`` (K,)
+    the follower's mode in each period."""
+
+    modes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    result: str = ""
+    distance_m: float = 0.0
+    probability: float = 1.0
+
+    @property
+    def outcome(self) -> str:
+        return self.result
+
+    def summary(self) -> dict:
+        out = super().summary()
+        out.update({"distance_m": round(self.distance_m, 2),
+                    "probability": round(self.probability, 4)})
+        return out
+
+
+class NavigationRunner(DiagramRunner):
+    """Runs a navigation diagram (:func:`make_navigation_diagram`) from a start pose."""
+
+    def run(self, start, seed: int = 0, t_max_s: float | None = None) -> NavigationRunResult:
+        from topodrake.navigation.follower import REACHED, REASONS, FAILED
+        from topodrake.vehicle import in_collision
+
+        b = self.built
+        world = b.world
+        start = world.check_pose(start, "start", free=False)
+        if in_collision(np.array([[*start[:3], 0.0, 0.0]]), world.grid.clearance_at,
+                        b.scenario.vehicle)[0]:
+            raise TopodrakeError(f"start ({start[0]:.2f}, {start[1]:.2f}) puts the car's body "
+                                 f"into a wall of {world.name!r}")
+        context = self._reset(start, seed)
+        startup = 0.0 if self.warm else self._warm_up()
+        b.mode_logger.FindMutableLog(context).Clear()
+        r = self._simulate(lambda x: False, b.scenario.t_max_s if t_max_s is None else t_max_s)
+        r["startup"] = startup
+        context = self.simulator.get_context()
+        fs = b.follower.follower_state(b.follower.GetMyContextFromRoot(context))
+        mode = int(fs.mode[0])
+        if r["collision"]:
+            result = "collision"
+        elif mode == REACHED:
+            result = "reached"
+        elif mode == FAILED:
+            result = REASONS[int(fs.reason[0])]
+        else:
+            result = "timeout"
+        x = r["state"]
+        goal = b.route.goal_pose
+        modes = b.mode_logger.FindLog(context).data()[0, 1:].round().astype(np.int64)
+        poses = r["poses"]
+        return NavigationRunResult(
+            result == "reached", r["collision"], result == "timeout", r["time_s"],
+            float(np.hypot(x[0] - goal[0], x[1] - goal[1])), poses, r["noise"], r["wall"],
+            r["startup"], modes=modes, result=result,
+            distance_m=float(np.hypot(*np.diff(poses[:, :2], axis=0).T).sum()),
+            probability=float(b.route.probability))

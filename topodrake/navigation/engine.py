@@ -1,0 +1,177 @@
+"""The batched navigation engine: N cars, each following its own route.
+
+Per control period ``k``, for the cars still driving, in the order of the
+Drake navigation diagram (``topodrake.systems.navigation``)::
+
+    ranges_k, obs_k  = lidar(pose_k), camera(pose_k)      (the policy's observation)
+    follower_k, out  = follower_step(follower_k-1, obs_k)  (C_WP and RE on cached anchors)
+    u_k              = rmp(state_k, out.waypoint, ranges_k) * (1 + noise_std * w_k)
+    state_k+1        = vehicle_step(state_k, u_k)
+    stop: collision; the follower reached the last anchor or gave up (its
+    decision of period k ends the run after that period, as FollowerFsm's
+    update at t_k+1 does); a ``watch`` callback (e.g. divergence from a
+    reference path); timeout.
+
+so the two executors drive the same path for the same start, route and
+noise (``tests/test_navigation_parity.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from topodrake.control import controls_toward
+from topodrake.navigation.evaluate import Evaluator, RouteFeatures, encode_routes
+from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, SEARCH_FAILED,
+                                           FollowerConfig, FollowerState, follower_step)
+from topodrake.rollout import RolloutConfig, standard_normal_noise
+from topodrake.vehicle import in_collision, vehicle_step
+
+RUNNING, NAV_REACHED, NAV_COLLISION, NAV_TIMEOUT, NAV_SEARCH_FAILED, NAV_DR_GAVE_UP, NAV_DIVERGED = \
+    range(7)
+NAV_OUTCOMES = ("running", "reached", "collision", "timeout", "search_failed",
+                "dead_reckoning_gave_up", "diverged")
+
+
+@dataclass
+class NavigationConfig:
+    """The follower's thresholds and the closed loop's settings (noise,
+    time limit, vehicle, sensors, RMP)."""
+
+    follower: FollowerConfig = field(default_factory=FollowerConfig)
+    rollout: RolloutConfig = field(default_factory=lambda: RolloutConfig(t_max_s=150.0))
+
+
+@dataclass
+class NavigationResult:
+    """Per-car runs; rows after a car stopped repeat its last pose, modes -1."""
+
+    poses: np.ndarray        # (N, T + 1, 3)
+    modes: np.ndarray        # (N, T) follower mode in each period (-1 after the stop)
+    active: np.ndarray       # (N, T) active anchor in each period
+    steps: np.ndarray        # (N,) periods driven
+    outcome: np.ndarray      # (N,) NAV_* codes
+    follower: FollowerState  # final follower states
+    distance_to_goal_m: np.ndarray   # (N,) to each route's goal pose (its last anchor's)
+
+    def outcome_name(self, i: int) -> str:
+        return NAV_OUTCOMES[int(self.outcome[i])]
+
+    def distance_driven_m(self, i: int) -> float:
+        p = self.poses[i, :int(self.steps[i]) + 1, :2]
+        return float(np.hypot(*np.diff(p, axis=0).T).sum())
+
+
+def follower_outcome(state: FollowerState) -> np.ndarray:
+    """NAV_* codes of followers that ended (RUNNING for the others)."""
+    out = np.full(len(state), RUNNING)
+    out[state.mode == REACHED] = NAV_REACHED
+    failed = state.mode == FAILED
+    out[failed & (state.reason == SEARCH_FAILED)] = NAV_SEARCH_FAILED
+    out[failed & (state.reason == DR_GAVE_UP)] = NAV_DR_GAVE_UP
+    return out
+
+
+class NavigationEngine:
+    """Steps many cars, each following its own route, with one C_WP
+    (``policy``) and one RE (``reach``), the functions FollowerFsm calls."""
+
+    def __init__(self, world, policy, reach, config: NavigationConfig | None = None):
+        from topodrake.sensing.camera import Camera
+        from topodrake.sensing.lidar import Lidar
+
+        self.world = world
+        self.policy = policy
+        self.reach = reach
+        self.config = config or NavigationConfig()
+        self.config.follower.check()
+        cfg = self.config.rollout
+        self.lidar = Lidar(world, cfg.lidar)
+        kinds = {policy.observation, reach.observation}
+        if len(kinds) != 1:
+            raise ValueError(f"C_WP observes {policy.observation}, RE {reach.observation}")
+        self.kind = kinds.pop()
+        self.camera = None
+        if self.kind == "camera":
+            self.camera = Camera(world, getattr(policy, "sensor", None) or cfg.camera)
+
+    def observe(self, states: np.ndarray, ranges: np.ndarray) -> np.ndarray | None:
+        if self.kind == "camera":
+            return self.camera.render(states[:, :3])
+        return ranges if self.kind == "lidar" else None
+
+    def run(self, starts: np.ndarray, routes, *, features: RouteFeatures | None = None,
+            seeds=None, noise: np.ndarray | None = None, t_max_s=None,
+            watch: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
+            progress=None) -> NavigationResult:
+        """Drive cars from ``starts`` (N, 3) along ``routes`` (N routes;
+        ``features``: their :func:`encode_routes`, computed if not given).
+        Noise as in :meth:`topodrake.rollout.ExpertRollout.run`. ``t_max_s``:
+        scalar or (N,). ``watch(k, cars, states)`` may stop cars (returns a
+        bool mask over ``cars``; they end ``diverged``)."""
+        cfg = self.config.rollout
+        veh = cfg.vehicle
+        starts = np.asarray(starts, np.float64).reshape(-1, 3)
+        n = len(starts)
+        if len(routes) != n:
+            raise ValueError(f"{n} starts and {len(routes)} routes")
+        if features is None:
+            features = encode_routes(routes, self.policy, self.reach)
+        n_anchors = features.n_anchors
+        goals = np.array([r.goal_pose for r in routes]).reshape(n, 3)
+        t_max = np.broadcast_to(np.asarray(cfg.t_max_s if t_max_s is None else t_max_s,
+                                           np.float64), (n,))
+        limit = np.rint(t_max / veh.dt).astype(np.int64)
+        t_steps = int(limit.max()) if n else 0
+        if noise is None and seeds is not None and cfg.noise_std > 0:
+            noise = standard_normal_noise(seeds, t_steps)
+        state = np.zeros((n, 5))
+        state[:, :3] = starts
+        poses = np.repeat(starts[:, None], t_steps + 1, axis=1)
+        modes = np.full((n, t_steps), -1, np.int64)
+        active_log = np.full((n, t_steps), -1, np.int64)
+        outcome = np.full(n, RUNNING)
+        steps = np.zeros(n, np.int64)
+        follower = FollowerState.initial(n)
+        clearance = self.world.grid.clearance_at
+        for k in range(t_steps):
+            outcome[(outcome == RUNNING) & (limit <= k)] = NAV_TIMEOUT
+            cars = np.flatnonzero(outcome == RUNNING)
+            if cars.size == 0:
+                break
+            st = state[cars]
+            ranges = self.lidar.scan(st[:, :3])
+            ev = Evaluator(self.policy, self.reach, features, cars, self.observe(st, ranges),
+                           poses=st[:, :3])
+            fs, out = follower_step(follower.take(cars), n_anchors[cars], st, ev,
+                                    self.config.follower)
+            follower.put(cars, fs)
+            u = controls_toward(st, out.waypoint, ranges, cfg.lidar, cfg.rmp, veh)
+            if noise is not None and cfg.noise_std > 0:
+                u = u * (1.0 + cfg.noise_std * noise[cars, k])
+            state[cars] = vehicle_step(st, u, veh)
+            steps[cars] = k + 1
+            modes[cars, k] = fs.mode
+            active_log[cars, k] = fs.active
+            poses[cars, k + 1:] = state[cars, None, :3]
+            hit = in_collision(state[cars], clearance, veh)
+            outcome[cars[hit]] = NAV_COLLISION
+            ended = follower_outcome(fs)
+            fin = ~hit & (ended != RUNNING)
+            outcome[cars[fin]] = ended[fin]
+            if watch is not None:
+                live = ~hit & ~fin
+                stop = np.asarray(watch(k, cars, state[cars]), bool) & live
+                outcome[cars[stop]] = NAV_DIVERGED
+            if progress is not None:
+                progress(k, int((outcome == RUNNING).sum()))
+        outcome[outcome == RUNNING] = NAV_TIMEOUT
+        dist = np.hypot(*(state[:, :2] - goals[:, :2]).T)
+        return NavigationResult(poses, modes, active_log, steps, outcome, follower, dist)
+
+
+__all__ = ["NavigationConfig", "NavigationEngine", "NavigationResult", "NAV_OUTCOMES",
+           "follower_outcome", "FOLLOW"]

@@ -1,0 +1,158 @@
+"""The networks the follower asks, for a batch of (car, anchor) queries.
+
+:func:`encode_route` computes each anchor's target features once per route
+(C_WP's and RE's; a network with a shorter context than the route's takes
+the middle frames). :class:`Evaluator` answers
+:func:`topodrake.navigation.follower.follower_step`'s queries from the cars'
+current observations and those cached features; both executors (the Drake
+``FollowerFsm`` and the batched engine) build one per period.
+:class:`GeometricReachability` is a privileged pose oracle for RE (tests
+and oracle studies), the counterpart of the A* oracle for C_WP.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.navigation.follower import Answers
+
+
+def network_context(route_contexts: np.ndarray, route_k: int, route_step: int, network) -> np.ndarray:
+    """The (A, 2k+1, ...) part of a route's contexts that ``network`` reads."""
+    k = network.k
+    if k == route_k and (k == 0 or network.frame_step == route_step):
+        return route_contexts
+    if k > route_k or (k > 0 and network.frame_step != route_step):
+        raise TopodrakeError(f"the route's contexts (k={route_k}, frame step {route_step}) do not "
+                             f"hold the k={k}, frame step {network.frame_step} context of "
+                             f"{getattr(network, 'name', '') or network.observation} network")
+    return route_contexts[:, route_k - k:route_k + k + 1]
+
+
+@dataclass
+class RouteFeatures:
+    """Per-anchor target features of one route, or of many stacked (with
+    ``offsets``: route i's anchors are rows offsets[i]:offsets[i+1])."""
+
+    cwp: object
+    re: object
+    offsets: np.ndarray
+
+    @property
+    def n_anchors(self) -> np.ndarray:
+        return np.diff(self.offsets)
+
+
+def _encode(network, contexts: np.ndarray, batch: int = 64):
+    parts = [network.encode_target(contexts[lo:lo + batch]) for lo in range(0, len(contexts), batch)]
+    if hasattr(parts[0], "index_select"):
+        import torch
+        return torch.cat(parts)
+    return np.concatenate(parts)
+
+
+def encode_routes(routes, policy, reach, route_k: int | None = None,
+                  route_step: int | None = None) -> RouteFeatures:
+    """Target features of every anchor of ``routes`` for C_WP ``policy`` and
+    RE ``reach``. The routes' contexts were rendered with ``route_k`` and
+    ``route_step`` (default: the larger k of the two networks, and its frame step)."""
+    if route_k is None:
+        wide = policy if policy.k >= reach.k else reach
+        route_k, route_step = wide.k, wide.frame_step
+    for r in routes:
+        if r.contexts.shape[1] != 2 * route_k + 1:
+            raise TopodrakeError(f"a route has {r.contexts.shape[1]} context frames per anchor; "
+                                 f"the follower's networks need {2 * route_k + 1}")
+    ctx = np.concatenate([r.contexts for r in routes])
+    offsets = np.concatenate([[0], np.cumsum([len(r) for r in routes])]).astype(np.int64)
+    return RouteFeatures(_encode(policy, network_context(ctx, route_k, route_step, policy)),
+                         _encode(reach, network_context(ctx, route_k, route_step, reach)), offsets)
+
+
+def _take(feats, rows: np.ndarray):
+    if hasattr(feats, "index_select"):
+        import torch
+        return feats.index_select(0, torch.as_tensor(rows, dtype=torch.long))
+    return feats[rows]
+
+
+class Evaluator:
+    """Answers for cars of one batch: ``observations`` (B, ...) (poses for
+    pose oracles), ``route_of`` (B,) the route of each car in ``features``."""
+
+    def __init__(self, policy, reach, features: RouteFeatures, route_of: np.ndarray,
+                 observations: np.ndarray, poses: np.ndarray | None = None):
+        self.policy = policy
+        self.reach = reach
+        self.features = features
+        self.start = features.offsets[np.asarray(route_of, np.int64)]
+        self.observations = observations
+        self.poses = poses
+
+    def _obs(self, network, cars: np.ndarray) -> np.ndarray:
+        if network.observation == "pose":
+            return self.poses[cars]
+        obs = self.observations[cars[0]][None] if np.all(cars == cars[0]) else self.observations[cars]
+        return obs
+
+    def __call__(self, cars: np.ndarray, anchors: np.ndarray, cwp: bool, re: bool) -> Answers:
+        cars = np.asarray(cars, np.int64)
+        rows = self.start[cars] + np.asarray(anchors, np.int64)
+        m = len(rows)
+        out = Answers(np.full((m, 2), np.nan), np.full((m, 2), np.nan), np.full(m, np.nan))
+        if m == 0:
+            return out
+        if cwp:
+            pred = self.policy.predict(self._obs(self.policy, cars), _take(self.features.cwp, rows))
+            out.waypoint = np.asarray(pred.waypoint, np.float64).reshape(m, 2)
+            out.overlap = np.asarray(pred.overlap, np.float64).reshape(m, 2)
+        if re:
+            out.probability = np.asarray(
+                self.reach.probability(self._obs(self.reach, cars), _take(self.features.re, rows)),
+                np.float64).reshape(m)
+        return out
+
+
+class GeometricReachability:
+    """A privileged RE from poses: ``p_max`` while the target is within
+    ``reach_m`` of the car and in view of it (either camera overlap above
+    ``min_overlap``), falling off with the extra distance over ``falloff_m``;
+    ``p_hidden`` when out of view. Observation ``"pose"``."""
+
+    observation = "pose"
+
+    def __init__(self, world, k: int = 0, frame_step: int = 3, reach_m: float = 2.5,
+                 falloff_m: float = 0.5, p_max: float = 0.99, p_hidden: float = 0.3,
+                 min_overlap: float = 0.05, camera=None):
+        from topodrake.sensing.config import CameraConfig
+
+        self.world = world
+        self.k = k
+        self.frame_step = frame_step
+        self.reach_m = reach_m
+        self.falloff_m = falloff_m
+        self.p_max = p_max
+        self.p_hidden = p_hidden
+        self.min_overlap = min_overlap
+        self.camera = camera or CameraConfig()
+
+    def encode_target(self, context: np.ndarray) -> np.ndarray:
+        ctx = np.asarray(context, np.float64)
+        if ctx.ndim != 3 or ctx.shape[1:] != (2 * self.k + 1, 3):
+            raise TopodrakeError(f"oracle target context must be (N, {2 * self.k + 1}, 3) poses, "
+                                 f"got {ctx.shape}")
+        return ctx[:, self.k].copy()
+
+    def probability(self, observation: np.ndarray, target) -> np.ndarray:
+        from topodrake.sensing.overlap import mutual_overlap
+
+        poses = np.asarray(observation, np.float64).reshape(-1, 3)
+        tgt = np.asarray(target, np.float64).reshape(-1, 3)
+        poses, tgt = np.broadcast_arrays(poses, tgt)
+        d = np.hypot(*(tgt[:, :2] - poses[:, :2]).T)
+        seen = mutual_overlap(self.world, poses, tgt, self.camera).max(axis=1) > self.min_overlap
+        p = self.p_max * np.exp(-np.maximum(d - self.reach_m, 0.0) / self.falloff_m)
+        return np.where(seen, p, self.p_hidden)

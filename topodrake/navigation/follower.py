@@ -1,0 +1,294 @@
+"""The follower state machine (Search, Follow, Dead reckoning) as batched functions.
+
+One call of :func:`follower_step` advances N followers by one control
+period. Each follower drives its own route of ``n_anchors[i]`` anchors; the
+networks are reached through an ``evaluate(cars, anchors, cwp, re)``
+callback (:class:`topodrake.navigation.evaluate.Evaluator`), so the Drake
+``FollowerFsm`` (a batch of one) and the batched navigation engine (N cars)
+run exactly this logic.
+
+Per period, with the current observation:
+
+* **Search** (the first period): RE toward every anchor; the best one above
+  ``p_search`` becomes the active anchor (the one before it counts as
+  visited) and the follower enters Follow; otherwise it gives up
+  (``search_failed``).
+* **Follow**: C_WP toward the ``lookahead`` anchors after the last visited
+  one. Proximity = the mean of the two predicted overlaps; the farthest
+  anchor with proximity above ``p_visited`` becomes the last visited one
+  (the last anchor of the route visited ends the plan: ``reached``). The
+  active anchor is the unvisited one of highest proximity above ``p_near``
+  in that window, else the one after the last visited. If RE toward it is
+  above ``p_follow`` the waypoint is C_WP's toward it; otherwise the
+  follower enters Dead reckoning.
+* **Dead reckoning**: the car drives to the last Follow waypoint, held in
+  the odometry frame (the car's integrated pose, which is the world frame
+  here: odometry has no drift in this simulator). Each period RE is asked
+  about a window of anchors around the next unvisited one that widens by one
+  anchor on each side every ``dr_widen_every`` periods; the best above
+  ``p_follow`` becomes active and the follower returns to Follow. After
+  ``dr_max_iterations`` periods it gives up (``dead_reckoning_gave_up``).
+
+The state is a handful of numbers per car (:class:`FollowerState`): mode,
+active anchor, last visited anchor, the held waypoint and counters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.vehicle import car_to_world
+
+SEARCH, FOLLOW, DEAD_RECKONING, REACHED, FAILED = 0, 1, 2, 3, 4
+MODES = ("search", "follow", "dead_reckoning", "reached", "failed")
+NO_REASON, SEARCH_FAILED, DR_GAVE_UP = 0, 1, 2
+REASONS = ("", "search_failed", "dead_reckoning_gave_up")
+
+
+@dataclass
+class FollowerConfig:
+    """The follower's thresholds (the paper's and its authors' code's values)."""
+
+    p_search: float = 0.92          # RE needed to pick the first active anchor
+    p_follow: float = 0.92          # RE needed to keep following the active anchor
+    p_visited: float = 0.65         # proximity (mean predicted overlap) that marks an anchor visited
+    p_near: float = 0.6             # proximity above which an unvisited anchor may become active
+    lookahead: int = 5              # anchors after the last visited one checked in Follow
+    dr_max_iterations: int = 200    # Dead reckoning gives up after this many periods
+    dr_widen_every: int = 10        # the Dead reckoning search widens by one anchor each side
+    dr_max_window: int = 15         # at most this many anchors asked per Dead reckoning period
+
+    def check(self) -> "FollowerConfig":
+        for name in ("p_search", "p_follow", "p_visited", "p_near"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise TopodrakeError(f"follower {name} must be in [0, 1], got {v}")
+        for name in ("lookahead", "dr_max_iterations", "dr_widen_every", "dr_max_window"):
+            if getattr(self, name) < 1:
+                raise TopodrakeError(f"follower {name} must be >= 1, got {getattr(self, name)}")
+        return self
+
+
+@dataclass
+class FollowerState:
+    """Per-car follower state, arrays over N cars."""
+
+    mode: np.ndarray                 # (N,) int: SEARCH ... FAILED
+    active: np.ndarray               # (N,) int: active anchor (-1 = none yet)
+    visited: np.ndarray              # (N,) int: last visited anchor (-1 = none)
+    waypoint: np.ndarray             # (N, 2) world (odometry) frame: the last Follow waypoint
+    dr_count: np.ndarray             # (N,) int: periods spent in Dead reckoning since Follow
+    reason: np.ndarray               # (N,) int: why a follower failed (REASONS)
+    best_p: np.ndarray               # (N,) float: RE of the last choice (for reports)
+
+    @classmethod
+    def initial(cls, n: int) -> "FollowerState":
+        return cls(np.full(n, SEARCH, np.int64), np.full(n, -1, np.int64),
+                   np.full(n, -1, np.int64), np.full((n, 2), np.nan), np.zeros(n, np.int64),
+                   np.zeros(n, np.int64), np.zeros(n))
+
+    def __len__(self) -> int:
+        return len(self.mode)
+
+    def take(self, idx) -> "FollowerState":
+        return FollowerState(*(np.array(getattr(self, f)[idx]) for f in _FIELDS))
+
+    def put(self, idx, other: "FollowerState") -> None:
+        for f in _FIELDS:
+            getattr(self, f)[idx] = getattr(other, f)
+
+    def copy(self) -> "FollowerState":
+        return self.take(slice(None))
+
+    def to_vector(self) -> np.ndarray:
+        """One car's state as 8 floats (for a Drake discrete state)."""
+        if len(self) != 1:
+            raise ValueError("to_vector packs the state of one car")
+        return np.array([self.mode[0], self.active[0], self.visited[0], *self.waypoint[0],
+                         self.dr_count[0], self.reason[0], self.best_p[0]], np.float64)
+
+    @classmethod
+    def from_vector(cls, v) -> "FollowerState":
+        v = np.asarray(v, np.float64)
+        i = lambda x: np.array([int(round(x))], np.int64)   # noqa: E731
+        return cls(i(v[0]), i(v[1]), i(v[2]), v[None, 3:5].copy(), i(v[5]), i(v[6]),
+                   np.array([v[7]]))
+
+
+_FIELDS = ("mode", "active", "visited", "waypoint", "dr_count", "reason", "best_p")
+STATE_SIZE = 8
+
+
+@dataclass
+class Answers:
+    """The networks' answers for M (car, anchor) queries; NaN where not asked."""
+
+    waypoint: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))   # (M, 2) car frame
+    overlap: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))    # (M, 2)
+    probability: np.ndarray = field(default_factory=lambda: np.zeros(0))     # (M,) RE
+
+
+Evaluate = Callable[[np.ndarray, np.ndarray, bool, bool], Answers]
+
+
+@dataclass
+class StepOutput:
+    """What a period's decision drives: the world-frame waypoint (N, 2)
+    (NaN = stop) and the anchor whose context C_WP sees (-1 = none)."""
+
+    waypoint: np.ndarray
+    target: np.ndarray
+
+
+def _windows(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(row, anchor) pairs of the inclusive ranges lo[i]..hi[i] (empty when hi < lo)."""
+    counts = np.maximum(hi - lo + 1, 0)
+    rows = np.repeat(np.arange(len(lo)), counts)
+    starts = np.repeat(lo - np.cumsum(counts) + counts, counts)
+    return rows, starts + np.arange(counts.sum())
+
+
+def _best_per_row(rows: np.ndarray, values: np.ndarray, n: int, prefer_last: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Per row, the index into ``values`` of its maximum (-1 for rows without
+    values) and that maximum (-inf). Ties go to the first value (the last
+    with ``prefer_last``)."""
+    best = np.full(n, -np.inf)
+    arg = np.full(n, -1, np.int64)
+    for m in range(len(values)):       # M is small (a window per car); keeps ties explicit
+        r, v = rows[m], values[m]
+        if v > best[r] or (prefer_last and v == best[r]):
+            best[r] = v
+            arg[r] = m
+    return arg, best
+
+
+def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.ndarray,
+                  evaluate: Evaluate, config: FollowerConfig | None = None
+                  ) -> tuple[FollowerState, StepOutput]:
+    """One period for N followers (``state``, each on a route of
+    ``n_anchors[i]`` anchors; ``car_state`` (N, 5) the held car states).
+    ``evaluate(cars, anchors, cwp, re)`` answers for cars ``cars`` (rows of
+    this batch) toward their anchors ``anchors``: C_WP's waypoint and
+    overlaps when ``cwp``, RE's probability when ``re``. Returns the new
+    state and what to drive; cars already REACHED or FAILED keep their
+    state and get a NaN waypoint."""
+    cfg = config or FollowerConfig()
+    n = len(state)
+    n_anchors = np.broadcast_to(np.asarray(n_anchors, np.int64), (n,))
+    car_state = np.asarray(car_state, np.float64).reshape(n, 5)
+    new = state.copy()
+    target = np.full(n, -1, np.int64)
+    local = np.full((n, 2), np.nan)          # C_WP waypoint toward the new active anchor
+    have_wp = np.zeros(n, bool)
+    need = np.zeros(n, bool)                 # cars that still need C_WP toward their active anchor
+
+    # -- Search: RE toward every anchor ----------------------------------------------
+    s = np.flatnonzero(state.mode == SEARCH)
+    if s.size:
+        rows, anchors = _windows(np.zeros(s.size, np.int64), n_anchors[s] - 1)
+        p = evaluate(s[rows], anchors, False, True).probability
+        arg, best = _best_per_row(rows, p, s.size)
+        ok = best > cfg.p_search
+        new.best_p[s] = np.where(np.isfinite(best), best, 0.0)
+        got = s[ok]
+        new.active[got] = anchors[arg[ok]]
+        new.visited[got] = new.active[got] - 1
+        new.mode[got] = FOLLOW
+        need[got] = True
+        new.mode[s[~ok]] = FAILED
+        new.reason[s[~ok]] = SEARCH_FAILED
+
+    # -- Follow: proximity over the lookahead window, then RE toward the active anchor --
+    f = np.flatnonzero(state.mode == FOLLOW)
+    if f.size:
+        lo = state.visited[f] + 1
+        hi = np.minimum(state.visited[f] + cfg.lookahead, n_anchors[f] - 1)
+        rows, anchors = _windows(lo, hi)
+        ans = evaluate(f[rows], anchors, True, False)
+        prox = ans.overlap.mean(axis=1)
+        visited = state.visited[f].copy()
+        for m in np.flatnonzero(prox > cfg.p_visited):
+            visited[rows[m]] = max(visited[rows[m]], anchors[m])
+        new.visited[f] = visited
+        done = visited >= n_anchors[f] - 1
+        new.mode[f[done]] = REACHED
+        # the unvisited anchor of highest proximity above p_near, else the next one
+        open_ = anchors > visited[rows]
+        arg, best = _best_per_row(rows[open_], np.where(prox[open_] > cfg.p_near, prox[open_],
+                                                        np.nan), f.size)
+        m_open = np.flatnonzero(open_)
+        active = visited + 1
+        near = arg >= 0
+        active[near] = anchors[m_open[arg[near]]]
+        keep = ~done
+        fk = f[keep]
+        new.active[fk] = active[keep]
+        # C_WP's waypoint toward the active anchor, when it was in the window
+        for m in range(len(rows)):
+            r = rows[m]
+            if keep[r] and anchors[m] == active[r]:
+                local[f[r]] = ans.waypoint[m]
+                have_wp[f[r]] = True
+        if fk.size:
+            p = evaluate(fk, new.active[fk], False, True).probability
+            new.best_p[fk] = p
+            lost = p <= cfg.p_follow
+            new.mode[fk[lost]] = DEAD_RECKONING
+            new.dr_count[fk[lost]] = 0
+            need[fk[~lost]] = True
+
+    # -- Dead reckoning: RE over a widening window; back to Follow above p_follow ------
+    # (a car that entered Dead reckoning this period searches from the next one)
+    d = np.flatnonzero(state.mode == DEAD_RECKONING)
+    if d.size:
+        grow = state.dr_count[d] // cfg.dr_widen_every
+        nxt = state.visited[d] + 1
+        lo = np.maximum(nxt - grow, 0)
+        hi = np.minimum(nxt + cfg.lookahead - 1 + grow, n_anchors[d] - 1)
+        lo = np.maximum(lo, hi - cfg.dr_max_window + 1)
+        rows, anchors = _windows(lo, hi)
+        p = evaluate(d[rows], anchors, False, True).probability
+        arg, best = _best_per_row(rows, p, d.size, prefer_last=True)
+        new.best_p[d] = np.where(np.isfinite(best), best, 0.0)
+        back = best > cfg.p_follow
+        db = d[back]
+        new.active[db] = anchors[arg[back]]
+        new.visited[db] = new.active[db] - 1
+        new.mode[db] = FOLLOW
+        new.dr_count[db] = 0
+        need[db] = True
+        stay = d[~back]
+        new.dr_count[stay] = state.dr_count[stay] + 1
+        gave_up = stay[new.dr_count[stay] >= cfg.dr_max_iterations]
+        new.mode[gave_up] = FAILED
+        new.reason[gave_up] = DR_GAVE_UP
+
+    # -- C_WP toward active anchors not asked yet; the waypoints to drive ---------------
+    ask = np.flatnonzero(need & ~have_wp & (new.mode == FOLLOW))
+    if ask.size:
+        local[ask] = evaluate(ask, new.active[ask], True, False).waypoint
+        have_wp[ask] = True
+    follow = np.flatnonzero(new.mode == FOLLOW)
+    if follow.size:
+        world = car_to_world(local[follow, None], car_state[follow])[:, 0]
+        new.waypoint[follow] = world
+        target[follow] = new.active[follow]
+    drive = np.full((n, 2), np.nan)
+    drive[follow] = new.waypoint[follow]
+    dr = np.flatnonzero(new.mode == DEAD_RECKONING)
+    drive[dr] = new.waypoint[dr]           # held; NaN if Follow never produced one (stop)
+    target[dr] = new.active[dr]
+    return new, StepOutput(drive, target)
+
+
+def outcome_of(state: FollowerState) -> list[str]:
+    """"reached", the failure reason, or the mode of followers still running."""
+    out = []
+    for m, r in zip(state.mode, state.reason):
+        out.append("reached" if m == REACHED else REASONS[r] if m == FAILED else MODES[m])
+    return out
