@@ -128,20 +128,24 @@ def _read(path, arrays: bool = True) -> tuple[dict, dict]:
     return meta, data
 
 
+def _essence(identity: dict) -> dict:
+    """What must match: the checkpoints' content hashes, or a whole oracle's identity."""
+    return {k: v for k, v in identity.items() if k.endswith("_sha1")} or identity
+
+
+def _describe(identity: dict) -> str:
+    if "reach_sha1" in identity:
+        return (f"RE {identity.get('reach', '?')} (sha1 {identity['reach_sha1'][:10]}) with C_WP "
+                f"{identity.get('controller', '?')} (sha1 {identity.get('controller_sha1', '?')[:10]})")
+    return f"RE {identity.get('reach', '?')}"
+
+
 def check_identity(path, meta: dict, identity: dict) -> None:
     """Refuse a map built for another RE or controller than ``identity``."""
     have = meta.get("identity", {})
-    for key, what in (("reach", "reachability estimator"), ("controller", "controller")):
-        sha = f"{key}_sha1"
-        if sha in have or sha in identity:
-            if have.get(sha) != identity.get(sha):
-                raise TopodrakeError(
-                    f"{path} was built for the {what} {have.get(key, '?')} "
-                    f"(sha1 {str(have.get(sha, '?'))[:10]}), not {identity.get(key, '?')} "
-                    f"(sha1 {str(identity.get(sha, '?'))[:10]})")
-        elif have.get(key) != identity.get(key):
-            raise TopodrakeError(f"{path} was built for the {what} {have.get(key, '?')}, "
-                                 f"not {identity.get(key, '?')}")
+    if _essence(have) != _essence(identity):
+        raise TopodrakeError(f"{path} was built for the reachability estimator and controller "
+                             f"{_describe(have)}, not {_describe(identity)}")
 
 
 def load_map(path, scorer, embedding=None) -> TopoMap:

@@ -1,0 +1,318 @@
+"""The topological map: incremental building, planning, the map file, the CLI.
+
+Most tests use a table scorer (RE given as a function of (drive, frame)
+pairs) so each rule of the build is pinned exactly; the rest use the
+geometric oracle on poses, which runs in a fraction of a second.
+"""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from topodrake.errors import TopodrakeError
+from topodrake.topomap.build import add_trajectory, build_map
+from topodrake.topomap.graph import MapConfig, TopoMap
+from topodrake.topomap.mapfile import load_map, save_map
+from topodrake.topomap.plan import plan_path
+from topodrake.topomap.retrieval import PoseEmbedding, VertexIndex
+
+
+class TableScorer:
+    """RE from a rule over (drive, frame) observations; k = 0 (a context is one frame)."""
+
+    observation = "table"
+    k = 0
+    frame_step = 1
+
+    def __init__(self, rule, name="table"):
+        self.rule = rule
+        self.identity = {"reach": name}
+
+    def features(self, observations):
+        return {"x": np.asarray(observations, np.float64)}
+
+    def score(self, feats, source, context_rows):
+        x = feats["x"]
+        a, b = x[np.asarray(source)], x[np.asarray(context_rows)[:, 0]]
+        return np.array([self.rule(tuple(map(int, u)), tuple(map(int, v))) for u, v in zip(a, b)])
+
+
+class FlatEmbedding:
+    """Every vertex ties: retrieval returns them all (up to K)."""
+
+    observation, dim, name = "table", 1, "flat"
+
+    def embed(self, obs):
+        return np.zeros((len(obs), 1), np.float32)
+
+    def fingerprint(self):
+        return self.name
+
+
+def drive(d, n):
+    return np.column_stack([np.full(n, d), np.arange(n)])
+
+
+def same_drive_hops(a, b, reach=3):
+    return 0.999 if a[0] == b[0] and 0 <= b[1] - a[1] <= reach else 0.1
+
+
+def table_map(rule, **config):
+    return TopoMap(TableScorer(rule), FlatEmbedding(), MapConfig(**config), world="table")
+
+
+def test_a_drive_becomes_a_chain_of_anchors_linked_in_order():
+    m = table_map(same_drive_hops)
+    stats = add_trajectory(m, drive(0, 10))
+    chain = m.trajectories[0].chain
+    assert [m.graph.nodes[v]["frame"] for v in chain] == [0, 3, 6, 9]
+    assert stats.anchors == 4 and len(m) == 4
+    assert [(u, v) for u, v in m.graph.edges] == list(zip(chain[:-1], chain[1:]))
+    assert all(d["kind"] == "trajectory" and d["p"] == pytest.approx(0.999)
+               and d["weight"] == pytest.approx(-math.log(0.999)) for _, _, d in m.graph.edges(data=True))
+    # only the anchors' contexts are kept (k = 0: the anchor frames themselves)
+    assert len(m.bank) == 4 and m.raw_frames == 10
+
+
+def parallel_drives(a, b, reach=3):
+    """Drives 0 and 1 run side by side: from a frame, frames up to ``reach``
+    ahead on either drive are reachable."""
+    return 0.999 if 0 <= b[1] - a[1] <= reach else 0.1
+
+
+def test_a_second_drive_along_the_first_reuses_its_vertices():
+    m = table_map(parallel_drives)
+    add_trajectory(m, drive(0, 10))
+    stats = add_trajectory(m, drive(1, 10))
+    assert stats.reused == 4 and stats.new_vertices == 0
+    assert m.trajectories[1].chain == m.trajectories[0].chain
+    assert len(m) == 4
+
+
+def test_reuse_needs_both_hops_and_keeps_the_order_of_the_old_drive():
+    # drive 1 can reach drive 0's vertices, but drive 0's vertices cannot reach drive 1's
+    # next anchor: no reuse (both RE(prev, v) and RE(v, next) must pass)
+    def one_way(a, b):
+        if a[0] == 0 and b[0] == 1:
+            return 0.1
+        return parallel_drives(a, b)
+
+    m = table_map(one_way)
+    add_trajectory(m, drive(0, 10))
+    stats = add_trajectory(m, drive(1, 10))
+    assert stats.reused == 0 and stats.new_vertices == 4
+    # order: a drive that runs backwards over drive 0 reuses at most one of its vertices
+    m = table_map(lambda a, b: 0.999 if (a[0] == b[0] and 0 <= b[1] - a[1] <= 3)
+                  or a[0] != b[0] else 0.1)
+    add_trajectory(m, drive(0, 10))
+    add_trajectory(m, drive(1, 10))
+    for t in m.trajectories:
+        pos = [m.graph.nodes[v]["pos"] for v in t.chain if m.graph.nodes[v]["traj"] == 0]
+        assert pos == sorted(pos) and len(set(t.chain)) == len(t.chain)
+
+
+def test_cross_edges_need_the_aligned_neighbours_to_pass_too():
+    # drives side by side; the single pairs pass in both directions
+    m = table_map(parallel_drives, reuse=False)
+    add_trajectory(m, drive(0, 13))
+    add_trajectory(m, drive(1, 13))
+    c0, c1 = (t.chain for t in m.trajectories)
+    cross = {(u, v) for u, v, kind in m.graph.edges(data="kind") if kind == "cross"}
+    assert (c1[2], c0[2]) in cross and (c0[2], c1[2]) in cross and (c1[2], c0[3]) in cross
+
+    # now only frame 6 of drive 1 sees drive 0 (a lone look-alike): the single pair
+    # passes, its aligned neighbours do not, so no cross edge is made
+    def lone(a, b):
+        if a[0] != b[0]:
+            return 0.999 if (a, b) in {((1, 6), (0, 6)), ((0, 6), (1, 6))} else 0.1
+        return same_drive_hops(a, b)
+
+    m = table_map(lone, reuse=False)
+    add_trajectory(m, drive(0, 13))
+    add_trajectory(m, drive(1, 13))
+    assert not [1 for _, _, kind in m.graph.edges(data="kind") if kind == "cross"]
+    # ... unless sequence matching looks at no neighbours
+    m = table_map(lone, reuse=False, sequence_window=0)
+    add_trajectory(m, drive(0, 13))
+    add_trajectory(m, drive(1, 13))
+    assert len([1 for _, _, kind in m.graph.edges(data="kind") if kind == "cross"]) == 2
+
+
+def test_the_audit_counts_the_edges_retrieval_misses():
+    class Unhelpful(FlatEmbedding):
+        name = "unhelpful"
+
+        def embed(self, obs):   # ranks drive 0's vertices last
+            return np.asarray(obs, np.float32)[:, :1] * -100.0
+
+    m = TopoMap(TableScorer(parallel_drives), Unhelpful(), MapConfig(reuse=False, retrieval_k=2))
+    stats = build_map(m, [(drive(0, 13), None, "a"), (drive(1, 13), None, "b")], progress=False,
+                      audit=True)
+    assert stats.exhaustive_edges > stats.found_edges and stats.recall < 1.0
+    m = table_map(parallel_drives, reuse=False)
+    stats = build_map(m, [(drive(0, 13), None, "a"), (drive(1, 13), None, "b")], progress=False,
+                      audit=True)
+    assert stats.recall == 1.0
+
+
+def test_plan_takes_the_most_probable_path_and_reports_its_probability():
+    m = table_map(same_drive_hops)
+    add_trajectory(m, drive(0, 10))
+    start, goal = np.array([0, 0]), np.array([0, 9])
+    r = plan_path(m, start, goal)
+    assert r.reachable
+    frames = [m.graph.nodes[v]["frame"] for v in r.vertices]
+    # the start links to vertices within reach (frames 0, 3), the goal from 6 and 9
+    assert frames[0] in (0, 3) and frames[-1] in (6, 9)
+    edges = list(zip(r.vertices[:-1], r.vertices[1:]))
+    p = 0.999 * np.prod([m.graph.edges[e]["p"] for e in edges]) * 0.999
+    assert r.probability == pytest.approx(p)
+    assert r.route is not None and len(r.route) == len(r.vertices) + 1
+    assert r.route.probability == pytest.approx(p)
+    # temporary vertices and frames are gone afterwards
+    assert -1 not in m.graph and -2 not in m.graph and len(m.bank) == 4
+
+
+def test_an_unreachable_goal_is_a_result_with_a_reason():
+    m = table_map(same_drive_hops)
+    add_trajectory(m, drive(0, 10))
+    r = plan_path(m, np.array([0, 0]), np.array([5, 3]))
+    assert not r.reachable and "goal" in r.reason and r.route is None
+    r = plan_path(m, np.array([7, 0]), np.array([0, 9]))
+    assert not r.reachable and "start" in r.reason
+    # two separate drives: links exist on both sides but no path joins them
+    add_trajectory(m, drive(2, 10))
+    r = plan_path(m, np.array([2, 0]), np.array([0, 9]))
+    assert not r.reachable and "no path" in r.reason
+
+
+def test_plan_avoids_excluded_edges():
+    m = table_map(parallel_drives, reuse=False)
+    add_trajectory(m, drive(0, 13))
+    add_trajectory(m, drive(1, 13))
+    r = plan_path(m, np.array([0, 0]), np.array([0, 12]))
+    banned = list(zip(r.vertices[:-1], r.vertices[1:]))
+    r2 = plan_path(m, np.array([0, 0]), np.array([0, 12]), excluded_edges=banned[:1])
+    assert r2.reachable and tuple(banned[0]) not in set(zip(r2.vertices[:-1], r2.vertices[1:]))
+
+
+def test_map_config_is_checked():
+    with pytest.raises(TopodrakeError, match="p_edge"):
+        MapConfig(p_edge=1.5).validate()
+    with pytest.raises(TopodrakeError, match="retrieval_k"):
+        MapConfig(retrieval_k=0).validate()
+
+
+def test_vertex_index_ranks_nearest_first_and_excludes():
+    idx = VertexIndex(PoseEmbedding())
+    idx.add(np.array([10, 11, 12]), PoseEmbedding().embed(np.array([[0, 0, 0], [5, 0, 0], [1, 0, 0]])))
+    near = idx.search(PoseEmbedding().embed(np.array([[0.2, 0, 0]])), 2)[0]
+    assert list(near) == [10, 12]
+    assert list(idx.search(PoseEmbedding().embed(np.array([[0.2, 0, 0]])), 5, exclude=[10])[0]) == [12, 11]
+
+
+# -- the oracle on a real house ------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def oracle_map(tmp_path_factory):
+    """An oracle map of test-0 from three A* drives (poses as observations)."""
+    from topodrake.topomap.scorer import OracleScorer
+    from topodrake.world import load_world
+
+    world = load_world("test-0")
+    m = TopoMap(OracleScorer(world), PoseEmbedding(), world="test-0")
+    for name, (i, j) in {"a": (0, 5), "b": (5, 0), "c": (0, 8)}.items():
+        path = world.astar(world.places[i], world.places[j][:2])
+        step = np.hypot(*np.diff(path, axis=0).T)
+        s = np.concatenate([[0], np.cumsum(step)])
+        t = np.arange(0, s[-1], 0.05)
+        xy = np.column_stack([np.interp(t, s, path[:, 0]), np.interp(t, s, path[:, 1])])
+        heading = np.arctan2(*np.gradient(xy, axis=0)[:, ::-1].T)
+        poses = np.column_stack([xy, heading])
+        add_trajectory(m, poses, poses, name)
+    path = tmp_path_factory.mktemp("maps") / "t0.tdmap"
+    save_map(m, path)
+    return world, m, path
+
+
+def test_oracle_map_links_shared_corridors_and_plans_between_places(oracle_map):
+    world, m, _ = oracle_map
+    kinds = m.edge_counts()
+    assert kinds["trajectory"] > 0 and m.trajectories[2].chain[0] in m.trajectories[0].chain
+    a, b = world.places[0], m.pose(m.trajectories[0].chain[-1:])[0]
+    r = plan_path(m, a, b, start_pose=a, goal_pose=b)
+    assert r.reachable and r.probability > 0.5
+    # consecutive anchors of the route are close: every hop is one the oracle trusts
+    hops = np.hypot(*np.diff(r.route.poses[:, :2], axis=0).T)
+    assert hops.max() < 2.6
+
+
+def test_map_file_round_trip(oracle_map):
+    world, m, path = oracle_map
+    m2 = load_map(path, m.scorer)
+    assert sorted(m2.graph.nodes) == sorted(m.graph.nodes)
+    assert {(u, v): round(p, 12) for u, v, p in m2.graph.edges(data="p")} == \
+        {(u, v): round(p, 12) for u, v, p in m.graph.edges(data="p")}
+    assert [t.chain for t in m2.trajectories] == [t.chain for t in m.trajectories]
+    np.testing.assert_array_equal(m2.bank.observations, m.bank.observations)
+    a, b = world.places[0], world.places[5]
+    assert plan_path(m2, a, b).vertices == plan_path(m, a, b).vertices
+
+
+def test_map_files_that_do_not_fit_are_refused_in_one_line(oracle_map, tmp_path):
+    import io
+    import zipfile
+
+    from topodrake.topomap.scorer import OracleConfig, OracleScorer
+
+    world, m, path = oracle_map
+    data = path.read_bytes()
+    cut = tmp_path / "cut.tdmap"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(TopodrakeError, match="truncated") as e:
+        load_map(cut, m.scorer)
+    assert "\n" not in str(e.value)
+    other = OracleScorer(world, config=OracleConfig(reach_m=1.0))
+    with pytest.raises(TopodrakeError, match="built for the reachability estimator"):
+        load_map(path, other)
+    # an unknown version
+    with zipfile.ZipFile(path) as z:
+        files = {n: z.read(n) for n in z.namelist()}
+    meta = json.loads(np.load(io.BytesIO(files["meta.npy"])).tobytes())
+    meta["version"] = 99
+    buf = io.BytesIO()
+    np.save(buf, np.frombuffer(json.dumps(meta).encode(), np.uint8))
+    files["meta.npy"] = buf.getvalue()
+    newer = tmp_path / "newer.tdmap"
+    with zipfile.ZipFile(newer, "w") as z:
+        for n, b in files.items():
+            z.writestr(n, b)
+    with pytest.raises(TopodrakeError, match="version 99"):
+        load_map(newer, m.scorer)
+
+
+def test_map_cli_info_plan_and_plot(oracle_map, tmp_path, capsys):
+    from topodrake.cli import main
+
+    world, m, path = oracle_map
+    assert main(["map", "info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["vertices"] == len(m) and info["edges"] == m.n_edges
+    assert info["keep_ratio"] == pytest.approx(len(m) / m.raw_frames, abs=1e-5)
+    assert {"raw_frames", "checkpoints", "config", "version"} <= set(info)
+    s, g = world.places[0], world.places[5]
+    arg = lambda p: ",".join(f"{v:.4f}" for v in p)
+    png = tmp_path / "plan.png"
+    assert main(["map", "plan", str(path), "--start", arg(s), "--goal", arg(g), "--json",
+                 "--plot", str(png)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["path"] and 0.0 < out["probability"] <= 1.0 and png.stat().st_size > 0
+    # a goal no drive went near: exit status 1 and the reason
+    far = world.places[3]
+    assert main(["map", "plan", str(path), "--start", arg(s), "--goal", arg(far), "--json"]) == 1
+    assert json.loads(capsys.readouterr().out)["reachable"] is False
+    assert main(["map", "plan", str(path), "--start", "1,2", "--goal", arg(g)]) == 2
+    assert "X,Y,YAW" in capsys.readouterr().err
+    assert main(["map", "plot", str(path), "--out", str(tmp_path / "m.png")]) == 0
