@@ -173,6 +173,9 @@ def add_bench_parser(bsub) -> None:
     bp.add_argument("--checkpoint", default="checkpoints/place_camera/checkpoint.pt")
     bp.add_argument("--world", default="test-0")
     bp.add_argument("--data", default="data", help="cache of demonstrations")
+    bp.add_argument("--reach", help="RE.pt:CWP.pt: also score recall against the vertices this "
+                                    "RE passes (slow: exact RE on queries x database)")
+    bp.add_argument("--re-queries", type=int, default=60, help="queries scored with --reach")
     bp.add_argument("--threads", type=int, default=1)
     bp.add_argument("--seed", type=int, default=0)
     bp.add_argument("--json", action="store_true")
@@ -182,5 +185,11 @@ def add_bench_parser(bsub) -> None:
 def cmd_bench_place(args) -> None:
     from topodrake.topomap.embedding_eval import bench_place
 
+    reach = None
+    if args.reach:
+        from topodrake.errors import TopodrakeError
+        if ":" not in args.reach:
+            raise TopodrakeError(f"--reach {args.reach!r} is not RE.pt:CWP.pt")
+        reach = tuple(args.reach.split(":", 1))
     _print_figures(args, bench_place(args.checkpoint, args.world, args.data, args.seed,
-                                     args.threads))
+                                     args.threads, reach, args.re_queries))

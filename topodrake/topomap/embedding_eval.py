@@ -50,7 +50,10 @@ def recall_split(world_name: str, data_dir, *, query_drives: int = 30, query_ste
                              np.concatenate([np.full(len(drives[i][::step]), i) for i in ds]))
     q, qd = pick(range(query_drives), query_step)
     v, vd = pick(range(query_drives, len(drives)), db_step)
-    return {"query_poses": q, "query_drive": qd, "db_poses": v, "db_drive": vd}
+    vf = np.concatenate([np.arange(0, len(drives[i]), db_step)
+                         for i in range(query_drives, len(drives))])
+    return {"query_poses": q, "query_drive": qd, "db_poses": v, "db_drive": vd, "db_frame": vf,
+            "drives": drives}
 
 
 def overlap_relevance(world, split: dict, camera: CameraConfig | None = None,
@@ -62,6 +65,29 @@ def overlap_relevance(world, split: dict, camera: CameraConfig | None = None,
     a = np.repeat(q, len(v), axis=0)
     b = np.tile(v, (len(q), 1))
     return (mutual_overlap(world, a, b, camera).min(axis=1) > threshold).reshape(len(q), len(v))
+
+
+def re_relevance(world, split: dict, reach, queries: np.ndarray, threshold: float = 0.5,
+                 ) -> np.ndarray:
+    """(len(queries), D) bool: RE(query -> vertex) > ``threshold``, the vertex
+    seen with its context in its own drive; the RE's general calibration
+    (temperature), as query and vertex come from different drives."""
+    from topodrake.learning.policy import context_frames
+    from topodrake.sensing.observe import observe
+
+    drives = split["drives"]
+    ctx = [drives[d][context_frames(len(drives[d]), f, reach.k, reach.cfg.frame_step)]
+           for d, f in zip(split["db_drive"], split["db_frame"])]
+    ctx_poses = np.concatenate(ctx)                                   # (D * (2k+1), 3)
+    q_poses = split["query_poses"][queries]
+    obs = observe(world, reach.cfg.modality, np.concatenate([q_poses, ctx_poses]), reach.sensor)
+    feats = reach.frame_features(obs)
+    n_ctx = reach.cfg.frames
+    rows = len(q_poses) + np.arange(len(ctx_poses)).reshape(-1, n_ctx)     # (D, 2k+1)
+    source = np.repeat(np.arange(len(q_poses)), len(rows))
+    p = reach.pairwise(feats, source, np.tile(rows, (len(q_poses), 1)),
+                       platt=(1.0 / reach.temperature, 0.0))
+    return (p > threshold).reshape(len(q_poses), len(rows))
 
 
 def recall_study(world_name: str, data_dir, embeddings: list, *, camera: CameraConfig | None = None,
@@ -118,21 +144,38 @@ def search_timing(n: int = 100000, dim: int = 64, k: int = 64, queries: int = 20
 
 
 def bench_place(checkpoint: str, world: str = "test-0", data_dir="data", seed: int = 0,
-                threads: int = 1) -> dict:
+                threads: int = 1, reach: tuple[str, str] | None = None,
+                re_queries: int = 60) -> dict:
     """recall@K of a place-embedding checkpoint and of the thumbnail baseline
-    on ``world``, and the per-query search time at 100,000 vertices."""
+    on ``world``, and the per-query search time at 100,000 vertices. With
+    ``reach`` (RE checkpoint, its C_WP checkpoint), also recall@K against
+    RE-passing vertices for ``re_queries`` evenly spread queries."""
     import torch
 
     from topodrake.topomap.embedding import PlaceEmbedding, ThumbnailEmbedding
+    from topodrake.world import load_world
 
     torch.set_num_threads(threads)
     emb = PlaceEmbedding.from_checkpoint(checkpoint)
-    study = recall_study(world, data_dir, [emb, ThumbnailEmbedding(emb.observation, emb.sensor)],
-                         seed=seed)
+    both = [emb, ThumbnailEmbedding(emb.observation, emb.sensor)]
+    split = recall_split(world, data_dir)
+    study = recall_study(world, data_dir, both, seed=seed, split=split)
+    out = {"embedding": emb.name, "fingerprint": emb.fingerprint(), "world": world,
+           "recall_at": study["recall_at"], "baseline_recall_at": study["baseline_recall_at"],
+           "queries": study["queries"], "database": study["database"],
+           "mean_relevant": study["mean_relevant"]}
+    if reach is not None:
+        from topodrake.learning.reachability import Reachability
+
+        re = Reachability.from_checkpoint(*reach)
+        idx = np.unique(np.linspace(0, len(split["query_poses"]) - 1, re_queries).astype(int))
+        rel = re_relevance(load_world(world), split, re, idx)
+        sub = {**split, "query_poses": split["query_poses"][idx]}
+        re_study = recall_study(world, data_dir, both, seed=seed, split=sub, relevance=rel)
+        out.update({"re_recall_at": re_study["recall_at"],
+                    "re_baseline_recall_at": re_study["baseline_recall_at"],
+                    "re_queries": re_study["queries"], "re_mean_relevant": re_study["mean_relevant"]})
     timing = search_timing(dim=emb.dim, seed=seed)
-    return {"embedding": emb.name, "fingerprint": emb.fingerprint(), "world": world,
-            "recall_at": study["recall_at"], "baseline_recall_at": study["baseline_recall_at"],
-            "queries": study["queries"], "database": study["database"],
-            "mean_relevant": study["mean_relevant"], "query_ms_100k": timing["numpy_ms"],
-            **{f"query_ms_100k_{k}" if not k.startswith("faiss_agrees") else k: v
-               for k, v in timing.items() if k != "numpy_ms"}}
+    out["query_ms_100k"] = timing.pop("numpy_ms")
+    out.update({("query_ms_100k_" + k if k.endswith("_ms") else k): v for k, v in timing.items()})
+    return out

@@ -8,7 +8,8 @@ geometric overlap ``min(R_a->b, R_b->a)``
 kinds, by the fractions in :class:`PlaceDataConfig`:
 
 - near: a random frame and one within ``near_radius_m`` whose heading
-  differs by less than ``near_heading_deg`` (most positives, graded);
+  differs by less than ``near_heading_deg`` (the frame nearest a random
+  point of that disk: most positives, graded);
 - look-alike: a random frame and one of its ``lookalike_top`` most similar
   8 x 8 thumbnails anywhere in the house (hard negatives from rooms the
   houses copy on purpose, and some positives);
@@ -133,30 +134,40 @@ class PlaceData:
 def sample_pairs(poses: np.ndarray, thumbs: np.ndarray, n: int, cfg: PlaceDataConfig,
                  rng: np.random.Generator) -> np.ndarray:
     """(n, 2) frame pairs of one house: near, look-alike and random ones."""
+    from scipy.spatial import cKDTree
+
     m = len(poses)
     n_near = int(round(n * cfg.near_fraction))
     n_look = int(round(n * cfg.lookalike_fraction))
     a = rng.integers(0, m, n)
     b = rng.integers(0, m, n)
     cos_h = np.cos(np.radians(cfg.near_heading_deg))
-    top = min(cfg.lookalike_top + 1, m)
-    for kind, start, stop in (("near", 0, n_near), ("look", n_near, n_near + n_look)):
-        for lo in range(start, stop, 1024):
-            hi = min(lo + 1024, stop)
-            rows = a[lo:hi]
-            if kind == "near":
-                d = np.hypot(*(poses[rows, None, :2] - poses[None, :, :2]).transpose(2, 0, 1))
-                ok = (d < cfg.near_radius_m) & (np.cos(poses[rows, None, 2] - poses[None, :, 2])
-                                                > cos_h)
-                ok[np.arange(len(rows)), rows] = False
-                key = np.where(ok, rng.random(ok.shape), -1.0)
-            else:
-                sims = thumbs[rows] @ thumbs.T
-                sims[np.arange(len(rows)), rows] = -np.inf
-                idx = np.argpartition(-sims, top - 1, axis=1)[:, :top]
-                key = np.full(sims.shape, -1.0)
-                np.put_along_axis(key, idx, rng.random(idx.shape), axis=1)
-            b[lo:hi] = np.argmax(key, axis=1)
+    # near: aim at a random point of the disk around the frame, take the frame
+    # nearest to it; keep it if it is near enough and headed alike (a few rounds)
+    tree = cKDTree(poses[:, :2])
+    todo = np.arange(n_near)
+    for _ in range(8):
+        if not len(todo):
+            break
+        i = a[todo]
+        rad = cfg.near_radius_m * np.sqrt(rng.random(len(todo)))
+        ang = rng.uniform(-np.pi, np.pi, len(todo))
+        aim = poses[i, :2] + rad[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
+        _, j = tree.query(aim)
+        ok = ((j != i) & (np.hypot(*(poses[j, :2] - poses[i, :2]).T) < cfg.near_radius_m)
+              & (np.cos(poses[j, 2] - poses[i, 2]) > cos_h))
+        b[todo[ok]] = j[ok]
+        todo = todo[~ok]
+    if n_look:
+        top = min(cfg.lookalike_top, m - 1)
+        rows = np.unique(a[n_near:n_near + n_look])
+        alike = np.empty((len(rows), top), np.int64)
+        for lo in range(0, len(rows), 1024):
+            sims = thumbs[rows[lo:lo + 1024]] @ thumbs.T
+            sims[np.arange(len(sims)), rows[lo:lo + 1024]] = -np.inf
+            alike[lo:lo + 1024] = np.argpartition(-sims, top - 1, axis=1)[:, :top]
+        pick = alike[np.searchsorted(rows, a[n_near:n_near + n_look]), rng.integers(0, top, n_look)]
+        b[n_near:n_near + n_look] = pick
     return np.column_stack([a, b])
 
 
@@ -241,7 +252,8 @@ def train_steps(model: PlaceNet, data: PlaceData, cfg: PlaceTrainConfig,
         loss.backward()
         opt.step()
         step += 1
-        ema = float(loss) if ema is None else 0.98 * ema + 0.02 * float(loss)
+        value = loss.item()
+        ema = value if ema is None else 0.98 * ema + 0.02 * value
         if step % cfg.log_every == 0 or step == cfg.max_steps:
             history.append({"step": step, "loss_ema": round(ema, 5),
                             "wall_time_s": round(time.time() - t0, 1)})
