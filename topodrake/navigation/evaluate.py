@@ -110,10 +110,25 @@ class Evaluator:
             out.waypoint = np.asarray(pred.waypoint, np.float64).reshape(m, 2)
             out.overlap = np.asarray(pred.overlap, np.float64).reshape(m, 2)
         if re:
-            out.probability = np.asarray(
-                self.reach.probability(self._obs(self.reach, cars), _take(self.features.re, rows)),
-                np.float64).reshape(m)
+            p = np.asarray(self.reach.probability(self._obs(self.reach, cars),
+                                                  _take(self.features.re, rows)), np.float64)
+            out.probability = route_calibrated(self.reach, p.reshape(m))
         return out
+
+
+def route_calibrated(reach, p: np.ndarray) -> np.ndarray:
+    """RE's probability toward a route's anchors under the calibration of the
+    hops that placed them (``reach.anchor_platt``, fitted on pairs of frames
+    of one drive: a car on a route asks about such pairs), converted from
+    the general one (temperature ``T``) that ``reach.probability`` applies.
+    Oracles without these calibrations answer unchanged."""
+    platt = getattr(reach, "anchor_platt", None)
+    temperature = getattr(reach, "temperature", None)
+    if platt is None or temperature is None:
+        return p
+    with np.errstate(divide="ignore"):
+        z = temperature * (np.log(p) - np.log1p(-p))          # the raw logit (+-inf when saturated)
+    return 1.0 / (1.0 + np.exp(-(platt[0] * z + platt[1])))
 
 
 class GeometricReachability:

@@ -15,19 +15,28 @@ Per period, with the current observation:
   (``search_failed``).
 * **Follow**: C_WP toward the ``lookahead`` anchors after the last visited
   one. Proximity = the mean of the two predicted overlaps; the farthest
-  anchor with proximity above ``p_visited`` becomes the last visited one
-  (the last anchor of the route visited ends the plan: ``reached``). The
-  active anchor is the unvisited one of highest proximity above ``p_near``
-  in that window, else the one after the last visited. If RE toward it is
-  above ``p_follow`` the waypoint is C_WP's toward it; otherwise the
-  follower enters Dead reckoning.
+  anchor with proximity above ``p_visited`` *and* a C_WP waypoint shorter
+  than ``visit_m`` becomes the last visited one (the last anchor of the
+  route visited ends the plan: ``reached``). The distance condition is ours:
+  in a straight corridor the predicted overlap of an anchor 2 m ahead
+  already passes 0.65, and marking it visited made the follower aim at
+  anchors too far for RE. The active anchor is the next unvisited one, or
+  the one after it when RE toward that one is above ``p_follow`` and its
+  proximity above ``p_near`` (the paper's advance rule). If RE toward the
+  active anchor is above ``p_follow`` the waypoint is C_WP's toward it;
+  otherwise the follower enters Dead reckoning.
 * **Dead reckoning**: the car drives to the last Follow waypoint, held in
   the odometry frame (the car's integrated pose, which is the world frame
   here: odometry has no drift in this simulator). Each period RE is asked
   about a window of anchors around the next unvisited one that widens by one
   anchor on each side every ``dr_widen_every`` periods; the best above
-  ``p_follow`` becomes active and the follower returns to Follow. After
-  ``dr_max_iterations`` periods it gives up (``dead_reckoning_gave_up``).
+  ``p_follow`` becomes active and the follower returns to Follow. A car
+  that arrives within ``dr_arrive_m`` of the held waypoint while RE still
+  says no holds C_WP's next waypoint toward the active anchor instead (ours:
+  the paper replans at that point, which a single route cannot; without it
+  a car that stands at an anchor at the wrong heading waits until it gives
+  up). After ``dr_max_iterations`` periods it gives up
+  (``dead_reckoning_gave_up``).
 
 The state is a handful of numbers per car (:class:`FollowerState`): mode,
 active anchor, last visited anchor, the held waypoint and counters.
@@ -56,13 +65,18 @@ class FollowerConfig:
     p_search: float = 0.92          # RE needed to pick the first active anchor
     p_follow: float = 0.92          # RE needed to keep following the active anchor
     p_visited: float = 0.65         # proximity (mean predicted overlap) that marks an anchor visited
-    p_near: float = 0.6             # proximity above which an unvisited anchor may become active
+    p_near: float = 0.6             # proximity the anchor after the next needs to become active
+    visit_m: float = 0.35           # ... and C_WP's waypoint toward a visited anchor is this short
     lookahead: int = 5              # anchors after the last visited one checked in Follow
     dr_max_iterations: int = 200    # Dead reckoning gives up after this many periods
     dr_widen_every: int = 10        # the Dead reckoning search widens by one anchor each side
     dr_max_window: int = 15         # at most this many anchors asked per Dead reckoning period
+    dr_arrive_m: float = 0.3        # at the held waypoint, C_WP gives the next one (see above)
 
     def check(self) -> "FollowerConfig":
+        for name in ("visit_m", "dr_arrive_m"):
+            if not getattr(self, name) > 0:
+                raise TopodrakeError(f"follower {name} must be > 0, got {getattr(self, name)}")
         for name in ("p_search", "p_follow", "p_visited", "p_near"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
@@ -211,36 +225,46 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         rows, anchors = _windows(lo, hi)
         ans = evaluate(f[rows], anchors, True, False)
         prox = ans.overlap.mean(axis=1)
+        near_enough = np.hypot(*ans.waypoint.T) < cfg.visit_m
         visited = state.visited[f].copy()
-        for m in np.flatnonzero(prox > cfg.p_visited):
+        for m in np.flatnonzero((prox > cfg.p_visited) & near_enough):
             visited[rows[m]] = max(visited[rows[m]], anchors[m])
         new.visited[f] = visited
         done = visited >= n_anchors[f] - 1
         new.mode[f[done]] = REACHED
-        # the unvisited anchor of highest proximity above p_near, else the next one
-        open_ = anchors > visited[rows]
-        arg, best = _best_per_row(rows[open_], np.where(prox[open_] > cfg.p_near, prox[open_],
-                                                        np.nan), f.size)
-        m_open = np.flatnonzero(open_)
-        active = visited + 1
-        near = arg >= 0
-        active[near] = anchors[m_open[arg[near]]]
         keep = ~done
         fk = f[keep]
-        new.active[fk] = active[keep]
-        # C_WP's waypoint toward the active anchor, when it was in the window
-        for m in range(len(rows)):
-            r = rows[m]
-            if keep[r] and anchors[m] == active[r]:
-                local[f[r]] = ans.waypoint[m]
-                have_wp[f[r]] = True
         if fk.size:
-            p = evaluate(fk, new.active[fk], False, True).probability
-            new.best_p[fk] = p
-            lost = p <= cfg.p_follow
+            # RE toward the next unvisited anchor and the one after it (when there is one)
+            nxt = visited[keep] + 1
+            two = nxt + 1 < n_anchors[fk]
+            cars = np.concatenate([np.arange(fk.size), np.flatnonzero(two)])
+            p = evaluate(fk[cars], np.concatenate([nxt, nxt[two] + 1]), False, True).probability
+            p_next = p[:fk.size]
+            p_after = np.full(fk.size, -np.inf)
+            p_after[two] = p[fk.size:]
+            # proximity of the one after, from the window (when it was in it)
+            prox_after = np.full(fk.size, -np.inf)
+            pos = np.full(len(f), -1, np.int64)
+            pos[keep] = np.arange(fk.size)
+            for m in range(len(rows)):
+                r = pos[rows[m]]
+                if r >= 0 and anchors[m] == nxt[r] + 1:
+                    prox_after[r] = prox[m]
+            advance = (p_after > cfg.p_follow) & (prox_after > cfg.p_near)
+            new.active[fk] = np.where(advance, nxt + 1, nxt)
+            p_active = np.where(advance, p_after, p_next)
+            new.best_p[fk] = p_active
+            # C_WP's waypoint toward the active anchor, when it was in the window
+            for m in range(len(rows)):
+                r = pos[rows[m]]
+                if r >= 0 and anchors[m] == new.active[fk[r]]:
+                    local[fk[r]] = ans.waypoint[m]
+                    have_wp[fk[r]] = True
+            lost = p_active <= cfg.p_follow
             new.mode[fk[lost]] = DEAD_RECKONING
             new.dr_count[fk[lost]] = 0
-            need[fk[~lost]] = True
+            need[fk] = True         # (entering Dead reckoning holds this period's waypoint)
 
     # -- Dead reckoning: RE over a widening window; back to Follow above p_follow ------
     # (a car that entered Dead reckoning this period searches from the next one)
@@ -267,22 +291,28 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         gave_up = stay[new.dr_count[stay] >= cfg.dr_max_iterations]
         new.mode[gave_up] = FAILED
         new.reason[gave_up] = DR_GAVE_UP
+        # arrived at the held waypoint without RE's consent: a new leg from C_WP
+        going = stay[new.mode[stay] == DEAD_RECKONING]
+        arrived = going[np.hypot(*(state.waypoint[going] - car_state[going, :2]).T)
+                        < cfg.dr_arrive_m]
+        if arrived.size:
+            leg = evaluate(arrived, new.active[arrived], True, False).waypoint
+            new.waypoint[arrived] = car_to_world(leg[:, None], car_state[arrived])[:, 0]
 
     # -- C_WP toward active anchors not asked yet; the waypoints to drive ---------------
-    ask = np.flatnonzero(need & ~have_wp & (new.mode == FOLLOW))
+    moving = (new.mode == FOLLOW) | (new.mode == DEAD_RECKONING)
+    ask = np.flatnonzero(need & ~have_wp & moving)
     if ask.size:
         local[ask] = evaluate(ask, new.active[ask], True, False).waypoint
-        have_wp[ask] = True
+    fresh = np.flatnonzero(need & moving)
+    if fresh.size:
+        new.waypoint[fresh] = car_to_world(local[fresh, None], car_state[fresh])[:, 0]
     follow = np.flatnonzero(new.mode == FOLLOW)
-    if follow.size:
-        world = car_to_world(local[follow, None], car_state[follow])[:, 0]
-        new.waypoint[follow] = world
-        target[follow] = new.active[follow]
+    target[follow] = new.active[follow]
     drive = np.full((n, 2), np.nan)
     drive[follow] = new.waypoint[follow]
     dr = np.flatnonzero(new.mode == DEAD_RECKONING)
-    drive[dr] = new.waypoint[dr]           # held; NaN if Follow never produced one (stop)
-    target[dr] = new.active[dr]
+    drive[dr] = new.waypoint[dr]           # held (C_WP is not asked: target stays -1)
     return new, StepOutput(drive, target)
 
 

@@ -84,3 +84,20 @@ def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network
                       getattr(network, "sensor", None))
         contexts = obs.reshape(*rows.shape, *obs.shape[1:])
     return Route(contexts, poses[anchors], modality=network.observation)
+
+
+def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors: np.ndarray,
+                            k: int, frame_step: int, modality: str) -> Route:
+    """The route along frames ``anchors`` of one trajectory whose
+    observations (T, ...) are already rendered (no rendering again):
+    each anchor's 2k + 1 context frames, clamped to the trajectory."""
+    from topodrake.learning.policy import context_frames
+
+    poses = np.asarray(poses, np.float64)
+    anchors = np.asarray(anchors, np.int64)
+    if len(observations) != len(poses):
+        raise TopodrakeError(f"{len(observations)} observations for {len(poses)} poses")
+    if len(anchors) == 0 or anchors.min() < 0 or anchors.max() >= len(poses):
+        raise TopodrakeError(f"anchors must be frames 0..{len(poses) - 1} of the trajectory")
+    rows = context_frames(len(poses), anchors, k, frame_step)
+    return Route(np.asarray(observations)[rows], poses[anchors], modality=modality)

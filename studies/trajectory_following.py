@@ -1,0 +1,374 @@
+"""Trajectory following: cover rate against anchors per metre (the paper's cover-rate figure).
+
+Test trajectories (seeded expert drives between random free poses of the
+test houses whose A* path is 10-20 m, mean about 15 m; cached in
+``DATA/trajectory_following/``) are each reduced to a chain of anchors (a)
+by RE sparsification at every ``--p`` and (b) by keeping every n-th frame
+(the SPTM way) at the density the RE chains of that ``p`` have. Each chain is
+followed by the learned follower (:mod:`topodrake.navigation`, the batched
+navigation engine) from a jittered start (0.3 m sideways, 9 deg), with each
+controller and its RE; at p = 0.99 the RE chains are followed again with
+actuation noise N(1, ``--noise``). The robot stops when it strays more than
+0.5 m from the reference path, collides, the follower ends, or at
+2 x frames + 100 periods. Cover: the share of the reference path's length
+up to the farthest reference sample the robot came within 0.5 m of,
+averaged over trajectories.
+
+camera_k0 has no RE of its own: its chains and its follower's RE are the
+camera k=2 ones (the network of the nearest controller).
+
+    python studies/trajectory_following.py --json
+
+prints at p = 0.99 ``{"camera_k0": {"cover": c, "cover_noisy": c,
+"cover_subsampled": c, "anchors_per_m": a}, ...}`` and writes
+``results/trajectory_following.json`` and ``.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.fileio import atomic_write_bytes, atomic_write_json
+
+CONTROLLERS = {
+    # name: (C_WP checkpoint, RE checkpoint, the controller the RE was trained for)
+    "camera_k0": ("checkpoints/camera_k0/checkpoint.pt", "checkpoints/reach_camera_k2/checkpoint.pt",
+                  "checkpoints/camera_k2/checkpoint.pt"),
+    "camera_k2": ("checkpoints/camera_k2/checkpoint.pt", "checkpoints/reach_camera_k2/checkpoint.pt",
+                  "checkpoints/camera_k2/checkpoint.pt"),
+    "camera_k5": ("checkpoints/camera_k5/checkpoint.pt", "checkpoints/reach_camera_k5/checkpoint.pt",
+                  "checkpoints/camera_k5/checkpoint.pt"),
+    "lidar_k5": ("checkpoints/lidar_k5/checkpoint.pt", "checkpoints/reach_lidar_k5/checkpoint.pt",
+                 "checkpoints/lidar_k5/checkpoint.pt"),
+}
+TOLERANCE_M = 0.5      # a reference sample is covered when the robot comes this close
+DIVERGE_M = 1.0        # the robot is stopped this far from the reference path
+AHEAD = 120            # reference samples (about 6 m) searched ahead of the progress
+BEHIND = 40            # the robot may fall back this many samples before it diverges
+
+
+# ---------------------------------------------------------------- trajectories
+
+def make_trajectories(worlds: list[str], n: int, seed: int, lo_m: float = 10.0,
+                      hi_m: float = 20.0) -> list[dict]:
+    """``n`` successful noise-free expert drives, round-robin over ``worlds``,
+    between random free poses whose A* path is ``lo_m``..``hi_m`` long."""
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+    from topodrake.world import load_world
+
+    rng = np.random.default_rng(seed)
+    out: list[dict] = []
+    loaded = {w: load_world(w) for w in worlds}
+    per = -(-n // len(worlds))
+    for name, world in loaded.items():
+        got: list[dict] = []
+        while len(got) < per:
+            starts, goals = [], []
+            while len(starts) < 16:
+                s, g = world.sample_free_pose(rng), world.sample_free_pose(rng)
+                path = world.astar(s, g)
+                length = float(np.hypot(*np.diff(path, axis=0).T).sum()) if len(path) > 1 else 0.0
+                if lo_m <= length <= hi_m:
+                    d = path[min(5, len(path) - 1)] - s[:2]
+                    s[2] = np.arctan2(d[1], d[0])         # facing along the path
+                    starts.append(s)
+                    goals.append(g[:2])
+            res = ExpertRollout(world, RolloutConfig(t_max_s=120.0)).run(np.array(starts),
+                                                                         np.array(goals))
+            for i in np.flatnonzero(res.success):
+                if len(got) < per:
+                    got.append({"world": name, "poses": res.trajectory(int(i))["poses"]})
+        out.extend(got)
+    order = np.random.default_rng(seed + 1).permutation(len(out))[:n]
+    return [out[i] for i in sorted(order)]
+
+
+def load_trajectories(data: Path, worlds: list[str], n: int, seed: int) -> list[dict]:
+    """The cached trajectories (made from the seed when missing)."""
+    import io
+
+    path = data / "trajectory_following" / f"trajectories-s{seed}-n{n}-{'_'.join(worlds)}.npz"
+    if path.is_file():
+        z = np.load(path, allow_pickle=False)
+        off = z["offsets"]
+        return [{"world": str(w), "poses": z["poses"][off[i]:off[i + 1]]}
+                for i, w in enumerate(z["worlds"])]
+    trajs = make_trajectories(worlds, n, seed)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, worlds=np.array([t["world"] for t in trajs]),
+                        poses=np.concatenate([t["poses"] for t in trajs]),
+                        offsets=np.concatenate([[0], np.cumsum([len(t["poses"]) for t in trajs])]))
+    atomic_write_bytes(path, buf.getvalue())
+    return trajs
+
+
+def path_length(poses: np.ndarray) -> np.ndarray:
+    """Cumulative arc length (T,) of a trajectory."""
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))])
+
+
+def jittered_start(world, pose: np.ndarray, rng) -> np.ndarray:
+    """``pose`` moved 0.3 m to a random side and turned 9 deg to a random
+    side (the other side, or no jitter, when that puts the car into a wall)."""
+    from topodrake.vehicle import VehicleConfig, in_collision
+
+    side, turn = rng.choice([-1.0, 1.0], size=2)
+    for sd, tn in ((side, turn), (-side, turn), (0.0, 0.0)):
+        s = pose.copy()
+        s[0] -= 0.3 * sd * np.sin(pose[2])
+        s[1] += 0.3 * sd * np.cos(pose[2])
+        s[2] += np.radians(9.0) * tn
+        if not in_collision(np.array([[*s, 0.0, 0.0]]), world.grid.clearance_at, VehicleConfig())[0]:
+            return s
+    return pose.copy()
+
+
+class PathWatch:
+    """Progress along each car's reference path (the farthest sample, in
+    order, it came within ``TOLERANCE_M`` of); stops cars that strayed more
+    than ``DIVERGE_M`` from it (the engine's ``watch``)."""
+
+    def __init__(self, references: list[np.ndarray]):
+        self.refs = references
+        self.progress = np.zeros(len(references), np.int64)
+
+    def __call__(self, k: int, cars: np.ndarray, states: np.ndarray) -> np.ndarray:
+        stop = np.zeros(len(cars), bool)
+        for m, c in enumerate(cars):
+            ref = self.refs[c]
+            p = self.progress[c]
+            lo = max(p - BEHIND, 0)
+            d = np.hypot(*(ref[lo:, :2] - states[m, :2]).T)         # the path from just behind on
+            ahead = np.flatnonzero(d[p - lo:p - lo + AHEAD] < TOLERANCE_M)
+            if ahead.size:
+                self.progress[c] = p + ahead.max()
+            stop[m] = d.min() > DIVERGE_M
+        return stop
+
+    def cover(self, c: int) -> float:
+        s = path_length(self.refs[c])
+        return float(s[self.progress[c]] / s[-1]) if s[-1] > 0 else 1.0
+
+
+# ---------------------------------------------------------------- one controller
+
+def chains_of(trajs, obs, reach, ps) -> dict:
+    """RE anchors of every trajectory at every p: {p: [anchors, ...]}."""
+    out = {p: [] for p in ps}
+    for t, o in zip(trajs, obs):
+        feats = reach.frame_features(o)
+        for p in ps:
+            out[p].append(reach.sparsify(o, p=p, feats=feats))
+    return out
+
+
+def every_nth(n_frames: int, n: int) -> np.ndarray:
+    a = np.arange(0, n_frames, max(int(n), 1))
+    return a if a[-1] == n_frames - 1 else np.append(a, n_frames - 1)
+
+
+def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, seed, batch,
+                  noisy) -> tuple[np.ndarray, list[str]]:
+    """Cover (M,) and outcomes of following chains[m] of trajs[m] (one
+    engine batch per world and chunk of ``batch`` chains)."""
+    from topodrake.montecarlo import trial_seeds
+    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+    from topodrake.navigation.route import route_from_observations
+    from topodrake.rollout import RolloutConfig, standard_normal_noise
+
+    m_all = len(chains)
+    cover = np.zeros(m_all)
+    outcomes = [""] * m_all
+    seeds = trial_seeds(seed, m_all)
+    by_world: dict[str, list[int]] = {}
+    for m, t in enumerate(trajs):
+        by_world.setdefault(t["world"], []).append(m)
+    for name, idx in by_world.items():
+        world = world_of(name)
+        engine = NavigationEngine(world, policy, reach, NavigationConfig(
+            rollout=RolloutConfig(noise_std=noise_std if noisy else 0.0)))
+        for lo in range(0, len(idx), batch):
+            part = idx[lo:lo + batch]
+            routes = [route_from_observations(obs[m], trajs[m]["poses"], chains[m], wide.k,
+                                              wide.frame_step, policy.observation) for m in part]
+            starts = np.array([jittered_start(world, trajs[m]["poses"][0],
+                                              np.random.default_rng(seeds[m])) for m in part])
+            limits = np.array([(2 * len(trajs[m]["poses"]) + 100) * 0.1 for m in part])
+            noise = standard_normal_noise([seeds[m] + 1 for m in part], int(round(limits.max() / 0.1))) \
+                if noisy else None
+            watch = PathWatch([trajs[m]["poses"] for m in part])
+            res = engine.run(starts, routes, noise=noise, t_max_s=limits, watch=watch)
+            for j, m in enumerate(part):
+                cover[m] = watch.cover(j)
+                outcomes[m] = NAV_OUTCOMES[int(res.outcome[j])]
+    return cover, outcomes
+
+
+def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
+    import torch
+
+    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.reachability import Reachability
+
+    cwp_path, re_path, re_controller = spec
+    policy = LearnedWaypointPolicy.from_checkpoint(cwp_path)
+    reach = Reachability.from_checkpoint(re_path, re_controller)
+    wide = policy if policy.k >= reach.k else reach
+    torch.set_num_threads(1)
+    obs = [reach.observe(world_of(t["world"]), t["poses"]) for t in trajs]
+    lengths = np.array([path_length(t["poses"])[-1] for t in trajs])
+    frames = np.array([len(t["poses"]) for t in trajs])
+    chains = chains_of(trajs, obs, reach, ps)
+    out: dict = {"controller": cwp_path, "reach": re_path, "points": []}
+    for p in ps:
+        anchors = np.array([len(a) for a in chains[p]])
+        density = float(anchors.sum() / lengths.sum())
+        n = max(1, int(round(frames.sum() / anchors.sum())))
+        sub = [every_nth(f, n) for f in frames]
+        sub_density = float(sum(len(a) for a in sub) / lengths.sum())
+        c_re, o_re = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide, args.noise,
+                                   args.seed, args.batch, noisy=False)
+        bar.update()
+        c_sub, o_sub = follow_chains(world_of, trajs, obs, sub, policy, reach, wide, args.noise,
+                                     args.seed, args.batch, noisy=False)
+        bar.update()
+        point = {"p_sparsify": p, "anchors_per_m": round(density, 4), "cover": float(c_re.mean()),
+                 "every_n": n, "subsampled_anchors_per_m": round(sub_density, 4),
+                 "cover_subsampled": float(c_sub.mean()),
+                 "outcomes": _count(o_re), "outcomes_subsampled": _count(o_sub),
+                 "covers": c_re.round(4).tolist(), "covers_subsampled": c_sub.round(4).tolist()}
+        if abs(p - args.headline_p) < 1e-9:
+            c_n, o_n = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide,
+                                     args.noise, args.seed, args.batch, noisy=True)
+            bar.update()
+            point.update({"cover_noisy": float(c_n.mean()), "outcomes_noisy": _count(o_n),
+                          "covers_noisy": c_n.round(4).tolist()})
+        out["points"].append(point)
+        bar.set_postfix_str(f"{name} p={p}: cover {point['cover']:.3f}, "
+                            f"every-{n} {point['cover_subsampled']:.3f}")
+    return out
+
+
+def _count(outcomes: list[str]) -> dict:
+    return {o: outcomes.count(o) for o in sorted(set(outcomes))}
+
+
+def plot(results: dict, path: Path, n_traj: int) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from topodrake.world.plot import save_figure
+
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    for i, (name, r) in enumerate(results.items()):
+        color = f"C{i}"
+        pts = r["points"]
+        ax.plot([q["anchors_per_m"] for q in pts], [q["cover"] for q in pts], "o-", color=color,
+                label=f"{name}, RE anchors")
+        for q in pts:
+            ax.annotate(f"{q['p_sparsify']}", (q["anchors_per_m"], q["cover"]), fontsize=7,
+                        xytext=(3, 3), textcoords="offset points", color=color)
+        ax.plot([q["subsampled_anchors_per_m"] for q in pts], [q["cover_subsampled"] for q in pts],
+                "s--", color=color, alpha=0.7, label=f"{name}, every n-th frame")
+    ax.set_xlabel("anchors per metre")
+    ax.set_ylabel("cover rate")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title(f"Trajectory following, {n_traj} test trajectories (points marked with p_sparsify)")
+    save_figure(fig, path)
+
+
+def main(argv=None) -> int:
+    from topodrake.montecarlo import study_main
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--trajectories", type=int, default=40, help="test trajectories (paper: 500)")
+    ap.add_argument("--worlds", default="test-0,test-1,test-2,test-3,test-4", help="test houses")
+    ap.add_argument("--p", default="0.9,0.95,0.98,0.99,0.995", help="p_sparsify values")
+    ap.add_argument("--headline-p", type=float, default=0.99,
+                    help="p_sparsify of the printed summary and of the noisy runs")
+    ap.add_argument("--controllers", default=",".join(CONTROLLERS), help="controllers to follow with")
+    ap.add_argument("--batch", type=int, default=48, help="cars per engine batch")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the trajectories, starts and noise")
+    ap.add_argument("--noise", type=float, default=0.33, help="actuation noise std of the noisy runs")
+    ap.add_argument("--data", default="data", help="cache of the test trajectories")
+    ap.add_argument("--out", default="results", help="output folder")
+    ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = ap.parse_args(argv)
+    return study_main(_run, args)
+
+
+def _run(args) -> int:
+    from tqdm import tqdm
+
+    from topodrake.world import load_world
+
+    if args.trajectories < 1:
+        raise TopodrakeError("--trajectories must be >= 1")
+    if args.batch < 1:
+        raise TopodrakeError("--batch must be >= 1")
+    if args.seed < 0:
+        raise TopodrakeError("--seed must be >= 0")
+    if not (np.isfinite(args.noise) and args.noise >= 0):
+        raise TopodrakeError("--noise must be finite and >= 0")
+    try:
+        ps = [float(x) for x in args.p.split(",") if x]
+    except ValueError:
+        raise TopodrakeError(f"--p must be comma-separated numbers, got {args.p!r}") from None
+    if not ps or any(not 0 < p < 1 for p in ps):
+        raise TopodrakeError("--p values must be in (0, 1)")
+    names = [c for c in args.controllers.split(",") if c]
+    unknown = [c for c in names if c not in CONTROLLERS]
+    if unknown or not names:
+        raise TopodrakeError(f"unknown controllers {unknown}; choose from {', '.join(CONTROLLERS)}")
+    worlds = [w for w in args.worlds.split(",") if w]
+    t0 = time.perf_counter()
+    trajs = load_trajectories(Path(args.data), worlds, args.trajectories, args.seed)
+    cache: dict = {}
+    world_of = lambda n: cache.setdefault(n, load_world(n))   # noqa: E731
+    lengths = [path_length(t["poses"])[-1] for t in trajs]
+    steps = len(names) * (2 * len(ps) + (1 if any(abs(p - args.headline_p) < 1e-9 for p in ps) else 0))
+    results = {}
+    with tqdm(total=steps, desc="trajectory following", disable=args.quiet, unit="sweep") as bar:
+        for name in names:
+            results[name] = run_controller(name, CONTROLLERS[name], trajs, world_of, ps, args, bar)
+    summary = {}
+    for name, r in results.items():
+        q = min(r["points"], key=lambda q: abs(q["p_sparsify"] - args.headline_p))
+        summary[name] = {"cover": round(q["cover"], 4),
+                         "cover_noisy": round(q.get("cover_noisy", float("nan")), 4),
+                         "cover_subsampled": round(q["cover_subsampled"], 4),
+                         "anchors_per_m": q["anchors_per_m"]}
+    out = Path(args.out)
+    wall = time.perf_counter() - t0
+    atomic_write_json(out / "trajectory_following.json", {
+        "command": "python studies/trajectory_following.py " + " ".join(sys.argv[1:]),
+        "trajectories": len(trajs), "mean_length_m": round(float(np.mean(lengths)), 2),
+        "worlds": worlds, "seed": args.seed, "noise": args.noise, "p_sparsify": ps,
+        "tolerance_m": TOLERANCE_M, "wall_time_s": round(wall, 1),
+        "summary": summary, "results": results})
+    plot(results, out / "trajectory_following.png", len(trajs))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for name, s in summary.items():
+            print(f"{name:<10} cover {s['cover']:.3f}, noisy {s['cover_noisy']:.3f}, every n-th "
+                  f"{s['cover_subsampled']:.3f} at {s['anchors_per_m']:.2f} anchors/m")
+    print(f"{len(trajs)} trajectories (mean {np.mean(lengths):.1f} m), {len(names)} controllers, "
+          f"{len(ps)} p values in {wall / 60:.1f} min", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,164 @@
+"""The follower state machine (batched functions) with scripted network answers."""
+
+import numpy as np
+import pytest
+
+from topodrake.errors import TopodrakeError
+from topodrake.navigation.follower import (DEAD_RECKONING, DR_GAVE_UP, FAILED, FOLLOW, REACHED,
+                                           SEARCH, SEARCH_FAILED, Answers, FollowerConfig,
+                                           FollowerState, follower_step, outcome_of)
+
+
+class Scripted:
+    """Answers from per-car tables over anchors: RE ``p``, proximity
+    ``prox`` (both overlaps) and the waypoint length ``dist`` (straight ahead)."""
+
+    def __init__(self, p, prox, dist):
+        self.p, self.prox, self.dist = (np.atleast_2d(np.asarray(x, float)) for x in (p, prox, dist))
+        self.calls = []
+
+    def __call__(self, cars, anchors, cwp, re):
+        self.calls.append((np.array(cars), np.array(anchors), cwp, re))
+        m = len(cars)
+        wp = np.column_stack([self.dist[cars, anchors], np.zeros(m)])
+        ov = np.repeat(self.prox[cars, anchors][:, None], 2, axis=1)
+        return Answers(wp if cwp else np.full((m, 2), np.nan), ov if cwp else np.full((m, 2), np.nan),
+                       self.p[cars, anchors] if re else np.full(m, np.nan))
+
+
+CAR = np.array([[1.0, 2.0, 0.0, 0.0, 0.0]])
+
+
+def step(state, ev, n_anchors, car=CAR, **cfg):
+    return follower_step(state, np.full(len(state), n_anchors), np.repeat(car, len(state), 0), ev,
+                         FollowerConfig(**cfg))
+
+
+def test_search_picks_the_best_anchor_above_p_search_and_drives_toward_it():
+    ev = Scripted(p=[0.5, 0.95, 0.99, 0.93, 0.2], prox=[0.3] * 5, dist=[1.5] * 5)
+    s, out = step(FollowerState.initial(1), ev, 5)
+    assert s.mode[0] == FOLLOW and s.active[0] == 2 and s.visited[0] == 1
+    assert out.target[0] == 2
+    np.testing.assert_allclose(out.waypoint[0], [2.5, 2.0])      # 1.5 m ahead of the car, world frame
+    np.testing.assert_allclose(s.waypoint[0], [2.5, 2.0])
+
+
+def test_search_gives_up_below_p_search():
+    ev = Scripted(p=[0.5, 0.91, 0.2], prox=[0.9] * 3, dist=[0.1] * 3)
+    s, out = step(FollowerState.initial(1), ev, 3)
+    assert s.mode[0] == FAILED and s.reason[0] == SEARCH_FAILED
+    assert outcome_of(s) == ["search_failed"]
+    assert np.isnan(out.waypoint).all() and out.target[0] == -1
+    assert s.best_p[0] == pytest.approx(0.91)
+
+
+def following(active=1, visited=0):
+    s = FollowerState.initial(1)
+    s.mode[:] = FOLLOW
+    s.active[:] = active
+    s.visited[:] = visited
+    s.waypoint[:] = [[9.0, 9.0]]
+    return s
+
+
+def test_follow_marks_close_anchors_visited_and_uses_the_lookahead_window():
+    # anchors 1 and 2 are close (proximity > 0.65, waypoint < visit_m); 3 is far
+    ev = Scripted(p=[0.99] * 10, prox=[0.9, 0.9, 0.8, 0.5, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3],
+                  dist=[0.1, 0.2, 0.3, 1.0, 2.0, 2.0, 2.0, 2.0, 2.0, 2.0])
+    s, out = step(following(), ev, 10, lookahead=5)
+    assert s.visited[0] == 2 and s.active[0] == 3 and s.mode[0] == FOLLOW
+    cars, anchors, cwp, re = ev.calls[0]
+    assert cwp and not re and anchors.tolist() == [1, 2, 3, 4, 5]    # lookahead 5 after visited 0
+    np.testing.assert_allclose(out.waypoint[0], [2.0, 2.0])          # C_WP toward anchor 3
+
+
+def test_high_proximity_far_away_does_not_count_as_visited():
+    ev = Scripted(p=[0.99, 0.99, 0.5, 0.5], prox=[0.9] * 4, dist=[2.0] * 4)   # a straight corridor
+    s, _ = step(following(active=1, visited=0), ev, 4)
+    assert s.visited[0] == 0 and s.active[0] == 1
+    ev.p[0, 2] = 0.95              # the paper's advance rule: the one after, reachable and near
+    s, _ = step(following(active=1, visited=0), ev, 4)
+    assert s.visited[0] == 0 and s.active[0] == 2
+
+
+def test_visiting_the_last_anchor_ends_the_plan():
+    ev = Scripted(p=[0.99] * 3, prox=[0.9] * 3, dist=[0.1] * 3)
+    s, out = step(following(active=2, visited=1), ev, 3)
+    assert s.mode[0] == REACHED and outcome_of(s) == ["reached"]
+    assert np.isnan(out.waypoint).all()
+
+
+def test_low_re_enters_dead_reckoning_holding_the_waypoint_in_the_odometry_frame():
+    ev = Scripted(p=[0.99, 0.5, 0.5, 0.5], prox=[0.3] * 4, dist=[1.0] * 4)
+    s, out = step(following(), ev, 4)
+    assert s.mode[0] == DEAD_RECKONING and s.dr_count[0] == 0
+    held = s.waypoint[0].copy()
+    np.testing.assert_allclose(held, [2.0, 2.0])            # this period's C_WP waypoint, world frame
+    # the car moves and turns: the held waypoint stays put in the world
+    moved = np.array([[1.5, 2.5, 1.0, 0.3, 0.0]])
+    s2, out2 = step(s, ev, 4, car=moved)
+    assert s2.mode[0] == DEAD_RECKONING and s2.dr_count[0] == 1
+    np.testing.assert_allclose(out2.waypoint[0], held)
+    assert out2.target[0] == -1                             # C_WP is not asked for a target
+
+
+def test_dead_reckoning_widens_its_search_and_returns_to_follow():
+    p = np.full(12, 0.5)
+    ev = Scripted(p=p, prox=[0.3] * 12, dist=[1.0] * 12)
+    s = following(active=1, visited=0)
+    s.mode[:] = DEAD_RECKONING
+    s.waypoint[:] = [[3.0, 2.0]]
+    s.dr_count[:] = 25                                      # widened by 2 on each side
+    s, _ = step(s, ev, 12, lookahead=3, dr_widen_every=10)
+    _, anchors, _, re = ev.calls[-1]
+    assert re and anchors.tolist() == [0, 1, 2, 3, 4, 5]    # next (1) - 2 .. next + 3 - 1 + 2
+    assert s.mode[0] == DEAD_RECKONING and s.dr_count[0] == 26
+    ev.p[0, 4] = 0.95                                       # an anchor ahead becomes reachable
+    s, out = step(s, ev, 12, lookahead=3, dr_widen_every=10)
+    assert s.mode[0] == FOLLOW and s.active[0] == 4 and s.visited[0] == 3 and s.dr_count[0] == 0
+    assert out.target[0] == 4
+
+
+def test_dead_reckoning_gives_up_after_max_iterations():
+    ev = Scripted(p=np.full(5, 0.1), prox=[0.3] * 5, dist=[1.0] * 5)
+    s = following()
+    s.mode[:] = DEAD_RECKONING
+    s.waypoint[:] = [[50.0, 2.0]]
+    for _ in range(7):
+        s, _ = step(s, ev, 5, dr_max_iterations=7)
+    assert s.mode[0] == FAILED and s.reason[0] == DR_GAVE_UP
+    assert outcome_of(s) == ["dead_reckoning_gave_up"]
+
+
+def test_a_batch_of_followers_equals_each_follower_alone():
+    rng = np.random.default_rng(0)
+    n, a = 6, 8
+    p = rng.uniform(0.85, 1.0, (n, a))
+    prox = rng.uniform(0.3, 1.0, (n, a))
+    dist = rng.uniform(0.1, 2.0, (n, a))
+    cars = np.column_stack([rng.uniform(0, 5, (n, 2)), rng.uniform(-3, 3, n), np.zeros((n, 2))])
+    batch = FollowerState.initial(n)
+    alone = [FollowerState.initial(1) for _ in range(n)]
+    for _ in range(6):
+        batch, out = follower_step(batch, np.full(n, a), cars, Scripted(p, prox, dist))
+        for i in range(n):
+            alone[i], o = follower_step(alone[i], [a], cars[i:i + 1],
+                                        Scripted(p[i:i + 1], prox[i:i + 1], dist[i:i + 1]))
+            np.testing.assert_array_equal(out.waypoint[i], o.waypoint[0])
+            assert out.target[i] == o.target[0]
+    for i in range(n):
+        np.testing.assert_array_equal(FollowerState.to_vector(batch.take([i])),
+                                      alone[i].to_vector())
+    assert len(set(batch.mode.tolist())) > 1               # the cars took different branches
+
+
+def test_state_vector_round_trip_and_config_checks():
+    s = following(active=3, visited=2)
+    s.dr_count[:] = 4
+    back = FollowerState.from_vector(s.to_vector())
+    np.testing.assert_array_equal(back.to_vector(), s.to_vector())
+    assert FollowerState.initial(2).mode.tolist() == [SEARCH, SEARCH]
+    with pytest.raises(TopodrakeError, match="p_follow"):
+        FollowerConfig(p_follow=1.5).check()
+    with pytest.raises(TopodrakeError, match="lookahead"):
+        FollowerConfig(lookahead=0).check()
