@@ -176,11 +176,23 @@ def rollout_pairs(world, policy, trajs: TrajectorySet, pairs: dict, seeds: np.nd
     world (the fields of :func:`draw_pairs`), one noise seed each, and label
     them by the rules of the module docstring: the pairs' fields plus
     ``t_max``, ``outcome``, ``steps``, final ``overlap``, ``label`` and ``seed``."""
+    tgt_pose = trajs.poses[trajs.traj_offsets[pairs["traj"]] + pairs["tgt"]]
+    out = rollout_to_targets(
+        world, policy, pairs["src_pose"], tgt_pose,
+        lambda sl: target_contexts(world, policy, trajs, pairs["traj"][sl], pairs["tgt"][sl]),
+        seeds, cfg)
+    return {**pairs, **out, "seed": np.asarray(seeds, np.int64)}
+
+
+def rollout_to_targets(world, policy, src_pose: np.ndarray, tgt_pose: np.ndarray, contexts,
+                       seeds: np.ndarray, cfg: ReachLabelConfig) -> dict:
+    """Drive ``policy`` from ``src_pose`` (N, 3) toward targets taken at
+    ``tgt_pose`` (N, 3), whose context observations ``contexts(slice)``
+    returns batch by batch, one noise seed each, under the labels' rules:
+    ``t_max``, ``outcome``, ``steps``, final ``overlap`` and ``label``."""
     from topodrake.rollout import SUCCESS, PolicyRollout, RolloutConfig
 
-    tgt_rows = trajs.traj_offsets[pairs["traj"]] + pairs["tgt"]
-    tgt_pose = trajs.poses[tgt_rows]
-    t_max = time_limits(world, pairs["src_pose"], tgt_pose[:, :2], cfg)
+    t_max = time_limits(world, src_pose, tgt_pose[:, :2], cfg)
     engine = PolicyRollout(world, policy, RolloutConfig(noise_std=cfg.noise_std),
                            overlap_success=cfg.overlap_success, overlap_lost=cfg.overlap_lost)
     n = len(seeds)
@@ -189,16 +201,13 @@ def rollout_pairs(world, policy, trajs: TrajectorySet, pairs: dict, seeds: np.nd
     overlap = np.empty((n, 2), np.float32)
     for lo in range(0, n, cfg.batch):
         sl = slice(lo, min(lo + cfg.batch, n))
-        ctx = target_contexts(world, policy, trajs, pairs["traj"][sl], pairs["tgt"][sl])
-        feats = policy.encode_target(ctx)
-        res = engine.run(pairs["src_pose"][sl], tgt_pose[sl], feats, t_max_s=t_max[sl],
-                         seeds=seeds[sl])
+        feats = policy.encode_target(contexts(sl))
+        res = engine.run(src_pose[sl], tgt_pose[sl], feats, t_max_s=t_max[sl], seeds=seeds[sl])
         outcome[sl] = res.outcome
         steps[sl] = res.steps
         overlap[sl] = res.overlap
-    return {**pairs, "t_max": t_max.astype(np.float32), "outcome": outcome, "steps": steps,
-            "overlap": overlap, "label": (outcome == SUCCESS).astype(np.uint8),
-            "seed": np.asarray(seeds, np.int64)}
+    return {"t_max": t_max.astype(np.float32), "outcome": outcome, "steps": steps,
+            "overlap": overlap, "label": (outcome == SUCCESS).astype(np.uint8)}
 
 
 def target_contexts(world, net, trajs, traj, tgt) -> np.ndarray:

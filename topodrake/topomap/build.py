@@ -161,44 +161,50 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
 
     if new_vertices:
         new_pos = [ids.index(v) for v in new_vertices]
-        m.index.add(np.array(new_vertices), emb[[chain[p][1] for p in new_pos]])
-        for v, pos in zip(new_vertices, new_pos):
-            _cross_edges(m, v, ids, pos, emb[chain[pos][1]], score, stats, audit)
+        queries = emb[[chain[p][1] for p in new_pos]]
+        m.index.add(np.array(new_vertices), queries)
+        _cross_edges(m, new_vertices, ids, new_pos, queries, score, stats, audit)
     return stats
 
 
-def _cross_edges(m: TopoMap, x: int, chain: list[int], pos: int, query: np.ndarray, score,
-                 stats: BuildStats, audit: bool) -> None:
+def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[int],
+                 queries: np.ndarray, score, stats: BuildStats, audit: bool) -> None:
+    """Cross edges between the new vertices ``xs`` (at ``positions`` of
+    ``chain``) and their retrieved candidates, all scored in a few batches."""
     cfg = m.config
-    near = {chain[j] for j in range(max(0, pos - 1), min(len(chain), pos + 2))}
-    exclude = np.fromiter(near, np.int64)
-    found = _passing(m, x, chain, pos, m.index.search(query, cfg.retrieval_k, exclude)[0], score)
-    for (u, v), p in found.items():
+    excludes = [np.array(chain[max(0, p - 1):p + 2], np.int64) for p in positions]
+    found = {}
+    for x, pos, q, ex in zip(xs, positions, queries, excludes):
+        found[x] = m.index.search(q, cfg.retrieval_k, ex)[0]
+    edges = _passing(m, xs, chain, positions, [found[x] for x in xs], score)
+    for (u, v), p in edges.items():
         m.add_edge(u, v, p, "cross")
-    stats.cross_edges += len(found)
+    stats.cross_edges += len(edges)
     if audit:
-        everyone = m.index.ids[~np.isin(m.index.ids, exclude)]
-        every = _passing(m, x, chain, pos, everyone, score, count=False)
+        everyone = [m.index.ids[~np.isin(m.index.ids, ex)] for ex in excludes]
+        every = _passing(m, xs, chain, positions, everyone, lambda s, r: m.bank.score(s, r))
         stats.exhaustive_edges += len(every)
-        stats.found_edges += len(set(every) & set(found))
+        stats.found_edges += len(set(every) & set(edges))
 
 
-def _passing(m: TopoMap, x: int, chain: list[int], pos: int, cands: np.ndarray, score,
-             count: bool = True) -> dict:
-    """Cross edges {(u, v): p} between vertex ``x`` (at ``pos`` of ``chain``)
-    and candidates ``cands`` that pass the single RE and sequence matching."""
+def _passing(m: TopoMap, xs: list[int], chain: list[int], positions: list[int],
+             candidates: list[np.ndarray], score) -> dict:
+    """Cross edges {(u, v): p} between each new vertex ``xs[i]`` (at
+    ``positions[i]`` of ``chain``) and its ``candidates[i]`` that pass the
+    single RE and sequence matching (both directions)."""
     cfg = m.config
-    if len(cands) == 0:
+    x_of = np.concatenate([np.full(len(c), x) for x, c in zip(xs, candidates)]).astype(np.int64)
+    pos_of = np.concatenate([np.full(len(c), p) for p, c in zip(positions, candidates)]).astype(np.int64)
+    v_of = np.concatenate(candidates).astype(np.int64) if candidates else np.zeros(0, np.int64)
+    if len(v_of) == 0:
         return {}
-    run = score if count else (lambda s, r: m.bank.score(s, r))
-    cx = np.full(len(cands), m.graph.nodes[x]["center"])
-    p_out = run(cx, m.contexts(cands))                                         # x -> v
-    p_in = run(m.centers(cands), np.repeat(m.contexts([x]), len(cands), 0))    # v -> x
+    p_out = score(m.centers(x_of), m.contexts(v_of))      # x -> v
+    p_in = score(m.centers(v_of), m.contexts(x_of))       # v -> x
     # sequence matching over the aligned neighbours of the single pairs that pass
-    src, dst, owner = [], [], []
-    tests = []
-    for c, v in enumerate(cands):
-        other, j = m.origin_chain(int(v))
+    src, dst, owner, tests = [], [], [], []
+    for c in np.flatnonzero((p_out > cfg.p_edge) | (p_in > cfg.p_edge)):
+        pos, v = int(pos_of[c]), int(v_of[c])
+        other, j = m.origin_chain(v)
         offsets = [d for d in range(-cfg.sequence_window, cfg.sequence_window + 1)
                    if d and 0 <= pos + d < len(chain) and 0 <= j + d < len(other)]
         for forward, p in ((True, p_out[c]), (False, p_in[c])):
@@ -214,12 +220,11 @@ def _passing(m: TopoMap, x: int, chain: list[int], pos: int, cands: np.ndarray, 
         return {}
     low = np.ones(len(tests))
     if src:
-        ps = run(m.centers(src), m.contexts(dst))
-        np.minimum.at(low, np.array(owner), ps)
+        np.minimum.at(low, np.array(owner), score(m.centers(src), m.contexts(dst)))
     out = {}
     for (c, forward), lowest in zip(tests, low):
         if lowest > cfg.p_edge:
-            v = int(cands[c])
+            x, v = int(x_of[c]), int(v_of[c])
             out[(x, v) if forward else (v, x)] = float(p_out[c] if forward else p_in[c])
     return out
 

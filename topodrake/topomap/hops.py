@@ -149,3 +149,30 @@ def keep_ratio(anchors: int, frames: int) -> float | None:
 def share_made(ok: np.ndarray) -> float | None:
     """The share of hop runs made (4 decimals), None when there are no hops."""
     return round(float(np.mean(ok)), 4) if np.size(ok) else None
+
+
+def map_hop_success(world, policy, topomap, hops: int = 200, runs: int = 2, seed: int = 0,
+                    config=None) -> dict:
+    """Drive ``hops`` trajectory edges u -> v of a built map, drawn at
+    random (seeded), ``runs`` times each with actuation noise: C_WP starts
+    at rest on u's pose toward v's stored context, under the RE labels'
+    rules. Returns ``{"hops", "runs", "hop_success"}`` (the share of runs
+    made). Poses are the map's metadata: this is an evaluation."""
+    from topodrake.learning.reach_labels import ReachLabelConfig, rollout_to_targets
+    from topodrake.montecarlo import trial_seeds
+
+    edges = [(u, v) for u, v, kind in topomap.graph.edges(data="kind") if kind == "trajectory"]
+    if not edges or runs < 1:
+        return {"hops": 0, "runs": 0, "hop_success": None}
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(edges), size=min(hops, len(edges)), replace=False)
+    us = np.repeat([edges[i][0] for i in pick], runs)
+    vs = np.repeat([edges[i][1] for i in pick], runs)
+    contexts = topomap.bank.observations[topomap.contexts(vs)]
+    if policy.observation == "pose":
+        contexts = topomap.bank.poses[topomap.contexts(vs)]
+    out = rollout_to_targets(world, policy, topomap.pose(us), topomap.pose(vs),
+                             lambda sl: contexts[sl],
+                             np.array(trial_seeds(seed, len(us)), np.int64),
+                             config or ReachLabelConfig())
+    return {"hops": len(pick), "runs": len(us), "hop_success": float(out["label"].mean())}

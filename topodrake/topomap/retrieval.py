@@ -15,17 +15,14 @@ Embeddings (anything with ``observation``, ``dim``, ``name``,
   camera images and lidar scans;
 * :class:`PoseEmbedding` for the pose oracle (position, and heading scaled
   so that a turn of one radian weighs like ``heading_m`` metres);
-* :class:`ThumbnailEmbedding`, a training-free baseline: the observation
-  shrunk to a few numbers and normalised.
+* :class:`~topodrake.topomap.embedding.ThumbnailEmbedding`, a
+  training-free baseline (where no trained embedding is shipped).
 """
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 
-from topodrake.errors import TopodrakeError
 
 
 class PoseEmbedding:
@@ -48,37 +45,6 @@ class PoseEmbedding:
         return self.name
 
 
-class ThumbnailEmbedding:
-    """Camera images area-averaged to ``side`` x ``side`` colour cells, or
-    lidar ranges averaged into ``side`` sectors; centred and unit-normalised."""
-
-    def __init__(self, observation: str, side: int = 8):
-        if observation not in ("camera", "lidar"):
-            raise TopodrakeError(f"no thumbnail embedding for {observation!r} observations")
-        self.observation = observation
-        self.side = side
-        self.dim = side * side * 3 if observation == "camera" else side
-        self.name = f"thumbnail-{observation}-{side}"
-
-    def embed(self, observations: np.ndarray) -> np.ndarray:
-        x = np.asarray(observations, np.float32)
-        n = len(x)
-        if self.observation == "camera":
-            h, w = x.shape[1:3]
-            x = x[:, :h - h % self.side, :w - w % self.side]
-            x = x.reshape(n, self.side, h // self.side, self.side, w // self.side, 3).mean((2, 4))
-        else:
-            x = np.where(np.isfinite(x), x, 10.0)
-            b = x.shape[1] - x.shape[1] % self.side
-            x = x[:, :b].reshape(n, self.side, -1).mean(2)
-        x = x.reshape(n, -1)
-        x = x - x.mean(axis=1, keepdims=True)
-        return (x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-9)).astype(np.float32)
-
-    def fingerprint(self) -> str:
-        return self.name
-
-
 def default_embedding(observation: str):
     """The shipped embedding for a modality (the pose embedding for the
     oracle; the thumbnail baseline where no trained one is shipped)."""
@@ -86,14 +52,11 @@ def default_embedding(observation: str):
         return PoseEmbedding()
     from pathlib import Path
 
+    from topodrake.topomap.embedding import PlaceEmbedding, ThumbnailEmbedding
+
     path = Path(__file__).resolve().parents[2] / "checkpoints" / f"place_{observation}" / "checkpoint.pt"
     if path.is_file():
-        try:
-            from topodrake.topomap.embedding import PlaceEmbedding
-        except ImportError:
-            pass
-        else:
-            return PlaceEmbedding.from_checkpoint(path)
+        return PlaceEmbedding.from_checkpoint(path)
     return ThumbnailEmbedding(observation)
 
 
@@ -143,5 +106,3 @@ class VertexIndex:
         return out
 
 
-def fingerprint_array(a: np.ndarray) -> str:
-    return hashlib.sha1(np.ascontiguousarray(a).tobytes()).hexdigest()
