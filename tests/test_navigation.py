@@ -1,0 +1,166 @@
+"""Navigation: routes, FollowerFsm and WaypointSelect on one context, the
+batched engine, and its parity with the Drake navigation diagram (oracles)."""
+
+import numpy as np
+import pytest
+
+from topodrake.errors import TopodrakeError
+
+
+@pytest.fixture(scope="module")
+def drive(box_world):
+    """An expert drive around the partition of the box world."""
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+
+    r = ExpertRollout(box_world, RolloutConfig(t_max_s=60.0)).run(np.array([[1.0, 1.5, 0.3]]),
+                                                                  np.array([[8.0, 2.0]]))
+    assert r.success[0]
+    return r.trajectory(0)["poses"]
+
+
+@pytest.fixture(scope="module")
+def oracles(box_world):
+    from topodrake.learning.policy import AStarOracle
+    from topodrake.navigation.evaluate import GeometricReachability
+
+    return AStarOracle(box_world, k=1, frame_step=3), GeometricReachability(box_world, k=1)
+
+
+@pytest.fixture(scope="module")
+def route(box_world, drive, oracles):
+    from topodrake.navigation.route import route_from_trajectory
+
+    anchors = np.r_[np.arange(0, len(drive) - 1, 10), len(drive) - 1]
+    return route_from_trajectory(box_world, drive, anchors, oracles[0])
+
+
+def test_route_from_observations_takes_clamped_context_frames():
+    from topodrake.navigation.route import route_from_observations
+
+    obs = np.arange(20)[:, None] * np.ones((1, 4))          # "lidar" frames numbered 0..19
+    poses = np.column_stack([np.arange(20.0), np.zeros(20), np.zeros(20)])
+    r = route_from_observations(obs, poses, np.array([0, 9, 19]), k=2, frame_step=3,
+                                modality="lidar")
+    assert r.contexts[:, :, 0].tolist() == [[0, 0, 0, 3, 6], [3, 6, 9, 12, 15], [13, 16, 19, 19, 19]]
+    np.testing.assert_array_equal(r.goal_pose, [19, 0, 0])
+    with pytest.raises(TopodrakeError, match="anchors"):
+        route_from_observations(obs, poses, np.array([0, 25]), 2, 3, "lidar")
+
+
+def test_network_context_takes_the_middle_frames():
+    from types import SimpleNamespace
+
+    from topodrake.navigation.evaluate import network_context
+
+    ctx = np.arange(2 * 11).reshape(2, 11)
+    k0 = SimpleNamespace(k=0, frame_step=3, observation="camera")
+    k2 = SimpleNamespace(k=2, frame_step=3, observation="camera")
+    assert network_context(ctx, 5, 3, k0).tolist() == [[5], [16]]
+    assert network_context(ctx, 5, 3, k2).tolist() == [[3, 4, 5, 6, 7], [14, 15, 16, 17, 18]]
+    with pytest.raises(TopodrakeError, match="frame step"):
+        network_context(ctx, 5, 3, SimpleNamespace(k=2, frame_step=2, observation="camera"))
+
+
+def test_engine_follows_a_route_to_its_end(box_world, route, oracles):
+    from topodrake.navigation.engine import NAV_REACHED, NavigationEngine
+    from topodrake.navigation.follower import FOLLOW
+
+    starts = np.array([[1.0, 1.8, 0.5], [1.1, 1.4, 0.2]])
+    res = NavigationEngine(box_world, *oracles).run(starts, [route, route], seeds=[1, 2])
+    assert (res.outcome == NAV_REACHED).all()
+    assert (res.distance_to_goal_m < 1.0).all()
+    assert res.distance_driven_m(0) > 8.0                  # around the partition
+    k = int(res.steps[0])
+    assert (res.modes[0, :k] == FOLLOW).mean() > 0.5
+    assert res.active[0, k - 1] >= len(route) - 2
+
+
+def test_follower_fsm_on_one_context(box_world, route, oracles, drive):
+    from topodrake.navigation.follower import FOLLOW, FollowerState
+    from topodrake.systems.follower import FollowerFsm
+
+    fsm = FollowerFsm(route, *oracles)
+    ctx = fsm.CreateDefaultContext()
+    car = np.array([*drive[0], 0.0, 0.0])
+    fsm.state_port.FixValue(ctx, car)
+    target = fsm.target_port.Eval(ctx)
+    assert target.key == 0                               # Search picked the anchor under the car
+    np.testing.assert_allclose(target.poses, route.contexts[0])
+    assert np.isnan(fsm.held_waypoint_port.Eval(ctx)).all()
+    assert fsm.mode_port.Eval(ctx)[0] == FOLLOW
+    # the decision is a cache entry: nothing is committed before the periodic update
+    s = fsm.follower_state(ctx)
+    assert isinstance(s, FollowerState) and s.mode[0] == 0 and s.active[0] == -1
+
+
+def test_follower_fsm_commit_and_termination(box_world, route, oracles, drive):
+    from pydrake.systems.analysis import Simulator
+
+    from topodrake.navigation.follower import FOLLOW, REACHED
+    from topodrake.systems.follower import FollowerFsm
+
+    fsm = FollowerFsm(route, *oracles)
+    sim = Simulator(fsm)
+    ctx = sim.get_mutable_context()
+    fsm.state_port.FixValue(ctx, np.array([*drive[0], 0.0, 0.0]))
+    sim.AdvanceTo(0.15)                                  # one commit at t = 0.1
+    s = fsm.follower_state(ctx)
+    assert s.mode[0] == FOLLOW and s.active[0] == 0
+    # at the goal the follower visits the last anchor and ends the run
+    fsm.state_port.FixValue(ctx, np.array([*drive[-1], 0.0, 0.0]))
+    s.visited[:] = len(route) - 2
+    s.active[:] = len(route) - 1
+    status = sim.AdvanceTo(5.0)
+    assert fsm.follower_state(ctx).mode[0] == REACHED
+    assert status.reason() == status.ReturnReason.kReachedTerminationCondition
+    assert ctx.get_time() < 1.0
+
+
+def test_waypoint_select_prefers_the_held_waypoint():
+    from topodrake.systems.follower import WaypointSelect
+
+    sel = WaypointSelect()
+    ctx = sel.CreateDefaultContext()
+    sel.net_port.FixValue(ctx, [1.0, 2.0])
+    sel.held_port.FixValue(ctx, [np.nan, np.nan])
+    np.testing.assert_array_equal(sel.waypoint_port.Eval(ctx), [1.0, 2.0])
+    sel.held_port.FixValue(ctx, [5.0, 6.0])
+    np.testing.assert_array_equal(sel.waypoint_port.Eval(ctx), [5.0, 6.0])
+
+
+@pytest.mark.parametrize("noise_std", [0.0, 0.33])
+def test_drake_diagram_and_engine_drive_the_same_path(box_world, route, oracles, noise_std):
+    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+    from topodrake.rollout import RolloutConfig
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+
+    start = [1.0, 1.8, 0.5]
+    sc = NavigationScenario(world="box", noise_std=noise_std, camera_enabled=False, t_max_s=40.0)
+    drake = NavigationRunner(make_navigation_diagram(sc, route, world=box_world,
+                                                     policy=oracles[0], reach=oracles[1])
+                             ).run(start, seed=3)
+    noise = np.zeros((1, 400, 2))
+    noise[0, :len(drake.noise)] = drake.noise
+    engine = NavigationEngine(box_world, *oracles, NavigationConfig(
+        rollout=RolloutConfig(noise_std=noise_std, t_max_s=40.0)))
+    res = engine.run(np.array([start]), [route], noise=noise)
+    k = min(int(res.steps[0]), round(drake.time_s / 0.1))
+    # (Drake may end the run one period before the engine: the run's last
+    # commit can see the car state of its own period)
+    assert abs(int(res.steps[0]) - round(drake.time_s / 0.1)) <= 1 and k > 100
+    dev = np.linalg.norm(drake.poses[:k + 1, :2] - res.poses[0, :k + 1, :2], axis=1)
+    assert dev.max() <= 1e-6
+    assert drake.outcome == NAV_OUTCOMES[int(res.outcome[0])] == "reached"
+    np.testing.assert_array_equal(drake.modes[:k], res.modes[0, :k])
+
+
+def test_runner_refuses_a_start_in_a_wall(box_world, route, oracles):
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+
+    sc = NavigationScenario(world="box", camera_enabled=False)
+    runner = NavigationRunner(make_navigation_diagram(sc, route, world=box_world,
+                                                      policy=oracles[0], reach=oracles[1]))
+    with pytest.raises(TopodrakeError):
+        runner.run([5.0, 3.0, 0.0])
