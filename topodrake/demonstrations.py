@@ -84,7 +84,7 @@ def collect(world_spec: str, out_dir, config: CollectConfig | None = None,
                 "chunk_size": config.chunk_size, "chunks": []}
     if (out / "manifest.json").exists():
         old = read_manifest(out)
-        if old["config"] != manifest["config"] or old["world"] != world_spec:
+        if _comparable(old["config"]) != _comparable(manifest["config"]) or old["world"] != world_spec:
             raise TopodrakeError(
                 f"{out} holds demonstrations of another world or config; use a new folder")
         manifest["chunks"] = old["chunks"]
@@ -110,6 +110,12 @@ def collect(world_spec: str, out_dir, config: CollectConfig | None = None,
     if not manifest["chunks"]:
         atomic_write_json(out / "manifest.json", manifest)
     return out
+
+
+def _comparable(config: dict) -> dict:
+    """The settings that make two collections the same (``count`` means
+    nothing to the pairs protocol)."""
+    return {k: v for k, v in config.items() if not (k == "count" and config.get("protocol") == "pairs")}
 
 
 def _chunk_name(c: int) -> str:
