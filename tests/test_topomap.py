@@ -316,3 +316,30 @@ def test_map_cli_info_plan_and_plot(oracle_map, tmp_path, capsys):
     assert main(["map", "plan", str(path), "--start", "1,2", "--goal", arg(g)]) == 2
     assert "X,Y,YAW" in capsys.readouterr().err
     assert main(["map", "plot", str(path), "--out", str(tmp_path / "m.png")]) == 0
+
+
+def test_a_map_built_for_one_re_is_refused_with_another(tmp_path, capsys):
+    from topodrake.cli import main
+    from topodrake.topomap.sources import make_scorer, shipped_checkpoint
+    from topodrake.topomap.sources import drive_observations
+    from topodrake.topomap.embedding import ThumbnailEmbedding
+    from topodrake.world import load_world
+
+    world = load_world("test-0")
+    start = world.places[0]
+    poses = np.array([[start[0] + 0.05 * i * np.cos(start[2]), start[1] + 0.05 * i * np.sin(start[2]),
+                       start[2]] for i in range(30)])
+    scorer = make_scorer("camera")
+    m = TopoMap(scorer, ThumbnailEmbedding("camera"), world="test-0")
+    add_trajectory(m, drive_observations(world, scorer, poses), poses, "straight")
+    path = tmp_path / "cam.tdmap"
+    save_map(m, path)
+    assert m.identity["reach"] == "checkpoints/reach_camera_k5/checkpoint.pt"
+    base = shipped_checkpoint("reach_camera_k5_base")
+    with pytest.raises(TopodrakeError, match="built for the reachability estimator"):
+        load_map(path, make_scorer("camera", reach=base, controller=shipped_checkpoint("camera_k5")))
+    pose = ",".join(f"{v:.4f}" for v in start)
+    code = main(["map", "plan", str(path), "--start", pose, "--goal", pose,
+                 "--reach", str(base), "--controller", str(shipped_checkpoint("camera_k5"))])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "built for" in err and len(err.splitlines()) == 1
