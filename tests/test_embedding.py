@@ -123,6 +123,28 @@ def test_training_on_synthetic_pairs_improves_and_is_deterministic():
         assert torch.equal(p, q)
 
 
+def test_grouped_ranking_training_improves():
+    data = _synthetic()
+    g = 4
+    rng = np.random.default_rng(2)
+    anchors = rng.integers(0, len(data.inputs), 100).repeat(g)
+    partners = rng.integers(0, len(data.inputs), 400)
+    partners[::2] = anchors[::2] // 6 * 6 + rng.integers(0, 6, 200)     # half from the group
+    group = np.arange(len(data.inputs)) // 6
+    data.pairs = np.column_stack([anchors, partners])
+    data.labels = (group[anchors] == group[partners]).astype(np.float32)
+    cfg = PlaceTrainConfig(network=PlaceNetConfig(modality="camera", image_size=32, **TINY),
+                           batch_size=32, lr=3e-3, max_steps=60, rank_weight=1.0, seed=0)
+    cfg.data.group = g
+    cfg.validate()
+    before = _mean_loss(_camera_model(), data)
+    model = _camera_model()
+    train_steps(model, data, cfg)
+    assert _mean_loss(model, data) < 0.6 * before
+    with pytest.raises(TopodrakeError, match="group"):
+        PlaceTrainConfig(rank_weight=1.0).validate()
+
+
 def test_recall_at_counts_relevant_frames_in_the_top_k():
     scores = np.array([[0.9, 0.8, 0.1, 0.0], [0.1, 0.2, 0.3, 0.4], [0.5, 0.5, 0.5, 0.5]])
     relevant = np.array([[True, False, True, False], [False, False, False, True],
@@ -135,3 +157,21 @@ def test_recall_at_counts_relevant_frames_in_the_top_k():
 def test_search_timing_reports_numpy_per_query_time():
     out = search_timing(n=2000, dim=16, k=8, queries=5)
     assert out["numpy_ms"] > 0
+
+
+def test_sample_pairs_near_partners_are_near_and_groups_share_anchors():
+    from topodrake.topomap.embedding_train import PlaceDataConfig, sample_pairs
+
+    rng = np.random.default_rng(0)
+    poses = np.column_stack([rng.uniform(0, 20, 500), rng.uniform(0, 20, 500),
+                             rng.uniform(-np.pi, np.pi, 500)])
+    thumbs = rng.standard_normal((500, 12))
+    cfg = PlaceDataConfig(near_fraction=0.5, lookalike_fraction=0.25, group=4)
+    pr = sample_pairs(poses, thumbs, 400, cfg, np.random.default_rng(1))
+    assert pr.shape == (400, 2)
+    assert np.all(pr[:, 0].reshape(-1, 4) == pr[::4, :1])
+    near = pr.reshape(-1, 4, 2)[:, :2].reshape(-1, 2)
+    d = np.hypot(*(poses[near[:, 0], :2] - poses[near[:, 1], :2]).T)
+    assert np.mean(d < cfg.near_radius_m) > 0.9
+    again = sample_pairs(poses, thumbs, 400, cfg, np.random.default_rng(1))
+    np.testing.assert_array_equal(pr, again)

@@ -20,7 +20,13 @@ Loss per batch of B pairs (a_i, b_i) with labels m_i, embeddings e, f::
     mean_i (e_i . f_i - m_i)^2  +  cross_weight * mean_{i,j: other house} (e_i . f_j)^2
 
 Frames of different houses never overlap, so every cross-house pair in the
-batch is a free, exact negative. Both views of a pair are mirrored together
+batch is a free, exact negative. With ``data.group = G > 1`` pairs come in
+groups of G sharing an anchor (kinds in the same shares), and
+``rank_weight`` adds a listwise term: each anchor's softmax over the
+scores / ``rank_tau`` of its own G partners and of every other house's
+partners in the batch, against its own labels normalised to sum 1
+(:func:`rank_loss`): recall@K is a ranking figure, which the regression
+alone does not target. Both views of a pair are mirrored together
 with probability 1/2 (the overlap is unchanged). Adam, constant ``lr``;
 stop after ``max_steps`` or ``max_minutes``. Everything is seeded.
 """
@@ -62,6 +68,7 @@ class PlaceDataConfig:
     near_radius_m: float = 2.5
     near_heading_deg: float = 90.0
     lookalike_top: int = 32
+    group: int = 1                    # partners per anchor frame (> 1: for the ranking loss)
     seed: int = 0
 
 
@@ -74,6 +81,8 @@ class PlaceTrainConfig:
     batch_size: int = 128
     lr: float = 1e-3
     cross_weight: float = 1.0
+    rank_weight: float = 0.0          # listwise ranking term (needs data.group > 1)
+    rank_tau: float = 0.1
     mirror: bool = True
     max_steps: int = 6000
     max_minutes: float = 12.0
@@ -95,6 +104,8 @@ class PlaceTrainConfig:
                                  f"their sum <= 1")
         if not self.lr > 0:
             raise TopodrakeError(f"{where}: lr must be > 0")
+        if self.rank_weight > 0 and d.group < 2:
+            raise TopodrakeError(f"{where}: rank_weight needs data.group >= 2")
         return self
 
     @property
@@ -137,15 +148,27 @@ def sample_pairs(poses: np.ndarray, thumbs: np.ndarray, n: int, cfg: PlaceDataCo
     from scipy.spatial import cKDTree
 
     m = len(poses)
-    n_near = int(round(n * cfg.near_fraction))
-    n_look = int(round(n * cfg.lookalike_fraction))
-    a = rng.integers(0, m, n)
+    g = cfg.group
+    if g == 1:
+        n_near = int(round(n * cfg.near_fraction))
+        n_look = int(round(n * cfg.lookalike_fraction))
+        near_rows, look_rows = np.arange(n_near), np.arange(n_near, n_near + n_look)
+        a = rng.integers(0, m, n)
+    else:       # groups of g rows sharing an anchor, each with the kinds' share of slots
+        n = n // g * g
+        g_near = int(round(g * cfg.near_fraction))
+        g_look = int(round(g * cfg.lookalike_fraction))
+        slot = np.tile(np.arange(g), n // g)
+        near_rows = np.flatnonzero(slot < g_near)
+        look_rows = np.flatnonzero((slot >= g_near) & (slot < g_near + g_look))
+        n_near, n_look = len(near_rows), len(look_rows)
+        a = rng.integers(0, m, n // g).repeat(g)
     b = rng.integers(0, m, n)
     cos_h = np.cos(np.radians(cfg.near_heading_deg))
     # near: aim at a random point of the disk around the frame, take the frame
     # nearest to it; keep it if it is near enough and headed alike (a few rounds)
     tree = cKDTree(poses[:, :2])
-    todo = np.arange(n_near)
+    todo = near_rows
     for _ in range(8):
         if not len(todo):
             break
@@ -160,14 +183,13 @@ def sample_pairs(poses: np.ndarray, thumbs: np.ndarray, n: int, cfg: PlaceDataCo
         todo = todo[~ok]
     if n_look:
         top = min(cfg.lookalike_top, m - 1)
-        rows = np.unique(a[n_near:n_near + n_look])
+        rows = np.unique(a[look_rows])
         alike = np.empty((len(rows), top), np.int64)
         for lo in range(0, len(rows), 1024):
             sims = thumbs[rows[lo:lo + 1024]] @ thumbs.T
             sims[np.arange(len(sims)), rows[lo:lo + 1024]] = -np.inf
             alike[lo:lo + 1024] = np.argpartition(-sims, top - 1, axis=1)[:, :top]
-        pick = alike[np.searchsorted(rows, a[n_near:n_near + n_look]), rng.integers(0, top, n_look)]
-        b[n_near:n_near + n_look] = pick
+        b[look_rows] = alike[np.searchsorted(rows, a[look_rows]), rng.integers(0, top, n_look)]
     return np.column_stack([a, b])
 
 
@@ -220,6 +242,26 @@ def place_loss(e: torch.Tensor, f: torch.Tensor, labels: torch.Tensor, house_a: 
     return pair + cross_weight * neg, {"pair": pair.item(), "cross": neg.item()}
 
 
+def rank_loss(e: torch.Tensor, f: torch.Tensor, labels: torch.Tensor, house_a: torch.Tensor,
+              house_b: torch.Tensor, group: int, tau: float) -> torch.Tensor:
+    """Listwise ranking: anchor n (embedding ``e[n]``) against every partner
+    ``f`` of the batch, where partners ``n * group ...`` are its own (labelled)
+    and other houses' partners are exact negatives; cross-entropy of the
+    softmax of the scores / ``tau`` against the own labels, normalised."""
+    n = len(e)
+    col_group = torch.arange(f.shape[0]) // group
+    own = col_group[None, :] == torch.arange(n)[:, None]
+    valid = own | (house_a[:, None] != house_b[None, :])
+    target = torch.where(own, labels[None, :], torch.zeros(()))
+    mass = target.sum(1)
+    rows = mass > 0
+    if not bool(rows.any()):
+        return torch.zeros(())
+    logp = torch.log_softmax((e @ f.T / tau).masked_fill(~valid, float("-inf")), dim=1)
+    logp = logp.masked_fill(~valid, 0.0)
+    return -((target[rows] / mass[rows, None]) * logp[rows]).sum(1).mean()
+
+
 @dataclass
 class PlaceResult:
     checkpoint: Path
@@ -236,18 +278,31 @@ def train_steps(model: PlaceNet, data: PlaceData, cfg: PlaceTrainConfig,
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     house = torch.from_numpy(data.house)
     labels = torch.from_numpy(data.labels)
+    g = cfg.data.group
     model.train()
     t0, ema, history, step = time.time(), None, [], 0
     while step < cfg.max_steps and time.time() - t0 < 60.0 * cfg.max_minutes:
-        idx = torch.from_numpy(rng.integers(0, len(data.pairs), cfg.batch_size))
+        if g == 1:
+            idx = torch.from_numpy(rng.integers(0, len(data.pairs), cfg.batch_size))
+        else:       # whole groups: one anchor, g partners
+            first = rng.integers(0, len(data.pairs) // g, max(cfg.batch_size // g, 1)) * g
+            idx = torch.from_numpy((first[:, None] + np.arange(g)).ravel())
         a = torch.from_numpy(data.pairs[idx.numpy(), 0])
         b = torch.from_numpy(data.pairs[idx.numpy(), 1])
-        xa, xb = data.inputs[a].float(), data.inputs[b].float()
+        a_once = a[::g]
+        xa, xb = data.inputs[a_once].float(), data.inputs[b].float()
         if cfg.mirror:
-            flip = torch.rand(len(idx), generator=gen) < 0.5
-            xa[flip], xb[flip] = xa[flip].flip(-1), xb[flip].flip(-1)
-        e, f = model(xa), model(xb)
+            flip = torch.rand(len(a_once), generator=gen) < 0.5
+            xa[flip] = xa[flip].flip(-1)
+            flip = flip.repeat_interleave(g)
+            xb[flip] = xb[flip].flip(-1)
+        e_once, f = model(xa), model(xb)
+        e = e_once.repeat_interleave(g, dim=0)
         loss, parts = place_loss(e, f, labels[idx], house[a], house[b], cfg.cross_weight)
+        if cfg.rank_weight > 0:
+            rank = rank_loss(e_once, f, labels[idx], house[a_once], house[b], g, cfg.rank_tau)
+            loss = loss + cfg.rank_weight * rank
+            parts["rank"] = rank.item()
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -258,8 +313,9 @@ def train_steps(model: PlaceNet, data: PlaceData, cfg: PlaceTrainConfig,
             history.append({"step": step, "loss_ema": round(ema, 5),
                             "wall_time_s": round(time.time() - t0, 1)})
             if log:
-                log(f"step {step}: loss {ema:.4f} (pair {parts['pair']:.4f}, "
-                    f"cross {parts['cross']:.4f}), {time.time() - t0:.0f} s")
+                log(f"step {step}: loss {ema:.4f} ("
+                    + ", ".join(f"{k} {v:.4f}" for k, v in parts.items())
+                    + f"), {time.time() - t0:.0f} s")
     model.eval()
     return step, time.time() - t0, history
 
