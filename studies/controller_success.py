@@ -24,7 +24,6 @@ checkpoints arrive (``--controllers camera_k2``) and resumed after a stop.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import math
@@ -32,6 +31,7 @@ import sys
 import time
 from pathlib import Path
 
+from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 from topodrake.montecarlo import add_study_arguments, study_main
@@ -127,12 +127,12 @@ def plot(summary: dict, details: dict, path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--trials", type=int, default=400, help="trials per controller and noise setting")
+    ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
+    ap.add_argument("--trials", type=at.count, default=400, help="trials per controller and noise setting")
     ap.add_argument("--controllers", default=",".join(CONTROLLERS),
                     help="comma-separated checkpoint folder names under --checkpoints "
                          "('oracle' = the A* oracle)")
-    ap.add_argument("--checkpoints", default="checkpoints")
+    ap.add_argument("--checkpoints", default="checkpoints", help="folder of the checkpoints")
     add_study_arguments(ap, "cache of the test houses' demonstrations")
     return study_main(_run, ap.parse_args(argv))
 

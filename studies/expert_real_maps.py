@@ -6,7 +6,6 @@ Prints, per map, how many of the 90 drives reached the goal, collided or
 timed out, and writes results/expert_real_maps.json.
 """
 
-import argparse
 import json
 import sys
 import time
@@ -14,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake import argtypes as at
 from topodrake.demonstrations import CollectConfig, plan_jobs
 from topodrake.fileio import atomic_write_json
 from topodrake.montecarlo import trial_seeds
@@ -24,11 +24,11 @@ MAPS = Path(__file__).resolve().parent.parent / "tests" / "data" / "maps"
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--noise", type=float, default=0.33)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--t-max", type=float, default=400.0, help="seconds per drive")
-    p.add_argument("--json", action="store_true")
+    p = at.Parser(description=at.plain(__doc__.splitlines()[0]))
+    p.add_argument("--noise", type=at.nonnegative, default=0.33, help="actuation noise std")
+    p.add_argument("--seed", type=at.seed, default=0, help="base seed of the drives' noise")
+    p.add_argument("--t-max", type=at.positive, default=400.0, help="seconds per drive")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     args = p.parse_args()
     out = {"command": " ".join(sys.argv), "noise_std": args.noise, "seed": args.seed}
     for yaml in sorted(MAPS.glob("*/map.yaml")):

@@ -23,7 +23,6 @@ path-probability figure).
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -31,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 from topodrake.learning.reachability import parse_estimators
@@ -113,11 +113,11 @@ def plot(details: dict, path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--pairs", type=int, default=1000)
+    ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
+    ap.add_argument("--pairs", type=at.count, default=1000, help="labelled pairs per estimator")
     ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")
-    ap.add_argument("--p", type=float, default=0.99, help="p_sparsify for keep_ratio")
-    ap.add_argument("--keep-drives", type=int, help="drives per house for keep_ratio (default all)")
+    ap.add_argument("--p", type=at.probability, default=0.99, help="p_sparsify for keep_ratio")
+    ap.add_argument("--keep-drives", type=at.count, help="drives per house for keep_ratio (default all)")
     add_study_arguments(ap, "cache of demonstrations (test houses)")
     return study_main(_run, ap.parse_args(argv))
 

@@ -35,7 +35,6 @@ prints ``{"camera_k5": {"oracle_auroc", "re_auroc", "re_auroc_blind_known",
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -43,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 
@@ -196,18 +196,18 @@ def measure(reach: str, controller: str, trajs, pairs_per_house: int, runs: int,
 def main(argv=None) -> int:
     from topodrake.montecarlo import study_main
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")
-    ap.add_argument("--pairs", type=int, default=1000, help="pairs for the noise ceiling")
-    ap.add_argument("--runs", type=int, default=8, help="noisy runs per pair")
-    ap.add_argument("--hop-pairs", type=int, default=2000, help="anchor hops (one run each)")
-    ap.add_argument("--keep-drives", type=int, default=1,
+    ap.add_argument("--pairs", type=at.count, default=1000, help="pairs for the noise ceiling")
+    ap.add_argument("--runs", type=at.count, default=8, help="noisy runs per pair")
+    ap.add_argument("--hop-pairs", type=at.count, default=2000, help="anchor hops (one run each)")
+    ap.add_argument("--keep-drives", type=at.count0, default=1,
                     help="drives per house sparsified by the controller's own outcomes (0: skip)")
-    ap.add_argument("--keep-runs", type=int, default=16,
+    ap.add_argument("--keep-runs", type=at.count, default=16,
                     help="noisy runs per candidate frame (all must be made) and per hop")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=at.seed, default=0, help="base seed of the pairs and runs")
     ap.add_argument("--data", default="data", help="cache of demonstrations (test houses)")
-    ap.add_argument("--out", default="results")
+    ap.add_argument("--out", default="results", help="folder of the JSON and PNG results")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)

@@ -21,13 +21,13 @@ successes, the command) and
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 
@@ -67,21 +67,22 @@ def plot(world, poses, results: dict, path: Path, p: float) -> None:
 def main(argv=None) -> int:
     from topodrake.montecarlo import study_main
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--world", default="test-0", help="test house (its demonstrations must exist)")
-    ap.add_argument("--drive", type=int, help="index among its successful drives (default: longest)")
+    ap.add_argument("--drive", type=at.count0, help="index among its successful drives (default: longest)")
     ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")
-    ap.add_argument("--p", type=float, default=0.99, help="p_sparsify")
-    ap.add_argument("--hop-runs", type=int, default=4,
+    ap.add_argument("--p", type=at.probability, default=0.99, help="p_sparsify")
+    ap.add_argument("--hop-runs", type=at.count0, default=4,
                     help="noisy rollouts of each anchor hop (0: do not check the hops)")
-    ap.add_argument("--seed", type=int, default=0, help="noise seeds of the hop rollouts")
-    ap.add_argument("--check-drives", type=int, default=0,
+    ap.add_argument("--seed", type=at.seed, default=0, help="noise seeds of the hop rollouts")
+    ap.add_argument("--check-drives", type=at.count0, default=0,
                     help="also check the hops of the first N drives of every --check-worlds house")
-    ap.add_argument("--check-worlds", default="test-0,test-1,test-2,test-3,test-4")
+    ap.add_argument("--check-worlds", default="test-0,test-1,test-2,test-3,test-4",
+                    help="comma-separated houses for --check-drives")
     ap.add_argument("--data", default="data", help="cache of demonstrations")
     ap.add_argument("--demos", help="demonstration folder of the world (default: DATA/demos/pairs-s0/WORLD)")
-    ap.add_argument("--out", default="results")
-    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--out", default="results", help="folder of the JSON and PNG results")
+    ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     args = ap.parse_args(argv)
     return study_main(_run, args)
 

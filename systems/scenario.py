@@ -23,6 +23,8 @@ from topodrake.expert import ExpertConfig
 from topodrake.rmp import RmpConfig
 from topodrake.sensing.config import CameraConfig, LidarConfig
 from topodrake.typed_yaml import load_typed
+from topodrake.validate import (check_count, check_finite, check_nonnegative, check_positive,
+                                check_seed)
 from topodrake.vehicle import VehicleConfig
 
 
@@ -43,6 +45,38 @@ class Scenario:
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     rmp: RmpConfig = field(default_factory=RmpConfig)
     expert: ExpertConfig = field(default_factory=ExpertConfig)
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self, where: str = "scenario") -> "Scenario":
+        """Check the numbers; a bad one raises a one-line TopodrakeError
+        naming it and its allowed range."""
+        for name in ("start_place", "goal_place"):
+            check_count(f"{where}: {name}", getattr(self, name), 0)
+        for name in ("start", "goal"):
+            for v in getattr(self, name):
+                check_finite(f"{where}: {name}", v)
+        check_nonnegative(f"{where}: noise_std", self.noise_std)
+        check_seed(f"{where}: seed", self.seed)
+        check_positive(f"{where}: t_max_s", self.t_max_s)
+        check_positive(f"{where}: goal_tolerance_m", self.goal_tolerance_m)
+        v = self.vehicle
+        for name in ("wheelbase", "steer_limit", "steer_rate_limit", "speed_cap", "accel_limit",
+                     "dt", "collision_ray_step"):
+            check_positive(f"{where}: vehicle.{name}", getattr(v, name))
+        check_finite(f"{where}: vehicle.min_speed", v.min_speed)
+        check_nonnegative(f"{where}: vehicle.noise_std", v.noise_std)
+        check_nonnegative(f"{where}: vehicle.collision_clearance", v.collision_clearance)
+        c = self.camera
+        check_count(f"{where}: camera.width", c.width)
+        check_count(f"{where}: camera.height", c.height)
+        for name in ("hfov_deg", "max_depth_m"):
+            check_positive(f"{where}: camera.{name}", getattr(c, name))
+        check_count(f"{where}: lidar.beams", self.lidar.beams)
+        for name in ("fov_deg", "range_m"):
+            check_positive(f"{where}: lidar.{name}", getattr(self.lidar, name))
+        return self
 
     def start_pose(self, world) -> np.ndarray:
         return self._endpoint(world, self.start, self.start_place, "start", 3)
@@ -68,5 +102,6 @@ class Scenario:
 
 
 def load_scenario(path) -> Scenario:
-    """Read a Scenario YAML; a bad file gives a one-line TopodrakeError."""
-    return load_typed(Scenario, path, "scenario")
+    """Read a Scenario YAML; a bad file or number gives a one-line
+    TopodrakeError naming the file."""
+    return load_typed(Scenario, path, "scenario").validate(f"scenario {path}")

@@ -1,7 +1,8 @@
 """The ``topodrake`` command line.
 
 Every bad input ends in one line on stderr (``topodrake: error: ...``) and
-exit status 2; see :mod:`topodrake.errors`.
+exit status 2; see :mod:`topodrake.errors`. Numbers are checked where they
+enter (:mod:`topodrake.argtypes`, :mod:`topodrake.validate`).
 """
 
 from __future__ import annotations
@@ -10,7 +11,11 @@ import argparse
 import json
 import sys
 
+from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
+
+DESCRIPTION = ("topodrake: visual topological navigation on Drake. Drive, collect "
+               "demonstrations, train, sparsify, inspect worlds and benchmark.")
 
 
 def _print_result(result: dict, as_json: bool) -> None:
@@ -127,15 +132,20 @@ def cmd_bench_sensors(args) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="topodrake", description=__doc__.splitlines()[0])
-    sub = p.add_subparsers(dest="command", required=True)
+    from topodrake import __version__
+
+    p = at.Parser(prog="topodrake", description=DESCRIPTION)
+    p.add_argument("--version", action="version", version=f"topodrake {__version__}",
+                   help="print the version and exit")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     demo = sub.add_parser("demo", help="the expert drives between two places in the Drake diagram")
-    demo.add_argument("--world", default="test-0")
-    demo.add_argument("--start-place", type=int, default=0)
-    demo.add_argument("--goal-place", type=int, default=5)
-    demo.add_argument("--seed", type=int, default=0)
-    demo.add_argument("--noise", type=float, default=0.33, help="actuation noise std (0 = off)")
+    demo.add_argument("--world", default="test-0", help="catalogue name or map YAML/JSON")
+    demo.add_argument("--start-place", type=at.count0, default=0, help="index of the start place")
+    demo.add_argument("--goal-place", type=at.count0, default=5, help="index of the goal place")
+    demo.add_argument("--seed", type=at.seed, default=0, help="seed of the actuation noise")
+    demo.add_argument("--noise", type=at.nonnegative, default=0.33,
+                      help="actuation noise std (0 = off)")
     demo.add_argument("--meshcat", action="store_true", help="also save a Meshcat HTML recording")
     demo.add_argument("--out", default="out/demo", help="output folder")
     demo.set_defaults(func=cmd_demo)
@@ -145,17 +155,18 @@ def build_parser() -> argparse.ArgumentParser:
     drive.set_defaults(func=cmd_drive)
 
     tr = sub.add_parser("trials", help="seeded Monte Carlo expert drives in the Drake diagram")
-    tr.add_argument("--world", default="test-0")
-    tr.add_argument("--start-place", type=int, default=0)
-    tr.add_argument("--goal-place", type=int, default=5)
-    tr.add_argument("--trials", type=int, default=20)
-    tr.add_argument("--seed", type=int, default=0)
-    tr.add_argument("--noise", type=float, default=0.33)
+    tr.add_argument("--world", default="test-0", help="catalogue name or map YAML/JSON")
+    tr.add_argument("--start-place", type=at.count0, default=0, help="index of the start place")
+    tr.add_argument("--goal-place", type=at.count0, default=5, help="index of the goal place")
+    tr.add_argument("--trials", type=at.count, default=20, help="number of seeded drives")
+    tr.add_argument("--seed", type=at.seed, default=0, help="base seed of the trial seeds")
+    tr.add_argument("--noise", type=at.nonnegative, default=0.33,
+                    help="actuation noise std (0 = off)")
     tr.add_argument("--camera", action="store_true", help="render the camera too")
-    tr.add_argument("--workers", type=int, help="local processes (default: all cores)")
+    tr.add_argument("--workers", type=at.count, help="local processes (default: all cores)")
     tr.add_argument("--ray", metavar="ADDRESS",
                     help="run on a Ray cluster ('auto', 'local' or ray://host:port)")
-    tr.add_argument("--json", action="store_true")
+    tr.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     tr.set_defaults(func=cmd_trials)
 
     col = sub.add_parser("collect", help="generate expert demonstrations (resumable)")
@@ -163,26 +174,28 @@ def build_parser() -> argparse.ArgumentParser:
     col.add_argument("--out", required=True, help="output folder")
     col.add_argument("--protocol", choices=["pairs", "random"], default="pairs",
                      help="pairs: all ordered pairs of the 10 places; random: --count pairs")
-    col.add_argument("--count", type=int, default=100)
-    col.add_argument("--seed", type=int, default=0)
-    col.add_argument("--noise", type=float, default=0.0)
-    col.add_argument("--chunk-size", type=int, default=32)
-    col.add_argument("--quiet", action="store_true")
+    col.add_argument("--count", type=at.count, default=100,
+                     help="number of drives for --protocol random")
+    col.add_argument("--seed", type=at.seed, default=0, help="seed of the pairs and the noise")
+    col.add_argument("--noise", type=at.nonnegative, default=0.0,
+                     help="actuation noise std (0 = off)")
+    col.add_argument("--chunk-size", type=at.count, default=32, help="drives per file")
+    col.add_argument("--quiet", action="store_true", help="no progress bar")
     col.set_defaults(func=cmd_collect)
 
     world = sub.add_parser("world", help="list, inspect and plot worlds")
     wsub = world.add_subparsers(dest="world_command", required=True)
     wl = wsub.add_parser("list", help="the catalogue of procedural houses")
-    wl.add_argument("--json", action="store_true")
+    wl.add_argument("--json", action="store_true", help="print the names as one JSON list")
     wl.set_defaults(func=cmd_world_list)
     wi = wsub.add_parser("info", help="summary of a world (catalogue name or map file)")
-    wi.add_argument("world")
-    wi.add_argument("--json", action="store_true")
+    wi.add_argument("world", help="catalogue name or map YAML/JSON")
+    wi.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     wi.set_defaults(func=cmd_world_info)
     wp = wsub.add_parser("plot", help="top-down plot of a world")
-    wp.add_argument("world")
-    wp.add_argument("--out", required=True)
-    wp.add_argument("--astar", nargs=2, type=int, metavar=("I", "J"),
+    wp.add_argument("world", help="catalogue name or map YAML/JSON")
+    wp.add_argument("--out", required=True, help="output image (PNG, PDF or SVG)")
+    wp.add_argument("--astar", nargs=2, type=at.count0, metavar=("I", "J"),
                     help="also draw the A* path from place I to place J")
     wp.set_defaults(func=cmd_world_plot)
 
@@ -195,20 +208,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_map_parser(sub)
 
-    bench = sub.add_parser("bench", help="benchmarks that print the issues' figures")
-    bsub = bench.add_subparsers(dest="bench_command", required=True)
+    bench = sub.add_parser("bench", help="speed and accuracy benchmarks of the components")
+    bsub = bench.add_subparsers(dest="bench_command", required=True, metavar="BENCHMARK")
     bs = bsub.add_parser("sensors", help="camera/lidar throughput, VTK, depth parity")
-    bs.add_argument("--world", default="test-0")
-    bs.add_argument("--batch", type=int, default=4096)
-    bs.add_argument("--vtk-poses", type=int, default=60)
-    bs.add_argument("--seed", type=int, default=0)
-    bs.add_argument("--json", action="store_true")
+    bs.add_argument("--world", default="test-0", help="catalogue name or map YAML/JSON")
+    bs.add_argument("--batch", type=at.count, default=4096, help="poses per rendering batch")
+    bs.add_argument("--vtk-poses", type=at.count, default=60,
+                    help="poses rendered by Drake's VTK for the comparison")
+    bs.add_argument("--seed", type=at.seed, default=0, help="seed of the random poses")
+    bs.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     bs.set_defaults(func=cmd_bench_sensors)
     be = bsub.add_parser("expert", help="expert success, Drake real-time factor, batched speed, parity")
-    be.add_argument("--pairs", type=int, default=500)
-    be.add_argument("--batch", type=int, default=256)
-    be.add_argument("--seed", type=int, default=0)
-    be.add_argument("--json", action="store_true")
+    be.add_argument("--pairs", type=at.count, default=500,
+                    help="start-goal pairs for the success rates")
+    be.add_argument("--batch", type=at.count, default=256, help="cars in the batched engine run")
+    be.add_argument("--seed", type=at.seed, default=0, help="seed of the pairs and the noise")
+    be.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     be.set_defaults(func=cmd_bench_expert)
     add_bench_parser(bsub)
     return p

@@ -24,13 +24,16 @@ def trial_seeds(base_seed: int, n: int) -> list[int]:
 def add_study_arguments(parser, data_help: str = "cache of demonstrations") -> None:
     """The options every Monte Carlo study shares: seed, data folder, noise,
     workers or Ray, output folder, JSON and progress switches."""
-    parser.add_argument("--seed", type=int, default=0, help="base seed of the trial seeds")
+    from topodrake import argtypes as at
+
+    parser.add_argument("--seed", type=at.seed, default=0, help="base seed of the trial seeds")
     parser.add_argument("--data", default="data", help=data_help)
-    parser.add_argument("--noise", type=float, default=0.33,
+    parser.add_argument("--noise", type=at.nonnegative, default=0.33,
                         help="actuation noise std of the noisy runs")
-    parser.add_argument("--workers", type=int, help="local worker processes (default: all cores)")
+    parser.add_argument("--workers", type=at.count,
+                        help="local worker processes (default: all cores)")
     parser.add_argument("--ray", metavar="ADDRESS", help="run the trials on a Ray cluster")
-    parser.add_argument("--out", default="results")
+    parser.add_argument("--out", default="results", help="folder of the JSON and PNG results")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import json
 
+from topodrake import argtypes as at
+
 
 def _command(args, verb: str) -> str:
     command = f"topodrake train {verb} --config {args.config} --out {args.out}"
@@ -79,9 +81,9 @@ def add_train_parser(sub) -> None:
                         help="cache of demonstrations, sample sets and rollout labels")
         tw.add_argument("--no-resume", action="store_true",
                         help="refuse to continue an existing checkpoint in --out")
-        tw.add_argument("--max-minutes", type=float, help="override the config's time budget")
-        tw.add_argument("--max-samples", type=int, help="override the config's sample budget")
-        tw.add_argument("--threads", type=int, help="torch / numba threads")
+        tw.add_argument("--max-minutes", type=at.positive, help="override the config's time budget")
+        tw.add_argument("--max-samples", type=at.count, help="override the config's sample budget")
+        tw.add_argument("--threads", type=at.count0, help="torch / numba threads (0: all cores)")
         tw.add_argument("--quiet", action="store_true", help="no progress bar")
         tw.add_argument("--json", action="store_true", help="print the result as one JSON object")
         tw.set_defaults(func=func)
@@ -149,36 +151,38 @@ def add_bench_parser(bsub) -> None:
     """``networks`` under the ``bench`` subparsers ``bsub``."""
     bn = bsub.add_parser("networks", help="C_WP training and naive/cached inference throughput")
     bn.add_argument("--config", help="training YAML (default: the camera k=5 default profile)")
-    bn.add_argument("--world", default="train-00")
-    bn.add_argument("--batch", type=int, default=64)
-    bn.add_argument("--seconds", type=float, default=3.0, help="timing window per figure")
-    bn.add_argument("--threads", type=int, default=1)
-    bn.add_argument("--seed", type=int, default=0)
-    bn.add_argument("--json", action="store_true")
+    bn.add_argument("--world", default="train-00", help="catalogue name or map YAML/JSON")
+    bn.add_argument("--batch", type=at.count, default=64, help="samples per training batch")
+    bn.add_argument("--seconds", type=at.positive, default=3.0, help="timing window per figure")
+    bn.add_argument("--threads", type=at.count, default=1, help="torch threads")
+    bn.add_argument("--seed", type=at.seed, default=0, help="seed of the samples and weights")
+    bn.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     bn.set_defaults(func=cmd_bench_networks)
     br = bsub.add_parser("reachability", help="RE pair throughput (naive / cached) and label rollouts")
     br.add_argument("--config", help="RE training YAML (default: the camera k=5 profile)")
     br.add_argument("--controller", help="C_WP checkpoint for the label rollouts "
                                          "(default: an untrained network of the default profile)")
-    br.add_argument("--world", default="test-0")
-    br.add_argument("--pairs", type=int, default=256)
-    br.add_argument("--label-pairs", type=int, default=128)
-    br.add_argument("--seconds", type=float, default=3.0, help="timing window per figure")
-    br.add_argument("--threads", type=int, default=1)
-    br.add_argument("--seed", type=int, default=0)
-    br.add_argument("--json", action="store_true")
+    br.add_argument("--world", default="test-0", help="catalogue name or map YAML/JSON")
+    br.add_argument("--pairs", type=at.count, default=256, help="image pairs per RE batch")
+    br.add_argument("--label-pairs", type=at.count, default=128,
+                    help="pairs rolled out for the label throughput")
+    br.add_argument("--seconds", type=at.positive, default=3.0, help="timing window per figure")
+    br.add_argument("--threads", type=at.count, default=1, help="torch threads")
+    br.add_argument("--seed", type=at.seed, default=0, help="seed of the pairs and weights")
+    br.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     br.set_defaults(func=cmd_bench_reachability)
     bp = bsub.add_parser("place", help="place-embedding recall@K against a thumbnail baseline, "
                                        "and search time at 100,000 vertices")
-    bp.add_argument("--checkpoint", default="checkpoints/place_camera/checkpoint.pt")
-    bp.add_argument("--world", default="test-0")
+    bp.add_argument("--checkpoint", default="checkpoints/place_camera/checkpoint.pt",
+                    help="place-embedding checkpoint")
+    bp.add_argument("--world", default="test-0", help="catalogue name or map YAML/JSON")
     bp.add_argument("--data", default="data", help="cache of demonstrations")
     bp.add_argument("--reach", help="RE.pt:CWP.pt: also score recall against the vertices this "
                                     "RE passes (slow: exact RE on queries x database)")
     bp.add_argument("--re-queries", type=int, default=60, help="queries scored with --reach")
-    bp.add_argument("--threads", type=int, default=1)
-    bp.add_argument("--seed", type=int, default=0)
-    bp.add_argument("--json", action="store_true")
+    bp.add_argument("--threads", type=at.count, default=1, help="torch threads")
+    bp.add_argument("--seed", type=at.seed, default=0, help="seed of the sampled frames")
+    bp.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     bp.set_defaults(func=cmd_bench_place)
 
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 from topodrake.errors import TopodrakeError
+from topodrake.validate import (check_count, check_fraction, check_nonnegative, check_positive,
+                                check_seed)
 from topodrake.typed_yaml import load_typed, load_typed_data
 from topodrake.learning.networks import NetworkConfig
 from topodrake.learning.samples import SampleConfig
@@ -69,8 +71,25 @@ class TrainConfig:
         for name in ("batch_size", "epoch_samples", "max_samples", "val_every_samples"):
             if getattr(self, name) < 1:
                 raise TopodrakeError(f"{where}: {name} must be >= 1, got {getattr(self, name)}")
-        if not self.lr > 0 or not 0 < self.lr_decay <= 1:
-            raise TopodrakeError(f"{where}: need lr > 0 and 0 < lr_decay <= 1")
+        check_positive(f"{where}: lr", self.lr)
+        if check_fraction(f"{where}: lr_decay", self.lr_decay) == 0:
+            raise TopodrakeError(f"{where}: lr_decay must be a number in (0, 1], got 0")
+        check_positive(f"{where}: max_minutes", self.max_minutes)
+        check_positive(f"{where}: checkpoint_every_s", self.checkpoint_every_s)
+        check_seed(f"{where}: seed", self.seed)
+        check_count(f"{where}: threads", self.threads, 0)
+        d = self.data
+        check_count(f"{where}: data.demo_count", d.demo_count)
+        check_count(f"{where}: data.val_samples", d.val_samples)
+        check_seed(f"{where}: data.demo_seed", d.demo_seed)
+        check_seed(f"{where}: data.sample_seed", d.sample_seed)
+        sm = d.samples
+        for name in ("lateral_std_m", "lateral_clip_m", "heading_std_deg", "target_snap_m"):
+            check_nonnegative(f"{where}: data.samples.{name}", getattr(sm, name))
+        check_fraction(f"{where}: data.samples.min_overlap", sm.min_overlap)
+        check_positive(f"{where}: data.samples.lookahead_m", sm.lookahead_m)
+        check_count(f"{where}: data.samples.jitter_tries", sm.jitter_tries)
+        check_count(f"{where}: data.samples.overlap_rays", sm.overlap_rays)
         if self.data.train_samples < self.batch_size:
             raise TopodrakeError(f"{where}: data.train_samples ({self.data.train_samples}) is "
                                  f"smaller than one batch ({self.batch_size})")

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 
 
@@ -30,8 +31,6 @@ def cmd_sparsify(args) -> None:
         raise TopodrakeError(f"no demonstrations in {folder}; make them with "
                              f"'topodrake collect {args.world} --out {folder}'")
     _, demos = load_demos(folder, successful_only=True)
-    if args.hop_runs < 0:
-        raise TopodrakeError("--hop-runs must be >= 0")
     if not 0 <= args.drive < len(demos):
         raise TopodrakeError(f"--drive must be in 0..{len(demos) - 1} ({folder} has "
                              f"{len(demos)} successful drives)")
@@ -68,11 +67,12 @@ def add_sparsify_parser(sub) -> None:
     sp.add_argument("--reach", required=True, help="RE checkpoint")
     sp.add_argument("--controller", required=True, help="the C_WP checkpoint RE was trained for")
     sp.add_argument("--demos", help="demonstration folder (default data/demos/pairs-s0/WORLD)")
-    sp.add_argument("--drive", type=int, default=0, help="index among the successful drives")
-    sp.add_argument("--p", type=float, default=0.99, help="p_sparsify")
-    sp.add_argument("--hop-runs", type=int, default=0,
+    sp.add_argument("--drive", type=at.count0, default=0, help="index among the successful drives")
+    sp.add_argument("--p", type=at.probability, default=0.99,
+                    help="p_sparsify: a hop extends while RE stays above it")
+    sp.add_argument("--hop-runs", type=at.count0, default=0,
                     help="check each anchor hop with N noisy closed-loop rollouts")
-    sp.add_argument("--seed", type=int, default=0, help="noise seeds of the hop rollouts")
+    sp.add_argument("--seed", type=at.seed, default=0, help="noise seeds of the hop rollouts")
     sp.add_argument("--out", help="PNG of the anchors on the floor plan")
-    sp.add_argument("--json", action="store_true")
+    sp.add_argument("--json", action="store_true", help="print the result as one JSON object")
     sp.set_defaults(func=cmd_sparsify)

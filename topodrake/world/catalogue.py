@@ -57,6 +57,15 @@ def load_world(spec: str) -> World:
             return load_houseexpo(path)
         from topodrake.world.rosmap import load_ros_map
         return load_ros_map(path)
-    raise TopodrakeError(
-        f"unknown world {spec!r}: use a catalogue name ({', '.join(CATALOGUE)}), "
-        f"a ROS map .yaml or a HouseExpo .json file")
+    raise TopodrakeError(unknown_world_message(spec))
+
+
+def unknown_world_message(spec: str) -> str:
+    """One short line: up to 5 close catalogue names and where the full list is."""
+    import difflib
+
+    close = difflib.get_close_matches(spec, CATALOGUE, n=5, cutoff=0.6)
+    shown = spec if len(spec) <= 40 else spec[:37] + "..."
+    hint = f" (close: {', '.join(close)})" if close else ""
+    return (f"unknown world {shown!r}{hint}; 'topodrake world list' names all {len(CATALOGUE)}, "
+            f"or give a ROS map .yaml or HouseExpo .json")
