@@ -257,7 +257,6 @@ def _error(call, path) -> str:
     ("image: m.png\nresolution: abc\norigin: [0, 0, 0]\n", "resolution"),
     ("image: m.png\nresolution: 0.05\norigin: [0, 0]\nfree_thresh: 0.7\n", "thresh"),
     ("image: m.png\nresolution: 0.05\norigin: [0, 0]\noccupied_thresh: 1.5\n", "thresh"),
-    ("image: m.png\nresolution: 0.05\norigin: [0, 0, 0.5]\n", "yaw"),
     ("image: m.png\nresolution: 0.05\norigin: zero\n", "origin"),
     ("image: m.png\nresolution: 0.05\norigin: [0, 0]\nmode: fancy\n", "mode"),
     ("image: m.png\nresolution: 0.05\norigin: [0, 0]\nnegate: 2\n", "negate"),

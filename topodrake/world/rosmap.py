@@ -16,9 +16,12 @@ unknown cells). ``raw`` mode reads ``v`` as the occupancy percentage itself:
 ``p = v / 100`` for ``v <= 100`` and unknown above. Unknown cells are treated
 as walls.
 
-A nonzero origin yaw (a rotated map) is rejected: the world's grid is axis
-aligned in the map frame, and silently dropping the yaw would put every
-coordinate in a different frame from the ROS map.
+A nonzero origin yaw (a rotated map, as some SLAM exports write) is applied:
+the image is rotated by the yaw about the origin into the world frame (the
+ROS map frame, where rviz draws it), resampled at the same resolution to
+the nearest pixel (lossless for multiples of 90 degrees); cells outside the
+rotated image are walls. Coordinates given to topodrake (starts, goals)
+are therefore in the ROS map frame, whatever the yaw.
 """
 
 from __future__ import annotations
@@ -47,8 +50,36 @@ def load_ros_map(yaml_path) -> World:
                         free_thresh=free_t, mode=mode) != 0
     name = path.parent.name if path.stem == "map" and path.parent.name else path.stem
     # Image row 0 is the top of the map (highest y); the grid's row 0 is the bottom.
-    return world_from_occupancy(name, occupied[::-1], origin[:2], resolution,
-                                source=str(path))
+    occupied, corner = rotate_raster(occupied[::-1], resolution, origin)
+    return world_from_occupancy(name, occupied, corner, resolution, source=str(path))
+
+
+def rotate_raster(occupied: np.ndarray, resolution: float, origin) -> tuple[np.ndarray, np.ndarray]:
+    """An (H, W) raster (row 0 = lowest y) whose lower-left corner is at
+    ``origin[:2]`` and which is rotated by ``origin[2]`` (counter-clockwise)
+    about that corner, resampled into an axis-aligned raster of the same
+    resolution: returns the raster and the world xy of its lower-left
+    corner. Each new cell takes the pixel under its centre; cells outside
+    the image are occupied. Yaw 0 returns the input unchanged."""
+    ox, oy, yaw = (float(v) for v in origin)
+    occupied = np.asarray(occupied, dtype=bool)
+    if yaw == 0.0:
+        return occupied, np.array([ox, oy])
+    h, w = occupied.shape
+    c, s = math.cos(yaw), math.sin(yaw)
+    corners = np.array([[0.0, 0.0], [w, 0.0], [0.0, h], [w, h]]) * resolution
+    world = corners @ np.array([[c, s], [-s, c]]) + (ox, oy)
+    lo, hi = world.min(axis=0), world.max(axis=0)
+    nw, nh = (max(1, int(round(n))) for n in (hi - lo) / resolution)
+    xs = lo[0] + (np.arange(nw) + 0.5) * resolution - ox
+    ys = lo[1] + (np.arange(nh) + 0.5) * resolution - oy
+    # Image coordinates of each new cell centre (rotate back by -yaw).
+    col = np.floor((c * xs[None, :] + s * ys[:, None]) / resolution).astype(np.int64)
+    row = np.floor((-s * xs[None, :] + c * ys[:, None]) / resolution).astype(np.int64)
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    out = np.ones((nh, nw), dtype=bool)
+    out[inside] = occupied[row[inside], col[inside]]
+    return out, lo
 
 
 def classify(value: np.ndarray, *, negate: bool = False, occupied_thresh: float = 0.65,
@@ -144,9 +175,6 @@ def _parse(path: Path, meta: dict):
                        and math.isfinite(o) for o in origin)):
         raise TopodrakeError(f"{path}: origin must be [x, y, yaw] numbers, got {origin!r}")
     origin = np.array([*origin, 0.0][:3], dtype=np.float64)
-    if abs(origin[2]) > 1e-9:
-        raise TopodrakeError(f"{path}: origin yaw {origin[2]:g} is not supported "
-                             "(only axis-aligned maps, yaw 0)")
 
     negate = meta.get("negate", 0)
     if negate not in (0, 1):
