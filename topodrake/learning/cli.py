@@ -93,6 +93,12 @@ def add_train_parser(sub) -> None:
     tp.add_argument("--data", default="data", help="cache of demonstrations")
     tp.add_argument("--quiet", action="store_true", help="no progress lines")
     tp.set_defaults(func=cmd_train_place)
+    ts = tsub.add_parser("sptm", help="train the SPTM baseline's retrieval network")
+    ts.add_argument("config", help="training YAML (see configs/sptm_retrieval.yaml)")
+    ts.add_argument("--out", help="output folder (default: checkpoints/<config name>)")
+    ts.add_argument("--data", default="data", help="cache of demonstrations")
+    ts.add_argument("--quiet", action="store_true", help="no progress lines")
+    ts.set_defaults(func=cmd_train_sptm)
 
 
 def cmd_train_place(args) -> None:
@@ -106,6 +112,21 @@ def cmd_train_place(args) -> None:
         command += f" --data {args.data}"
     result = train_place(load_place_config(args.config), out, args.data,
                          progress=not args.quiet, command=command)
+    print(json.dumps({"checkpoint": str(result.checkpoint), "steps": result.steps,
+                      "wall_time_s": round(result.wall_time_s, 1), "metrics": result.metrics}))
+
+
+def cmd_train_sptm(args) -> None:
+    from pathlib import Path
+
+    from topodrake.baselines.train_retrieval import load_retrieval_config, train_retrieval
+
+    out = args.out or str(Path("checkpoints") / Path(args.config).stem)
+    command = f"topodrake train sptm {args.config}" + (f" --out {args.out}" if args.out else "")
+    if args.data != "data":
+        command += f" --data {args.data}"
+    result = train_retrieval(load_retrieval_config(args.config), out, args.data,
+                             progress=not args.quiet, command=command)
     print(json.dumps({"checkpoint": str(result.checkpoint), "steps": result.steps,
                       "wall_time_s": round(result.wall_time_s, 1), "metrics": result.metrics}))
 
