@@ -28,9 +28,13 @@ import numpy as np
 import torch
 
 from topodrake.errors import TopodrakeError
+from topodrake.learning.frames import context_frames
 from topodrake.learning.inference import ObservationNetwork
 from topodrake.learning.networks import CONTROL_SCALE
 from topodrake.sensing.config import CameraConfig, LidarConfig
+
+__all__ = ["AStarOracle", "LearnedWaypointPolicy", "TargetContext", "WaypointPolicy",
+           "WaypointPrediction", "context_frames", "make_target_context", "target_input"]
 
 
 @dataclass
@@ -169,13 +173,6 @@ class AStarOracle:
             wp[~valid] = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
         ov = mutual_overlap(self.world, poses, tgt, self.camera, self.overlap_rays)
         return WaypointPrediction(wp, wrap_angle(tgt[:, 2] - poses[:, 2]), ov)
-
-
-def context_frames(n_frames: int, j: int, k: int, frame_step: int = 3) -> np.ndarray:
-    """Indices j - k*step .. j + k*step of a trajectory of ``n_frames``, clamped:
-    (2k+1,) for one frame ``j``, (M, 2k+1) for an array of M frames (``n_frames``
-    may be an (M, 1) array: one trajectory length per frame)."""
-    return np.clip(np.asarray(j)[..., None] + frame_step * np.arange(-k, k + 1), 0, n_frames - 1)
 
 
 def make_target_context(world, trajectory_poses: np.ndarray, j: int, k: int, *,

@@ -51,6 +51,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes
+from topodrake.learning.frames import context_frames
 
 FORMAT = "topodrake-samples"
 VERSION = 1
@@ -151,8 +152,6 @@ class TrajectorySet:
                      ) -> np.ndarray:
         """(M, 2k+1) rows of :attr:`poses` that form the contexts of frames
         ``frames`` of trajectories ``traj`` (each clamped to its own drive)."""
-        from topodrake.learning.policy import context_frames
-
         lo = self.traj_offsets[traj][:, None]
         return lo + context_frames(self.traj_offsets[traj + 1][:, None] - lo, frames, k, frame_step)
 
