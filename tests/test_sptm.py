@@ -197,3 +197,16 @@ def test_auroc():
     assert auroc(np.array([0.1, 0.4, 0.35, 0.8]), np.array([0, 0, 1, 1])) == 0.75
     assert auroc(np.array([0.5, 0.5]), np.array([0, 1])) == 0.5
     assert math.isnan(auroc(np.array([0.5]), np.array([1])))
+
+
+def test_shipped_config_loads_and_a_bad_one_is_refused(tmp_path):
+    from topodrake.baselines.train_retrieval import load_retrieval_config
+
+    cfg = load_retrieval_config("configs/sptm_retrieval.yaml")
+    assert cfg.data.positive_max_frames == 5 and cfg.data.negative_min_frames == 20
+    assert cfg.threads == 1
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("data: {positive_max_frames: 30, negative_min_frames: 20}\n")
+    with pytest.raises(TopodrakeError, match="negative_min_frames") as e:
+        load_retrieval_config(bad)
+    assert "\n" not in str(e.value)

@@ -280,13 +280,33 @@ def plan_sptm(sptm_map: SptmMap, start_observation: np.ndarray, goal_observation
                       goal_links=1)
 
 
+def jittered_start(world, pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The planning protocol's start: ``pose`` moved 0.3 m to a random side
+    and turned 9 deg to a random side (the other side, or no jitter, when
+    that puts the car into a wall)."""
+    from topodrake.vehicle import VehicleConfig, in_collision
+
+    side, turn = rng.choice([-1.0, 1.0], size=2)
+    for sd, tn in ((side, turn), (-side, turn), (0.0, 0.0)):
+        q = np.array(pose, np.float64)
+        q[0] -= 0.3 * sd * np.sin(pose[2])
+        q[1] += 0.3 * sd * np.cos(pose[2])
+        q[2] += np.radians(9.0) * tn
+        if not in_collision(np.array([[*q, 0.0, 0.0]]), world.grid.clearance_at, VehicleConfig())[0]:
+            return q
+    return np.array(pose, np.float64)
+
+
 def place_pairs_study(world_name: str, demo_folder, net, config: SptmConfig | None = None,
-                      near_m: float = 1.0, progress: bool = True) -> dict:
+                      near_m: float = 1.0, seed: int = 0, progress: bool = True) -> dict:
     """Build SPTM's graph from every drive of ``demo_folder`` in house
-    ``world_name`` and plan between all ordered pairs of its places (camera
-    observations at the places' poses): graph size, shortcut count, build
-    time, the share of pairs with a plan, and how often the localized start
-    and goal vertices lie within ``near_m`` of the true poses."""
+    ``world_name`` and plan between all ordered pairs of its places: the
+    goal is the camera image at the goal place's pose, the start the image
+    at the start place's pose, exact or jittered (:func:`jittered_start`,
+    seeded). Reports graph size, shortcut count, build time, the share of
+    pairs with a plan (a path joins the top-1 localized vertices), and how
+    often the localized start and goal vertices lie within ``near_m`` of the
+    true poses (metadata, used only here)."""
     from topodrake.demonstrations import load_demos
     from topodrake.sensing.observe import observe
     from topodrake.world import load_world
@@ -299,29 +319,75 @@ def place_pairs_study(world_name: str, demo_folder, net, config: SptmConfig | No
     render_s = time.time() - t0
     m = build_sptm_graph(trajectories, net, config, progress)
     places = np.asarray(world.places, np.float64)
-    place_obs = observe(world, "camera", places, net.sensor)
-    loc = [localize(m, o, net) for o in place_obs]
-    loc_v = np.array([v for v, _ in loc])
-    loc_err = np.hypot(*(m.vertex_poses(loc_v)[:, :2] - places[:, :2]).T)
-    found, hops, start_near, goal_near, reasons = 0, [], 0, 0, {}
     pairs = [(i, j) for i in range(len(places)) for j in range(len(places)) if i != j]
-    for i, j in pairs:
-        r = plan_sptm(m, place_obs[i], place_obs[j], places[i], places[j], net)
-        start_near += loc_err[i] <= near_m
-        goal_near += loc_err[j] <= near_m
-        if r.reachable:
-            found += 1
-            hops.append(len(r.vertices) - 1)
-        else:
-            reasons[r.reason.split(" vertex")[0]] = reasons.get(r.reason.split(" vertex")[0], 0) + 1
-    n = len(pairs)
-    return {"world": world_name, "demo_folder": str(demo_folder), "render_time_s": round(render_s, 1),
-            "graph": m.summary(), "place_pairs": n, "plans_found": found,
-            "plan_found_share": round(found / n, 4),
-            "start_within_m_share": round(start_near / n, 4),
-            "goal_within_m_share": round(goal_near / n, 4), "near_m": near_m,
-            "place_localization_error_m": [round(float(e), 3) for e in loc_err],
-            "place_localization_score": [round(s, 4) for _, s in loc],
-            "mean_hops": round(float(np.mean(hops)), 2) if hops else None,
-            "components": nx.number_connected_components(m.graph),
-            "largest_component_vertices": len(max(nx.connected_components(m.graph), key=len))}
+    rng = np.random.default_rng(seed)
+    jittered = np.array([jittered_start(world, places[i], rng) for i, _ in pairs])
+    place_obs = observe(world, "camera", places, net.sensor)
+    jit_obs = observe(world, "camera", jittered, net.sensor)
+
+    def error(v, pose):
+        return float(np.hypot(*(m.vertex_poses([v])[0, :2] - pose[:2])))
+
+    place_loc = [localize(m, o, net) for o in place_obs]
+    place_err = [error(v, p) for (v, _), p in zip(place_loc, places)]
+    out = {}
+    for label, starts, start_obs in (("exact_start", places[[i for i, _ in pairs]],
+                                      place_obs[[i for i, _ in pairs]]),
+                                     ("jittered_start", jittered, jit_obs)):
+        found, hops, s_near, g_near, reasons = 0, [], 0, 0, 0
+        for (i, j), sp, so in zip(pairs, starts, start_obs):
+            vs, _ = localize(m, so, net)
+            s_near += error(vs, sp) <= near_m
+            g_near += place_err[j] <= near_m
+            r = plan_sptm(m, so, place_obs[j], sp, places[j], net)
+            if r.reachable:
+                found += 1
+                hops.append(len(r.vertices) - 1)
+        n = len(pairs)
+        out[label] = {"plans_found": found, "plan_found_share": round(found / n, 4),
+                      "start_within_share": round(s_near / n, 4),
+                      "goal_within_share": round(g_near / n, 4),
+                      "mean_hops": round(float(np.mean(hops)), 2) if hops else None}
+    comps = sorted((len(c) for c in nx.connected_components(m.graph)), reverse=True)
+    return {"world": world_name, "demo_folder": str(demo_folder), "place_pairs": len(pairs),
+            "near_m": near_m, "seed": seed, "render_time_s": round(render_s, 1),
+            "graph": m.summary(), "components": len(comps), "largest_components": comps[:5],
+            **out,
+            "place_localization_error_m": [round(e, 3) for e in place_err],
+            "place_localization_score": [round(s, 4) for _, s in place_loc]}
+
+
+def main(argv=None) -> None:
+    """``python -m topodrake.baselines.sptm``: the place-pairs study of one house."""
+    import argparse
+    import json
+    import sys
+
+    from topodrake.baselines.retrieval_net import RetrievalScorer
+    from topodrake.fileio import atomic_write_json
+    from topodrake.learning.checkpoint import git_revision
+
+    ap = argparse.ArgumentParser(description=place_pairs_study.__doc__.splitlines()[0])
+    ap.add_argument("--checkpoint", default="checkpoints/sptm_retrieval/checkpoint.pt",
+                    help="retrieval checkpoint (default: %(default)s)")
+    ap.add_argument("--world", default="test-0", help="house (default: %(default)s)")
+    ap.add_argument("--demos", default="data/demos/pairs-s0/test-0",
+                    help="demonstration folder of that house (default: %(default)s)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the start jitter (default: 0)")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (default: 1)")
+    ap.add_argument("--out", help="JSON file to write (default: print only)")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    net = RetrievalScorer.from_checkpoint(args.checkpoint)
+    result = place_pairs_study(args.world, args.demos, net, seed=args.seed)
+    result = {"command": "python -m topodrake.baselines.sptm " + " ".join(sys.argv[1:] if argv is None
+                                                                         else argv),
+              "git_revision": git_revision(), "checkpoint_sha1": net.fingerprint(),
+              "config": SptmConfig().__dict__, **result}
+    if args.out:
+        atomic_write_json(args.out, result)
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()
