@@ -70,9 +70,10 @@ def add_chassis(b: DiagramBuilder, scenario: Scenario, world, *, camera: bool,
         b.ExportOutput(cam.image_port, "image")
     if meshcat is not None:
         from topodrake.systems.visualization import MeshcatCar
-        from topodrake.world.scenegraph import add_meshcat_world
+        from topodrake.world.scenegraph import add_meshcat_world, frame_whole_world
 
         add_meshcat_world(meshcat, world)
+        frame_whole_world(meshcat, world)
         viz = b.AddNamedSystem("meshcat_car", MeshcatCar(meshcat, dt, scenario.lidar))
         b.Connect(car.pose_port, viz.pose_port)
         b.Connect(lidar.ranges_port, viz.ranges_port)

@@ -10,7 +10,8 @@ stays light:
   standalone SceneGraph with Drake's ``RenderEngineVtk`` and renders depth and
   colour images for batches of car poses; it is the reference that tests hold
   the batched 2.5-D renderer against.
-* :func:`add_meshcat_world` draws a world directly into a Meshcat instance.
+* :func:`add_meshcat_world` draws a world directly into a Meshcat instance;
+  :func:`frame_whole_world` points its camera at the whole floor plan.
 
 Geometry layout
 ---------------
@@ -609,3 +610,56 @@ def add_meshcat_world(meshcat, world, *, path: str = "/topodrake/world",
     meshcat.SetTransform(f"{path}/floor", RigidTransform(
         [0.5 * (x0 + x1), 0.5 * (y0 + y1), -0.5 * SLAB_M]))
     return path
+
+
+#: Vertical field of view (deg) of Meshcat's default perspective camera.
+MESHCAT_FOV_DEG = 75.0
+
+
+def view_angles(camera: np.ndarray, target: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N, 2) horizontal and vertical angles (deg) of ``points`` (N, 3) off
+    the axis of a camera at ``camera`` looking at ``target`` with z up;
+    NaN for points behind it."""
+    forward = (target - camera) / np.linalg.norm(target - camera)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    d = np.asarray(points, np.float64) - camera
+    depth = d @ forward
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.degrees(np.arctan2(np.abs(np.stack([d @ right, d @ up], -1)), depth[:, None]))
+    out[depth <= 0] = np.nan
+    return out
+
+
+def framing_camera_pose(world, *, tilt_deg: float = 20.0,
+                        fill: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
+    """Camera position and target (Drake world frame, z up) that show the
+    whole floor plan, walls included: above the centre of its bounding box,
+    tilted ``tilt_deg`` from vertical toward -y, at the nearest distance
+    where every corner lies within ``fill`` of Meshcat's vertical field of
+    view in both directions (so any window at least as wide as tall shows
+    it all)."""
+    (x0, y0), (x1, y1) = np.asarray(world.bbox, dtype=np.float64)
+    h = float(world.wall_height)
+    target = np.array([0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0])
+    corners = np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (0.0, h)])
+    tilt = np.radians(tilt_deg)
+    direction = np.array([0.0, -np.sin(tilt), np.cos(tilt)])
+    limit = fill * 0.5 * MESHCAT_FOV_DEG
+    distance = 0.5 * max(x1 - x0, y1 - y0, 1.0) / np.tan(np.radians(limit)) + h
+    for _ in range(200):
+        camera = target + distance * direction
+        angles = view_angles(camera, target, corners)
+        if np.all(angles < limit):
+            break
+        distance *= 1.05
+    return camera, target
+
+
+def frame_whole_world(meshcat, world, **kwargs) -> None:
+    """Point ``meshcat``'s camera at the whole floor plan
+    (:func:`framing_camera_pose`). A recording's static HTML
+    (``meshcat.StaticHtml()``) opens with this view."""
+    camera, target = framing_camera_pose(world, **kwargs)
+    meshcat.SetCameraPose(camera, target)
