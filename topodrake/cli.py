@@ -226,6 +226,9 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     be.set_defaults(func=cmd_bench_expert)
     add_bench_parser(bsub)
+    from topodrake.topomap.map_cli import add_map_bench_parser
+
+    add_map_bench_parser(bsub)
     return p
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 
 
@@ -54,8 +55,6 @@ def cmd_map_build(args) -> None:
     from topodrake.world import load_world
 
     wall = time.perf_counter()
-    if args.trajectories is not None and args.trajectories < 1:
-        raise TopodrakeError(f"--trajectories must be >= 1, got {args.trajectories}")
     world = load_world(args.world)
     out = Path(args.out)
     if args.add:
@@ -191,7 +190,7 @@ def add_map_parser(sub) -> None:
                         "geometric oracle (default: camera)")
     b.add_argument("--demos", help="demonstration folder (default: data/demos/pairs-s0/WORLD, "
                                    "collected first when missing)")
-    b.add_argument("--trajectories", type=int,
+    b.add_argument("--trajectories", type=at.count,
                    help="add at most this many drives, in order (default: all)")
     b.add_argument("--out", required=True, help="map file to write (.tdmap)")
     b.add_argument("--add", action="store_true",
@@ -222,3 +221,45 @@ def add_map_parser(sub) -> None:
     pn.add_argument("--json", action="store_true",
                     help='print {"path": [...], "probability": p, ...}')
     pn.set_defaults(func=cmd_map_plan)
+
+
+def cmd_bench_map(args) -> None:
+    """Plan queries between every ordered pair of a world's places on a map."""
+    from topodrake.topomap.mapfile import load_map, read_map_meta
+    from topodrake.topomap.plan import plan_path
+    from topodrake.topomap.sources import drive_observations, scorer_for_map
+    from topodrake.world import load_world
+
+    path = Path(args.map)
+    meta = read_map_meta(path)
+    world = load_world(meta["world"])
+    wall = time.perf_counter()
+    topomap = load_map(path, scorer_for_map(path))
+    load_s = time.perf_counter() - wall
+    places = world.places
+    obs = drive_observations(world, topomap.scorer, places)
+    pairs = [(i, j) for i in range(len(places)) for j in range(len(places)) if i != j]
+    times, reached, probs = [], 0, []
+    for i, j in pairs[:args.queries]:
+        t = time.perf_counter()
+        r = plan_path(topomap, obs[i], obs[j])
+        times.append(time.perf_counter() - t)
+        reached += r.reachable
+        probs.append(r.probability)
+    times = np.array(times)
+    out = {"map": str(path), "vertices": len(topomap), "edges": topomap.n_edges,
+           "queries": len(times), "reachable": reached, "load_s": round(load_s, 2),
+           "query_mean_s": round(float(times.mean()), 4),
+           "query_p95_s": round(float(np.percentile(times, 95)), 4),
+           "query_max_s": round(float(times.max()), 4),
+           "mean_probability": round(float(np.mean(probs)), 4)}
+    print(json.dumps(out) if args.json else
+          "\n".join(f"{k:<18} {v}" for k, v in out.items()))
+
+
+def add_map_bench_parser(bsub) -> None:
+    b = bsub.add_parser("map", help="plan-query time on a map (every ordered pair of places)")
+    b.add_argument("map", help="map file, e.g. one 'topodrake map build' wrote")
+    b.add_argument("--queries", type=at.count, default=90, help="plan queries")
+    b.add_argument("--json", action="store_true", help="print one JSON object")
+    b.set_defaults(func=cmd_bench_map)
