@@ -227,3 +227,30 @@ def test_kernels_use_the_keyed_cache():
 
     assert kernel._expert._cache is not None and kernel._expert._cache.__class__.__name__ \
         == "FunctionCache"
+
+
+# ---------------------------------------------------------------- packaging
+
+def _build_backend():
+    spec = importlib.util.spec_from_file_location(
+        "topodrake_build", ROOT / "build_backend" / "topodrake_build.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_build_backend_refuses_unsupported_python_in_one_line():
+    backend = _build_backend()
+    spec = backend.requires_python()
+    assert spec and "<" in spec                   # an upper bound is stated
+    import platform
+
+    backend.check_python(platform.python_version())   # the running Python is supported
+    with pytest.raises(SystemExit) as e:
+        backend.check_python("3.99.0")
+    message = str(e.value.code)
+    assert "\n" not in message and spec in message and "3.99.0" in message
+    for hook in ("get_requires_for_build_wheel", "get_requires_for_build_editable",
+                 "prepare_metadata_for_build_wheel", "build_wheel", "build_editable",
+                 "build_sdist"):
+        assert callable(getattr(backend, hook))
