@@ -254,3 +254,27 @@ def test_build_backend_refuses_unsupported_python_in_one_line():
                  "prepare_metadata_for_build_wheel", "build_wheel", "build_editable",
                  "build_sdist"):
         assert callable(getattr(backend, hook))
+
+
+# ---------------------------------------------------------------- start-up
+
+def test_first_run_warms_up_without_changing_the_drive():
+    """The first run of a runner warms the kernels up on a copy of its start
+    and reports it once as startup_s; the drive is the one a warm runner
+    makes with the same seed."""
+    import numpy as np
+
+    from topodrake.systems.diagram import build_expert_diagram
+    from topodrake.systems.run import ExpertRunner
+    from topodrake.systems.scenario import Scenario
+    from topodrake.world import load_world
+
+    world = load_world("test-0")
+    runner = ExpertRunner(build_expert_diagram(
+        Scenario(world="test-0", noise_std=0.33, t_max_s=6.0, camera_enabled=False), world=world))
+    first = runner.run(seed=3)
+    second = runner.run(seed=3)
+    assert first.startup_s > 0 and second.startup_s == 0
+    assert "startup_s" in first.summary()
+    assert np.array_equal(first.poses, second.poses) and np.array_equal(first.noise, second.noise)
+    assert first.poses.shape[0] == 62       # 10 Hz log over 0..6 s and the final state
