@@ -292,7 +292,7 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--trajectories", type=int, default=40, help="test trajectories (paper: 500)")
+    ap.add_argument("--trajectories", type=int, default=8, help="test trajectories (paper: 500)")
     ap.add_argument("--worlds", default="test-0,test-1,test-2,test-3,test-4", help="test houses")
     ap.add_argument("--p", default="0.9,0.95,0.98,0.99,0.995", help="p_sparsify values")
     ap.add_argument("--headline-p", type=float, default=0.99,

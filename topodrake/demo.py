@@ -1,6 +1,15 @@
-"""``topodrake demo``: the expert drives between two places in the Drake diagram.
+"""``topodrake demo``: the learned system end to end, or (``--expert``) the expert.
 
-Writes a top-down plan (walls, places, the A* path, the driven path, lidar
+The learned demo: the expert's drive between two places of a test house is
+the experience; the camera RE sparsifies it into a chain of anchors (the
+map), the plan is that chain from the start place to the goal place, and
+the car follows it in the Drake navigation diagram with the learned camera
+C_WP and RE (:func:`run_learned_demo`). It writes the drive over the floor
+plan (the map's anchors and the path coloured by the follower's mode) and a
+Meshcat HTML recording whose camera frames the whole house.
+
+The expert demo (:func:`run_demo`) drives the expert between the places and
+writes a top-down plan (walls, places, the A* path, the driven path, lidar
 hits along the way), a strip of camera frames re-rendered from the logged
 poses (the same renderer the CameraSensor runs), and with Meshcat a static
 HTML recording of the run.
@@ -85,3 +94,105 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
                     "seed": seed, "realtime_factor": round(result.time_s / max(result.wall_time_s, 1e-9), 1),
                     "demo_wall_s": round(time.perf_counter() - wall, 2)})
     return {"files": files, "summary": summary}
+
+
+def run_learned_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int = 5,
+                     out_dir: str = "out/demo", seed: int = 0, noise_std: float = 0.0,
+                     p: float = 0.99, controller: str = "checkpoints/camera_k5/checkpoint.pt",
+                     reach: str = "checkpoints/reach_camera_k5/checkpoint.pt",
+                     meshcat: bool = True) -> dict:
+    """The learned camera follower between two places; returns the written
+    files and a summary (outcome, times, real-time factor warm and cold)."""
+    from topodrake.errors import TopodrakeError
+    from topodrake.navigation.cli import chain_from_expert
+    from topodrake.navigation.drive import drive_route, plot_drive
+    from topodrake.systems.navigation import NavigationScenario, load_networks
+    from topodrake.world import load_world
+
+    wall = time.perf_counter()
+    world = load_world(world_name)
+    n = len(world.places)
+    for what, i in (("start", start_place), ("goal", goal_place)):
+        if not 0 <= i < n:
+            raise TopodrakeError(f"--{what}-place must be in 0..{n - 1} for {world.name!r}, got {i}")
+    if start_place == goal_place:
+        raise TopodrakeError("--start-place and --goal-place must differ")
+    scenario = NavigationScenario(world=world_name, noise_std=noise_std, seed=seed,
+                                  controller=controller, reach=reach)
+    policy, reach_net = load_networks(scenario)
+    start, goal = world.places[start_place].copy(), world.places[goal_place].copy()
+    t0 = time.perf_counter()
+    _, route = chain_from_expert(world_name, start, goal, policy, reach_net, p)
+    map_s = time.perf_counter() - t0
+    out = Path(out_dir)
+    files: dict[str, Path] = {}
+    html = out / "meshcat.html" if meshcat else None
+    result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach_net,
+                         meshcat_html=html, seed=seed)
+    if html is not None:
+        files["meshcat"] = html
+    files["plan"] = plot_drive(
+        world, route, result, out / "plan.png", start=start, goal=goal,
+        title=f"{world.name}: place {start_place} -> {goal_place}, {result.outcome} in "
+              f"{result.time_s:.1f} s ({len(route)} anchors, plan probability "
+              f"{route.probability:.3f}, noise {noise_std})")
+    goal_m = float(np.hypot(*(result.poses[-1, :2] - goal[:2])))
+    summary = {"outcome": result.outcome, "time_s": round(result.time_s, 2),
+               "probability": round(float(route.probability), 4),
+               "distance_m": round(result.distance_m, 2), "distance_to_goal_m": round(goal_m, 3),
+               "anchors": len(route), "world": world.name, "start_place": start_place,
+               "goal_place": goal_place, "seed": seed, "noise": noise_std,
+               "map_s": round(map_s, 2), "startup_s": round(result.startup_s, 2),
+               "realtime_factor": round(result.time_s / max(result.wall_time_s, 1e-9), 1),
+               "realtime_factor_cold": round(result.time_s / max(result.wall_time_s
+                                                                 + result.startup_s, 1e-9), 1),
+               "demo_wall_s": round(time.perf_counter() - wall, 2)}
+    return {"files": files, "summary": summary}
+
+
+def cmd_demo(args) -> None:
+    import json
+    import math
+
+    from topodrake.errors import TopodrakeError
+
+    if args.noise is not None and not (math.isfinite(args.noise) and args.noise >= 0):
+        raise TopodrakeError(f"--noise must be finite and >= 0, got {args.noise}")
+    if args.seed < 0:
+        raise TopodrakeError(f"--seed must be >= 0, got {args.seed}")
+    if args.expert:
+        noise = 0.33 if args.noise is None else args.noise
+        result = run_demo(args.world, args.start_place, args.goal_place, args.out, args.seed,
+                          noise, args.meshcat)
+    else:
+        result = run_learned_demo(args.world, args.start_place, args.goal_place, args.out,
+                                  args.seed, args.noise or 0.0)
+    for what, path in result["files"].items():
+        print(f"wrote {what}: {path}")
+    print(json.dumps(result["summary"]))
+    s = result["summary"]
+    if not args.expert:
+        print(f"outcome {s['outcome']} in {s['time_s']} s over {s['distance_m']} m "
+              f"(plan probability {s['probability']}); real-time factor {s['realtime_factor']} "
+              f"after start-up, {s['realtime_factor_cold']} with it; demo took {s['demo_wall_s']} s")
+
+
+def add_demo_parser(sub) -> None:
+    demo = sub.add_parser("demo", help="the learned camera follower drives a plan between two "
+                                       "places in the Drake diagram (--expert: the expert drives)")
+    demo.add_argument("--world", default="test-0",
+                      help="catalogue name or map YAML/JSON (default: test-0)")
+    demo.add_argument("--start-place", type=int, default=0,
+                      help="index of the start place (default: 0)")
+    demo.add_argument("--goal-place", type=int, default=5,
+                      help="index of the goal place (default: 5)")
+    demo.add_argument("--seed", type=int, default=0, help="seed of the actuation noise (default: 0)")
+    demo.add_argument("--noise", type=float, default=None,
+                      help="actuation noise std, 0 = off (default: 0; with --expert 0.33)")
+    demo.add_argument("--expert", action="store_true",
+                      help="drive the A* expert instead of the learned follower (default: off)")
+    demo.add_argument("--meshcat", action="store_true",
+                      help="with --expert, also save a Meshcat HTML recording; the learned demo "
+                           "always saves one (default: off)")
+    demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    demo.set_defaults(func=cmd_demo)

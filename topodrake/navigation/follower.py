@@ -16,8 +16,9 @@ Per period, with the current observation:
 * **Follow**: C_WP toward the ``lookahead`` anchors after the last visited
   one. Proximity = the mean of the two predicted overlaps; the farthest
   anchor with proximity above ``p_visited`` *and* a C_WP waypoint shorter
-  than ``visit_m`` becomes the last visited one (the last anchor of the
-  route visited ends the plan: ``reached``). The distance condition is ours:
+  than ``visit_m`` (or pointing backwards: passed) becomes the last
+  visited one (the last anchor of the route visited ends the plan:
+  ``reached``). The distance condition is ours:
   in a straight corridor the predicted overlap of an anchor 2 m ahead
   already passes 0.65, and marking it visited made the follower aim at
   anchors too far for RE. The active anchor is the next unvisited one, or
@@ -225,9 +226,11 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         rows, anchors = _windows(lo, hi)
         ans = evaluate(f[rows], anchors, True, False)
         prox = ans.overlap.mean(axis=1)
-        near_enough = np.hypot(*ans.waypoint.T) < cfg.visit_m
+        # close (a short waypoint) or already passed (the waypoint points backwards)
+        length = np.hypot(*ans.waypoint.T)
+        there = (prox > cfg.p_visited) & ((length < cfg.visit_m) | (ans.waypoint[:, 0] < 0.0))
         visited = state.visited[f].copy()
-        for m in np.flatnonzero((prox > cfg.p_visited) & near_enough):
+        for m in np.flatnonzero(there):
             visited[rows[m]] = max(visited[rows[m]], anchors[m])
         new.visited[f] = visited
         done = visited >= n_anchors[f] - 1

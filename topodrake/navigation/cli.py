@@ -1,0 +1,203 @@
+"""``topodrake navigate``: plan, then follow the plan in the Drake diagram.
+
+    topodrake navigate t0.tdmap --start 1.0,2.0,0 --goal 8.5,3.0,1.57 --json
+    topodrake navigate test-0 --start 1.0,2.0,0 --goal 8.5,3.0,1.57
+    topodrake navigate data/demos/pairs-s0/test-0 --drive 3 --plot nav.png
+
+MAP is a map file (``topodrake map build``; the plan runs from the start's
+observation to the goal's on it, with the RE and C_WP the map was built
+for), a demonstration folder (``topodrake collect``; the drive nearest to
+the start and goal, or ``--drive``, becomes a chain of anchors under RE),
+or a world (catalogue name or map YAML/JSON; the expert drives once from
+the start to the goal and that drive becomes the chain). Prints the outcome
+(reached, or failed and why), the time, the path probability and the
+distance driven; ``--json`` prints them as one object.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+
+DEFAULT_CONTROLLER = "checkpoints/camera_k5/checkpoint.pt"
+DEFAULT_REACH = "checkpoints/reach_camera_k5/checkpoint.pt"
+
+
+def _pose(text: str, what: str) -> np.ndarray:
+    try:
+        values = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise TopodrakeError(f"--{what} must be X,Y,YAW (three finite numbers), got {text!r}")
+    return np.array(values)
+
+
+def check_args(args) -> None:
+    """Numbers checked where they enter."""
+    if not (math.isfinite(args.noise) and args.noise >= 0):
+        raise TopodrakeError(f"--noise must be finite and >= 0, got {args.noise}")
+    if args.seed < 0:
+        raise TopodrakeError(f"--seed must be >= 0, got {args.seed}")
+    if not (math.isfinite(args.t_max) and args.t_max > 0):
+        raise TopodrakeError(f"--t-max must be finite and > 0, got {args.t_max}")
+    if not 0.0 < args.p < 1.0:
+        raise TopodrakeError(f"--p must be in (0, 1), got {args.p}")
+    if args.drive is not None and args.drive < 0:
+        raise TopodrakeError(f"--drive must be >= 0, got {args.drive}")
+
+
+def _networks(controller: str, reach: str):
+    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.reachability import Reachability
+
+    for what, path in (("controller", controller), ("reach", reach)):
+        if not Path(path).is_file():
+            raise TopodrakeError(f"--{what} checkpoint {path} does not exist")
+    return (LearnedWaypointPolicy.from_checkpoint(controller),
+            Reachability.from_checkpoint(reach, controller))
+
+
+def plan_on_map(path: Path, start, goal, reach_path=None, controller_path=None):
+    """(world, route, policy, reach, map layers, plan summary) of a plan on a map file."""
+    from topodrake.topomap.plot import _map_layers
+    from topodrake.topomap.mapfile import load_map, read_map_meta
+    from topodrake.topomap.plan import plan_path
+    from topodrake.topomap.sources import _resolve, drive_observations, scorer_for_map
+    from topodrake.world import load_world
+
+    meta = read_map_meta(path)
+    world = load_world(meta["world"])
+    world.check_pose(start, "start")
+    world.check_pose(goal, "goal")
+    scorer = scorer_for_map(path, reach_path, controller_path)
+    if not hasattr(scorer, "reach"):
+        raise TopodrakeError(f"{path} is an oracle map; navigate follows learned maps")
+    controller = controller_path or _resolve(meta.get("identity", {}).get("controller", ""))
+    from topodrake.learning.policy import LearnedWaypointPolicy
+
+    policy = LearnedWaypointPolicy.from_checkpoint(controller)
+    topomap = load_map(path, scorer)
+    obs = drive_observations(world, scorer, np.stack([start, goal]))
+    plan = plan_path(topomap, obs[0], obs[1], start_pose=start, goal_pose=goal)
+    if not plan.reachable:
+        raise TopodrakeError(f"no plan from the start to the goal on {path}: {plan.reason}")
+    return world, plan.route, policy, scorer.reach, _map_layers(topomap)
+
+
+def chain_from_demos(folder: Path, start, goal, drive, policy, reach, p):
+    """(world, route, drive index) of a demonstration folder's drive."""
+    from topodrake.demonstrations import load_demos
+    from topodrake.navigation.drive import chain_route
+    from topodrake.world import load_world
+
+    manifest, demos = load_demos(folder, successful_only=True)
+    if not demos:
+        raise TopodrakeError(f"{folder} holds no successful drives")
+    world = load_world(manifest["world"])
+    if drive is None:
+        cost = [np.hypot(*(d.poses[0, :2] - start[:2])) + np.hypot(*(d.poses[-1, :2] - goal[:2]))
+                for d in demos]
+        drive = int(np.argmin(cost))
+    elif drive >= len(demos):
+        raise TopodrakeError(f"--drive must be in 0..{len(demos) - 1} ({folder} has {len(demos)} "
+                             f"successful drives)")
+    return world, chain_route(world, demos[drive].poses, policy, reach, p), drive
+
+
+def chain_from_expert(world_spec: str, start, goal, policy, reach, p):
+    """(world, route) of one noise-free expert drive from ``start`` to ``goal``."""
+    from topodrake.navigation.drive import chain_route
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+    from topodrake.world import load_world
+
+    world = load_world(world_spec)
+    world.check_pose(start, "start")
+    world.check_pose(goal, "goal")
+    res = ExpertRollout(world, RolloutConfig(t_max_s=150.0)).run(start[None], goal[None, :2])
+    if not res.success[0]:
+        raise TopodrakeError(f"the expert could not drive from the start to the goal in "
+                             f"{world.name!r} ({res.trajectory(0)['outcome']}): no demonstration")
+    return world, chain_route(world, res.trajectory(0)["poses"], policy, reach, p)
+
+
+def cmd_navigate(args) -> None:
+    from topodrake.navigation.drive import drive_route, plot_drive
+    from topodrake.systems.navigation import NavigationScenario
+
+    check_args(args)
+    start, goal = _pose(args.start, "start"), _pose(args.goal, "goal")
+    source = Path(args.map)
+    layers = None
+    extra = {}
+    if source.suffix == ".tdmap":
+        if not source.is_file():
+            raise TopodrakeError(f"map file {source} does not exist")
+        world, route, policy, reach, layers = plan_on_map(source, start, goal, args.reach,
+                                                         args.controller)
+    else:
+        policy, reach = _networks(args.controller or DEFAULT_CONTROLLER,
+                                  args.reach or DEFAULT_REACH)
+        if source.is_dir():
+            world, route, drive = chain_from_demos(source, start, goal, args.drive, policy, reach,
+                                                   args.p)
+            extra["drive"] = drive
+        else:
+            if args.drive is not None:
+                raise TopodrakeError("--drive needs a demonstration folder as MAP")
+            world, route = chain_from_expert(args.map, start, goal, policy, reach, args.p)
+    world.check_pose(start, "start", free=False)
+    scenario = NavigationScenario(world=args.map, noise_std=args.noise, seed=args.seed,
+                                  t_max_s=args.t_max,
+                                  camera_enabled=policy.observation == "camera")
+    result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
+                         meshcat_html=args.meshcat, seed=args.seed)
+    goal_dist = float(np.hypot(*(result.poses[-1, :2] - goal[:2])))
+    out = {"outcome": result.outcome, "time_s": round(result.time_s, 2),
+           "probability": round(float(route.probability), 4),
+           "distance_m": round(result.distance_m, 2)}
+    if args.plot:
+        plot_drive(world, route, result, args.plot, start=start, goal=goal, map_layers=layers,
+                   title=f"{world.name}: {result.outcome} in {result.time_s:.1f} s, plan of "
+                         f"{len(route)} anchors (p = {route.probability:.3f})")
+    if args.json:
+        print(json.dumps(out))
+        return
+    rtf = result.time_s / max(result.wall_time_s, 1e-9)
+    print(f"{result.outcome} in {result.time_s:.1f} s over {result.distance_m:.1f} m; plan of "
+          f"{len(route)} anchors, probability {route.probability:.3f}; {goal_dist:.2f} m from "
+          f"the goal; real-time factor {rtf:.1f} (start-up {result.startup_s:.1f} s)"
+          + "".join(f"; wrote {p}" for p in (args.plot, args.meshcat) if p))
+
+
+def add_navigate_parser(sub) -> None:
+    nv = sub.add_parser("navigate", help="plan on a map (or one demonstration) and follow the plan "
+                                         "in the Drake diagram")
+    nv.add_argument("map", metavar="MAP", help="map file (.tdmap), demonstration folder, or world "
+                                               "(one expert drive becomes the chain)")
+    nv.add_argument("--start", required=True, help="start pose X,Y,YAW (m, m, rad)")
+    nv.add_argument("--goal", required=True, help="goal pose X,Y,YAW (m, m, rad)")
+    nv.add_argument("--noise", type=float, default=0.0,
+                    help="actuation noise std, 0 = off (default: 0)")
+    nv.add_argument("--seed", type=int, default=0, help="seed of the actuation noise (default: 0)")
+    nv.add_argument("--t-max", type=float, default=150.0,
+                    help="time limit of the drive in s (default: 150)")
+    nv.add_argument("--controller", help=f"C_WP checkpoint (default: the map's, else "
+                                         f"{DEFAULT_CONTROLLER})")
+    nv.add_argument("--reach", help=f"RE checkpoint (default: the map's, else {DEFAULT_REACH})")
+    nv.add_argument("--drive", type=int, help="index of the demonstration folder's drive to follow "
+                                              "(default: the one nearest the start and goal)")
+    nv.add_argument("--p", type=float, default=0.99,
+                    help="p_sparsify of a chain (default: 0.99)")
+    nv.add_argument("--plot", metavar="PNG",
+                    help="draw the map, the plan and the driven path (default: none)")
+    nv.add_argument("--meshcat", metavar="HTML",
+                    help="save a Meshcat recording of the drive (default: none)")
+    nv.add_argument("--json", action="store_true",
+                    help="print the outcome as one JSON object (default: off)")
+    nv.set_defaults(func=cmd_navigate)

@@ -1,0 +1,131 @@
+"""Drive a route in the Drake navigation diagram, and draw the drive.
+
+:func:`chain_route` makes a route of one demonstration (RE sparsification,
+the hops' probabilities); :func:`drive_route` follows a route in the Drake
+diagram (``topodrake.systems.navigation``), optionally recording Meshcat;
+:func:`plot_drive` draws the floor plan, the map, the plan and the driven
+path coloured by the follower's mode. ``topodrake navigate`` and
+``topodrake demo`` are built from these.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.navigation.follower import MODES
+from topodrake.navigation.route import Route, route_from_observations
+
+MODE_COLORS = {"search": "tab:gray", "follow": "tab:green", "dead_reckoning": "tab:orange",
+               "reached": "tab:blue", "failed": "tab:red"}
+
+
+def chain_route(world, poses: np.ndarray, policy, reach, p: float = 0.99) -> Route:
+    """One trajectory's route: anchors kept while RE > ``p``, each anchor's
+    context for both networks, each hop's RE (anchor calibration) and
+    their product as the route's probability."""
+    obs = reach.observe(world, poses)
+    feats = reach.frame_features(obs)
+    anchors = reach.sparsify(obs, p=p, feats=feats)
+    wide = policy if policy.k >= reach.k else reach
+    route = route_from_observations(obs, poses, anchors, wide.k, wide.frame_step, reach.observation)
+    if len(anchors) > 1:
+        hops = reach.pairwise(feats, anchors[:-1], reach.context_rows(len(poses), anchors[1:]))
+        route.edge_probability = hops
+        route.probability = float(np.prod(hops))
+    return route
+
+
+def make_recorder():
+    """A Meshcat that records (headless), or None when Meshcat cannot start."""
+    from pydrake.geometry import Meshcat
+
+    viewer = Meshcat()
+    viewer.StartRecording(frames_per_second=10.0, set_visualizations_while_recording=False)
+    return viewer
+
+
+def frame_camera(viewer, world) -> None:
+    """Point Meshcat's camera at the whole floor plan (the shared helper
+    when the installed topodrake has one, else a top-down view of its box)."""
+    try:
+        from topodrake.world import scenegraph
+
+        helper = getattr(scenegraph, "frame_meshcat_camera", None) or \
+            getattr(scenegraph, "set_camera_to_world", None)
+        if helper is not None:
+            helper(viewer, world)
+            return
+    except ImportError:
+        pass
+    x0, y0, x1, y1 = np.asarray(world.bbox, np.float64).reshape(-1)[:4]
+    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    span = max(x1 - x0, y1 - y0)
+    viewer.SetCameraPose([cx, cy - 0.35 * span, 1.1 * span], [cx, cy, 0.0])
+
+
+def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach=None,
+                meshcat_html=None, seed: int = 0):
+    """Follow ``route`` from ``start`` in the Drake navigation diagram;
+    returns the :class:`~topodrake.systems.navigation.NavigationRunResult`
+    with ``build_s`` (diagram construction, including the route's features)."""
+    from topodrake.fileio import atomic_write_bytes
+    from topodrake.systems.navigation import NavigationRunner, make_navigation_diagram
+
+    viewer = make_recorder() if meshcat_html else None
+    t0 = time.perf_counter()
+    built = make_navigation_diagram(scenario, route, viewer, world=world, policy=policy,
+                                    reach=reach)
+    if viewer is not None:
+        frame_camera(viewer, built.world)
+    runner = NavigationRunner(built)
+    build_s = time.perf_counter() - t0
+    result = runner.run(start, seed=seed)
+    result.build_s = build_s
+    if viewer is not None:
+        viewer.StopRecording()
+        viewer.PublishRecording()
+        atomic_write_bytes(meshcat_html, viewer.StaticHtml().encode())
+    return result
+
+
+def plot_drive(world, route: Route, result, out, *, start=None, goal=None, map_layers=None,
+               title: str = "") -> Path:
+    """The floor plan, the map (``map_layers``: vertex poses, edges, edge
+    probabilities), the route's anchors and the driven path coloured by mode."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from topodrake.world.plot import plot_world, save_figure
+
+    fig, ax = plt.subplots(figsize=(10, 9))
+    if map_layers is not None:
+        from topodrake.topomap.plot import draw_map
+
+        draw_map(ax, world, *map_layers)
+    else:
+        plot_world(world, ax)
+    a = route.poses
+    ax.plot(a[:, 0], a[:, 1], "-o", color="tab:purple", lw=1.2, ms=4, zorder=5, alpha=0.8)
+    poses = np.asarray(result.poses)
+    modes = np.asarray(result.modes)
+    for k in range(min(len(modes), len(poses) - 1)):
+        name = MODES[int(modes[k])] if 0 <= modes[k] < len(MODES) else "failed"
+        ax.plot(poses[k:k + 2, 0], poses[k:k + 2, 1], color=MODE_COLORS[name], lw=2.2, zorder=6)
+    if start is not None:
+        ax.plot(*np.asarray(start)[:2], "s", color="tab:green", ms=9, zorder=7)
+    goal = route.goal_pose if goal is None else np.asarray(goal)
+    ax.plot(*goal[:2], "*", color="tab:red", ms=15, zorder=7)
+    handles = [Line2D([], [], color="tab:purple", marker="o", lw=1.2, label="plan (anchors)")]
+    handles += [Line2D([], [], color=MODE_COLORS[m], lw=2.2, label=f"driven: {m.replace('_', ' ')}")
+                for m in ("search", "follow", "dead_reckoning")]
+    handles += [Line2D([], [], color="tab:green", marker="s", lw=0, label="start"),
+                Line2D([], [], color="tab:red", marker="*", ms=12, lw=0, label="goal")]
+    ax.legend(handles=handles, loc="upper right", fontsize=8)
+    ax.set_title(title or f"{result.outcome} in {result.time_s:.1f} s")
+    save_figure(fig, out)
+    return Path(out)
