@@ -29,16 +29,6 @@ def _print_result(result: dict, as_json: bool) -> None:
         print(f"{k:<{width}}  {v}")
 
 
-def cmd_demo(args) -> None:
-    from topodrake.demo import run_demo
-
-    result = run_demo(args.world, args.start_place, args.goal_place, args.out, args.seed,
-                      args.noise, args.meshcat)
-    for what, path in result["files"].items():
-        print(f"wrote {what}: {path}")
-    print(json.dumps(result["summary"]))
-
-
 def cmd_drive(args) -> None:
     from topodrake.systems.run import run_scenario
     from topodrake.systems.scenario import load_scenario
@@ -139,16 +129,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print the version and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    demo = sub.add_parser("demo", help="the expert drives between two places in the Drake diagram")
-    demo.add_argument("--world", default="test-0", help="catalogue name or map YAML/JSON")
-    demo.add_argument("--start-place", type=at.count0, default=0, help="index of the start place")
-    demo.add_argument("--goal-place", type=at.count0, default=5, help="index of the goal place")
-    demo.add_argument("--seed", type=at.seed, default=0, help="seed of the actuation noise")
-    demo.add_argument("--noise", type=at.nonnegative, default=0.33,
-                      help="actuation noise std (0 = off)")
-    demo.add_argument("--meshcat", action="store_true", help="also save a Meshcat HTML recording")
-    demo.add_argument("--out", default="out/demo", help="output folder")
-    demo.set_defaults(func=cmd_demo)
+    from topodrake.demo import add_demo_parser
+    from topodrake.navigation.cli import add_navigate_parser
+
+    add_demo_parser(sub)
+    add_navigate_parser(sub)
 
     drive = sub.add_parser("drive", help="run one expert scenario from a YAML file")
     drive.add_argument("scenario", help="Scenario YAML (see topodrake.systems.scenario)")
