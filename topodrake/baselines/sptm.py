@@ -349,9 +349,15 @@ def place_pairs_study(world_name: str, demo_folder, net, config: SptmConfig | No
                       "goal_within_share": round(g_near / n, 4),
                       "mean_hops": round(float(np.mean(hops)), 2) if hops else None}
     comps = sorted((len(c) for c in nx.connected_components(m.graph)), reverse=True)
+    ij = m.shortcuts[:, :2].astype(np.int64)
+    length = np.hypot(*(m.vertex_poses(ij[:, 0])[:, :2] - m.vertex_poses(ij[:, 1])[:, :2]).T)
+    shortcut_m = ({"median": round(float(np.median(length)), 3),
+                   "share_over_1m": round(float((length > 1.0).mean()), 4),
+                   "share_over_3m": round(float((length > 3.0).mean()), 4)} if len(length) else {})
     return {"world": world_name, "demo_folder": str(demo_folder), "place_pairs": len(pairs),
             "near_m": near_m, "seed": seed, "render_time_s": round(render_s, 1),
             "graph": m.summary(), "components": len(comps), "largest_components": comps[:5],
+            "shortcut_true_length_m": shortcut_m,
             **out,
             "place_localization_error_m": [round(e, 3) for e in place_err],
             "place_localization_score": [round(s, 4) for _, s in place_loc]}
