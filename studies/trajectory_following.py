@@ -26,7 +26,6 @@ prints at p = 0.99 ``{"camera_k0": {"cover": c, "cover_noisy": c,
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -34,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes, atomic_write_json
 
@@ -290,17 +290,16 @@ def plot(results: dict, path: Path, n_traj: int) -> None:
 def main(argv=None) -> int:
     from topodrake.montecarlo import study_main
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--trajectories", type=int, default=8, help="test trajectories (paper: 500)")
+    ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
+    ap.add_argument("--trajectories", type=at.count, default=8, help="test trajectories (paper: 500)")
     ap.add_argument("--worlds", default="test-0,test-1,test-2,test-3,test-4", help="test houses")
     ap.add_argument("--p", default="0.9,0.95,0.98,0.99,0.995", help="p_sparsify values")
-    ap.add_argument("--headline-p", type=float, default=0.99,
+    ap.add_argument("--headline-p", type=at.probability, default=0.99,
                     help="p_sparsify of the printed summary and of the noisy runs")
     ap.add_argument("--controllers", default=",".join(CONTROLLERS), help="controllers to follow with")
-    ap.add_argument("--batch", type=int, default=48, help="cars per engine batch")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the trajectories, starts and noise")
-    ap.add_argument("--noise", type=float, default=0.33, help="actuation noise std of the noisy runs")
+    ap.add_argument("--batch", type=at.count, default=48, help="cars per engine batch")
+    ap.add_argument("--seed", type=at.seed, default=0, help="seed of the trajectories, starts and noise")
+    ap.add_argument("--noise", type=at.nonnegative, default=0.33, help="actuation noise std of the noisy runs")
     ap.add_argument("--data", default="data", help="cache of the test trajectories")
     ap.add_argument("--out", default="results", help="output folder")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")

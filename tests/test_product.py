@@ -130,7 +130,7 @@ def test_study_options_have_help_and_checks(script, monkeypatch):
     def capture(self, *args, **kwargs):
         raise _Captured(self)
 
-    monkeypatch.setattr(argtypes.Parser, "parse_args", capture)
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", capture)
     monkeypatch.setattr("sys.argv", [script])
     with pytest.raises(_Captured) as e:
         module.main()
