@@ -107,7 +107,8 @@ def test_at_most_2000_best_shortcuts():
     table[0, 0] = 1.0
     drives = [drive([d], f"d{d}") for d in range(71)]    # 71 one-frame drives: 2485 candidates
     m = build_sptm_graph(drives, PlaceNet(table))
-    assert m.candidates_above_threshold == 71 * 70 // 2
+    assert len(m.candidates) == 71 * 70 // 2
+    assert np.array_equal(m.candidates[:2000], m.shortcuts)
     assert len(m.shortcuts) == 2000 and m.graph.number_of_edges() == 2000
     q = m.shortcuts[:, 2]
     assert np.all(np.diff(q) <= 0) and q.min() == 1.0    # the 70 weaker ones are dropped first

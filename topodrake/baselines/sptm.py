@@ -88,7 +88,9 @@ class SptmMap:
     ``observations[d]`` (T_d, H, W, 3) and ``poses[d]`` (T_d, 3) are drive
     d's frames (held by reference, for route contexts; poses are metadata);
     vertex v is frame ``vertex_frame[v]`` of drive ``vertex_drive[v]``;
-    ``shortcuts`` (S, 3) rows are (i, j, quality), best first."""
+    ``shortcuts`` (S, 3) rows are (i, j, quality), best first; ``candidates``
+    (C, 3) every pair above the threshold, of which ``shortcuts`` are the
+    first ``max_shortcuts``."""
 
     names: list[str]
     observations: list[np.ndarray]
@@ -99,7 +101,7 @@ class SptmMap:
     graph: nx.Graph
     shortcuts: np.ndarray
     config: SptmConfig
-    candidates_above_threshold: int = 0
+    candidates: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     build_time_s: float = 0.0
     net: object = field(default=None, repr=False)
 
@@ -123,7 +125,7 @@ class SptmMap:
                 "vertices": len(self), "edges": self.graph.number_of_edges(),
                 "directed_edges": 2 * self.graph.number_of_edges(), "temporal_edges": temporal,
                 "shortcuts": int(len(self.shortcuts)),
-                "candidates_above_threshold": int(self.candidates_above_threshold),
+                "candidates_above_threshold": int(len(self.candidates)),
                 "build_time_s": round(self.build_time_s, 1)}
 
 
@@ -234,7 +236,7 @@ def build_sptm_graph(trajectories, net, config: SptmConfig | None = None,
             g.add_edge(int(i), int(j), kind="shortcut", quality=float(q))
     vfeat = features[frame_offset[vertex_drive] + vertex_frame]
     return SptmMap(names, observations, poses, vertex_drive, vertex_frame, vfeat, g, kept, cfg,
-                   candidates_above_threshold=len(cands), build_time_s=time.time() - t0, net=net)
+                   candidates=cands, build_time_s=time.time() - t0, net=net)
 
 
 def localize(sptm_map: SptmMap, observation: np.ndarray, net=None) -> tuple[int, float]:
@@ -349,15 +351,19 @@ def place_pairs_study(world_name: str, demo_folder, net, config: SptmConfig | No
                       "goal_within_share": round(g_near / n, 4),
                       "mean_hops": round(float(np.mean(hops)), 2) if hops else None}
     comps = sorted((len(c) for c in nx.connected_components(m.graph)), reverse=True)
-    ij = m.shortcuts[:, :2].astype(np.int64)
-    length = np.hypot(*(m.vertex_poses(ij[:, 0])[:, :2] - m.vertex_poses(ij[:, 1])[:, :2]).T)
-    shortcut_m = ({"median": round(float(np.median(length)), 3),
-                   "share_over_1m": round(float((length > 1.0).mean()), 4),
-                   "share_over_3m": round(float((length > 3.0).mean()), 4)} if len(length) else {})
+
+    def true_length(rows):
+        ij = rows[:, :2].astype(np.int64)
+        length = np.hypot(*(m.vertex_poses(ij[:, 0])[:, :2] - m.vertex_poses(ij[:, 1])[:, :2]).T)
+        return ({"median": round(float(np.median(length)), 3),
+                 "share_over_0.1m": round(float((length > 0.1).mean()), 4),
+                 "share_over_1m": round(float((length > 1.0).mean()), 4),
+                 "share_over_3m": round(float((length > 3.0).mean()), 4)} if len(length) else {})
     return {"world": world_name, "demo_folder": str(demo_folder), "place_pairs": len(pairs),
             "near_m": near_m, "seed": seed, "render_time_s": round(render_s, 1),
             "graph": m.summary(), "components": len(comps), "largest_components": comps[:5],
-            "shortcut_true_length_m": shortcut_m,
+            "shortcut_true_length_m": true_length(m.shortcuts),
+            "candidate_true_length_m": true_length(m.candidates),
             **out,
             "place_localization_error_m": [round(e, 3) for e in place_err],
             "place_localization_score": [round(s, 4) for _, s in place_loc]}
