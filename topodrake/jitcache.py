@@ -34,9 +34,9 @@ PRUNE_AFTER_DAYS = 14
 _IMPORT = re.compile(r"^(?:from|import)\s+topodrake((?:\.\w+)*)", re.MULTILINE)
 
 
-def _module_file(dotted: str) -> Path | None:
+def _module_file(dotted: str, package: Path = PACKAGE) -> Path | None:
     """The source file of ``topodrake<dotted>`` (a module or a package)."""
-    base = PACKAGE.joinpath(*dotted.strip(".").split(".")) if dotted else PACKAGE
+    base = package.joinpath(*dotted.strip(".").split(".")) if dotted else package
     for candidate in (base.with_suffix(".py"), base / "__init__.py"):
         if candidate.is_file():
             return candidate
@@ -62,7 +62,7 @@ def kernel_sources(package: Path = PACKAGE) -> list[Path]:
         seen.add(path)
         for dotted in _IMPORT.findall(text(path)):
             # "from topodrake.a.b import c" may name module a.b or a.b.c.
-            found = _module_file(dotted)
+            found = _module_file(dotted, package)
             if found is not None and found not in seen:
                 todo.append(found)
     return sorted(seen)
