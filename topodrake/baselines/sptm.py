@@ -336,7 +336,7 @@ def place_pairs_study(world_name: str, demo_folder, net, config: SptmConfig | No
     for label, starts, start_obs in (("exact_start", places[[i for i, _ in pairs]],
                                       place_obs[[i for i, _ in pairs]]),
                                      ("jittered_start", jittered, jit_obs)):
-        found, hops, s_near, g_near, reasons = 0, [], 0, 0, 0
+        found, hops, s_near, g_near = 0, [], 0, 0
         for (i, j), sp, so in zip(pairs, starts, start_obs):
             vs, _ = localize(m, so, net)
             s_near += error(vs, sp) <= near_m

@@ -237,7 +237,7 @@ def geometric_pairs(frames: FrameSet, n: int, cfg: RetrievalDataConfig,
     from scipy.spatial import cKDTree
 
     tree = cKDTree(frames.poses[:, :2])
-    a_out, b_out, y_out = [], [], []
+    a_out, b_out = [], []
     cos_h = np.cos(np.radians(cfg.geo_heading_deg))
     for _ in range(20):
         if sum(len(x) for x in a_out) >= n // 2:
