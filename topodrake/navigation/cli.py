@@ -131,6 +131,11 @@ def cmd_navigate(args) -> None:
     from topodrake.systems.navigation import NavigationScenario
 
     check_args(args)
+    import torch
+
+    # one car: batch-1 inference runs faster on one thread than on two here
+    # (and far faster when other processes share the cores)
+    torch.set_num_threads(1)
     start, goal = _pose(args.start, "start"), _pose(args.goal, "goal")
     source = Path(args.map)
     layers = None

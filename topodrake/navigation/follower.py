@@ -69,12 +69,15 @@ class FollowerConfig:
     p_near: float = 0.6             # proximity the anchor after the next needs to become active
     visit_m: float = 0.35           # ... and C_WP's waypoint toward a visited anchor is this short
     lookahead: int = 5              # anchors after the last visited one checked in Follow
+    advance: str = "next"           # "next": the paper's advance rule; "proximity": the authors' code
     dr_max_iterations: int = 200    # Dead reckoning gives up after this many periods
     dr_widen_every: int = 10        # the Dead reckoning search widens by one anchor each side
     dr_max_window: int = 15         # at most this many anchors asked per Dead reckoning period
     dr_arrive_m: float = 0.3        # at the held waypoint, C_WP gives the next one (see above)
 
     def check(self) -> "FollowerConfig":
+        if self.advance not in ("next", "proximity"):
+            raise TopodrakeError(f"follower advance must be 'next' or 'proximity', got {self.advance!r}")
         for name in ("visit_m", "dr_arrive_m"):
             if not getattr(self, name) > 0:
                 raise TopodrakeError(f"follower {name} must be > 0, got {getattr(self, name)}")
@@ -238,25 +241,30 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         keep = ~done
         fk = f[keep]
         if fk.size:
-            # RE toward the next unvisited anchor and the one after it (when there is one)
+            # the candidate to advance to: the one after the next (the paper's
+            # rule) or the open anchor of highest proximity (the authors' code)
             nxt = visited[keep] + 1
-            two = nxt + 1 < n_anchors[fk]
-            cars = np.concatenate([np.arange(fk.size), np.flatnonzero(two)])
-            p = evaluate(fk[cars], np.concatenate([nxt, nxt[two] + 1]), False, True).probability
-            p_next = p[:fk.size]
-            p_after = np.full(fk.size, -np.inf)
-            p_after[two] = p[fk.size:]
-            # proximity of the one after, from the window (when it was in it)
-            prox_after = np.full(fk.size, -np.inf)
             pos = np.full(len(f), -1, np.int64)
             pos[keep] = np.arange(fk.size)
+            cand = np.full(fk.size, -1, np.int64)
+            cand_prox = np.full(fk.size, -np.inf)
             for m in range(len(rows)):
                 r = pos[rows[m]]
-                if r >= 0 and anchors[m] == nxt[r] + 1:
-                    prox_after[r] = prox[m]
-            advance = (p_after > cfg.p_follow) & (prox_after > cfg.p_near)
-            new.active[fk] = np.where(advance, nxt + 1, nxt)
-            p_active = np.where(advance, p_after, p_next)
+                if r < 0 or anchors[m] <= nxt[r]:
+                    continue
+                if cfg.advance == "next" and anchors[m] == nxt[r] + 1:
+                    cand[r], cand_prox[r] = anchors[m], prox[m]
+                elif cfg.advance == "proximity" and prox[m] > cand_prox[r]:
+                    cand[r], cand_prox[r] = anchors[m], prox[m]
+            two = (cand >= 0) & (cand_prox > cfg.p_near)
+            cars = np.concatenate([np.arange(fk.size), np.flatnonzero(two)])
+            p = evaluate(fk[cars], np.concatenate([nxt, cand[two]]), False, True).probability
+            p_next = p[:fk.size]
+            p_cand = np.full(fk.size, -np.inf)
+            p_cand[two] = p[fk.size:]
+            advance = p_cand > cfg.p_follow
+            new.active[fk] = np.where(advance, cand, nxt)
+            p_active = np.where(advance, p_cand, p_next)
             new.best_p[fk] = p_active
             # C_WP's waypoint toward the active anchor, when it was in the window
             for m in range(len(rows)):
