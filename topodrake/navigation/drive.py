@@ -48,22 +48,10 @@ def make_recorder():
 
 
 def frame_camera(viewer, world) -> None:
-    """Point Meshcat's camera at the whole floor plan (the shared helper
-    when the installed topodrake has one, else a top-down view of its box)."""
-    try:
-        from topodrake.world import scenegraph
+    """Point Meshcat's camera at the whole floor plan."""
+    from topodrake.world.scenegraph import frame_whole_world
 
-        helper = getattr(scenegraph, "frame_meshcat_camera", None) or \
-            getattr(scenegraph, "set_camera_to_world", None)
-        if helper is not None:
-            helper(viewer, world)
-            return
-    except ImportError:
-        pass
-    x0, y0, x1, y1 = np.asarray(world.bbox, np.float64).reshape(-1)[:4]
-    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-    span = max(x1 - x0, y1 - y0)
-    viewer.SetCameraPose([cx, cy - 0.35 * span, 1.1 * span], [cx, cy, 0.0])
+    frame_whole_world(viewer, world)
 
 
 def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach=None,
