@@ -1,0 +1,50 @@
+"""``topodrake navigate`` and ``topodrake demo``: input checks and the JSON line."""
+
+import json
+
+import pytest
+
+from topodrake.cli import main
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--noise", "-0.1"], "--noise"),
+    (["--noise", "nan"], "--noise"),
+    (["--seed", "-3"], "--seed"),
+    (["--t-max", "0"], "--t-max"),
+    (["--p", "1.0"], "--p"),
+])
+def test_navigate_refuses_bad_numbers(capsys, extra, message):
+    code = main(["navigate", "test-0", "--start", "16.4,14.9,2.95", "--goal", "3.0,23.6,-0.8",
+                 *extra])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and message in err and len(err.splitlines()) == 1
+
+
+def test_navigate_refuses_a_bad_pose(capsys):
+    code = main(["navigate", "test-0", "--start", "16.4,14.9", "--goal", "3.0,23.6,-0.8"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--start must be X,Y,YAW" in err
+
+
+def test_navigate_refuses_a_missing_map_file(capsys):
+    code = main(["navigate", "nowhere.tdmap", "--start", "1,1,0", "--goal", "2,2,0"])
+    assert code == 2 and "nowhere.tdmap" in capsys.readouterr().err
+
+
+def test_demo_refuses_bad_places(capsys):
+    code = main(["demo", "--start-place", "42", "--out", "/tmp/unused-demo"])
+    assert code == 2 and "--start-place" in capsys.readouterr().err
+
+
+def test_navigate_json_prints_the_outcome_keys(capsys, tmp_path):
+    """A short drive of the learned camera follower (time limit 2 s)."""
+    plot = tmp_path / "nav.png"
+    code = main(["navigate", "test-0", "--start", "16.42,14.88,2.95", "--goal", "8.22,14.08,-0.2",
+                 "--t-max", "2", "--json", "--plot", str(plot)])
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert code == 0
+    assert set(out) == {"outcome", "time_s", "probability", "distance_m"}
+    assert out["outcome"] == "timeout" and out["time_s"] == pytest.approx(2.0)
+    assert 0.0 < out["probability"] <= 1.0 and out["distance_m"] > 0.1
+    assert plot.stat().st_size > 10_000
