@@ -212,12 +212,6 @@ def build_parser() -> argparse.ArgumentParser:
     be.set_defaults(func=cmd_bench_expert)
     add_bench_parser(bsub)
     from topodrake.topomap.map_cli import add_map_bench_parser
-    except BrokenPipeError:
-        # The reader went away (``topodrake world list | head``): stop quietly.
-        import os
-
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 1
 
     add_map_bench_parser(bsub)
     return p
@@ -233,6 +227,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("topodrake: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader went away (``topodrake world list | head``): stop quietly.
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     return 0
 
 
