@@ -343,3 +343,29 @@ def test_a_map_built_for_one_re_is_refused_with_another(tmp_path, capsys):
                  "--reach", str(base), "--controller", str(shipped_checkpoint("camera_k5"))])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "built for" in err and len(err.splitlines()) == 1
+
+
+def test_sequence_retrieval_ranks_by_the_aligned_neighbours_too():
+    class LookAlike(FlatEmbedding):
+        """Frames embed by their index; drive 0 sits a little off, and drive
+        2 looks like the others at frame 6 only."""
+        name = "look-alike"
+        dim = 2
+
+        def embed(self, obs):
+            o = np.asarray(obs, np.float64)
+            x = o[:, 1] + 0.3 * (o[:, 0] == 0)
+            y = 50.0 * ((o[:, 0] == 2) & (o[:, 1] != 6))
+            return np.column_stack([x, y]).astype(np.float32)
+
+    def linked(sequence):
+        m = TopoMap(TableScorer(parallel_drives), LookAlike(),
+                    MapConfig(reuse=False, retrieval_k=1, sequence_retrieval=sequence))
+        for d in (0, 2, 1):
+            add_trajectory(m, drive(d, 13))
+        x = m.trajectories[2].chain[2]          # drive 1, frame 6
+        return {m.graph.nodes[v]["traj"] for v in m.graph.successors(x)
+                if m.graph.edges[x, v]["kind"] == "cross"}
+
+    assert linked(sequence=False) == {1}        # drive 2 (its second drive added): the look-alike
+    assert linked(sequence=True) == {0}

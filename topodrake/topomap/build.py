@@ -173,9 +173,10 @@ def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[in
     ``chain``) and their retrieved candidates, all scored in a few batches."""
     cfg = m.config
     excludes = [np.array(chain[max(0, p - 1):p + 2], np.int64) for p in positions]
-    found = {}
-    for x, pos, q, ex in zip(xs, positions, queries, excludes):
-        found[x] = m.index.search(q, cfg.retrieval_k, ex)[0]
+    d = _ranking(m, chain, positions, queries) if cfg.sequence_retrieval \
+        else m.index.distances(queries)
+    found = {x: m.index.nearest(row, cfg.retrieval_k, ex)[0]
+             for x, row, ex in zip(xs, d, excludes)}
     edges = _passing(m, xs, chain, positions, [found[x] for x in xs], score)
     for (u, v), p in edges.items():
         m.add_edge(u, v, p, "cross")
@@ -185,6 +186,39 @@ def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[in
         every = _passing(m, xs, chain, positions, everyone, lambda s, r: m.bank.score(s, r))
         stats.exhaustive_edges += len(every)
         stats.found_edges += len(set(every) & set(edges))
+
+
+def _ranking(m: TopoMap, chain: list[int], positions: list[int], queries: np.ndarray) -> np.ndarray:
+    """(len(positions), N) distances for retrieval with the sequence in view:
+    |x - v|^2 + |x_prev - v_prev|^2 + |x_next - v_next|^2, each vertex's
+    neighbours taken along the drive that made it (a missing neighbour
+    counts as the pair itself). Cross edges must pass RE over aligned
+    neighbours, so ranking by them keeps look-alike single frames out of
+    the top K."""
+    idx = m.index
+    ids = idx.ids
+    row_of = {int(v): i for i, v in enumerate(ids)}
+    prev_row = np.full(len(ids), -1)
+    next_row = np.full(len(ids), -1)
+    for i, v in enumerate(ids):
+        other, j = m.origin_chain(int(v))
+        if j > 0:
+            prev_row[i] = row_of.get(other[j - 1], -1)
+        if j + 1 < len(other):
+            next_row[i] = row_of.get(other[j + 1], -1)
+    d0 = idx.distances(queries)
+    total = d0.copy()
+    for step, rows in ((-1, prev_row), (1, next_row)):
+        mine = [row_of.get(chain[p + step], -1) if 0 <= p + step < len(chain) else -1
+                for p in positions]
+        have = np.array(mine) >= 0
+        term = d0.copy()
+        if have.any():
+            dn = idx.distances(idx.vectors[np.array(mine)[have]])
+            aligned = np.where(rows >= 0, dn[:, np.maximum(rows, 0)], d0[have])
+            term[have] = aligned
+        total += term
+    return total
 
 
 def _passing(m: TopoMap, xs: list[int], chain: list[int], positions: list[int],

@@ -38,6 +38,7 @@ class MapConfig:
     p_edge: float = 0.99         # cross edges: sequence-matched RE above this
     sequence_window: int = 2     # aligned anchors on each side for sequence matching
     retrieval_k: int = 32        # vertices ranked by the embedding that RE checks
+    sequence_retrieval: bool = True  # cross edges: rank by the aligned neighbours' embeddings too
     p_link: float = 0.5          # planning: start and goal links above this
     sparsify_window: int = 4     # first window of candidates in the greedy scan
     reuse: bool = True

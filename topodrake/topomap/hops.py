@@ -162,7 +162,7 @@ def map_hop_success(world, policy, topomap, hops: int = 200, runs: int = 2, seed
     from topodrake.montecarlo import trial_seeds
 
     edges = [(u, v) for u, v, kind in topomap.graph.edges(data="kind") if kind == "trajectory"]
-    if not edges or runs < 1:
+    if not edges or runs < 1 or hops < 1:
         return {"hops": 0, "runs": 0, "hop_success": None}
     rng = np.random.default_rng(seed)
     pick = rng.choice(len(edges), size=min(hops, len(edges)), replace=False)

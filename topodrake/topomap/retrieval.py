@@ -86,23 +86,35 @@ class VertexIndex:
         self._sq = np.concatenate([self._sq, (vectors ** 2).sum(1)])
         self._ids = np.concatenate([self._ids, np.asarray(ids, np.int64)])
 
-    def search(self, queries: np.ndarray, k: int, exclude: np.ndarray | None = None) -> list[np.ndarray]:
-        """For each query vector (M, dim) the ids of its ``k`` nearest
-        vertices, nearest first (fewer when the index is smaller)."""
+    def distances(self, queries: np.ndarray) -> np.ndarray:
+        """(M, N) squared distances from the query vectors to every vertex."""
         q = np.asarray(queries, np.float32).reshape(-1, self._vec.shape[1])
+        return np.maximum((q ** 2).sum(1)[:, None] + self._sq[None, :] - 2.0 * (q @ self._vec.T), 0.0)
+
+    def positions(self, ids) -> np.ndarray:
+        """Row of each vertex id in the index (-1 when absent)."""
+        row = {int(v): i for i, v in enumerate(self._ids)}
+        return np.array([row.get(int(v), -1) for v in ids], np.int64)
+
+    def nearest(self, d: np.ndarray, k: int, exclude: np.ndarray | None = None) -> list[np.ndarray]:
+        """Ids of the ``k`` smallest entries of each row of ``d`` (M, N)."""
+        d = np.array(d, np.float64, copy=True).reshape(-1, len(self))
         if len(self) == 0 or k < 1:
-            return [np.zeros(0, np.int64) for _ in q]
-        # ranking by |q - v|^2 = |q|^2 - 2 q.v + |v|^2: |q|^2 is the same for every v
-        d = self._sq[None, :] - 2.0 * (q @ self._vec.T)
+            return [np.zeros(0, np.int64) for _ in d]
         if exclude is not None and len(exclude):
             d[:, np.isin(self._ids, exclude)] = np.inf
         k = min(k, len(self))
         part = np.argpartition(d, k - 1, axis=1)[:, :k] if k < len(self) else \
-            np.broadcast_to(np.arange(len(self)), (len(q), len(self)))
+            np.broadcast_to(np.arange(len(self)), (len(d), len(self)))
         out = []
         for row, cand in zip(d, part):
             cand = cand[np.isfinite(row[cand])]
             out.append(self._ids[cand[np.argsort(row[cand], kind="stable")]])
         return out
 
-
+    def search(self, queries: np.ndarray, k: int, exclude: np.ndarray | None = None) -> list[np.ndarray]:
+        """For each query vector (M, dim) the ids of its ``k`` nearest
+        vertices, nearest first (fewer when the index is smaller)."""
+        if len(self) == 0:
+            return [np.zeros(0, np.int64) for _ in np.atleast_2d(queries)]
+        return self.nearest(self.distances(queries), k, exclude)
