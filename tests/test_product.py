@@ -55,12 +55,14 @@ def test_check_message_names_setting_and_range():
      "--max-minutes", "> 0"),
 ])
 def test_bad_numbers_exit_2_with_one_line(argv, option, allowed, capsys):
-    with pytest.raises(SystemExit) as e:
-        main(argv)
-    assert e.value.code == 2
+    try:
+        code = main(argv)                   # refused by the command
+    except SystemExit as e:                 # refused by the option's type
+        code = e.code
+    assert code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and len(err) <= 200
-    assert f"argument {option}:" in err and allowed in err
+    assert option in err and allowed in err
 
 
 def test_unknown_world_is_short_and_suggests(capsys):

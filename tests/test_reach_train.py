@@ -619,8 +619,10 @@ def test_limits_study_ceiling_and_hop_bins(tmp_path, capsys):
     assert bins[0]["success"] == 0.5 and bins[1]["success"] is None
     assert study.main(["--runs", "1", "--out", str(tmp_path)]) == 2
     assert "--runs >= 2" in capsys.readouterr().err
-    assert study.main(["--keep-runs", "0", "--out", str(tmp_path)]) == 2
-    assert "--keep-runs >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:           # refused by the option's type
+        study.main(["--keep-runs", "0", "--out", str(tmp_path)])
+    assert e.value.code == 2
+    assert "argument --keep-runs: must be an integer >= 1, got 0" in capsys.readouterr().err
 
 
 def test_limits_study_compares_res_keep_ratio_with_the_controllers_own(tiny_re):
