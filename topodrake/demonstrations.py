@@ -185,3 +185,12 @@ def load_demos(folder, successful_only: bool = False) -> tuple[dict, list[Demons
             if drive.success or not successful_only:
                 drives.append(drive)
     return m, drives
+
+
+def demo_poses(world_name: str, data_dir, protocol: str = "pairs", seed: int = 0,
+               progress: bool = False) -> list[np.ndarray]:
+    """Pose arrays of every drive of a house's demonstrations (collected into
+    ``data_dir/demos/<protocol>-s<seed>/<world>`` once, reused afterwards)."""
+    folder = Path(data_dir) / "demos" / f"{protocol}-s{seed}" / world_name
+    collect(world_name, folder, CollectConfig(protocol=protocol, seed=seed), progress=progress)
+    return [d.poses for d in load_demos(folder)[1]]

@@ -179,7 +179,7 @@ def load_drives(world_name: str, data_dir, cfg: RetrievalDataConfig, count: int,
                 rng: np.random.Generator, camera: CameraConfig, progress: bool = False):
     """(images, poses) of ``count`` seeded-random drives of a house's demonstrations."""
     from topodrake.sensing.observe import observe
-    from topodrake.topomap.embedding_train import demo_poses
+    from topodrake.demonstrations import demo_poses
     from topodrake.world import load_world
 
     drives = demo_poses(world_name, data_dir, cfg.demo_protocol, cfg.demo_seed, progress)

@@ -44,7 +44,7 @@ def recall_at(scores: np.ndarray, relevant: np.ndarray, ks=KS) -> dict:
 def recall_split(world_name: str, data_dir, *, query_drives: int = 30, query_step: int = 20,
                  db_step: int = 20, seed: int = 0, protocol: str = "pairs") -> dict:
     """Query and database poses of a house's demonstrations (drive index of each)."""
-    from topodrake.topomap.embedding_train import demo_poses
+    from topodrake.demonstrations import demo_poses
 
     drives = demo_poses(world_name, data_dir, protocol, seed)
     pick = lambda ds, step: (np.concatenate([drives[i][::step] for i in ds]),      # noqa: E731

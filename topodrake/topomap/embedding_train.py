@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from topodrake.demonstrations import demo_poses
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 from topodrake.sensing.config import CameraConfig, LidarConfig
@@ -119,17 +120,6 @@ def load_place_config(path) -> PlaceTrainConfig:
 
 
 # ---------------------------------------------------------------- data
-
-def demo_poses(world_name: str, data_dir, protocol: str = "pairs", seed: int = 0,
-               progress: bool = False) -> list[np.ndarray]:
-    """Pose arrays of every drive of a house's demonstrations (collected into
-    ``data_dir/demos/<protocol>-s<seed>/<world>`` once, reused afterwards)."""
-    from topodrake.demonstrations import CollectConfig, collect, load_demos
-
-    folder = Path(data_dir) / "demos" / f"{protocol}-s{seed}" / world_name
-    collect(world_name, folder, CollectConfig(protocol=protocol, seed=seed), progress=progress)
-    return [d.poses for d in load_demos(folder)[1]]
-
 
 @dataclass
 class PlaceData:
