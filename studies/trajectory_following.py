@@ -175,11 +175,12 @@ def every_nth(n_frames: int, n: int) -> np.ndarray:
 
 
 def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, seed, batch,
-                  noisy) -> tuple[np.ndarray, list[str]]:
+                  noisy, follower=None) -> tuple[np.ndarray, list[str]]:
     """Cover (M,) and outcomes of following chains[m] of trajs[m] (one
     engine batch per world and chunk of ``batch`` chains)."""
     from topodrake.montecarlo import trial_seeds
     from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+    from topodrake.navigation.follower import FollowerConfig
     from topodrake.navigation.route import route_from_observations
     from topodrake.rollout import RolloutConfig, standard_normal_noise
 
@@ -193,6 +194,7 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
     for name, idx in by_world.items():
         world = world_of(name)
         engine = NavigationEngine(world, policy, reach, NavigationConfig(
+            follower=follower or FollowerConfig(),
             rollout=RolloutConfig(noise_std=noise_std if noisy else 0.0)))
         for lo in range(0, len(idx), batch):
             part = idx[lo:lo + batch]
@@ -234,10 +236,10 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         sub = [every_nth(f, n) for f in frames]
         sub_density = float(sum(len(a) for a in sub) / lengths.sum())
         c_re, o_re = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide, args.noise,
-                                   args.seed, args.batch, noisy=False)
+                                   args.seed, args.batch, noisy=False, follower=args.follower_config)
         bar.update()
         c_sub, o_sub = follow_chains(world_of, trajs, obs, sub, policy, reach, wide, args.noise,
-                                     args.seed, args.batch, noisy=False)
+                                     args.seed, args.batch, noisy=False, follower=args.follower_config)
         bar.update()
         point = {"p_sparsify": p, "anchors_per_m": round(density, 4), "cover": float(c_re.mean()),
                  "every_n": n, "subsampled_anchors_per_m": round(sub_density, 4),
@@ -246,7 +248,8 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
                  "covers": c_re.round(4).tolist(), "covers_subsampled": c_sub.round(4).tolist()}
         if abs(p - args.headline_p) < 1e-9:
             c_n, o_n = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide,
-                                     args.noise, args.seed, args.batch, noisy=True)
+                                     args.noise, args.seed, args.batch, noisy=True,
+                                     follower=args.follower_config)
             bar.update()
             point.update({"cover_noisy": float(c_n.mean()), "outcomes_noisy": _count(o_n),
                           "covers_noisy": c_n.round(4).tolist()})
@@ -302,6 +305,8 @@ def main(argv=None) -> int:
     ap.add_argument("--noise", type=at.nonnegative, default=0.33, help="actuation noise std of the noisy runs")
     ap.add_argument("--data", default="data", help="cache of the test trajectories")
     ap.add_argument("--out", default="results", help="output folder")
+    ap.add_argument("--follower", default="{}",
+                    help="follower thresholds to change, as JSON (FollowerConfig fields)")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
@@ -327,6 +332,15 @@ def _run(args) -> int:
         raise TopodrakeError(f"--p must be comma-separated numbers, got {args.p!r}") from None
     if not ps or any(not 0 < p < 1 for p in ps):
         raise TopodrakeError("--p values must be in (0, 1)")
+    from dataclasses import asdict
+
+    from topodrake.navigation.follower import FollowerConfig
+
+    try:
+        args.follower_config = FollowerConfig(**json.loads(args.follower)).check()
+    except (ValueError, TypeError) as e:
+        raise TopodrakeError(f"--follower is not a JSON object of FollowerConfig fields ({e})") \
+            from None
     names = [c for c in args.controllers.split(",") if c]
     unknown = [c for c in names if c not in CONTROLLERS]
     if unknown or not names:
@@ -355,7 +369,8 @@ def _run(args) -> int:
         "command": "python studies/trajectory_following.py " + " ".join(sys.argv[1:]),
         "trajectories": len(trajs), "mean_length_m": round(float(np.mean(lengths)), 2),
         "worlds": worlds, "seed": args.seed, "noise": args.noise, "p_sparsify": ps,
-        "tolerance_m": TOLERANCE_M, "wall_time_s": round(wall, 1),
+        "tolerance_m": TOLERANCE_M, "diverge_m": DIVERGE_M, "wall_time_s": round(wall, 1),
+        "follower": asdict(args.follower_config),
         "summary": summary, "results": results})
     plot(results, out / "trajectory_following.png", len(trajs))
     if args.json:

@@ -9,7 +9,7 @@ abstract state (a :class:`~topodrake.navigation.follower.FollowerState` of
 one car: mode, active and last visited anchor, the held waypoint, counters),
 never from time or the continuous state: it is computed once per period from
 the observation sampled at the period's start. A periodic unrestricted
-update at the end of each period (offset = one period) commits it, and
+update at the end of each period (the start of the next) commits it, and
 ends the run with ``EventStatus.ReachedTermination`` when the follower
 reached the last anchor or gave up. The route's anchor features are
 computed once at construction (per route, not state).
@@ -78,7 +78,12 @@ class FollowerFsm(LeafSystem):
         self.mode_port = self.DeclareVectorOutputPort(
             "mode", 1, lambda c, o: o.SetFromVector([float(self.decision(c)[0].mode[0])]),
             prerequisites_of_calc=ticket)
-        self.DeclarePeriodicUnrestrictedUpdateEvent(period, period, self._commit)
+        # Same event times as the sensors and the ZeroOrderHold (offset 0), so the
+        # commit at t_k is simultaneous with their samples and reads the held
+        # values of period k-1; an offset of one period computes the times
+        # differently and rounding put some commits after the samples.
+        self.period = float(period)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._commit)
 
     def follower_state(self, context) -> FollowerState:
         return context.get_abstract_state(self.fsm_index).get_value()
@@ -113,6 +118,8 @@ class FollowerFsm(LeafSystem):
         output.SetFromVector(wp)
 
     def _commit(self, context, state):
+        if context.get_time() < 0.5 * self.period:
+            return EventStatus.DidNothing()      # nothing decided before the first period
         fs, _ = self.decision(context)
         state.get_mutable_abstract_state(self.fsm_index).set_value(fs.copy())
         m = int(fs.mode[0])

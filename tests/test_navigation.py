@@ -145,10 +145,8 @@ def test_drake_diagram_and_engine_drive_the_same_path(box_world, route, oracles,
     engine = NavigationEngine(box_world, *oracles, NavigationConfig(
         rollout=RolloutConfig(noise_std=noise_std, t_max_s=40.0)))
     res = engine.run(np.array([start]), [route], noise=noise)
-    k = min(int(res.steps[0]), round(drake.time_s / 0.1))
-    # (Drake may end the run one period before the engine: the run's last
-    # commit can see the car state of its own period)
-    assert abs(int(res.steps[0]) - round(drake.time_s / 0.1)) <= 1 and k > 100
+    k = int(res.steps[0])
+    assert k == round(drake.time_s / 0.1) and k > 100     # same periods, a real drive
     dev = np.linalg.norm(drake.poses[:k + 1, :2] - res.poses[0, :k + 1, :2], axis=1)
     assert dev.max() <= 1e-6
     assert drake.outcome == NAV_OUTCOMES[int(res.outcome[0])] == "reached"

