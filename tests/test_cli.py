@@ -124,7 +124,8 @@ def test_missing_scenario_file(capsys, tmp_path):
 
 
 def test_demo_writes_plan_camera_strip_and_meshcat_recording(capsys, tmp_path):
-    code, out, _ = run(capsys, "demo", "--out", str(tmp_path), "--meshcat")
+    code, out, _ = run(capsys, "demo", "--expert", "--start-place", "0", "--goal-place", "5",
+                       "--out", str(tmp_path), "--meshcat")
     assert code == 0
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["outcome"] == "success" and summary["distance_to_goal_m"] < 0.27
