@@ -6,13 +6,14 @@ test houses whose A* path is 10-20 m, mean about 15 m; cached in
 by RE sparsification at every ``--p`` and (b) by keeping every n-th frame
 (the SPTM way) at the density the RE chains of that ``p`` have. Each chain is
 followed by the learned follower (:mod:`topodrake.navigation`, the batched
-navigation engine) from a jittered start (0.3 m sideways, 9 deg), with each
-controller and its RE; at p = 0.99 the RE chains are followed again with
-actuation noise N(1, ``--noise``). The robot stops when it strays more than
-0.5 m from the reference path, collides, the follower ends, or at
-2 x frames + 100 periods. Cover: the share of the reference path's length
-up to the farthest reference sample the robot came within 0.5 m of,
-averaged over trajectories.
+navigation engine) from a jittered start (0.3 m to a random side, turned
+9 deg to a random side), with each controller and its RE; at p = 0.99 the RE
+chains are followed again with actuation noise N(1, ``--noise``). The robot
+stops when it strays more than 1 m from the reference path (``DIVERGE_M``),
+collides, the follower ends, or at 2 x frames + 100 periods. Cover: the
+share of the reference path's length up to the farthest reference sample the
+robot came within 0.5 m of (in order), averaged over trajectories.
+``--follower`` changes the follower's thresholds (an ablation).
 
 camera_k0 has no RE of its own: its chains and its follower's RE are the
 camera k=2 ones (the network of the nearest controller).
