@@ -27,7 +27,7 @@ PY = sys.executable
 FIGURES = {
     "navigation_diagram": (["docs/navigation_diagram.png"],
                            f"{PY} studies/figures.py --diagram docs/navigation_diagram.png"),
-    "demo": (["docs/demo_navigation.png"], "topodrake demo --out docs/demo --seed 0"),
+    "demo": (["docs/demo/plan.png"], "topodrake demo --out docs/demo --seed 0"),
     "controller_success": (["results/controller_success.png"],
                            f"{PY} studies/controller_success.py --trials 400 --json"),
     "reachability_calibration": (["results/reachability_calibration.png"],

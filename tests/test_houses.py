@@ -201,11 +201,13 @@ def test_other_configs_respect_the_area_range():
         assert layout.shape == "rect"
 
 
-def test_unknown_world_names_the_catalogue():
+def test_unknown_world_names_close_matches_and_the_listing_command():
     with pytest.raises(TopodrakeError) as err:
         load_world("train-99")
     msg = str(err.value)
-    assert "\n" not in msg and "train-00" in msg and "test-4" in msg and "train-99" in msg
+    assert "\n" not in msg and len(msg) <= 200 and "train-99" in msg
+    assert "train-95" in msg and "topodrake world list" in msg
+    assert msg.count("train-") <= 6           # the name asked for and at most 5 matches
     with pytest.raises(TopodrakeError):
         load_world_pkg("kitchen")
 

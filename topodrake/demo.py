@@ -165,6 +165,8 @@ def cmd_demo(args) -> None:
         raise TopodrakeError(f"--noise must be finite and >= 0, got {args.noise}")
     if args.seed < 0:
         raise TopodrakeError(f"--seed must be >= 0, got {args.seed}")
+    print(f"topodrake demo: {'the A* expert' if args.expert else 'the learned follower'} drives "
+          f"{args.world} from place {args.start_place} to place {args.goal_place}", flush=True)
     if args.expert:
         noise = 0.33 if args.noise is None else args.noise
         result = run_demo(args.world, args.start_place, args.goal_place, args.out, args.seed,
