@@ -47,13 +47,6 @@ def make_recorder():
     return viewer
 
 
-def frame_camera(viewer, world) -> None:
-    """Point Meshcat's camera at the whole floor plan."""
-    from topodrake.world.scenegraph import frame_whole_world
-
-    frame_whole_world(viewer, world)
-
-
 def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach=None,
                 meshcat_html=None, seed: int = 0):
     """Follow ``route`` from ``start`` in the Drake navigation diagram;
@@ -66,8 +59,6 @@ def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach
     t0 = time.perf_counter()
     built = make_navigation_diagram(scenario, route, viewer, world=world, policy=policy,
                                     reach=reach)
-    if viewer is not None:
-        frame_camera(viewer, built.world)
     runner = NavigationRunner(built)
     build_s = time.perf_counter() - t0
     result = runner.run(start, seed=seed)
