@@ -22,9 +22,7 @@ the SHA-1 of the file's bytes, for map files to record.
 
 from __future__ import annotations
 
-import hashlib
-import io
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +31,6 @@ from torch import nn
 from torch.nn import functional as F
 
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_bytes
 from topodrake.learning.networks import camera_input, lidar_input
 from topodrake.sensing.config import CameraConfig, LidarConfig
 
@@ -144,42 +141,26 @@ class PlaceEmbedding:
     def from_checkpoint(cls, path) -> "PlaceEmbedding":
         """Load a place-embedding checkpoint; a missing, corrupt or foreign
         file raises a one-line TopodrakeError naming it."""
-        path = Path(path)
-        if not path.is_file():
-            raise TopodrakeError(f"place embedding checkpoint {path} does not exist")
-        data = path.read_bytes()
-        try:
-            blob = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
-        except Exception as e:
-            raise TopodrakeError(f"place embedding checkpoint {path} is corrupt or not a torch "
-                                 f"file ({type(e).__name__})") from None
-        if not isinstance(blob, dict) or blob.get("format") != FORMAT:
-            raise TopodrakeError(f"{path} is not a {FORMAT} checkpoint")
-        if blob.get("version") != VERSION:
-            raise TopodrakeError(f"place embedding checkpoint {path} has format version "
-                                 f"{blob.get('version')}; this topodrake reads {VERSION}")
-        try:
+        from topodrake.learning.tagged import load_tagged
+
+        def build(blob):
             cfg = PlaceNetConfig(**blob["network"]).validate(f"checkpoint {path}")
-            sensor_cls = CameraConfig if cfg.modality == "camera" else LidarConfig
-            sensor = sensor_cls(**blob["sensor"])
+            sensor = (CameraConfig if cfg.modality == "camera" else LidarConfig)(**blob["sensor"])
             model = PlaceNet(cfg, getattr(sensor, "beams", 64))
             model.load_state_dict(blob["model"])
-        except TopodrakeError:
-            raise
-        except Exception as e:
-            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-            raise TopodrakeError(f"place embedding checkpoint {path} is unreadable ({first})") from None
-        return cls(model, sensor, name=path.parent.name, fingerprint=hashlib.sha1(data).hexdigest())
+            return model, sensor
+
+        (model, sensor), sha1 = load_tagged(path, FORMAT, VERSION, "place embedding checkpoint",
+                                            build)
+        return cls(model, sensor, name=Path(path).parent.name, fingerprint=sha1)
 
 
 def save_place_checkpoint(path, model: PlaceNet, sensor, **meta) -> Path:
     """Write a place-embedding checkpoint atomically; ``meta`` (JSON-like:
     train_config, metrics, wall_time_s, ...) is stored beside the weights."""
-    blob = {"format": FORMAT, "version": VERSION, "network": asdict(model.cfg),
-            "sensor": asdict(sensor), **meta, "model": model.state_dict()}
-    buf = io.BytesIO()
-    torch.save(blob, buf)
-    return atomic_write_bytes(path, buf.getvalue())
+    from topodrake.learning.tagged import save_tagged
+
+    return save_tagged(path, FORMAT, VERSION, model, sensor, **meta)
 
 
 class ThumbnailEmbedding:
