@@ -46,11 +46,14 @@ def load_networks(scenario: NavigationScenario):
     from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.reachability import Reachability
 
-    for what, path in (("controller", scenario.controller), ("reach", scenario.reach)):
+    from topodrake.topomap.sources import resolve_checkpoint
+
+    controller, reach = resolve_checkpoint(scenario.controller), resolve_checkpoint(scenario.reach)
+    for what, path in (("controller", controller), ("reach", reach)):
         if not Path(path).is_file():
             raise TopodrakeError(f"{what} checkpoint {path} does not exist")
-    return (LearnedWaypointPolicy.from_checkpoint(scenario.controller),
-            Reachability.from_checkpoint(scenario.reach, scenario.controller))
+    return (LearnedWaypointPolicy.from_checkpoint(controller),
+            Reachability.from_checkpoint(reach, controller))
 
 
 @dataclass

@@ -369,3 +369,15 @@ def test_sequence_retrieval_ranks_by_the_aligned_neighbours_too():
 
     assert linked(sequence=False) == {1}        # drive 2 (its second drive added): the look-alike
     assert linked(sequence=True) == {0}
+
+
+def test_shipped_checkpoints_resolve_from_any_working_folder(tmp_path, monkeypatch):
+    from topodrake.topomap.sources import resolve_checkpoint
+
+    monkeypatch.chdir(tmp_path)
+    assert resolve_checkpoint("checkpoints/camera_k5/checkpoint.pt").is_file()
+    (tmp_path / "checkpoints" / "camera_k5").mkdir(parents=True)
+    mine = tmp_path / "checkpoints" / "camera_k5" / "checkpoint.pt"
+    mine.write_bytes(b"x")
+    assert resolve_checkpoint("checkpoints/camera_k5/checkpoint.pt").resolve() == mine.resolve()
+    assert not resolve_checkpoint("no/such.pt").exists()

@@ -56,6 +56,9 @@ def _networks(controller: str, reach: str):
     from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.reachability import Reachability
 
+    from topodrake.topomap.sources import resolve_checkpoint
+
+    controller, reach = resolve_checkpoint(controller), resolve_checkpoint(reach)
     for what, path in (("controller", controller), ("reach", reach)):
         if not Path(path).is_file():
             raise TopodrakeError(f"--{what} checkpoint {path} does not exist")

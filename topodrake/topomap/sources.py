@@ -30,6 +30,15 @@ def shipped_checkpoint(name: str) -> Path:
     return path
 
 
+def resolve_checkpoint(path) -> Path:
+    """``path``; a relative path that does not exist from here but does in
+    this installation (the shipped ``checkpoints/...``) resolves there."""
+    p = Path(path)
+    if not p.is_absolute() and not p.exists() and (ROOT / p).exists():
+        return ROOT / p
+    return p
+
+
 def _relative(path) -> str:
     """A checkpoint path as recorded in a map: relative to the installation when inside it."""
     p = Path(path).resolve()
@@ -56,8 +65,9 @@ def make_scorer(modality: str, world=None, reach=None, controller=None):
         raise TopodrakeError(f"modality must be one of {MODALITIES}, got {modality!r}")
     if (reach is None) != (controller is None):
         raise TopodrakeError("give both --reach and --controller, or neither")
-    reach = Path(reach) if reach else shipped_checkpoint(SHIPPED[modality][0])
-    controller = Path(controller) if controller else shipped_checkpoint(SHIPPED[modality][1])
+    reach = resolve_checkpoint(reach) if reach else shipped_checkpoint(SHIPPED[modality][0])
+    controller = (resolve_checkpoint(controller) if controller
+                  else shipped_checkpoint(SHIPPED[modality][1]))
     for p in (reach, controller):
         if not p.is_file():
             raise TopodrakeError(f"checkpoint {p} does not exist")
