@@ -1,0 +1,583 @@
+"""Planning on topological maps against SPTM (the paper's Table II).
+
+For every test house a map is built from its 90 expert drives between all
+ordered pairs of its 10 places (``topodrake collect``; cached in
+``DATA/demos/pairs-s0/``), one per method, and cached in ``DATA/planning/``
+(keyed by house, modality, scorer, demonstration seed and trajectory
+subset; existing maps are reused):
+
+- ``ours``: the camera k=5 map (learned RE), followed by camera k=5 C_WP + RE;
+- ``lidar``: the lidar k=5 map, followed by lidar k=5 C_WP + RE;
+- ``oracle``: our map built with the geometric oracle RE from the same
+  drives (perception errors out of the map); its anchors' contexts are
+  rendered as camera images and followed by camera k=5 C_WP with the learned
+  camera RE (the navigation engine needs C_WP and RE on one modality);
+- ``sptm``: SPTM's graph (every 20th frame, retrieval shortcuts, top-1
+  localization, hop-count path), followed by camera k=5 C_WP + RE.
+
+A trial starts at one place jittered (0.3 m sideways, 9 deg) and gets the
+observation at another place as its goal; it succeeds when the car comes
+within 0.54 m of the goal within 150 s (1,500 steps) at <= 0.5 m/s without
+colliding. A goal without a plan is a failed trial. Every method of a house
+runs the same trials. Plan probabilities are set against empirical success
+(10 bins, expected calibration error), and maps built from 10%..100% of
+the drives show how success grows with experience (``pruned_60_over_peak``:
+success with 60% of the drives over the best over all fractions).
+
+    python studies/planning.py --json                      (default: a few trials)
+    python studies/planning.py --trials 1000 --pruned-fractions 0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1 --pruned-trials 1000   (the paper's protocol)
+    python studies/planning.py --world /work/shared/maps/willow_full_0.05/map.yaml
+
+``--json`` prints ``{"houses": {"test-0": {"ours": s, "lidar": s, "sptm": s,
+"oracle": s, "vertices": n, "edges": n, "sptm_vertices": n}, ...},
+"min_ours": s, "min_margin_over_sptm": m, "plan_probability_ece": e,
+"pruned_60_over_peak": r, "replanning_gain": null, "unmapped_obstacles": null}``
+and writes ``results/planning.json`` (command, seed, config, per-trial
+records), ``planning.png``, ``plan_calibration.png`` and ``pruned_maps.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import time
+import zlib
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from topodrake import argtypes as at
+from topodrake.errors import TopodrakeError
+from topodrake.fileio import atomic_write_json
+
+METHODS = ("ours", "lidar", "sptm", "oracle")
+HOUSES = "test-0,test-1,test-2,test-3,test-4"
+#: method -> (map scorer modality, follower's networks' modality)
+MAP_OF = {"ours": ("camera", "camera"), "lidar": ("lidar", "lidar"), "oracle": ("oracle", "camera"),
+          "sptm": (None, "camera")}
+DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (noise-free)
+SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
+
+
+# ---------------------------------------------------------------- data
+
+def house_key(spec: str) -> str:
+    """A world's name in caches and results: the catalogue name, or a map
+    file's folder and stem (as ``topodrake collect`` names its demos)."""
+    from topodrake.topomap.sources import demo_folder
+
+    return demo_folder(spec).name
+
+
+def house_drives(spec: str, data: Path, progress: bool) -> list:
+    """The successful demonstrations of all ordered place pairs (collected once)."""
+    from topodrake.demonstrations import CollectConfig, collect, load_demos
+
+    folder = data / "demos" / f"pairs-s{DEMO_SEED}" / house_key(spec)
+    collect(spec, folder, CollectConfig(protocol="pairs", seed=DEMO_SEED), progress=progress)
+    _, drives = load_demos(folder, successful_only=True)
+    if not drives:
+        raise TopodrakeError(f"{folder} holds no successful drive")
+    return drives
+
+
+def map_path(data: Path, key: str, modality: str, tag: str) -> Path:
+    scorer = "oracle" if modality == "oracle" else "re"
+    name = "pose" if modality == "oracle" else modality
+    return data / "planning" / f"{key}-{name}-{scorer}-demos{DEMO_SEED}-{tag}.tdmap"
+
+
+def _adoptable(candidate: Path, world: str, modality: str, names: list[str]) -> bool:
+    """Whether a map built elsewhere (``topodrake map build`` or the map
+    scalability study) is this very map: same world, modality, default
+    config and the same drives in the same order."""
+    from topodrake.topomap.graph import MapConfig
+    from topodrake.topomap.mapfile import read_map_meta
+
+    try:
+        meta = read_map_meta(candidate)
+    except TopodrakeError:
+        return False
+    return (meta.get("world") == world and meta.get("modality") == modality
+            and meta.get("config") == asdict(MapConfig())
+            and [t["name"] for t in meta.get("trajectories", [])] == names)
+
+
+def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, tag: str,
+            progress: bool):
+    """The map of ``drives[indices]`` for ``modality`` (cached; built when missing)."""
+    from topodrake.topomap.build import build_map
+    from topodrake.topomap.graph import TopoMap
+    from topodrake.topomap.mapfile import load_map, save_map
+    from topodrake.topomap.retrieval import default_embedding
+    from topodrake.topomap.sources import drive_observations, make_scorer
+
+    key = house_key(spec)
+    path = map_path(data, key, modality, tag)
+    scorer = make_scorer(modality, world)
+    names = [f"pairs-s{DEMO_SEED}/{i}" for i in indices]
+    legacy = data / "maps" / f"{key}-{modality}.tdmap"
+    if not path.is_file() and modality != "oracle" and legacy.is_file() \
+            and _adoptable(legacy, spec, modality, names):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        shutil.copyfile(legacy, tmp)
+        tmp.replace(path)
+    if path.is_file():
+        m = load_map(path, scorer)
+        if [t.name for t in m.trajectories] != names:
+            raise TopodrakeError(f"{path} holds other drives than {len(names)} of "
+                                 f"{key}; delete it to rebuild")
+        return m, 0.0
+    t0 = time.perf_counter()
+    m = TopoMap(scorer, default_embedding(scorer.observation), world=spec)
+    items = [(drive_observations(world, scorer, drives[i].poses), drives[i].poses, n)
+             for i, n in zip(indices, names)] if modality == "oracle" else \
+        _Lazy(world, scorer, drives, indices, names)
+    build_map(m, items, progress=progress, desc=f"map {key} {modality} {tag}")
+    save_map(m, path)
+    return m, time.perf_counter() - t0
+
+
+class _Lazy:
+    """Drives' observations rendered one at a time (with a length, for tqdm)."""
+
+    def __init__(self, world, scorer, drives, indices, names):
+        self.args = world, scorer, drives, list(indices), names
+
+    def __len__(self):
+        return len(self.args[3])
+
+    def __iter__(self):
+        from topodrake.topomap.sources import drive_observations
+
+        world, scorer, drives, indices, names = self.args
+        for i, n in zip(indices, names):
+            yield drive_observations(world, scorer, drives[i].poses), drives[i].poses, n
+
+
+_NETWORKS: dict = {}
+
+
+def networks(modality: str):
+    """(C_WP, RE) of the shipped k=5 follower of ``modality`` (loaded once)."""
+    from topodrake.navigation.cli import _networks
+    from topodrake.topomap.sources import SHIPPED, shipped_checkpoint
+
+    if modality not in _NETWORKS:
+        reach, controller = SHIPPED[modality]
+        _NETWORKS[modality] = _networks(shipped_checkpoint(controller), shipped_checkpoint(reach))
+    return _NETWORKS[modality]
+
+
+# ---------------------------------------------------------------- one method in one house
+
+def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
+                cfg: dict, tag: str = "all"):
+    """(plans' routes (None = no plan), plan probabilities, map size dict)."""
+    from topodrake.navigation.plan_trials import render_pose_route
+    from topodrake.topomap.plan import plan_path
+    from topodrake.topomap.sources import drive_observations
+
+    data, progress = Path(cfg["data"]), not cfg["quiet"]
+    if method == "sptm":
+        from topodrake.baselines.retrieval_net import RetrievalScorer
+        from topodrake.baselines.sptm import build_sptm_graph, plan_sptm
+        from topodrake.sensing.observe import observe
+        from topodrake.topomap.sources import resolve_checkpoint
+
+        net = RetrievalScorer.from_checkpoint(resolve_checkpoint(SPTM_CHECKPOINT))
+        t0 = time.perf_counter()
+        trajs = [(observe(world, "camera", drives[i].poses, net.sensor), drives[i].poses,
+                  f"pairs-s{DEMO_SEED}/{i}") for i in indices]
+        m = build_sptm_graph(trajs, net, progress=progress)
+        s = m.summary()
+        size = {"vertices": s["vertices"], "edges": s["directed_edges"],
+                "undirected_edges": s["edges"], "shortcuts": s["shortcuts"],
+                "build_s": round(time.perf_counter() - t0, 1)}
+        so = observe(world, "camera", starts, net.sensor)
+        go = observe(world, "camera", places, net.sensor)
+        plans = [plan_sptm(m, so[t], go[g], starts[t], places[g], net)
+                 for t, g in enumerate(goal_idx)]
+    else:
+        modality = MAP_OF[method][0]
+        m, build_s = get_map(spec, world, modality, drives, indices, data, tag, progress)
+        size = {"vertices": len(m), "edges": m.n_edges, "build_s": round(build_s, 1)}
+        so = drive_observations(world, m.scorer, starts)
+        go = drive_observations(world, m.scorer, places)
+        plans = [plan_path(m, so[t], go[g], start_pose=starts[t], goal_pose=places[g])
+                 for t, g in enumerate(goal_idx)]
+    routes = [p.route if p.reachable else None for p in plans]
+    if method == "oracle":
+        policy, _ = networks("camera")
+        routes = [None if r is None else render_pose_route(world, r, getattr(policy, "sensor", None))
+                  for r in routes]
+    prob = np.array([p.probability if p.reachable else 0.0 for p in plans])
+    if method == "sptm":
+        prob[:] = np.nan
+    return routes, prob, size
+
+
+def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cfg: dict,
+               tag: str = "all", bar=None) -> tuple[dict, list[dict]]:
+    """One method's trials in one house: (stats, per-trial records)."""
+    from topodrake.navigation.engine import NavigationConfig, NavigationEngine
+    from topodrake.navigation.plan_trials import SUCCESS_M, T_MAX_S, follow_routes
+
+    places = np.asarray(world.places, np.float64)
+    t0 = time.perf_counter()
+    routes, prob, size = plan_routes(method, spec, world, drives, indices, starts, places,
+                                     pairs[:, 1], cfg, tag)
+    plan_s = time.perf_counter() - t0
+    policy, reach = networks(MAP_OF[method][1])
+    engine = NavigationEngine(world, policy, reach, NavigationConfig())
+    res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
+                        SUCCESS_M, progress=None if bar is None else bar.update)
+    key = house_key(spec)
+    records = [{"house": key, "method": method, "map": tag, "trial": t,
+                "start_place": int(a), "goal_place": int(b),
+                "start_pose": [round(float(v), 4) for v in starts[t]],
+                "planned": routes[t] is not None,
+                "plan_probability": None if not np.isfinite(prob[t]) else round(float(prob[t]), 5),
+                "plan_anchors": 0 if routes[t] is None else len(routes[t]),
+                "outcome": res.outcome[t], "success": bool(res.success[t]),
+                "final_distance_m": round(float(res.final_distance_m[t]), 3),
+                "steps": int(res.steps[t])}
+               for t, (a, b) in enumerate(pairs)]
+    stats = {**size, **_rates(records), "map_and_plan_s": round(plan_s, 1),
+             "follow_s": round(time.perf_counter() - t0 - plan_s, 1)}
+    return stats, records
+
+
+def _rates(records: list[dict]) -> dict:
+    """Success, plan and outcome counts of some trials' records."""
+    outcomes = [r["outcome"] for r in records]
+    planned = [r for r in records if r["planned"]]
+    probs = [r["plan_probability"] for r in planned if r["plan_probability"] is not None]
+    return {"trials": len(records),
+            "success": round(float(np.mean([r["success"] for r in records])), 4),
+            "planned": round(len(planned) / len(records), 4),
+            "mean_plan_probability": round(float(np.mean(probs)), 4) if probs else None,
+            "outcomes": {o: outcomes.count(o) for o in sorted(set(outcomes))}}
+
+
+def house_seed(base: int, key: str) -> int:
+    """A house's trial seed: from the base seed and the house's name (so a
+    house's trials do not depend on which other houses run)."""
+    return int(np.random.SeedSequence([base, zlib.crc32(key.encode())]).generate_state(1)[0])
+
+
+def house_job(seed: int, jobs: dict, cfg: dict) -> dict:
+    """Every method's trials in one house (a Monte Carlo runner job)."""
+    import torch
+    from tqdm import tqdm
+
+    from topodrake.navigation.plan_trials import jittered_starts, trial_pairs
+    from topodrake.world import load_world
+
+    torch.set_num_threads(1)
+    spec = jobs[seed]
+    world = load_world(spec)
+    drives = house_drives(spec, Path(cfg["data"]), not cfg["quiet"])
+    n = min(cfg["trajectories"] or len(drives), len(drives))
+    indices = list(range(n))
+    places = np.asarray(world.places, np.float64)
+    pairs = trial_pairs(len(places), cfg["trials"], seed)
+    starts = jittered_starts(world, places, pairs, seed)
+    out = {"house": house_key(spec), "world": spec, "seed": seed, "drives": n, "methods": {},
+           "records": []}
+    with tqdm(total=len(cfg["methods"]) * len(pairs), desc=f"trials {house_key(spec)}",
+              disable=cfg["quiet"], unit="trial", leave=False) as bar:
+        for method in cfg["methods"]:
+            stats, records = run_method(method, spec, world, drives, indices, pairs, starts, cfg,
+                                        tag="all" if n == len(drives) else f"first{n}", bar=bar)
+            out["methods"][method] = stats
+            out["records"].extend(records)
+    return out
+
+
+def pruned_job(seed: int, jobs: dict, cfg: dict) -> dict:
+    """Our maps from fractions of one house's drives, and their trials."""
+    import torch
+    from tqdm import tqdm
+
+    from topodrake.navigation.plan_trials import jittered_starts, pruned_subset, trial_pairs
+    from topodrake.world import load_world
+
+    torch.set_num_threads(1)
+    spec = jobs[seed]
+    world = load_world(spec)
+    drives = house_drives(spec, Path(cfg["data"]), not cfg["quiet"])
+    n = min(cfg["trajectories"] or len(drives), len(drives))
+    places = np.asarray(world.places, np.float64)
+    pairs = trial_pairs(len(places), cfg["pruned_trials"], seed)
+    starts = jittered_starts(world, places, pairs, seed)
+    out = {"house": house_key(spec), "method": cfg["pruned_method"], "fractions": {},
+           "records": []}
+    fractions = cfg["pruned_fractions"]
+    with tqdm(total=len(fractions) * len(pairs), desc=f"pruned {house_key(spec)}",
+              disable=cfg["quiet"], unit="trial", leave=False) as bar:
+        for f in fractions:
+            idx = pruned_subset(n, f, cfg["pruned_seed"])
+            base = "all" if n == len(drives) else f"first{n}"
+            tag = base if len(idx) == n else f"{base}-f{f:g}-r{cfg['pruned_seed']}"
+            full = (cfg.get("full") or {}).get(house_key(spec))
+            if len(idx) == n and full is not None and len(full["records"]) >= len(pairs):
+                # the whole map with the main study's trials (same seed: the same trials)
+                records = [dict(r) for r in full["records"][:len(pairs)]]
+                stats = {**full["stats"], **_rates(records), "reused_main_trials": True}
+                bar.update(len(pairs))
+            else:
+                stats, records = run_method(cfg["pruned_method"], spec, world, drives,
+                                            idx.tolist(), pairs, starts, cfg, tag=tag, bar=bar)
+            out["fractions"][f"{f:g}"] = {**stats, "drives": len(idx)}
+            out["records"].extend(records)
+    return out
+
+
+# ---------------------------------------------------------------- plots
+
+def plot_table(houses: dict, methods: list[str], path: Path, trials: int) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from topodrake.world.plot import save_figure
+
+    names = list(houses)
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.8 * len(names) + 2), 4.8))
+    w = 0.8 / max(len(methods), 1)
+    x = np.arange(len(names))
+    for i, m in enumerate(methods):
+        s = [houses[h]["methods"][m]["success"] for h in names]
+        bars = ax.bar(x + (i - (len(methods) - 1) / 2) * w, s, w, label=m, color=f"C{i}")
+        for b, v in zip(bars, s):
+            ax.annotate(f"{v:.2f}", (b.get_x() + b.get_width() / 2, v), ha="center",
+                        va="bottom", fontsize=7)
+    labels = []
+    for h in names:
+        o = houses[h]["methods"].get("ours")
+        labels.append(f"{h}\n{o['vertices']} V / {o['edges']} E" if o else h)
+    ax.set_xticks(x, labels, fontsize=8)
+    ax.set_ylim(0, 1.08)
+    ax.set_ylabel("success rate")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8, ncol=len(methods), loc="upper center")
+    ax.set_title(f"Planning success per house ({trials} trials per method and house; "
+                 f"labels: our map's size)", fontsize=10)
+    save_figure(fig, path)
+
+
+def plot_calibration(rows: list[dict], ece, n: int, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from topodrake.world.plot import save_figure
+
+    fig, ax = plt.subplots(figsize=(6, 5.5))
+    ax.plot([0, 1], [0, 1], "--", color="gray", lw=1, label="perfect calibration")
+    full = [r for r in rows if r["count"]]
+    if full:
+        ax.bar([(r["lo"] + r["hi"]) / 2 for r in full], [r["observed"] for r in full],
+               width=0.09, alpha=0.35, color="C0", label="observed success per bin")
+        ax.plot([r["predicted"] for r in full], [r["observed"] for r in full], "o-", color="C0",
+                label="(mean predicted, observed)")
+        for r in full:
+            ax.annotate(f"n={r['count']}", ((r["lo"] + r["hi"]) / 2, r["observed"]),
+                        ha="center", va="bottom", fontsize=7)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.08)
+    ax.set_xlabel("predicted plan probability")
+    ax.set_ylabel("empirical success")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    ax.set_title(f"Plan probability vs success (ours, {n} planned trials, "
+                 f"ECE {'n/a' if ece is None else f'{ece:.3f}'})", fontsize=10)
+    save_figure(fig, path)
+
+
+def plot_pruned(pruned: dict | None, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from topodrake.world.plot import save_figure
+
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    if pruned and pruned["fractions"]:
+        fr = sorted(pruned["fractions"], key=float)
+        s = [pruned["fractions"][f]["success"] for f in fr]
+        ax.plot([float(f) for f in fr], s, "o-", color="C0", label="success")
+        ax2 = ax.twinx()
+        ax2.plot([float(f) for f in fr], [pruned["fractions"][f]["vertices"] for f in fr], "s--",
+                 color="C1", alpha=0.7, label="vertices")
+        ax2.set_ylabel("map vertices", color="C1")
+        n = pruned["fractions"][fr[0]]["trials"]
+        ax.set_title(f"{pruned['house']}: success with a fraction of the drives "
+                     f"({pruned['method']}, {n} trials each)", fontsize=10)
+    else:
+        ax.set_title("pruned maps: not run")
+    ax.set_xlim(0, 1.05)
+    ax.set_ylim(0, 1.05)
+    ax.set_xlabel("fraction of the drives in the map")
+    ax.set_ylabel("success rate", color="C0")
+    ax.grid(alpha=0.3)
+    save_figure(fig, path)
+
+
+# ---------------------------------------------------------------- main
+
+def _fractions(text: str) -> list[float]:
+    if text.strip().lower() in ("", "none", "off"):
+        return []
+    try:
+        out = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise TopodrakeError(f"--pruned-fractions must be comma-separated numbers in (0, 1] or "
+                             f"'none', got {text!r}") from None
+    if not out or any(not 0.0 < f <= 1.0 for f in out):
+        raise TopodrakeError(f"--pruned-fractions must be numbers in (0, 1], got {text!r}")
+    return sorted(set(out))
+
+
+def main(argv=None) -> int:
+    from topodrake.montecarlo import study_main
+
+    ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
+    ap.add_argument("--houses", default=HOUSES, help="test houses (catalogue names or map YAMLs)")
+    ap.add_argument("--world", help="one world (catalogue name or ROS map YAML) instead of "
+                                    "--houses")
+    ap.add_argument("--methods", default=",".join(METHODS), help="methods to run")
+    ap.add_argument("--trials", type=at.count, default=20,
+                    help="trials per method and house (paper: 1000)")
+    ap.add_argument("--trajectories", type=at.count,
+                    help="drives per map, in order (default: all 90)")
+    ap.add_argument("--batch", type=at.count, default=32, help="cars per navigation-engine batch")
+    ap.add_argument("--pruned-fractions", default="0.3,0.6,1",
+                    help="fractions of the drives for the pruned maps, or 'none' "
+                         "(paper: 0.1,0.2,...,1)")
+    ap.add_argument("--pruned-house", help="house of the pruned maps (default: the first)")
+    ap.add_argument("--pruned-method", choices=["ours", "lidar", "oracle"], default="ours",
+                    help="map of the pruned study")
+    ap.add_argument("--pruned-trials", type=at.count, default=20,
+                    help="trials per pruned map (paper: 1000)")
+    ap.add_argument("--pruned-seed", type=at.seed, default=0, help="seed of the drive subsets")
+    ap.add_argument("--seed", type=at.seed, default=0, help="base seed of the trials")
+    ap.add_argument("--data", default="data", help="cache of demonstrations and maps")
+    ap.add_argument("--workers", type=at.count, default=1,
+                    help="local worker processes, one house each")
+    ap.add_argument("--ray", metavar="ADDRESS", help="run the houses on a Ray cluster")
+    ap.add_argument("--out", default="results", help="folder of the JSON and PNG results")
+    ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = ap.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    return study_main(_run, args)
+
+
+def _run(args) -> int:
+    from topodrake.learning.checkpoint import git_revision
+    from topodrake.montecarlo import run_trials
+    from topodrake.navigation.plan_trials import (SUCCESS_M, T_MAX_S, calibration, pruned_ratio,
+                                                  summarize)
+    from topodrake.world import load_world
+
+    t0 = time.perf_counter()
+    methods = [m for m in args.methods.split(",") if m]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise TopodrakeError(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
+    if args.world is not None:
+        if args.houses != HOUSES:
+            raise TopodrakeError("give --world or --houses, not both")
+        specs = [args.world]
+    else:
+        specs = [h for h in args.houses.split(",") if h]
+    if not specs:
+        raise TopodrakeError("--houses names no house")
+    fractions = _fractions(args.pruned_fractions)
+    for spec in specs:
+        w = load_world(spec)               # a bad name or file fails here, in one line
+        if len(w.places) < 2:
+            raise TopodrakeError(f"world {spec!r} has {len(w.places)} places; planning trials "
+                                 f"need at least 2")
+    keys = [house_key(s) for s in specs]
+    if len(set(keys)) != len(keys):
+        raise TopodrakeError("--houses names a house twice")
+    pruned_spec = args.pruned_house or specs[0]
+    if fractions:
+        load_world(pruned_spec)
+    cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
+           "trajectories": args.trajectories, "batch": args.batch,
+           "pruned_fractions": fractions, "pruned_method": args.pruned_method,
+           "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed}
+    jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
+    results = run_trials(house_job, list(jobs), workers=args.workers, ray_address=args.ray,
+                         progress=not args.quiet and len(jobs) > 1, desc="houses",
+                         jobs=jobs, cfg=cfg)
+    houses = {r["house"]: r for r in results}
+    pruned = None
+    if fractions:
+        pjobs = {house_seed(args.seed, house_key(pruned_spec)): pruned_spec}
+        pkey = house_key(pruned_spec)
+        if pkey in houses and args.pruned_method in houses[pkey]["methods"]:
+            cfg["full"] = {pkey: {"stats": houses[pkey]["methods"][args.pruned_method],
+                                  "records": [r for r in houses[pkey]["records"]
+                                              if r["method"] == args.pruned_method]}}
+        pruned = run_trials(pruned_job, list(pjobs), workers=1, ray_address=args.ray,
+                            progress=False, jobs=pjobs, cfg=cfg)[0]
+        cfg.pop("full", None)
+    # calibration: ours (the headline) and every map method, planned trials only
+    cal = {}
+    for m in methods:
+        if m == "sptm":
+            continue
+        recs = [r for h in houses.values() for r in h["records"] if r["method"] == m and r["planned"]]
+        rows, ece = calibration([r["plan_probability"] for r in recs], [r["success"] for r in recs])
+        cal[m] = {"bins": rows, "ece": ece, "planned_trials": len(recs)}
+    ece = cal["ours"]["ece"] if "ours" in cal else None
+    ratio = pruned_ratio({f: v["success"] for f, v in pruned["fractions"].items()}) \
+        if pruned else None
+    summary = summarize(houses, ece, ratio)
+    out = Path(args.out)
+    wall = time.perf_counter() - t0
+    records = [r for h in houses.values() for r in h.pop("records")]
+    pruned_records = pruned.pop("records") if pruned else []
+    atomic_write_json(out / "planning.json", {
+        "command": "python studies/planning.py " + " ".join(args.argv),
+        "git_revision": git_revision(), "seed": args.seed,
+        "config": {**{k: v for k, v in cfg.items() if k != "quiet"}, "houses": specs,
+                   "success_m": SUCCESS_M, "t_max_s": T_MAX_S, "speed_cap_mps": 0.5,
+                   "jitter": "0.3 m to a random side, 9 deg to a random side",
+                   "demo_seed": DEMO_SEED, "workers": args.workers,
+                   "followers": {m: f"{MAP_OF[m][1]} k5 C_WP + learned {MAP_OF[m][1]} k5 RE"
+                                 for m in methods},
+                   "calibration": "planned trials only; unplanned trials count as failures in "
+                                  "the success rates"},
+        "wall_time_s": round(wall, 1), "summary": summary,
+        "houses": houses, "calibration": cal, "pruned": pruned,
+        "trials": records, "pruned_trials": pruned_records})
+    plot_table(houses, methods, out / "planning.png", args.trials)
+    if "ours" in cal:
+        plot_calibration(cal["ours"]["bins"], ece, cal["ours"]["planned_trials"],
+                         out / "plan_calibration.png")
+    plot_pruned(pruned, out / "pruned_maps.png")
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for name, h in summary["houses"].items():
+            print(f"{name:<10} " + ", ".join(f"{m} {h[m]:.3f}" for m in METHODS if m in h)
+                  + (f"; {h['vertices']} vertices, {h['edges']} edges" if "vertices" in h else ""))
+        print(f"min ours {summary['min_ours']}, min margin over SPTM "
+              f"{summary['min_margin_over_sptm']}, plan ECE {summary['plan_probability_ece']}, "
+              f"pruned 60%/peak {summary['pruned_60_over_peak']}")
+    print(f"{len(houses)} houses x {len(methods)} methods x {args.trials} trials in "
+          f"{wall / 60:.1f} min; wrote {out / 'planning.json'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

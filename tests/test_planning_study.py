@@ -1,0 +1,194 @@
+"""The planning study's pieces (studies/planning.py, topodrake.navigation.plan_trials):
+trials, subsets, calibration, the summary, and a tiny planned-and-followed
+run in the box world with the oracles."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from topodrake.errors import TopodrakeError
+from topodrake.navigation import plan_trials as pt
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _study():
+    spec = importlib.util.spec_from_file_location("planning_study", ROOT / "studies" / "planning.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+# ---------------------------------------------------------------- trials
+
+def test_trial_pairs_are_seeded_prefix_stable_and_never_a_place_with_itself():
+    a = pt.trial_pairs(10, 200, seed=3)
+    assert a.shape == (200, 2)
+    assert (a[:, 0] != a[:, 1]).all()
+    assert a.min() >= 0 and a.max() <= 9
+    assert len({tuple(p) for p in a}) > 60                  # many of the 90 ordered pairs
+    np.testing.assert_array_equal(a, pt.trial_pairs(10, 200, seed=3))
+    np.testing.assert_array_equal(a[:50], pt.trial_pairs(10, 50, seed=3))
+    assert not np.array_equal(a, pt.trial_pairs(10, 200, seed=4))
+    two = pt.trial_pairs(2, 20, seed=0)
+    assert {tuple(p) for p in two} == {(0, 1), (1, 0)}
+    with pytest.raises(TopodrakeError, match="2 places"):
+        pt.trial_pairs(1, 3, 0)
+
+
+def test_jittered_starts_are_seeded_and_0_3_m_9_deg_off(box_world):
+    places = np.array([[2.0, 2.0, 0.0], [8.0, 8.0, np.pi / 2], [2.0, 8.0, -np.pi / 2]])
+    pairs = pt.trial_pairs(len(places), 12, seed=1)
+    s = pt.jittered_starts(box_world, places, pairs, seed=1)
+    np.testing.assert_array_equal(s, pt.jittered_starts(box_world, places, pairs, seed=1))
+    base = places[pairs[:, 0]]
+    np.testing.assert_allclose(np.hypot(*(s[:, :2] - base[:, :2]).T), 0.3, atol=1e-9)
+    np.testing.assert_allclose(np.abs(s[:, 2] - base[:, 2]), np.radians(9.0), atol=1e-9)
+    forward = np.einsum("ij,ij->i", s[:, :2] - base[:, :2],
+                        np.column_stack([np.cos(base[:, 2]), np.sin(base[:, 2])]))
+    np.testing.assert_allclose(forward, 0.0, atol=1e-9)     # moved sideways only
+
+
+def test_pruned_subsets_are_seeded_sorted_nested_and_whole_at_one():
+    a = pt.pruned_subset(90, 0.6, seed=0)
+    assert len(a) == 54 and (np.diff(a) > 0).all()
+    np.testing.assert_array_equal(a, pt.pruned_subset(90, 0.6, seed=0))
+    assert not np.array_equal(a, pt.pruned_subset(90, 0.6, seed=1))
+    assert set(pt.pruned_subset(90, 0.3, seed=0)) <= set(a)
+    np.testing.assert_array_equal(pt.pruned_subset(90, 1.0, seed=5), np.arange(90))
+    assert len(pt.pruned_subset(90, 0.001, seed=0)) == 1
+    for bad in (0.0, 1.5, -0.1):
+        with pytest.raises(TopodrakeError, match="fraction"):
+            pt.pruned_subset(90, bad, 0)
+
+
+# ---------------------------------------------------------------- analysis
+
+def test_calibration_bins_and_ece_on_hand_made_data():
+    p = [0.05, 0.05, 0.95, 0.95, 0.95, 0.95, 1.0, 0.55, float("nan")]
+    s = [0, 0, 1, 1, 1, 0, 1, 1, 1]
+    rows, ece = pt.calibration(p, s, bins=10)
+    assert len(rows) == 10 and rows[0]["lo"] == 0.0 and rows[-1]["hi"] == 1.0
+    assert [r["count"] for r in rows] == [2, 0, 0, 0, 0, 1, 0, 0, 0, 5]   # nan left out, 1.0 in the last
+    assert rows[0]["predicted"] == 0.05 and rows[0]["observed"] == 0.0
+    assert rows[9]["predicted"] == 0.96 and rows[9]["observed"] == 0.8
+    assert rows[1]["predicted"] is None
+    want = (2 * 0.05 + 1 * 0.45 + 5 * 0.16) / 8
+    assert ece == pytest.approx(want, abs=1e-4)
+    perfect, e0 = pt.calibration([0.25] * 4 + [0.75] * 4, [1, 0, 0, 0, 1, 1, 1, 0])
+    assert e0 == 0.0
+    assert pt.calibration([], [])[1] is None
+    with pytest.raises(TopodrakeError):
+        pt.calibration([0.5], [1, 0])
+
+
+def test_summary_min_ours_margin_and_nulls():
+    def house(ours, sptm, v):
+        return {"methods": {"ours": {"success": ours, "vertices": v, "edges": 2 * v},
+                            "lidar": {"success": 0.5}, "oracle": {"success": 0.9},
+                            "sptm": {"success": sptm, "vertices": 3 * v}}}
+
+    s = pt.summarize({"test-0": house(0.9, 0.4, 10), "test-1": house(0.8, 0.5, 20)}, 0.12, 0.95)
+    assert s["houses"]["test-0"] == {"ours": 0.9, "lidar": 0.5, "sptm": 0.4, "oracle": 0.9,
+                                     "vertices": 10, "edges": 20, "sptm_vertices": 30}
+    assert s["min_ours"] == 0.8
+    assert s["min_margin_over_sptm"] == pytest.approx(0.3)
+    assert s["plan_probability_ece"] == 0.12 and s["pruned_60_over_peak"] == 0.95
+    assert s["replanning_gain"] is None and s["unmapped_obstacles"] is None
+    json.dumps(s)
+    only_lidar = pt.summarize({"h": {"methods": {"lidar": {"success": 0.5}}}}, None, None)
+    assert only_lidar["min_ours"] is None and only_lidar["min_margin_over_sptm"] is None
+
+
+def test_pruned_ratio():
+    assert pt.pruned_ratio({"0.3": 0.4, "0.6": 0.72, "1": 0.8}) == 0.9
+    assert pt.pruned_ratio({"0.3": 0.4, "1": 0.8}) is None
+    assert pt.pruned_ratio({"0.6": 0.0, "1": 0.0}) is None
+    assert pt.pruned_ratio({}) is None
+
+
+def test_goal_watch_stops_cars_at_their_goal():
+    w = pt.GoalWatch(np.array([[0.0, 0.0, 0.0], [5.0, 5.0, 0.0], [1.0, 1.0, 0.0]]))
+    stop = w(0, np.array([0, 1]), np.array([[0.5, 0.0, 0, 0, 0], [4.0, 5.0, 0, 0, 0]]))
+    assert stop.tolist() == [True, False]
+    assert w.arrived.tolist() == [True, False, False]
+
+
+def test_render_pose_route_gives_camera_contexts(box_world):
+    from topodrake.navigation.route import Route
+
+    ctx = np.repeat(np.array([[[2.0, 2.0, 0.0]], [[3.0, 2.0, 0.0]]]), 3, axis=1)   # (2, 3, 3)
+    r = pt.render_pose_route(box_world, Route(ctx, ctx[:, 1], probability=0.7, modality="pose"))
+    assert r.modality == "camera" and r.contexts.shape[:2] == (2, 3)
+    assert r.contexts.dtype == np.uint8 and r.contexts.shape[-1] == 3
+    assert r.probability == 0.7
+
+
+# ---------------------------------------------------------------- the study's command line
+
+def test_study_refuses_bad_input_in_one_line(capsys, tmp_path):
+    study = _study()
+    assert study.main(["--houses", "no-such-house", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: unknown world") and err.count("\n") == 1
+    assert study.main(["--methods", "ours,magic", "--out", str(tmp_path)]) == 2
+    assert "unknown methods" in capsys.readouterr().err
+    assert study.main(["--pruned-fractions", "0.5,2", "--out", str(tmp_path)]) == 2
+    assert "(0, 1]" in capsys.readouterr().err
+    assert study.main(["--world", "test-0", "--houses", "test-1", "--out", str(tmp_path)]) == 2
+    assert "not both" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        study.main(["--trials", "0"])
+    assert e.value.code == 2
+    assert study.house_key("/x/maps/willow/map.yaml") == "willow-map"
+    assert study.house_seed(0, "test-0") == study.house_seed(0, "test-0") != study.house_seed(1, "test-0")
+
+
+# ---------------------------------------------------------------- end to end, oracles
+
+def test_plan_and_follow_on_an_oracle_map_in_the_box_world(box_world):
+    """Two expert drives make an oracle map; trials between three places are
+    planned on it and followed by the A* oracle with the geometric RE."""
+    from topodrake.learning.policy import AStarOracle
+    from topodrake.navigation.engine import NavigationEngine
+    from topodrake.navigation.evaluate import GeometricReachability
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+    from topodrake.topomap.build import build_map
+    from topodrake.topomap.graph import TopoMap
+    from topodrake.topomap.plan import plan_path
+    from topodrake.topomap.retrieval import default_embedding
+    from topodrake.topomap.scorer import OracleScorer
+
+    places = np.array([[1.5, 2.0, np.pi / 2], [7.5, 2.0, np.pi / 2], [1.5, 8.0, np.pi / 2]])
+    res = ExpertRollout(box_world, RolloutConfig(t_max_s=60.0)).run(places[[0, 1]],
+                                                                    places[[1, 0], :2])
+    assert res.success.all()
+    scorer = OracleScorer(box_world)
+    m = TopoMap(scorer, default_embedding("pose"), world="box")
+    build_map(m, [(res.trajectory(i)["poses"], res.trajectory(i)["poses"], f"d{i}")
+                  for i in range(2)], progress=False)
+    # goals: where the drives ended (their headings), and a place off the map
+    goals = np.array([res.trajectory(0)["poses"][-1], res.trajectory(1)["poses"][-1], places[2]])
+    pairs = np.array([[0, 1], [1, 0], [0, 2]])
+    starts = pt.jittered_starts(box_world, places, pairs, seed=0)
+    plans = [plan_path(m, starts[t], goals[t], start_pose=starts[t], goal_pose=goals[t])
+             for t in range(len(pairs))]
+    assert plans[0].reachable and plans[1].reachable
+    routes = [p.route if p.reachable else None for p in plans]
+    engine = NavigationEngine(box_world, AStarOracle(box_world, k=5),
+                              GeometricReachability(box_world, k=5))
+    done = []
+    out = pt.follow_routes(engine, starts, routes, goals, t_max_s=60.0, batch=2,
+                           progress=done.append)
+    assert done == [sum(r is not None for r in routes)]
+    assert out.success[:2].all()
+    assert (out.final_distance_m[:2] <= pt.SUCCESS_M).all()
+    assert all(o in ("goal", "reached") for o in out.outcome[:2])
+    if routes[2] is None:
+        assert out.outcome[2] == "no_plan" and not out.success[2] and out.steps[2] == 0
+    rows, ece = pt.calibration([p.probability for p in plans if p.reachable],
+                               out.success[[p.reachable for p in plans]])
+    assert ece is not None and 0.0 <= ece <= 1.0

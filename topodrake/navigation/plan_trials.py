@@ -1,0 +1,214 @@
+"""Planning trials (the paper's Table II protocol) as functions over batches.
+
+A trial starts at one of a world's places, jittered (0.3 m to a random
+side, turned 9 deg to a random side: :func:`topodrake.baselines.sptm.jittered_start`),
+and is given the observation at another place as its goal. The planner
+(ours on a topological map, or SPTM) turns the two observations into a
+:class:`~topodrake.navigation.route.Route`, which the batched navigation
+engine follows. A trial succeeds when the car comes within ``SUCCESS_M``
+(0.54 m, the relaxed radius) of the goal place within ``T_MAX_S``
+(150 s = 1,500 steps) without colliding; a :class:`GoalWatch` stops the
+car there, as an episode ends at its goal. A goal that has no plan is a
+failed trial.
+
+Everything here is seeded by its arguments: the same seed gives the same
+place pairs, jitters and map subsets, and trial ``i`` does not depend on
+how many trials follow it (the seeds are spawned by
+:func:`topodrake.montecarlo.trial_seeds`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+
+SUCCESS_M = 0.54        # the relaxed goal radius of the paper's planning protocol
+T_MAX_S = 150.0         # 1,500 control periods of 0.1 s
+
+
+# ---------------------------------------------------------------- trials
+
+def trial_pairs(n_places: int, n: int, seed: int) -> np.ndarray:
+    """(n, 2) (start place, goal place) indices, never a place with itself;
+    trial i is drawn from its own spawned seed, so a prefix of a longer run
+    is the same trials."""
+    from topodrake.montecarlo import trial_seeds
+
+    if n_places < 2:
+        raise TopodrakeError(f"planning trials need at least 2 places, the world has {n_places}")
+    out = np.zeros((n, 2), np.int64)
+    for t, s in enumerate(trial_seeds(seed, n)):
+        rng = np.random.default_rng(s)
+        a = int(rng.integers(n_places))
+        b = (a + 1 + int(rng.integers(n_places - 1))) % n_places
+        out[t] = a, b
+    return out
+
+
+def jittered_starts(world, places: np.ndarray, pairs: np.ndarray, seed: int) -> np.ndarray:
+    """(n, 3) jittered start poses of the trials ``pairs`` (each from its own
+    seed, independent of the pairs' own draws)."""
+    from topodrake.baselines.sptm import jittered_start
+    from topodrake.montecarlo import trial_seeds
+
+    seeds = trial_seeds(seed + 1, len(pairs))
+    return np.array([jittered_start(world, places[a], np.random.default_rng(s))
+                     for (a, _), s in zip(pairs, seeds)]).reshape(-1, 3)
+
+
+def pruned_subset(n_trajectories: int, fraction: float, seed: int) -> np.ndarray:
+    """The sorted indices of round(fraction * n) (at least 1) trajectories,
+    a seeded random subset; fraction 1 keeps them all. Subsets of one seed
+    are nested: a smaller fraction keeps a prefix of the same permutation."""
+    if not 0.0 < fraction <= 1.0:
+        raise TopodrakeError(f"a map keeps a fraction in (0, 1] of its trajectories, got {fraction}")
+    if n_trajectories < 1:
+        raise TopodrakeError("no trajectories to choose from")
+    keep = max(1, int(round(fraction * n_trajectories)))
+    order = np.random.default_rng(seed).permutation(n_trajectories)
+    return np.sort(order[:keep])
+
+
+# ---------------------------------------------------------------- following
+
+class GoalWatch:
+    """The engine's ``watch``: stops a car within ``radius`` of its goal
+    place (an episode ends at its goal) and remembers that it arrived."""
+
+    def __init__(self, goals: np.ndarray, radius: float = SUCCESS_M):
+        self.goals = np.asarray(goals, np.float64).reshape(-1, 3)
+        self.radius = radius
+        self.arrived = np.zeros(len(self.goals), bool)
+
+    def __call__(self, k: int, cars: np.ndarray, states: np.ndarray) -> np.ndarray:
+        d = np.hypot(*(states[:, :2] - self.goals[cars, :2]).T)
+        at = d <= self.radius
+        self.arrived[cars[at]] = True
+        return at
+
+
+@dataclass
+class FollowResult:
+    outcome: list[str]           # the engine's outcome ("diverged" = stopped at the goal)
+    final_distance_m: np.ndarray  # (n,) from the last pose to the goal place
+    success: np.ndarray          # (n,) bool
+    steps: np.ndarray            # (n,) control periods driven
+
+
+def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
+                  t_max_s: float = T_MAX_S, batch: int = 32, radius: float = SUCCESS_M,
+                  progress=None) -> FollowResult:
+    """Drive cars from ``starts`` along ``routes`` (None: no plan, a failed
+    trial that is not driven) toward the goal places ``goals`` (n, 3), in
+    engine batches of ``batch``. ``progress(n_done)`` is called per batch."""
+    from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
+
+    n = len(starts)
+    outcome = ["no_plan"] * n
+    dist = np.array([float(np.hypot(*(np.asarray(starts[i])[:2] - goals[i][:2])))
+                     for i in range(n)])
+    success = np.zeros(n, bool)
+    steps = np.zeros(n, np.int64)
+    todo = [i for i in range(n) if routes[i] is not None]
+    for lo in range(0, len(todo), batch):
+        part = todo[lo:lo + batch]
+        watch = GoalWatch(goals[part], radius)
+        res = engine.run(np.asarray(starts)[part], [routes[i] for i in part], t_max_s=t_max_s,
+                         watch=watch)
+        for j, i in enumerate(part):
+            code = int(res.outcome[j])
+            final = float(np.hypot(*(res.poses[j, int(res.steps[j]), :2] - goals[i][:2])))
+            dist[i] = final
+            steps[i] = int(res.steps[j])
+            success[i] = code != NAV_COLLISION and (watch.arrived[j] or final <= radius)
+            outcome[i] = "goal" if watch.arrived[j] else NAV_OUTCOMES[code]
+        if progress is not None:
+            progress(len(part))
+    return FollowResult(outcome, dist, success, steps)
+
+
+def render_pose_route(world, route, sensor=None):
+    """A route planned on an oracle (pose) map, its contexts rendered as
+    camera images at their poses, for a camera follower."""
+    from topodrake.navigation.route import Route
+    from topodrake.sensing.observe import observe
+
+    ctx = np.asarray(route.contexts, np.float64)
+    if ctx.ndim != 3 or ctx.shape[-1] != 3:
+        raise TopodrakeError(f"a pose route has (A, 2k+1, 3) contexts, got {ctx.shape}")
+    images = observe(world, "camera", ctx.reshape(-1, 3), sensor)
+    return Route(images.reshape(*ctx.shape[:2], *images.shape[1:]), route.poses,
+                 vertices=route.vertices, edge_probability=route.edge_probability,
+                 probability=route.probability, modality="camera")
+
+
+# ---------------------------------------------------------------- analysis
+
+def calibration(probability, success, bins: int = 10) -> tuple[list[dict], float | None]:
+    """Predicted plan probability against observed success: ``bins`` equal
+    bins over [0, 1] (the last one closed), each {lo, hi, count, predicted
+    (mean probability), observed (success rate)}, and the expected
+    calibration error sum_b n_b / n |predicted_b - observed_b| (None
+    without trials). NaN probabilities (SPTM's) are left out."""
+    p = np.asarray(probability, np.float64).reshape(-1)
+    s = np.asarray(success, np.float64).reshape(-1)
+    if len(p) != len(s):
+        raise TopodrakeError(f"{len(p)} probabilities for {len(s)} outcomes")
+    keep = np.isfinite(p)
+    p, s = np.clip(p[keep], 0.0, 1.0), s[keep]
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    idx = np.minimum((p * bins).astype(np.int64), bins - 1)
+    rows, ece = [], 0.0
+    for b in range(bins):
+        m = idx == b
+        c = int(m.sum())
+        row = {"lo": round(float(edges[b]), 4), "hi": round(float(edges[b + 1]), 4), "count": c,
+               "predicted": round(float(p[m].mean()), 4) if c else None,
+               "observed": round(float(s[m].mean()), 4) if c else None}
+        if c:
+            ece += c * abs(float(p[m].mean()) - float(s[m].mean()))
+        rows.append(row)
+    return rows, (round(ece / len(p), 4) if len(p) else None)
+
+
+def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None) -> dict:
+    """The study's summary: per house the methods' success rates, our map's
+    size and SPTM's; ``min_ours`` (our worst house) and
+    ``min_margin_over_sptm`` (the smallest per-house ours - sptm)."""
+    out: dict = {"houses": {}}
+    ours, margins = [], []
+    for name, h in houses.items():
+        row = {m: h["methods"][m]["success"] for m in ("ours", "lidar", "sptm", "oracle")
+               if m in h["methods"]}
+        if "ours" in h["methods"]:
+            row["vertices"] = h["methods"]["ours"]["vertices"]
+            row["edges"] = h["methods"]["ours"]["edges"]
+            ours.append(row["ours"])
+        if "sptm" in h["methods"]:
+            row["sptm_vertices"] = h["methods"]["sptm"]["vertices"]
+        if "ours" in row and "sptm" in row:
+            margins.append(row["ours"] - row["sptm"])
+        out["houses"][name] = row
+    out["min_ours"] = round(min(ours), 4) if ours else None
+    out["min_margin_over_sptm"] = round(min(margins), 4) if margins else None
+    out["plan_probability_ece"] = ece
+    out["pruned_60_over_peak"] = pruned_60_over_peak
+    out["replanning_gain"] = None        # replanning after a failed edge: another study's
+    out["unmapped_obstacles"] = None     # obstacles absent from the demonstrations: ditto
+    return out
+
+
+def pruned_ratio(success_by_fraction: dict, at: float = 0.6) -> float | None:
+    """Success at ``at`` over the best success over all fractions (None
+    when ``at`` was not run or no fraction succeeded at all: 0/0)."""
+    if not success_by_fraction:
+        return None
+    hit = [s for f, s in success_by_fraction.items() if math.isclose(float(f), at, abs_tol=1e-9)]
+    if not hit:
+        return None
+    peak = max(success_by_fraction.values())
+    return round(hit[0] / peak, 4) if peak > 0 else None
