@@ -430,6 +430,20 @@ def plot_pruned(pruned: dict | None, path: Path) -> None:
 
 # ---------------------------------------------------------------- main
 
+def _local_changes() -> list[str]:
+    """Files of the checkout changed since its revision (the follower may be
+    under work while a study runs; the results belong to the code that ran)."""
+    import subprocess
+
+    try:
+        out = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                             cwd=Path(__file__).resolve().parents[1], capture_output=True,
+                             text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return []
+    return [line[3:] for line in out.stdout.splitlines()] if out.returncode == 0 else []
+
+
 def _fractions(text: str) -> list[float]:
     if text.strip().lower() in ("", "none", "off"):
         return []
@@ -548,7 +562,7 @@ def _run(args) -> int:
     pruned_records = pruned.pop("records") if pruned else []
     atomic_write_json(out / "planning.json", {
         "command": "python studies/planning.py " + " ".join(args.argv),
-        "git_revision": git_revision(), "seed": args.seed,
+        "git_revision": git_revision(), "local_changes": _local_changes(), "seed": args.seed,
         "config": {**{k: v for k, v in cfg.items() if k != "quiet"}, "houses": specs,
                    "success_m": SUCCESS_M, "t_max_s": T_MAX_S, "speed_cap_mps": 0.5,
                    "jitter": "0.3 m to a random side, 9 deg to a random side",
