@@ -77,8 +77,7 @@ def make_trajectories(worlds: list[str], n: int, seed: int, lo_m: float = 10.0,
                 path = world.astar(s, g)
                 length = float(np.hypot(*np.diff(path, axis=0).T).sum()) if len(path) > 1 else 0.0
                 if lo_m <= length <= hi_m:
-                    d = path[min(5, len(path) - 1)] - s[:2]
-                    s[2] = np.arctan2(d[1], d[0])         # facing along the path
+                    s[2] = heading_along(path)
                     starts.append(s)
                     goals.append(g[:2])
             res = ExpertRollout(world, RolloutConfig(t_max_s=120.0)).run(np.array(starts),
@@ -91,11 +90,20 @@ def make_trajectories(worlds: list[str], n: int, seed: int, lo_m: float = 10.0,
     return [out[i] for i in sorted(order)]
 
 
+def heading_along(path: np.ndarray, ahead_m: float = 1.0) -> float:
+    """The direction from a path's first point to its point ``ahead_m`` along
+    it (an 8-connected A* path's first cells turn by up to 45 deg, so a
+    nearer point misleads: the car would start across its path)."""
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    d = path[min(int(np.searchsorted(s, ahead_m)), len(path) - 1)] - path[0]
+    return float(np.arctan2(d[1], d[0]))
+
+
 def load_trajectories(data: Path, worlds: list[str], n: int, seed: int) -> list[dict]:
     """The cached trajectories (made from the seed when missing)."""
     import io
 
-    path = data / "trajectory_following" / f"trajectories-s{seed}-n{n}-{'_'.join(worlds)}.npz"
+    path = data / "trajectory_following" / f"trajectories-v2-s{seed}-n{n}-{'_'.join(worlds)}.npz"
     if path.is_file():
         z = np.load(path, allow_pickle=False)
         off = z["offsets"]

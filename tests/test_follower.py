@@ -44,12 +44,12 @@ def test_search_picks_the_best_anchor_above_p_search_and_drives_toward_it():
 
 
 def test_search_gives_up_below_p_search():
-    ev = Scripted(p=[0.5, 0.91, 0.2], prox=[0.9] * 3, dist=[0.1] * 3)
+    ev = Scripted(p=[0.5, 0.79, 0.2], prox=[0.9] * 3, dist=[0.1] * 3)
     s, out = step(FollowerState.initial(1), ev, 3)
     assert s.mode[0] == FAILED and s.reason[0] == SEARCH_FAILED
     assert outcome_of(s) == ["search_failed"]
     assert np.isnan(out.waypoint).all() and out.target[0] == -1
-    assert s.best_p[0] == pytest.approx(0.91)
+    assert s.best_p[0] == pytest.approx(0.79)
 
 
 def following(active=1, visited=0):

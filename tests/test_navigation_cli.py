@@ -48,3 +48,17 @@ def test_navigate_json_prints_the_outcome_keys(capsys, tmp_path):
     assert out["outcome"] == "timeout" and out["time_s"] == pytest.approx(2.0)
     assert 0.0 < out["probability"] <= 1.0 and out["distance_m"] > 0.1
     assert plot.stat().st_size > 10_000
+
+
+def test_demo_refuses_a_missing_map_file(capsys):
+    code = main(["demo", "--map", "nowhere.tdmap", "--out", "/tmp/unused-demo"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "nowhere.tdmap" in err and len(err.splitlines()) == 1
+
+
+def test_map_build_refuses_unknown_places(capsys, tmp_path):
+    code = main(["map", "build", "test-0", "--modality", "oracle", "--places", "4,99",
+                 "--out", str(tmp_path / "m.tdmap"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "no place 99" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "m.tdmap").exists()

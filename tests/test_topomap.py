@@ -188,6 +188,27 @@ def test_an_unreachable_goal_is_a_result_with_a_reason():
     assert not r.reachable and "no path" in r.reason
 
 
+def test_a_goal_link_needs_the_goal_to_reach_back_unless_told_otherwise():
+    """RE toward the goal's repeated image is overconfident; a link's
+    probability is the smaller of RE(v, goal) and RE(goal, v)."""
+    def overconfident_toward_the_goal(a, b):
+        if b == (9, 9):                       # the goal: every vertex claims it
+            return 0.98
+        if a == (9, 9):                       # from the goal only frame 9 is in reach
+            return 0.999 if b == (0, 9) else 0.2
+        return same_drive_hops(a, b)
+
+    m = table_map(overconfident_toward_the_goal)
+    add_trajectory(m, drive(0, 10))
+    r = plan_path(m, np.array([0, 0]), np.array([9, 9]))
+    # the path runs the whole drive to the one vertex the goal reaches back
+    assert r.reachable and [m.graph.nodes[v]["frame"] for v in r.vertices] == [3, 6, 9]
+    m = table_map(overconfident_toward_the_goal, goal_mutual=False)
+    add_trajectory(m, drive(0, 10))
+    r = plan_path(m, np.array([0, 0]), np.array([9, 9]))
+    assert r.reachable and r.vertices == []          # straight from the start to the goal
+
+
 def test_plan_avoids_excluded_edges():
     m = table_map(parallel_drives, reuse=False)
     add_trajectory(m, drive(0, 13))

@@ -1,12 +1,13 @@
 """``topodrake demo``: the learned system end to end, or (``--expert``) the expert.
 
-The learned demo: the expert's drive between two places of a test house is
-the experience; the camera RE sparsifies it into a chain of anchors (the
-map), the plan is that chain from the start place to the goal place, and
-the car follows it in the Drake navigation diagram with the learned camera
-C_WP and RE (:func:`run_learned_demo`). It writes the drive over the floor
-plan (the map's anchors and the path coloured by the follower's mode) and a
-Meshcat HTML recording whose camera frames the whole house.
+The learned demo (:func:`run_learned_demo`): the expert's drive between two
+places of a test house is the experience; the camera RE sparsifies it into
+a chain of anchors, and the car follows the chain in the Drake navigation
+diagram with the learned camera C_WP and RE. With ``--map`` the route is
+instead a plan on a map file (``topodrake map build``) from the start
+place's observation to the goal place's. It writes the drive over the
+floor plan (the anchors, the map, and the path coloured by the follower's
+mode) and a Meshcat HTML recording whose camera frames the whole house.
 
 The expert demo (:func:`run_demo`) drives the expert between the places and
 writes a top-down plan (walls, places, the A* path, the driven path, lidar
@@ -100,13 +101,16 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
                      out_dir: str = "out/demo", seed: int = 0, noise_std: float = 0.0,
                      p: float = 0.99, controller: str = "checkpoints/camera_k5/checkpoint.pt",
                      reach: str = "checkpoints/reach_camera_k5/checkpoint.pt",
-                     meshcat: bool = True) -> dict:
-    """The learned camera follower between two places; returns the written
-    files and a summary (outcome, times, real-time factor warm and cold)."""
+                     meshcat: bool = True, map_path=None) -> dict:
+    """The learned camera follower between two places: a plan on
+    ``map_path``, or without a map a chain of anchors from one expert drive;
+    returns the written files and a summary (outcome, times, real-time
+    factor warm and cold)."""
     from topodrake.errors import TopodrakeError
-    from topodrake.navigation.cli import chain_from_expert
+    from topodrake.navigation.cli import chain_from_expert, plan_on_map
     from topodrake.navigation.drive import drive_route, plot_drive
     from topodrake.systems.navigation import NavigationScenario, load_networks
+    from topodrake.topomap.mapfile import read_map_meta
     from topodrake.world import load_world
 
     wall = time.perf_counter()
@@ -115,6 +119,11 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
     # one car: batch-1 inference runs faster on one thread than on two here
     # (and far faster when other processes share the cores)
     torch.set_num_threads(1)
+    map_path = Path(map_path) if map_path else None
+    if map_path is not None:
+        if not map_path.is_file():
+            raise TopodrakeError(f"map file {map_path} does not exist")
+        world_name = read_map_meta(map_path)["world"]
     world = load_world(world_name)
     n = len(world.places)
     for what, i in (("start", start_place), ("goal", goal_place)):
@@ -122,13 +131,18 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
             raise TopodrakeError(f"--{what}-place must be in 0..{n - 1} for {world.name!r}, got {i}")
     if start_place == goal_place:
         raise TopodrakeError("--start-place and --goal-place must differ")
-    scenario = NavigationScenario(world=world_name, noise_std=noise_std, seed=seed,
-                                  controller=controller, reach=reach)
-    policy, reach_net = load_networks(scenario)
     start, goal = world.places[start_place].copy(), world.places[goal_place].copy()
     t0 = time.perf_counter()
-    _, route = chain_from_expert(world_name, start, goal, policy, reach_net, p)
+    layers = None
+    if map_path is not None:
+        world, route, policy, reach_net, layers = plan_on_map(map_path, start, goal)
+    else:
+        scenario = NavigationScenario(world=world_name, controller=controller, reach=reach)
+        policy, reach_net = load_networks(scenario)
+        _, route = chain_from_expert(world_name, start, goal, policy, reach_net, p)
     map_s = time.perf_counter() - t0
+    scenario = NavigationScenario(world=world_name, noise_std=noise_std, seed=seed,
+                                  controller=controller, reach=reach)
     out = Path(out_dir)
     files: dict[str, Path] = {}
     html = out / "meshcat.html" if meshcat else None
@@ -137,7 +151,7 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
     if html is not None:
         files["meshcat"] = html
     files["plan"] = plot_drive(
-        world, route, result, out / "plan.png", start=start, goal=goal,
+        world, route, result, out / "plan.png", start=start, goal=goal, map_layers=layers,
         title=f"{world.name}: place {start_place} -> {goal_place}, {result.outcome} in "
               f"{result.time_s:.1f} s ({len(route)} anchors, plan probability "
               f"{route.probability:.3f}, noise {noise_std})")
@@ -145,7 +159,8 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
     summary = {"outcome": result.outcome, "time_s": round(result.time_s, 2),
                "probability": round(float(route.probability), 4),
                "distance_m": round(result.distance_m, 2), "distance_to_goal_m": round(goal_m, 3),
-               "anchors": len(route), "world": world.name, "start_place": start_place,
+               "anchors": len(route), "map": str(map_path) if map_path else "one expert drive",
+               "world": world.name, "start_place": start_place,
                "goal_place": goal_place, "seed": seed, "noise": noise_std,
                "map_s": round(map_s, 2), "startup_s": round(result.startup_s, 2),
                "realtime_factor": round(result.time_s / max(result.wall_time_s, 1e-9), 1),
@@ -173,7 +188,7 @@ def cmd_demo(args) -> None:
                           noise, args.meshcat)
     else:
         result = run_learned_demo(args.world, args.start_place, args.goal_place, args.out,
-                                  args.seed, args.noise or 0.0)
+                                  args.seed, args.noise or 0.0, map_path=args.map)
     for what, path in result["files"].items():
         print(f"wrote {what}: {path}")
     print(json.dumps(result["summary"]))
@@ -189,6 +204,8 @@ def add_demo_parser(sub) -> None:
                                        "places in the Drake diagram (--expert: the expert drives)")
     demo.add_argument("--world", default="test-0",
                       help="catalogue name or map YAML/JSON (default: test-0)")
+    demo.add_argument("--map", help="plan on this map file (.tdmap; its world replaces --world) "
+                                    "instead of following one expert drive (default: none)")
     demo.add_argument("--start-place", type=int, default=4,
                       help="index of the start place (default: 4)")
     demo.add_argument("--goal-place", type=int, default=9,

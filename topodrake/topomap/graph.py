@@ -40,6 +40,7 @@ class MapConfig:
     retrieval_k: int = 32        # vertices ranked by the embedding that RE checks
     sequence_retrieval: bool = True  # cross edges: rank by the aligned neighbours' embeddings too
     p_link: float = 0.5          # planning: start and goal links above this
+    goal_mutual: bool = True     # planning: a goal link's p is min(RE(v, goal), RE(goal, v))
     sparsify_window: int = 4     # first window of candidates in the greedy scan
     reuse: bool = True
 

@@ -51,7 +51,8 @@ def cmd_map_build(args) -> None:
     from topodrake.topomap.graph import TopoMap
     from topodrake.topomap.mapfile import load_map, save_map
     from topodrake.topomap.retrieval import default_embedding
-    from topodrake.topomap.sources import demo_drives, drive_observations, make_scorer, scorer_for_map
+    from topodrake.topomap.sources import (demo_drives, drive_observations, drives_between,
+                                           make_scorer, scorer_for_map)
     from topodrake.world import load_world
 
     wall = time.perf_counter()
@@ -68,10 +69,18 @@ def cmd_map_build(args) -> None:
         scorer = make_scorer(args.modality, world, args.reach, args.controller)
         topomap = TopoMap(scorer, default_embedding(scorer.observation), _load_config(args.config),
                           world=args.world)
+    if args.places is not None:
+        drives_between(world, [], args.places)          # checks the place indices first
     folder, drives = demo_drives(args.world, args.demos, progress=not args.quiet)
     have = {t.name for t in topomap.trajectories}
     names = [f"{folder.name}/{i}" for i in range(len(drives))]
     todo = [i for i, n in enumerate(names) if n not in have]
+    if args.places is not None:
+        between = set(drives_between(world, drives, args.places))
+        if not between:
+            raise TopodrakeError(f"no drive of {folder} runs between places "
+                                 f"{','.join(map(str, args.places))}")
+        todo = [i for i in todo if i in between]
     if args.trajectories is not None:
         todo = todo[:args.trajectories]
     if not todo:
@@ -93,6 +102,18 @@ def cmd_map_build(args) -> None:
         print(f"wrote {out}: {summary['vertices']} vertices, {summary['edges']} edges from "
               f"{summary['trajectories']} trajectories ({summary['raw_frames']} frames, keep "
               f"ratio {summary['keep_ratio']:.4f}) in {summary['wall_s']} s")
+
+
+def _place_list(text: str) -> list[int]:
+    import argparse
+
+    try:
+        places = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected place indices like 0,4,9, got {text!r}") from None
+    if len(places) < 2:
+        raise argparse.ArgumentTypeError(f"expected at least two places, got {text!r}")
+    return places
 
 
 class _Sized:
@@ -192,6 +213,8 @@ def add_map_parser(sub) -> None:
                                    "collected first when missing)")
     b.add_argument("--trajectories", type=at.count,
                    help="add at most this many drives, in order (default: all)")
+    b.add_argument("--places", type=_place_list,
+                   help="only the drives between these places, comma-separated (default: all)")
     b.add_argument("--out", required=True, help="map file to write (.tdmap)")
     b.add_argument("--add", action="store_true",
                    help="grow the map in --out with drives it does not hold yet")

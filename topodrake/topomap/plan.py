@@ -5,7 +5,9 @@ the destination; neither needs to be a vertex. Both become temporary
 vertices: the start is linked to the map vertices v with RE(start, v) above
 ``p_link`` (0.5), and the vertices v with RE(v, goal) above it are linked to
 the goal (whose context is the goal observation repeated, or a full context
-when one is given); the candidates come from the same retrieval as map
+when one is given), with the smaller of RE(v, goal) and RE(goal, v) as the
+link's probability (``goal_mutual``: RE toward a repeated image is
+overconfident); the candidates come from the same retrieval as map
 building. Dijkstra on the edge weights -log p gives the most probable path;
 its probability is exp(-cost). An unreachable goal is a result
 (:attr:`PlanResult.reachable` False with a reason), never an exception.
@@ -87,6 +89,14 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         p_goal = m.bank.score(m.centers(to_goal), np.repeat(g_rows[None], len(to_goal), 0))
         p_direct = float(m.bank.score([s_row], g_rows[None])[0])
         links_s = [(int(v), float(p)) for v, p in zip(from_start, p_start) if p > m.config.p_link]
+        if m.config.goal_mutual:
+            # RE toward a goal whose context is one image repeated is overconfident (0.9 from
+            # vertices 5 m away, behind a door); RE from the goal back to v reads v's own
+            # context: a link's probability is the smaller of the two
+            back = m.bank.score(np.full(len(to_goal), g_rows[0]), m.contexts(to_goal))
+            p_goal = np.minimum(p_goal, back)
+            p_direct = min(p_direct, float(m.bank.score([g_rows[0]],
+                                                        np.full((1, frames), s_row))[0]))
         links_g = [(int(v), float(p)) for v, p in zip(to_goal, p_goal) if p > m.config.p_link]
         result = PlanResult(False, start_links=len(links_s), goal_links=len(links_g))
         if not links_s and p_direct <= m.config.p_link:

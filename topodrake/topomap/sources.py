@@ -123,6 +123,26 @@ def demo_drives(world_spec: str, demos=None, progress: bool = True) -> tuple[Pat
     return folder, drives
 
 
+def place_of(world, xy, tolerance_m: float = 0.3) -> int:
+    """The index of the place of ``world`` within ``tolerance_m`` of ``xy`` (-1: none)."""
+    if not len(world.places):
+        return -1
+    d = np.hypot(*(np.asarray(world.places)[:, :2] - np.asarray(xy, np.float64)[:2]).T)
+    i = int(np.argmin(d))
+    return i if d[i] <= tolerance_m else -1
+
+
+def drives_between(world, drives: list, places) -> list[int]:
+    """Indices of the ``drives`` that start and end at places of ``places``."""
+    n = len(world.places)
+    wanted = set(int(p) for p in places)
+    bad = sorted(p for p in wanted if not 0 <= p < n)
+    if bad:
+        raise TopodrakeError(f"{world.name!r} has places 0..{n - 1}; there is no place {bad[0]}")
+    return [i for i, d in enumerate(drives)
+            if place_of(world, d.poses[0]) in wanted and place_of(world, d.poses[-1]) in wanted]
+
+
 def drive_observations(world, scorer, poses: np.ndarray) -> np.ndarray:
     """What ``scorer`` observes along a drive (poses for the oracle)."""
     if scorer.observation == "pose":
