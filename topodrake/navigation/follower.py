@@ -235,7 +235,9 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         prox = ans.overlap.mean(axis=1)
         # close (a short waypoint) or already passed (the waypoint points backwards)
         length = np.hypot(*ans.waypoint.T)
-        there = (prox > cfg.p_visited) & ((length < cfg.visit_m) | (ans.waypoint[:, 0] < 0.0))
+        # (the route's last anchor, the goal, only when close: passing it is not arriving)
+        passed = (ans.waypoint[:, 0] < 0.0) & (anchors < n_anchors[f[rows]] - 1)
+        there = (prox > cfg.p_visited) & ((length < cfg.visit_m) | passed)
         visited = state.visited[f].copy()
         for m in np.flatnonzero(there):
             visited[rows[m]] = max(visited[rows[m]], anchors[m])
