@@ -88,6 +88,16 @@ def test_visiting_the_last_anchor_ends_the_plan():
     assert np.isnan(out.waypoint).all()
 
 
+def test_a_passed_anchor_counts_as_visited_but_a_passed_goal_does_not():
+    # the waypoint points backwards (negative length = behind the car)
+    ev = Scripted(p=[0.99] * 3, prox=[0.9] * 3, dist=[-0.6] * 3)
+    s, _ = step(following(active=1, visited=0), ev, 3)
+    assert s.visited[0] == 1 and s.mode[0] == FOLLOW and s.active[0] == 2
+    s, out = step(following(active=2, visited=1), ev, 3)
+    assert s.mode[0] == FOLLOW and s.visited[0] == 1          # beside the goal is not at it
+    np.testing.assert_allclose(out.waypoint[0], [0.4, 2.0])   # C_WP turns the car back to it
+
+
 def test_low_re_enters_dead_reckoning_holding_the_waypoint_in_the_odometry_frame():
     ev = Scripted(p=[0.99, 0.5, 0.5, 0.5], prox=[0.3] * 4, dist=[1.0] * 4)
     s, out = step(following(), ev, 4)
