@@ -162,3 +162,34 @@ def test_runner_refuses_a_start_in_a_wall(box_world, route, oracles):
                                                       policy=oracles[0], reach=oracles[1]))
     with pytest.raises(TopodrakeError):
         runner.run([5.0, 3.0, 0.0])
+
+
+def test_a_car_that_gives_up_is_replanned_without_the_failing_edge(box_world, route, oracles):
+    """A plan whose second anchor lies behind the partition: the follower
+    gives up on that hop, the edge is excluded, and the new plan gets the
+    car to the goal; without replanning the trial fails."""
+    from topodrake.navigation.engine import NavigationConfig, NavigationEngine
+    from topodrake.navigation.follower import FollowerConfig
+    from topodrake.navigation.replan import follow_with_replanning
+    from topodrake.navigation.route import Route
+
+    bad = Route(route.contexts[[0, -1]], route.poses[[0, -1]], vertices=np.array([7, 8]),
+                modality=route.modality)
+    engine = NavigationEngine(box_world, *oracles,
+                              NavigationConfig(follower=FollowerConfig(dr_max_iterations=10)))
+    goal = route.poses[-1][None]
+    asked = []
+
+    def replan(i, pose, excluded):
+        asked.append((i, pose, excluded))
+        return None if (7, 8) not in excluded else route
+
+    start = np.array([[1.0, 1.6, 0.4]])
+    res = follow_with_replanning(engine, start, [bad], goal, replan, t_max_s=60.0)
+    assert res.success[0] and res.outcome[0] == "goal" and res.plans[0] == 2
+    assert res.excluded[0] == [(7, 8)] and len(asked) == 1
+    assert np.hypot(*(asked[0][1][:2] - start[0, :2])) < 2.0     # replanned where it gave up
+    assert len(res.poses[0]) == res.steps[0] + 1
+    once = follow_with_replanning(engine, start, [bad], goal, replan, t_max_s=60.0, max_replans=0)
+    assert not once.success[0] and once.outcome[0] == "dead_reckoning_gave_up"
+    assert once.plans[0] == 1 and len(asked) == 1
