@@ -134,6 +134,8 @@ class NavigationRunResult(RunResult):
     result: str = ""
     distance_m: float = 0.0
     probability: float = 1.0
+    visited: int = -1          # the follower's last visited anchor at the end
+    active: int = -1           # ... and its active anchor
 
     @property
     def outcome(self) -> str:
@@ -185,4 +187,5 @@ class NavigationRunner(DiagramRunner):
             float(np.hypot(x[0] - goal[0], x[1] - goal[1])), poses, r["noise"], r["wall"],
             r["startup"], modes=modes, result=result,
             distance_m=float(np.hypot(*np.diff(poses[:, :2], axis=0).T).sum()),
-            probability=float(b.route.probability))
+            probability=float(b.route.probability), visited=int(fs.visited[0]),
+            active=int(fs.active[0]))

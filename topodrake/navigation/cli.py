@@ -48,6 +48,8 @@ def check_args(args) -> None:
         raise TopodrakeError(f"--t-max must be finite and > 0, got {args.t_max}")
     if not 0.0 < args.p < 1.0:
         raise TopodrakeError(f"--p must be in (0, 1), got {args.p}")
+    if args.replan < 0:
+        raise TopodrakeError(f"--replan must be >= 0, got {args.replan}")
     if args.drive is not None and args.drive < 0:
         raise TopodrakeError(f"--drive must be >= 0, got {args.drive}")
 
@@ -66,31 +68,49 @@ def _networks(controller: str, reach: str):
             Reachability.from_checkpoint(reach, controller))
 
 
+class MapPlanner:
+    """A map file loaded once, with the RE and C_WP it was built for, that
+    plans from poses (their observations rendered) and replans without
+    given edges."""
+
+    def __init__(self, path: Path, reach_path=None, controller_path=None):
+        from topodrake.learning.policy import LearnedWaypointPolicy
+        from topodrake.topomap.mapfile import load_map, read_map_meta
+        from topodrake.topomap.plot import _map_layers
+        from topodrake.topomap.sources import _resolve, scorer_for_map
+        from topodrake.world import load_world
+
+        self.path = Path(path)
+        meta = read_map_meta(path)
+        self.world = load_world(meta["world"])
+        self.scorer = scorer_for_map(path, reach_path, controller_path)
+        if not hasattr(self.scorer, "reach"):
+            raise TopodrakeError(f"{path} is an oracle map; navigate follows learned maps")
+        controller = controller_path or _resolve(meta.get("identity", {}).get("controller", ""))
+        self.policy = LearnedWaypointPolicy.from_checkpoint(controller)
+        self.reach = self.scorer.reach
+        self.topomap = load_map(path, self.scorer)
+        self.layers = _map_layers(self.topomap)
+
+    def plan(self, start, goal, excluded_edges=()):
+        """The PlanResult from pose ``start`` to pose ``goal``."""
+        from topodrake.topomap.plan import plan_path
+        from topodrake.topomap.sources import drive_observations
+
+        obs = drive_observations(self.world, self.scorer, np.stack([start, goal]))
+        return plan_path(self.topomap, obs[0], obs[1], start_pose=start, goal_pose=goal,
+                         excluded_edges=excluded_edges)
+
+
 def plan_on_map(path: Path, start, goal, reach_path=None, controller_path=None):
-    """(world, route, policy, reach, map layers, plan summary) of a plan on a map file."""
-    from topodrake.topomap.plot import _map_layers
-    from topodrake.topomap.mapfile import load_map, read_map_meta
-    from topodrake.topomap.plan import plan_path
-    from topodrake.topomap.sources import _resolve, drive_observations, scorer_for_map
-    from topodrake.world import load_world
-
-    meta = read_map_meta(path)
-    world = load_world(meta["world"])
-    world.check_pose(start, "start")
-    world.check_pose(goal, "goal")
-    scorer = scorer_for_map(path, reach_path, controller_path)
-    if not hasattr(scorer, "reach"):
-        raise TopodrakeError(f"{path} is an oracle map; navigate follows learned maps")
-    controller = controller_path or _resolve(meta.get("identity", {}).get("controller", ""))
-    from topodrake.learning.policy import LearnedWaypointPolicy
-
-    policy = LearnedWaypointPolicy.from_checkpoint(controller)
-    topomap = load_map(path, scorer)
-    obs = drive_observations(world, scorer, np.stack([start, goal]))
-    plan = plan_path(topomap, obs[0], obs[1], start_pose=start, goal_pose=goal)
+    """(world, route, policy, reach, map layers) of a plan on a map file."""
+    planner = MapPlanner(path, reach_path, controller_path)
+    planner.world.check_pose(start, "start")
+    planner.world.check_pose(goal, "goal")
+    plan = planner.plan(start, goal)
     if not plan.reachable:
         raise TopodrakeError(f"no plan from the start to the goal on {path}: {plan.reason}")
-    return world, plan.route, policy, scorer.reach, _map_layers(topomap)
+    return planner.world, plan.route, planner.policy, planner.reach, planner.layers
 
 
 def chain_from_demos(folder: Path, start, goal, drive, policy, reach, p):
@@ -142,13 +162,22 @@ def cmd_navigate(args) -> None:
     start, goal = _pose(args.start, "start"), _pose(args.goal, "goal")
     source = Path(args.map)
     layers = None
+    planner = None
     extra = {}
     if source.suffix == ".tdmap":
         if not source.is_file():
             raise TopodrakeError(f"map file {source} does not exist")
-        world, route, policy, reach, layers = plan_on_map(source, start, goal, args.reach,
-                                                         args.controller)
+        planner = MapPlanner(source, args.reach, args.controller)
+        world, policy, reach, layers = planner.world, planner.policy, planner.reach, planner.layers
+        world.check_pose(start, "start")
+        world.check_pose(goal, "goal")
+        plan = planner.plan(start, goal)
+        if not plan.reachable:
+            raise TopodrakeError(f"no plan from the start to the goal on {source}: {plan.reason}")
+        route = plan.route
     else:
+        if args.replan:
+            raise TopodrakeError("--replan needs a map file (.tdmap) as MAP")
         policy, reach = _networks(args.controller or DEFAULT_CONTROLLER,
                                   args.reach or DEFAULT_REACH)
         if source.is_dir():
@@ -165,10 +194,14 @@ def cmd_navigate(args) -> None:
                                   camera_enabled=policy.observation == "camera")
     result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
                          meshcat_html=args.meshcat, seed=args.seed)
+    first_p = float(route.probability)
+    if planner is not None and args.replan:
+        result, route, replans = _replan_legs(planner, scenario, route, result, goal, args)
+        extra["replans"] = replans
     goal_dist = float(np.hypot(*(result.poses[-1, :2] - goal[:2])))
     out = {"outcome": result.outcome, "time_s": round(result.time_s, 2),
-           "probability": round(float(route.probability), 4),
-           "distance_m": round(result.distance_m, 2)}
+           "probability": round(first_p, 4),
+           "distance_m": round(result.distance_m, 2), **extra}
     if args.plot:
         plot_drive(world, route, result, args.plot, start=start, goal=goal, map_layers=layers,
                    title=f"{world.name}: {result.outcome} in {result.time_s:.1f} s, plan of "
@@ -178,9 +211,45 @@ def cmd_navigate(args) -> None:
         return
     rtf = result.time_s / max(result.wall_time_s, 1e-9)
     print(f"{result.outcome} in {result.time_s:.1f} s over {result.distance_m:.1f} m; plan of "
-          f"{len(route)} anchors, probability {route.probability:.3f}; {goal_dist:.2f} m from "
+          f"{len(route)} anchors, probability {first_p:.3f}"
+          + (f", {extra['replans']} replans" if "replans" in extra else "") + f"; {goal_dist:.2f} m from "
           f"the goal; real-time factor {rtf:.1f} (start-up {result.startup_s:.1f} s)"
           + "".join(f"; wrote {p}" for p in (args.plot, args.meshcat) if p))
+
+
+def _replan_legs(planner, scenario, route, result, goal, args):
+    """Replan from where the car gave up, without the edges it failed on,
+    at most ``args.replan`` times while time is left; returns the drive of
+    all legs as one result (the last leg's outcome), the last route and the
+    number of replans."""
+    from dataclasses import replace
+
+    from topodrake.navigation.drive import drive_route
+    from topodrake.navigation.replan import GIVE_UP, failing_edge
+
+    legs, excluded, replans = [result], [], 0
+    while (replans < args.replan and result.outcome in GIVE_UP
+           and args.t_max - sum(r.time_s for r in legs) >= 1.0):
+        edge = failing_edge(route, result.visited, result.active)
+        if edge is not None and edge not in excluded:
+            excluded.append(edge)
+        here = result.poses[-1].copy()
+        plan = planner.plan(here, goal, excluded)
+        if not plan.reachable:
+            break
+        route, replans = plan.route, replans + 1
+        leg_scenario = replace(scenario, t_max_s=args.t_max - sum(r.time_s for r in legs))
+        result = drive_route(leg_scenario, route, here, world=planner.world,
+                             policy=planner.policy, reach=planner.reach,
+                             meshcat_html=args.meshcat, seed=args.seed + replans)
+        legs.append(result)
+    if len(legs) > 1:
+        result = replace(result, poses=np.vstack([legs[0].poses] + [r.poses[1:] for r in legs[1:]]),
+                         modes=np.concatenate([r.modes for r in legs]),
+                         time_s=sum(r.time_s for r in legs),
+                         distance_m=sum(r.distance_m for r in legs),
+                         wall_time_s=sum(r.wall_time_s for r in legs))
+    return result, route, replans
 
 
 def add_navigate_parser(sub) -> None:
@@ -202,6 +271,9 @@ def add_navigate_parser(sub) -> None:
                                               "(default: the one nearest the start and goal)")
     nv.add_argument("--p", type=float, default=0.99,
                     help="p_sparsify of a chain (default: 0.99)")
+    nv.add_argument("--replan", type=int, default=0,
+                    help="on a map: replan from where the follower gave up, without the edge it "
+                         "failed on, at most this many times (default: 0)")
     nv.add_argument("--plot", metavar="PNG",
                     help="draw the map, the plan and the driven path (default: none)")
     nv.add_argument("--meshcat", metavar="HTML",
