@@ -13,7 +13,13 @@ subset; existing maps are reused):
   rendered as camera images and followed by camera k=5 C_WP with the learned
   camera RE (the navigation engine needs C_WP and RE on one modality);
 - ``sptm``: SPTM's graph (every 20th frame, retrieval shortcuts, top-1
-  localization, hop-count path), followed by camera k=5 C_WP + RE.
+  localization, hop-count path), followed by camera k=5 C_WP + RE;
+- ``ours_replan``: ``ours`` with replanning: a car whose dead reckoning
+  lasts ``REPLAN_AFTER`` periods (or whose Search fails) is replanned from
+  where it stands without the edge it failed on, up to ``MAX_REPLANS``
+  times (:mod:`topodrake.navigation.replan`); ``replanning_gain`` is the
+  smallest per-house gain over ``ours`` among the houses where ``ours`` is
+  below 0.97.
 
 A trial starts at one place jittered (0.3 m sideways, 9 deg) and gets the
 observation at another place as its goal; it succeeds when the car comes
@@ -37,7 +43,7 @@ paper's protocol is ``--trials 1000`` with the ten fractions.
 ``--json`` prints ``{"houses": {"test-0": {"ours": s, "lidar": s, "sptm": s,
 "oracle": s, "vertices": n, "edges": n, "sptm_vertices": n}, ...},
 "min_ours": s, "min_margin_over_sptm": m, "plan_probability_ece": e,
-"pruned_60_over_peak": r, "replanning_gain": null, "unmapped_obstacles": null}``
+"pruned_60_over_peak": r, "replanning_gain": g, "unmapped_obstacles": null}``
 and writes ``results/planning.json`` (command, seed, config, per-trial
 records), ``planning.png``, ``plan_calibration.png`` and ``pruned_maps.png``.
 """
@@ -58,11 +64,13 @@ from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 
-METHODS = ("ours", "lidar", "sptm", "oracle")
+METHODS = ("ours", "lidar", "sptm", "oracle", "ours_replan")
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
 #: method -> (map scorer modality, follower's networks' modality)
 MAP_OF = {"ours": ("camera", "camera"), "lidar": ("lidar", "lidar"), "oracle": ("oracle", "camera"),
-          "sptm": (None, "camera")}
+          "sptm": (None, "camera"), "ours_replan": ("camera", "camera")}
+REPLAN_AFTER = 30       # ours_replan: dead-reckoning periods before a replan (3 s)
+MAX_REPLANS = 5
 DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (noise-free)
 SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
 
@@ -182,7 +190,8 @@ def networks(modality: str):
 
 def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
                 cfg: dict, tag: str = "all"):
-    """(plans' routes (None = no plan), plan probabilities, map size dict)."""
+    """(plans' routes (None = no plan), plan probabilities, map size dict,
+    ``replan(trial, pose, excluded_edges)`` on our maps (None for SPTM))."""
     from topodrake.navigation.plan_trials import render_pose_route
     from topodrake.topomap.plan import plan_path
     from topodrake.topomap.sources import drive_observations
@@ -213,6 +222,12 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         size = {"vertices": len(m), "edges": m.n_edges, "build_s": round(build_s, 1)}
         so = drive_observations(world, m.scorer, starts)
         go = drive_observations(world, m.scorer, places)
+
+        def replan(t, pose, excluded):
+            obs = drive_observations(world, m.scorer, np.asarray(pose)[None])[0]
+            p = plan_path(m, obs, go[goal_idx[t]], start_pose=pose, goal_pose=places[goal_idx[t]],
+                          excluded_edges=excluded)
+            return p.route if p.reachable else None
         plans = [plan_path(m, so[t], go[g], start_pose=starts[t], goal_pose=places[g])
                  for t, g in enumerate(goal_idx)]
     routes = [p.route if p.reachable else None for p in plans]
@@ -223,7 +238,8 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     prob = np.array([p.probability if p.reachable else 0.0 for p in plans])
     if method == "sptm":
         prob[:] = np.nan
-    return routes, prob, size
+        replan = None
+    return routes, prob, size, replan
 
 
 def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cfg: dict,
@@ -234,13 +250,24 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
 
     places = np.asarray(world.places, np.float64)
     t0 = time.perf_counter()
-    routes, prob, size = plan_routes(method, spec, world, drives, indices, starts, places,
-                                     pairs[:, 1], cfg, tag)
+    routes, prob, size, replan = plan_routes(method, spec, world, drives, indices, starts, places,
+                                             pairs[:, 1], cfg, tag)
     plan_s = time.perf_counter() - t0
     policy, reach = networks(MAP_OF[method][1])
-    engine = NavigationEngine(world, policy, reach, NavigationConfig())
-    res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
-                        SUCCESS_M, progress=None if bar is None else bar.update)
+    if method == "ours_replan":
+        from topodrake.navigation.follower import FollowerConfig
+        from topodrake.navigation.replan import follow_with_replanning
+
+        engine = NavigationEngine(world, policy, reach, NavigationConfig(
+            follower=FollowerConfig(dr_max_iterations=REPLAN_AFTER)))
+        res = follow_with_replanning(engine, starts, routes, places[pairs[:, 1]], replan, T_MAX_S,
+                                     MAX_REPLANS, SUCCESS_M, cfg["batch"])
+        if bar is not None:
+            bar.update(len(pairs))
+    else:
+        engine = NavigationEngine(world, policy, reach, NavigationConfig())
+        res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
+                            SUCCESS_M, progress=None if bar is None else bar.update)
     key = house_key(spec)
     records = [{"house": key, "method": method, "map": tag, "trial": t,
                 "start_place": int(a), "goal_place": int(b),
@@ -250,7 +277,8 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                 "plan_anchors": 0 if routes[t] is None else len(routes[t]),
                 "outcome": res.outcome[t], "success": bool(res.success[t]),
                 "final_distance_m": round(float(res.final_distance_m[t]), 3),
-                "steps": int(res.steps[t])}
+                "steps": int(res.steps[t]),
+                **({"plans": int(res.plans[t])} if hasattr(res, "plans") else {})}
                for t, (a, b) in enumerate(pairs)]
     stats = {**size, **_rates(records), "map_and_plan_s": round(plan_s, 1),
              "follow_s": round(time.perf_counter() - t0 - plan_s, 1)}

@@ -103,6 +103,18 @@ def test_summary_min_ours_margin_and_nulls():
     assert only_lidar["min_ours"] is None and only_lidar["min_margin_over_sptm"] is None
 
 
+def test_replanning_gain_is_the_smallest_gain_where_ours_is_below_0_97():
+    def house(ours, replan):
+        return {"methods": {"ours": {"success": ours, "vertices": 1, "edges": 1},
+                            "ours_replan": {"success": replan}}}
+
+    s = pt.summarize({"a": house(0.5, 0.6), "b": house(0.8, 0.85), "c": house(0.98, 0.9)},
+                     None, None)
+    assert s["replanning_gain"] == pytest.approx(0.05)      # "c" is above 0.97: not counted
+    assert s["houses"]["a"]["ours_replan"] == 0.6
+    assert pt.summarize({"c": house(0.98, 0.9)}, None, None)["replanning_gain"] is None
+
+
 def test_pruned_ratio():
     assert pt.pruned_ratio({"0.3": 0.4, "0.6": 0.72, "1": 0.8}) == 0.9
     assert pt.pruned_ratio({"0.3": 0.4, "1": 0.8}) is None
