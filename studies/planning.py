@@ -19,7 +19,13 @@ subset; existing maps are reused):
   where it stands without the edge it failed on, up to ``MAX_REPLANS``
   times (:mod:`topodrake.navigation.replan`); ``replanning_gain`` is the
   smallest per-house gain over ``ours`` among the houses where ``ours`` is
-  below 0.97.
+  below 0.97;
+- ``ours_obstacles``: ``ours`` on the first ``--obstacle-trials`` trials,
+  each alone in a copy of its house with ``--obstacles`` boxes (0.3-0.6 m)
+  that the map never saw, placed on its planned route away from its start
+  and goal without closing the way; the lidar RMP has to steer around them
+  (``unmapped_obstacles``: success over these trials of all houses; a route
+  with no room for the boxes is left out and counted as ``no_room``).
 
 A trial starts at one place jittered (0.3 m sideways, 9 deg) and gets the
 observation at another place as its goal; it succeeds when the car comes
@@ -43,7 +49,7 @@ paper's protocol is ``--trials 1000`` with the ten fractions.
 ``--json`` prints ``{"houses": {"test-0": {"ours": s, "lidar": s, "sptm": s,
 "oracle": s, "vertices": n, "edges": n, "sptm_vertices": n}, ...},
 "min_ours": s, "min_margin_over_sptm": m, "plan_probability_ece": e,
-"pruned_60_over_peak": r, "replanning_gain": g, "unmapped_obstacles": null}``
+"pruned_60_over_peak": r, "replanning_gain": g, "unmapped_obstacles": s}``
 and writes ``results/planning.json`` (command, seed, config, per-trial
 records), ``planning.png``, ``plan_calibration.png`` and ``pruned_maps.png``.
 """
@@ -64,11 +70,12 @@ from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 
-METHODS = ("ours", "lidar", "sptm", "oracle", "ours_replan")
+METHODS = ("ours", "lidar", "sptm", "oracle", "ours_replan", "ours_obstacles")
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
 #: method -> (map scorer modality, follower's networks' modality)
 MAP_OF = {"ours": ("camera", "camera"), "lidar": ("lidar", "lidar"), "oracle": ("oracle", "camera"),
-          "sptm": (None, "camera"), "ours_replan": ("camera", "camera")}
+          "sptm": (None, "camera"), "ours_replan": ("camera", "camera"),
+          "ours_obstacles": ("camera", "camera")}
 REPLAN_AFTER = 30       # ours_replan: dead-reckoning periods before a replan (3 s)
 MAX_REPLANS = 5
 DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (noise-free)
@@ -254,7 +261,19 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                                              pairs[:, 1], cfg, tag)
     plan_s = time.perf_counter() - t0
     policy, reach = networks(MAP_OF[method][1])
-    if method == "ours_replan":
+    if method == "ours_obstacles":
+        from topodrake.navigation.plan_trials import follow_past_obstacles
+
+        n = min(cfg["obstacle_trials"], len(pairs))
+        pairs, starts, routes, prob = pairs[:n], starts[:n], routes[:n], prob[:n]
+        seeds = [np.random.SeedSequence([cfg["seed"], zlib.crc32(house_key(spec).encode()), t])
+                 for t in range(n)]
+        res, boxes = follow_past_obstacles(
+            world, lambda w: NavigationEngine(w, policy, reach, NavigationConfig()), starts,
+            routes, places[pairs[:, 1]], seeds, cfg["obstacles"], T_MAX_S, SUCCESS_M)
+        if bar is not None:
+            bar.update(n)
+    elif method == "ours_replan":
         from topodrake.navigation.follower import FollowerConfig
         from topodrake.navigation.replan import follow_with_replanning
 
@@ -278,9 +297,13 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                 "outcome": res.outcome[t], "success": bool(res.success[t]),
                 "final_distance_m": round(float(res.final_distance_m[t]), 3),
                 "steps": int(res.steps[t]),
-                **({"plans": int(res.plans[t])} if hasattr(res, "plans") else {})}
+                **({"plans": int(res.plans[t])} if hasattr(res, "plans") else {}),
+                **({"boxes": None if boxes[t] is None else np.round(boxes[t], 3).tolist()}
+                   if method == "ours_obstacles" else {})}
                for t, (a, b) in enumerate(pairs)]
-    stats = {**size, **_rates(records), "map_and_plan_s": round(plan_s, 1),
+    rated = [r for r in records if r["outcome"] != "no_room"]
+    stats = {**size, **_rates(rated or records), "no_room": len(records) - len(rated),
+             "map_and_plan_s": round(plan_s, 1),
              "follow_s": round(time.perf_counter() - t0 - plan_s, 1)}
     return stats, records
 
@@ -503,6 +526,10 @@ def main(argv=None) -> int:
                     help="trials per method and house (paper: 1000)")
     ap.add_argument("--trajectories", type=at.count,
                     help="drives per map, in order (default: all 90)")
+    ap.add_argument("--obstacle-trials", type=at.count, default=10,
+                    help="trials per house of ours_obstacles (the first of the trials)")
+    ap.add_argument("--obstacles", type=at.count, default=3,
+                    help="unmapped boxes per ours_obstacles trial")
     ap.add_argument("--batch", type=at.count, default=32, help="cars per navigation-engine batch")
     ap.add_argument("--pruned-fractions", default="0.3,0.6,1",
                     help="fractions of the drives for the pruned maps, or 'none' "
@@ -560,7 +587,8 @@ def _run(args) -> int:
     if fractions:
         load_world(pruned_spec)
     cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
-           "trajectories": args.trajectories, "batch": args.batch,
+           "trajectories": args.trajectories, "batch": args.batch, "seed": args.seed,
+           "obstacle_trials": args.obstacle_trials, "obstacles": args.obstacles,
            "pruned_fractions": fractions, "pruned_method": args.pruned_method,
            "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed}
     jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}

@@ -172,3 +172,20 @@ def test_state_vector_round_trip_and_config_checks():
         FollowerConfig(p_follow=1.5).check()
     with pytest.raises(TopodrakeError, match="lookahead"):
         FollowerConfig(lookahead=0).check()
+
+
+def test_an_anchor_not_reached_for_stall_periods_is_skipped_but_never_the_last():
+    # anchor 1 stays 1 m ahead (an obstacle stands on it), RE keeps trusting it
+    ev = Scripted(p=[0.99] * 4, prox=[0.3] * 4, dist=[1.0] * 4)
+    s = following(active=1, visited=0)
+    for k in range(4):
+        s, _ = step(s, ev, 4, stall_periods=5)
+        assert s.active[0] == 1 and s.visited[0] == 0 and s.stall[0] == k + 1
+    s, _ = step(s, ev, 4, stall_periods=5)
+    assert s.stall[0] == 5 and s.active[0] == 1
+    s, out = step(s, ev, 4, stall_periods=5)          # skipped: anchor 2 is active
+    assert s.visited[0] == 1 and s.active[0] == 2 and s.stall[0] == 0 and out.target[0] == 2
+    last = following(active=3, visited=2)
+    for _ in range(8):
+        last, _ = step(last, ev, 4, stall_periods=5)
+    assert last.active[0] == 3 and last.visited[0] == 2 and last.mode[0] == FOLLOW

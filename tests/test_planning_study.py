@@ -99,6 +99,13 @@ def test_summary_min_ours_margin_and_nulls():
     assert s["plan_probability_ece"] == 0.12 and s["pruned_60_over_peak"] == 0.95
     assert s["replanning_gain"] is None and s["unmapped_obstacles"] is None
     json.dumps(s)
+    with_obstacles = house(0.9, 0.4, 10)
+    with_obstacles["methods"]["ours_obstacles"] = {"success": 0.5, "trials": 10}
+    other = house(0.9, 0.4, 10)
+    other["methods"]["ours_obstacles"] = {"success": 0.8, "trials": 5}
+    s = pt.summarize({"a": with_obstacles, "b": other}, None, None)
+    assert s["unmapped_obstacles"] == pytest.approx(0.6)   # (5 + 4) / 15 trials
+    assert s["houses"]["a"]["ours_obstacles"] == 0.5
     only_lidar = pt.summarize({"h": {"methods": {"lidar": {"success": 0.5}}}}, None, None)
     assert only_lidar["min_ours"] is None and only_lidar["min_margin_over_sptm"] is None
 
@@ -204,3 +211,30 @@ def test_plan_and_follow_on_an_oracle_map_in_the_box_world(box_world):
     rows, ece = pt.calibration([p.probability for p in plans if p.reachable],
                                out.success[[p.reachable for p in plans]])
     assert ece is not None and 0.0 <= ece <= 1.0
+
+    # the same trials, each alone with 3 boxes the map never saw on its route
+    from topodrake.world.obstacles import _densify
+
+    worlds = []
+
+    def make_engine(w):
+        worlds.append(w)
+        return NavigationEngine(w, AStarOracle(w, k=5), GeometricReachability(w, k=5))
+
+    seeds = [np.random.SeedSequence([0, t]) for t in range(len(pairs))]
+    obst, boxes = pt.follow_past_obstacles(box_world, make_engine, starts, routes, goals, seeds,
+                                           n_boxes=3, t_max_s=60.0)
+    planned = [t for t in range(len(pairs)) if routes[t] is not None]
+    assert len(worlds) == len(planned)
+    assert all(len(w.walls) == len(box_world.walls) + 3 for w in worlds)
+    for t in planned:
+        assert boxes[t].shape == (3, 4)
+        centres = 0.5 * (boxes[t][:, :2] + boxes[t][:, 2:])
+        route_xy = _densify(np.vstack([starts[t][:2], routes[t].poses[:, :2], goals[t][:2]]), 0.05)
+        gap = np.hypot(*(centres[:, None] - route_xy[None]).transpose(2, 0, 1)).min(axis=1)
+        assert (gap < 0.2).all()                       # on the planned route
+    assert obst.success[:2].any()                      # the A* oracle passes boxes
+    assert set(obst.outcome[:2]) <= {"goal", "reached", "timeout", "collision",
+                                     "dead_reckoning_gave_up", "search_failed"}
+    if routes[2] is None:
+        assert boxes[2] is None and obst.outcome[2] == "no_plan"

@@ -26,7 +26,10 @@ Per period, with the current observation:
   the one after it when RE toward that one is above ``p_follow`` and its
   proximity above ``p_near`` (the paper's advance rule). If RE toward the
   active anchor is above ``p_follow`` the waypoint is C_WP's toward it;
-  otherwise the follower enters Dead reckoning.
+  otherwise the follower enters Dead reckoning. An active anchor that is
+  neither visited nor left behind for ``stall_periods`` periods (5 s) counts
+  as visited (ours: an obstacle the map never saw may stand on it, and the
+  RMP keeps the car out of its visiting distance), unless it is the last.
 * **Dead reckoning**: the car drives to the last Follow waypoint, held in
   the odometry frame (the car's integrated pose, which is the world frame
   here: odometry has no drift in this simulator). Each period RE is asked
@@ -78,6 +81,7 @@ class FollowerConfig:
     dr_widen_every: int = 10        # the Dead reckoning search widens by one anchor each side
     dr_max_window: int = 15         # at most this many anchors asked per Dead reckoning period
     dr_arrive_m: float = 0.3        # at the held waypoint, C_WP gives the next one (see above)
+    stall_periods: int = 50         # Follow periods on one active anchor before it is skipped
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
@@ -89,7 +93,8 @@ class FollowerConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise TopodrakeError(f"follower {name} must be in [0, 1], got {v}")
-        for name in ("lookahead", "dr_max_iterations", "dr_widen_every", "dr_max_window"):
+        for name in ("lookahead", "dr_max_iterations", "dr_widen_every", "dr_max_window",
+                     "stall_periods"):
             if getattr(self, name) < 1:
                 raise TopodrakeError(f"follower {name} must be >= 1, got {getattr(self, name)}")
         return self
@@ -106,12 +111,13 @@ class FollowerState:
     dr_count: np.ndarray             # (N,) int: periods spent in Dead reckoning since Follow
     reason: np.ndarray               # (N,) int: why a follower failed (REASONS)
     best_p: np.ndarray               # (N,) float: RE of the last choice (for reports)
+    stall: np.ndarray                # (N,) int: Follow periods on the same active anchor
 
     @classmethod
     def initial(cls, n: int) -> "FollowerState":
         return cls(np.full(n, SEARCH, np.int64), np.full(n, -1, np.int64),
                    np.full(n, -1, np.int64), np.full((n, 2), np.nan), np.zeros(n, np.int64),
-                   np.zeros(n, np.int64), np.zeros(n))
+                   np.zeros(n, np.int64), np.zeros(n), np.zeros(n, np.int64))
 
     def __len__(self) -> int:
         return len(self.mode)
@@ -127,22 +133,23 @@ class FollowerState:
         return self.take(slice(None))
 
     def to_vector(self) -> np.ndarray:
-        """One car's state as 8 floats (for a Drake discrete state)."""
+        """One car's state as 9 floats (for a Drake discrete state)."""
         if len(self) != 1:
             raise ValueError("to_vector packs the state of one car")
         return np.array([self.mode[0], self.active[0], self.visited[0], *self.waypoint[0],
-                         self.dr_count[0], self.reason[0], self.best_p[0]], np.float64)
+                         self.dr_count[0], self.reason[0], self.best_p[0], self.stall[0]],
+                        np.float64)
 
     @classmethod
     def from_vector(cls, v) -> "FollowerState":
         v = np.asarray(v, np.float64)
         i = lambda x: np.array([int(round(x))], np.int64)   # noqa: E731
         return cls(i(v[0]), i(v[1]), i(v[2]), v[None, 3:5].copy(), i(v[5]), i(v[6]),
-                   np.array([v[7]]))
+                   np.array([v[7]]), i(v[8]))
 
 
-_FIELDS = ("mode", "active", "visited", "waypoint", "dr_count", "reason", "best_p")
-STATE_SIZE = 8
+_FIELDS = ("mode", "active", "visited", "waypoint", "dr_count", "reason", "best_p", "stall")
+STATE_SIZE = 9
 
 
 @dataclass
@@ -228,8 +235,15 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     # -- Follow: proximity over the lookahead window, then RE toward the active anchor --
     f = np.flatnonzero(state.mode == FOLLOW)
     if f.size:
-        lo = state.visited[f] + 1
-        hi = np.minimum(state.visited[f] + cfg.lookahead, n_anchors[f] - 1)
+        # an anchor the car has not reached for stall_periods (an obstacle the
+        # map never saw stands on it, or the car circles it) counts as visited,
+        # but for the route's last one
+        start = state.visited[f].copy()
+        stuck = ((state.stall[f] >= cfg.stall_periods) & (state.active[f] < n_anchors[f] - 1)
+                 & (state.active[f] > start))
+        start[stuck] = state.active[f][stuck]
+        lo = start + 1
+        hi = np.minimum(start + cfg.lookahead, n_anchors[f] - 1)
         rows, anchors = _windows(lo, hi)
         ans = evaluate(f[rows], anchors, True, False)
         prox = ans.overlap.mean(axis=1)
@@ -238,7 +252,7 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         # (the route's last anchor, the goal, only when close: passing it is not arriving)
         passed = (ans.waypoint[:, 0] < 0.0) & (anchors < n_anchors[f[rows]] - 1)
         there = (prox > cfg.p_visited) & ((length < cfg.visit_m) | passed)
-        visited = state.visited[f].copy()
+        visited = start.copy()
         for m in np.flatnonzero(there):
             visited[rows[m]] = max(visited[rows[m]], anchors[m])
         new.visited[f] = visited
@@ -278,6 +292,8 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
                 if r >= 0 and anchors[m] == new.active[fk[r]]:
                     local[fk[r]] = ans.waypoint[m]
                     have_wp[fk[r]] = True
+            same = (new.active[fk] == state.active[fk]) & (visited[keep] == state.visited[fk])
+            new.stall[fk] = np.where(same, state.stall[fk] + 1, 0)
             lost = p_active <= cfg.p_follow
             new.mode[fk[lost]] = DEAD_RECKONING
             new.dr_count[fk[lost]] = 0
