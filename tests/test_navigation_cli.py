@@ -15,6 +15,7 @@ from topodrake.cli import main
     (["--p", "1.0"], "--p"),
     (["--replan", "-1"], "--replan"),
     (["--replan", "2"], "--replan needs a map file"),
+    (["--update-map"], "--update-map needs a map file"),
 ])
 def test_navigate_refuses_bad_numbers(capsys, extra, message):
     code = main(["navigate", "test-0", "--start", "16.4,14.9,2.95", "--goal", "3.0,23.6,-0.8",

@@ -402,3 +402,22 @@ def test_shipped_checkpoints_resolve_from_any_working_folder(tmp_path, monkeypat
     mine.write_bytes(b"x")
     assert resolve_checkpoint("checkpoints/camera_k5/checkpoint.pt").resolve() == mine.resolve()
     assert not resolve_checkpoint("no/such.pt").exists()
+
+
+def test_failed_edges_are_lowered_and_the_next_plan_goes_around_them():
+    from topodrake.topomap.recalibrate import lower_failed_edges
+
+    m = table_map(parallel_drives, reuse=False)
+    add_trajectory(m, drive(0, 13))
+    add_trajectory(m, drive(1, 13))
+    r = plan_path(m, np.array([0, 0]), np.array([0, 12]))
+    edge = tuple(r.vertices[1:3])
+    before = m.graph.edges[edge]["p"]
+    lowered = lower_failed_edges(m, [edge, edge, (10_000, 10_001)])     # repeats and unknown edges
+    assert lowered == [{"edge": list(edge), "p_before": round(before, 6),
+                        "p_after": round(before * 0.5, 6)}]
+    assert m.graph.edges[edge]["weight"] == pytest.approx(-np.log(before * 0.5))
+    r2 = plan_path(m, np.array([0, 0]), np.array([0, 12]))
+    assert edge not in set(zip(r2.vertices[:-1], r2.vertices[1:]))
+    with pytest.raises(TopodrakeError, match="factor"):
+        lower_failed_edges(m, [edge], factor=1.5)

@@ -48,6 +48,8 @@ def check_args(args) -> None:
         raise TopodrakeError(f"--t-max must be finite and > 0, got {args.t_max}")
     if not 0.0 < args.p < 1.0:
         raise TopodrakeError(f"--p must be in (0, 1), got {args.p}")
+    if args.update_map and Path(args.map).suffix != ".tdmap":
+        raise TopodrakeError("--update-map needs a map file (.tdmap) as MAP")
     if args.replan < 0:
         raise TopodrakeError(f"--replan must be >= 0, got {args.replan}")
     if args.drive is not None and args.drive < 0:
@@ -195,9 +197,13 @@ def cmd_navigate(args) -> None:
     result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
                          meshcat_html=args.meshcat, seed=args.seed)
     first_p = float(route.probability)
+    failed = []
     if planner is not None and args.replan:
-        result, route, replans = _replan_legs(planner, scenario, route, result, goal, args)
+        result, route, replans, failed = _replan_legs(planner, scenario, route, result, goal,
+                                                      args)
         extra["replans"] = replans
+    if planner is not None and args.update_map:
+        extra["lowered_edges"] = _update_map(planner, route, result, failed)
     goal_dist = float(np.hypot(*(result.poses[-1, :2] - goal[:2])))
     out = {"outcome": result.outcome, "time_s": round(result.time_s, 2),
            "probability": round(first_p, 4),
@@ -214,14 +220,34 @@ def cmd_navigate(args) -> None:
           f"{len(route)} anchors, probability {first_p:.3f}"
           + (f", {extra['replans']} replans" if "replans" in extra else "") + f"; {goal_dist:.2f} m from "
           f"the goal; real-time factor {rtf:.1f} (start-up {result.startup_s:.1f} s)"
-          + "".join(f"; wrote {p}" for p in (args.plot, args.meshcat) if p))
+          + "".join(f"; wrote {p}" for p in (args.plot, args.meshcat) if p)
+          + (f"; lowered {len(extra['lowered_edges'])} failed edges in {source}"
+             if "lowered_edges" in extra else ""))
+
+
+def _update_map(planner, route, result, failed: list) -> list[dict]:
+    """Lower the edges the car failed on (the replanned legs' and the last
+    leg's, when it gave up) and save the map over its file."""
+    from topodrake.navigation.replan import GIVE_UP, failing_edge
+    from topodrake.topomap.mapfile import save_map
+    from topodrake.topomap.recalibrate import lower_failed_edges
+
+    edges = list(failed)
+    if result.outcome in GIVE_UP:
+        edge = failing_edge(route, result.visited, result.active)
+        if edge is not None:
+            edges.append(edge)
+    lowered = lower_failed_edges(planner.topomap, edges)
+    if lowered:
+        save_map(planner.topomap, planner.path)
+    return lowered
 
 
 def _replan_legs(planner, scenario, route, result, goal, args):
     """Replan from where the car gave up, without the edges it failed on,
     at most ``args.replan`` times while time is left; returns the drive of
     all legs as one result (the last leg's outcome), the last route and the
-    number of replans."""
+    number of replans and the edges excluded on the way."""
     from dataclasses import replace
 
     from topodrake.navigation.drive import drive_route
@@ -249,7 +275,7 @@ def _replan_legs(planner, scenario, route, result, goal, args):
                          time_s=sum(r.time_s for r in legs),
                          distance_m=sum(r.distance_m for r in legs),
                          wall_time_s=sum(r.wall_time_s for r in legs))
-    return result, route, replans
+    return result, route, replans, excluded
 
 
 def add_navigate_parser(sub) -> None:
@@ -274,6 +300,9 @@ def add_navigate_parser(sub) -> None:
     nv.add_argument("--replan", type=int, default=0,
                     help="on a map: replan from where the follower gave up, without the edge it "
                          "failed on, at most this many times (default: 0)")
+    nv.add_argument("--update-map", action="store_true",
+                    help="on a map: halve the probability of each edge the car gave up on and "
+                         "save the map over its file (online recalibration; default: off)")
     nv.add_argument("--plot", metavar="PNG",
                     help="draw the map, the plan and the driven path (default: none)")
     nv.add_argument("--meshcat", metavar="HTML",
