@@ -38,6 +38,8 @@ FIGURES = {
                         f"{PY} studies/map_scalability.py --json"),
     "trajectory_following": (["results/trajectory_following.png"],
                              f"{PY} studies/trajectory_following.py --json"),
+    "planning": (["results/planning.png", "results/plan_calibration.png",
+                  "results/pruned_maps.png"], f"{PY} studies/planning.py --json"),
 }
 
 

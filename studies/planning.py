@@ -38,12 +38,13 @@ success with 60% of the drives over the best over all fractions).
 
     python studies/planning.py --json                      (default: a few trials)
     python studies/planning.py --trials 1000 --pruned-fractions 0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1 --pruned-trials 1000   (the paper's protocol)
-    python studies/planning.py --world /work/shared/maps/willow_full_0.05/map.yaml
+    python studies/planning.py --world tests/data/maps/willow_full_0.05/map.yaml
 
-The default (20 trials per method and house, pruned fractions 0.3, 0.6, 1
-of the first house) took 21 min on 2 cores with the camera maps cached and
-about 55 min from an empty cache (a camera map takes 5-8 min to build, a
-lidar one 0.5-2 min, an oracle one and SPTM's graph under a minute); the
+The default (20 trials per method and house, 10 of them with obstacles,
+pruned fractions 0.3, 0.6, 1 of the first house) took 38 min on 2 cores
+beside another study, with the maps cached; building them from an empty
+cache took 80 min more beside other jobs (a camera map takes 5-15 min, a
+lidar one 0.5-2 min, an oracle one and SPTM's graph a few minutes); the
 paper's protocol is ``--trials 1000`` with the ten fractions.
 
 ``--json`` prints ``{"houses": {"test-0": {"ours": s, "lidar": s, "sptm": s,
