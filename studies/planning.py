@@ -15,7 +15,7 @@ subset; existing maps are reused):
 - ``sptm``: SPTM's graph (every 20th frame, retrieval shortcuts, top-1
   localization, hop-count path), followed by camera k=5 C_WP + RE;
 - ``ours_replan``: ``ours`` with replanning: a car whose dead reckoning
-  lasts ``REPLAN_AFTER`` periods (or whose Search fails) is replanned from
+  lasts ``--replan-after`` periods (or whose Search fails) is replanned from
   where it stands without the edge it failed on, up to ``MAX_REPLANS``
   times (:mod:`topodrake.navigation.replan`); ``replanning_gain`` is the
   smallest per-house gain over ``ours`` among the houses where ``ours`` is
@@ -279,7 +279,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
         from topodrake.navigation.replan import follow_with_replanning
 
         engine = NavigationEngine(world, policy, reach, NavigationConfig(
-            follower=FollowerConfig(dr_max_iterations=REPLAN_AFTER)))
+            follower=FollowerConfig(dr_max_iterations=cfg["replan_after"])))
         res = follow_with_replanning(engine, starts, routes, places[pairs[:, 1]], replan, T_MAX_S,
                                      MAX_REPLANS, SUCCESS_M, cfg["batch"])
         if bar is not None:
@@ -527,6 +527,9 @@ def main(argv=None) -> int:
                     help="trials per method and house (paper: 1000)")
     ap.add_argument("--trajectories", type=at.count,
                     help="drives per map, in order (default: all 90)")
+    ap.add_argument("--replan-after", type=at.count, default=REPLAN_AFTER,
+                    help="ours_replan: dead-reckoning periods before a car is replanned "
+                         "(200 = when ours gives up)")
     ap.add_argument("--obstacle-trials", type=at.count, default=10,
                     help="trials per house of ours_obstacles (the first of the trials)")
     ap.add_argument("--obstacles", type=at.count, default=3,
@@ -589,7 +592,8 @@ def _run(args) -> int:
         load_world(pruned_spec)
     cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
            "trajectories": args.trajectories, "batch": args.batch, "seed": args.seed,
-           "obstacle_trials": args.obstacle_trials, "obstacles": args.obstacles,
+           "replan_after": args.replan_after, "obstacle_trials": args.obstacle_trials,
+           "obstacles": args.obstacles,
            "pruned_fractions": fractions, "pruned_method": args.pruned_method,
            "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed}
     jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
