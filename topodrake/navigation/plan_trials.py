@@ -98,6 +98,15 @@ class FollowResult:
     success: np.ndarray          # (n,) bool
     steps: np.ndarray            # (n,) control periods driven
 
+    @classmethod
+    def not_driven(cls, starts, goals) -> "FollowResult":
+        """Every trial as not driven yet: outcome ``no_plan``, its start's
+        distance to its goal, no success, no steps."""
+        n = len(starts)
+        dist = np.array([float(np.hypot(*(np.asarray(starts[i])[:2] - goals[i][:2])))
+                         for i in range(n)])
+        return cls(["no_plan"] * n, dist, np.zeros(n, bool), np.zeros(n, np.int64))
+
 
 def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
                   t_max_s: float = T_MAX_S, batch: int = 32, radius: float = SUCCESS_M,
@@ -108,11 +117,8 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
 
     n = len(starts)
-    outcome = ["no_plan"] * n
-    dist = np.array([float(np.hypot(*(np.asarray(starts[i])[:2] - goals[i][:2])))
-                     for i in range(n)])
-    success = np.zeros(n, bool)
-    steps = np.zeros(n, np.int64)
+    out = FollowResult.not_driven(starts, goals)
+    outcome, dist, success, steps = out.outcome, out.final_distance_m, out.success, out.steps
     todo = [i for i in range(n) if routes[i] is not None]
     for lo in range(0, len(todo), batch):
         part = todo[lo:lo + batch]
@@ -128,7 +134,7 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
             outcome[i] = "goal" if watch.arrived[j] else NAV_OUTCOMES[code]
         if progress is not None:
             progress(len(part))
-    return FollowResult(outcome, dist, success, steps)
+    return out
 
 
 def follow_past_obstacles(world, make_engine, starts: np.ndarray, routes: list,
@@ -145,11 +151,7 @@ def follow_past_obstacles(world, make_engine, starts: np.ndarray, routes: list,
     from topodrake.world.obstacles import boxes_on_path, with_boxes
 
     n = len(starts)
-    outcome = ["no_plan"] * n
-    dist = np.array([float(np.hypot(*(np.asarray(starts[i])[:2] - goals[i][:2])))
-                     for i in range(n)])
-    success = np.zeros(n, bool)
-    steps = np.zeros(n, np.int64)
+    out = FollowResult.not_driven(starts, goals)
     boxes: list = [None] * n
     for i in range(n):
         if routes[i] is None:
@@ -159,13 +161,13 @@ def follow_past_obstacles(world, make_engine, starts: np.ndarray, routes: list,
         try:
             boxes[i] = boxes_on_path(world, path, n_boxes, np.random.default_rng(seeds[i]))
         except TopodrakeError:
-            outcome[i] = "no_room"
+            out.outcome[i] = "no_room"
             continue
         res = follow_routes(make_engine(with_boxes(world, boxes[i])), np.asarray(starts)[[i]],
                             [routes[i]], np.asarray(goals)[[i]], t_max_s, 1, radius)
-        outcome[i], dist[i] = res.outcome[0], res.final_distance_m[0]
-        success[i], steps[i] = res.success[0], res.steps[0]
-    return FollowResult(outcome, dist, success, steps), boxes
+        out.outcome[i], out.final_distance_m[i] = res.outcome[0], res.final_distance_m[0]
+        out.success[i], out.steps[i] = res.success[0], res.steps[0]
+    return out, boxes
 
 
 def render_pose_route(world, route, sensor=None):
