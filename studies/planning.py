@@ -131,7 +131,7 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
             progress: bool):
     """The map of ``drives[indices]`` for ``modality`` (cached; built when missing)."""
     from topodrake.topomap.build import build_map
-    from topodrake.topomap.graph import TopoMap
+    from topodrake.topomap.graph import MapConfig, TopoMap
     from topodrake.topomap.mapfile import load_map, save_map
     from topodrake.topomap.retrieval import default_embedding
     from topodrake.topomap.sources import drive_observations, make_scorer
@@ -152,7 +152,9 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
         if [t.name for t in m.trajectories] != names:
             raise TopodrakeError(f"{path} holds other drives than {len(names)} of "
                                  f"{key}; delete it to rebuild")
-        return m, 0.0
+        if asdict(m.config) == asdict(MapConfig()):
+            return m, 0.0
+        print(f"{path} was built with another map config; rebuilding it", file=sys.stderr)
     t0 = time.perf_counter()
     m = TopoMap(scorer, default_embedding(scorer.observation), world=spec)
     items = [(drive_observations(world, scorer, drives[i].poses), drives[i].poses, n)

@@ -361,9 +361,10 @@ def _tiny_config(**kw):
 
     from topodrake.sensing.config import CameraConfig
 
+    kw.setdefault("lr", 3e-3)
     cfg = TrainConfig(network=NetworkConfig(k=1, image_size=16, **TINY), batch_size=32,
                       camera=CameraConfig(width=16, height=16),
-                      lr=3e-3, epoch_samples=100000, val_every_samples=100000,
+                      epoch_samples=100000, val_every_samples=100000,
                       checkpoint_every_s=1e9, threads=1, **kw)
     cfg.data.train_samples = 240
     return cfg
@@ -397,6 +398,33 @@ def test_tiny_training_reduces_loss_and_resumes(samples, tmp_path):
     other.network.k = 2
     with pytest.raises(TopodrakeError, match="context k|network.k"):
         train_waypoint(other, tmp_path, samples=(train, val), progress=False)
+
+
+
+def test_warm_start_begins_from_the_given_checkpoint_and_refuses_another_network(samples, tmp_path):
+    from topodrake.learning.train import train_waypoint
+
+    train, val = samples.subset(np.arange(240)), samples.subset(np.arange(240, 300))
+    base = train_waypoint(_tiny_config(max_samples=1280), tmp_path / "base", samples=(train, val),
+                          progress=False)
+    init = str(tmp_path / "base" / "checkpoint.pt")
+    # one batch at a tiny learning rate: the warm run starts where the base ended
+    warm = train_waypoint(_tiny_config(max_samples=32, init=init, lr=1e-9), tmp_path / "warm",
+                          samples=(train, val), progress=False)
+    cold = train_waypoint(_tiny_config(max_samples=32, lr=1e-9), tmp_path / "cold",
+                          samples=(train, val), progress=False)
+    assert abs(warm.metrics["loss"] - base.metrics["loss"]) < 0.02 * base.metrics["loss"]
+    assert cold.metrics["loss"] > 1.2 * warm.metrics["loss"]
+    import json
+    card = json.loads((tmp_path / "warm" / "card.json").read_text())
+    assert card["init"]["checkpoint"] == init and card["init"]["samples_seen"] == 1280
+    other = _tiny_config(max_samples=32, init=init)
+    other.network.k = 2
+    with pytest.raises(TopodrakeError, match="cannot start from .*network"):
+        train_waypoint(other, tmp_path / "other", samples=(train, val), progress=False)
+    with pytest.raises(TopodrakeError, match="does not exist"):
+        train_waypoint(_tiny_config(init=str(tmp_path / "none.pt")), tmp_path / "none",
+                       samples=(train, val), progress=False)
 
 
 # ---------------------------------------------------------------- Drake

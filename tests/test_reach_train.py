@@ -190,6 +190,40 @@ def test_re_warm_starts_from_an_earlier_re_of_the_same_controller_only(labels, t
         _config(init="").validate()
 
 
+def test_re_of_a_controller_warm_starts_the_re_of_its_fine_tuned_child(labels, tmp_path):
+    from topodrake.learning.checkpoint import save_checkpoint
+    from topodrake.learning.networks import NetworkConfig, WaypointNetwork
+    from topodrake.learning.reach_train import (controller_identity, controller_parent,
+                                                file_sha1, train_reachability)
+    from topodrake.sensing.config import CameraConfig
+
+    tiny = dict(k=1, channels=[8, 8, 16], feature_dim=16, combine_channels=16, hidden=16)
+    net = WaypointNetwork(NetworkConfig(**tiny), 64)
+    parent, child, stranger = tmp_path / "parent.pt", tmp_path / "child.pt", tmp_path / "s.pt"
+    save_checkpoint(parent, net, CameraConfig())
+    save_checkpoint(child, net, CameraConfig(), samples_seen=5,
+                    extra={"init": {"checkpoint": str(parent), "sha1": file_sha1(parent)}})
+    save_checkpoint(stranger, net, CameraConfig(), samples_seen=7)
+    assert controller_parent(child) == file_sha1(parent)
+    assert controller_parent(parent) is None
+    base = train_reachability(_config(max_samples=16), tmp_path / "base", labels=(labels, labels),
+                              controller=controller_identity(parent), progress=False)
+    assert base.samples_seen == 16
+    init = str(tmp_path / "base" / "checkpoint.pt")
+    warm = train_reachability(_config(max_samples=16, init=init), tmp_path / "warm",
+                              labels=(labels, labels), controller=controller_identity(child),
+                              progress=False)
+    assert warm.samples_seen == 16
+    card = json.loads((tmp_path / "warm" / "card.json").read_text())
+    assert card["init"]["checkpoint"] == init
+    assert card["controller"]["sha1"] == file_sha1(child)
+    # an unrelated controller still may not inherit it
+    with pytest.raises(TopodrakeError, match="trained for controller"):
+        train_reachability(_config(max_samples=16, init=init), tmp_path / "x",
+                           labels=(labels, labels), controller=controller_identity(stranger),
+                           progress=False)
+
+
 def test_reach_batches_carry_the_starting_overlaps(labels):
     from topodrake.learning.reach_train import ReachBatcher, start_overlaps
     from topodrake.sensing.overlap import mutual_overlap

@@ -65,6 +65,7 @@ class TrainConfig:
     checkpoint_every_s: float = 300.0
     seed: int = 0
     threads: int = 0                # torch threads (0: torch's default)
+    init: str | None = None         # a C_WP checkpoint of the same profile to start from
 
     def validate(self, where: str = "train config") -> "TrainConfig":
         self.network.validate(where)

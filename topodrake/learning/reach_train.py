@@ -194,12 +194,31 @@ def init_from_controller(model, controller_path) -> None:
     model.load_state_dict(src, strict=False)
 
 
+def controller_parent(controller_path) -> str | None:
+    """SHA-1 of the C_WP checkpoint ``controller_path`` was fine-tuned from
+    (None for a controller trained from scratch or not readable)."""
+    from topodrake.learning.checkpoint import load_checkpoint
+
+    try:
+        extra = load_checkpoint(controller_path).meta.get("extra") or {}
+    except TopodrakeError:
+        return None
+    return (extra.get("init") or {}).get("sha1")
+
+
 def init_from_reachability(model, re_path, controller_path) -> dict:
     """Copy every weight of the RE checkpoint ``re_path`` (trained for
-    ``controller_path``, same profile) into ``model``: a warm start for
-    fine-tuning on new labels. Returns its identity for the card (path,
-    SHA-1 and the samples it had seen)."""
-    ck = load_reachability(re_path, controller_path)
+    ``controller_path``, or for the C_WP that controller was fine-tuned
+    from; same profile) into ``model``: a warm start for fine-tuning on new
+    labels. Returns its identity for the card (path, SHA-1 and the samples
+    it had seen)."""
+    from topodrake.learning.checkpoint import load_checkpoint
+
+    ck = load_checkpoint(re_path, output="reach")
+    have = ((ck.meta.get("extra") or {}).get("controller") or {}).get("sha1")
+    parent = controller_parent(controller_path)
+    if not (parent and have == parent):
+        ck = load_reachability(re_path, controller_path)
     src, dst = ck.model.state_dict(), model.state_dict()
     bad = sorted(set(src) ^ set(dst)) or [k for k in src if src[k].shape != dst[k].shape]
     if bad:

@@ -225,6 +225,7 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
     ``command`` (the command line that redoes it) goes into the card."""
     cfg.validate()
     _set_threads(cfg.threads)
+    warm = warm_start(cfg) if cfg.init else None
     train_set, val_set = samples if samples is not None else prepare_samples(cfg, data_dir, progress)
     output = cfg.network.output
     task = Task(
@@ -234,7 +235,30 @@ def train_waypoint(cfg: TrainConfig, out_dir, data_dir="data", *, resume: bool =
         evaluate=evaluate, metric="control_mae" if output == "control" else "waypoint_error_m",
         card={"data": {"train_worlds": cfg.data.train_worlds, "val_worlds": cfg.data.val_worlds,
                        "train_samples": len(train_set), "val_samples": len(val_set)}})
+    if warm is not None:
+        task.init, task.card["init"] = warm
+        task.meta = {"init": warm[1]}      # the checkpoint keeps its lineage (RE warm starts)
     return train_network(cfg, task, out_dir, resume=resume, progress=progress, command=command)
+
+
+def warm_start(cfg: TrainConfig):
+    """``(Task.init, card entry)`` of a C_WP fine-tuned from checkpoint
+    ``cfg.init``, checked before any sample is made: the checkpoint must
+    exist and have the config's network."""
+    from topodrake.learning.reach_train import file_sha1
+
+    path = Path(cfg.init)
+    if not path.is_file():
+        raise TopodrakeError(f"init: C_WP checkpoint {path} does not exist")
+    ck = load_checkpoint(path)
+    diff = _diff(ck.network.to_dict(), cfg.network.to_dict())
+    if diff:
+        raise TopodrakeError(f"cannot start from {path}: its network has {diff[0]} = {diff[1]!r}, "
+                             f"the config says {diff[2]!r}")
+    weights = ck.model.state_dict()
+    ident = {"checkpoint": str(path), "sha1": file_sha1(path),
+             "samples_seen": ck.meta.get("samples_seen")}
+    return (lambda model: model.load_state_dict(weights)), ident
 
 
 def _set_threads(threads: int) -> None:
