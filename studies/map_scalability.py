@@ -95,7 +95,7 @@ def run_house(house: str, args, policy_for) -> dict:
     drives = drives[:args.trajectories]
     world = load_world(house)
     scorer = make_scorer(args.modality, world)
-    m = TopoMap(scorer, default_embedding(scorer.observation), world=house)
+    m = TopoMap(scorer, default_embedding(scorer.observation), args.map_config, world=house)
     audit = house == args.recall_world
     stats, audit_stats = BuildStats(), BuildStats()
     curve = []
@@ -106,7 +106,7 @@ def run_house(house: str, args, policy_for) -> dict:
                        audit_stats if checking else stats, audit=checking)
         curve.append([m.raw_frames, len(m), m.n_edges])
     build_s = time.perf_counter() - wall
-    save_map(m, Path(args.data) / "maps" / f"{house}-{args.modality}.tdmap")
+    save_map(m, Path(args.data) / "maps" / f"{house}-{args.modality}{args.config_tag}.tdmap")
     out = {"trajectories": len(drives), "raw_frames": m.raw_frames, "vertices": len(m),
            "edges": m.n_edges, "edge_kinds": m.edge_counts(),
            "keep_ratio": round(len(m) / m.raw_frames, 5), "build_s": round(build_s, 1),
@@ -169,6 +169,8 @@ def main(argv=None) -> int:
                     help="trajectory edges driven per map (0: no check)")
     ap.add_argument("--hop-runs", type=at.count, default=2, help="noisy runs per hop")
     ap.add_argument("--seed", type=at.seed, default=0, help="seed of every sample and noise")
+    ap.add_argument("--config", default=None,
+                    help="MapConfig YAML (default: the paper's settings, retrieval_k 32)")
     ap.add_argument("--data", default="data", help="cache of demonstrations and maps")
     ap.add_argument("--out", default="results", help="folder of the JSON and PNG results")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
@@ -184,6 +186,16 @@ def _run(args) -> int:
     from topodrake.topomap.sources import SHIPPED, shipped_checkpoint
 
     torch.set_num_threads(1)
+    from dataclasses import asdict
+    import hashlib
+
+    from topodrake.topomap.graph import MapConfig
+    from topodrake.topomap.map_cli import load_map_config
+
+    args.map_config = load_map_config(args.config)
+    changed = asdict(args.map_config) != asdict(MapConfig())
+    args.config_tag = "-c" + hashlib.sha1(json.dumps(asdict(args.map_config), sort_keys=True)
+                                          .encode()).hexdigest()[:8] if changed else ""
     worlds = [w for w in args.worlds.split(",") if w]
     if not worlds:
         raise TopodrakeError("--worlds names no house")
@@ -197,7 +209,7 @@ def _run(args) -> int:
     out = Path(args.out)
     runs = out / "map_scalability_runs"
     key = f"{args.modality}-t{args.trajectories}-r{args.recall_trajectories}-d{args.dense_samples}" \
-          f"-h{args.hop_samples}x{args.hop_runs}-s{args.seed}"
+          f"-h{args.hop_samples}x{args.hop_runs}-s{args.seed}{args.config_tag}"
     houses = {}
     for house in worlds:
         cached = runs / f"{house}-{key}.json"
@@ -222,7 +234,8 @@ def _run(args) -> int:
                               / sum(h["runs"] for h in hops), 4) if hops else None)}
     atomic_write_json(out / "map_scalability.json", {
         "command": "python studies/map_scalability.py " + " ".join(sys.argv[1:]),
-        "modality": args.modality, "seed": args.seed, "summary": summary, "houses": houses})
+        "modality": args.modality, "seed": args.seed, "map_config": asdict(args.map_config),
+        "summary": summary, "houses": houses})
     plot(houses, out / "map_scalability.png", args.modality)
     if args.json:
         print(json.dumps(summary))

@@ -54,3 +54,14 @@ def read_manifest(folder, fmt: str, version: int, what: str, keys=()) -> dict:
         if key not in m:
             raise TopodrakeError(f"{path} lacks the key {key!r}")
     return m
+
+
+def file_sha1(path) -> str:
+    """SHA-1 of a file's bytes (the identity of a checkpoint)."""
+    import hashlib
+
+    h = hashlib.sha1()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()

@@ -38,6 +38,7 @@ import torch
 from torch.nn import functional as F
 
 from topodrake.errors import TopodrakeError
+from topodrake.fileio import file_sha1
 from topodrake.learning.calibration import calibration_summary
 from topodrake.learning.config import TrainConfig
 from topodrake.learning.data import ObservationSource, to_network_input
@@ -159,14 +160,6 @@ class ReachTrainConfig(TrainConfig):
 
 def load_reach_config(path) -> ReachTrainConfig:
     return load_typed(ReachTrainConfig, path, "config").validate(f"config {path}")
-
-
-def file_sha1(path) -> str:
-    h = hashlib.sha1()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def controller_identity(path) -> dict:

@@ -245,7 +245,7 @@ def warm_start(cfg: TrainConfig):
     """``(Task.init, card entry)`` of a C_WP fine-tuned from checkpoint
     ``cfg.init``, checked before any sample is made: the checkpoint must
     exist and have the config's network."""
-    from topodrake.learning.reach_train import file_sha1
+    from topodrake.fileio import file_sha1
 
     path = Path(cfg.init)
     if not path.is_file():

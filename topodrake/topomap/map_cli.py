@@ -39,7 +39,8 @@ def parse_pose(text: str, what: str) -> np.ndarray:
     return np.array(values)
 
 
-def _load_config(path):
+def load_map_config(path):
+    """A MapConfig from YAML (every key optional), or the defaults for None."""
     from topodrake.topomap.graph import MapConfig
     from topodrake.typed_yaml import load_typed
 
@@ -67,7 +68,7 @@ def cmd_map_build(args) -> None:
             raise TopodrakeError(f"{out} is a map of {topomap.world!r}, not of {args.world!r}")
     else:
         scorer = make_scorer(args.modality, world, args.reach, args.controller)
-        topomap = TopoMap(scorer, default_embedding(scorer.observation), _load_config(args.config),
+        topomap = TopoMap(scorer, default_embedding(scorer.observation), load_map_config(args.config),
                           world=args.world)
     if args.places is not None:
         drives_between(world, [], args.places)          # checks the place indices first

@@ -53,7 +53,7 @@ class LearnedScorer:
 
     @classmethod
     def from_checkpoints(cls, reach_path, controller_path) -> "LearnedScorer":
-        from topodrake.learning.reach_train import file_sha1
+        from topodrake.fileio import file_sha1
         from topodrake.learning.reachability import Reachability
 
         reach = Reachability.from_checkpoint(reach_path, controller_path)
