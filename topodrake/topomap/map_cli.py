@@ -44,7 +44,8 @@ def load_map_config(path):
     from topodrake.topomap.graph import MapConfig
     from topodrake.typed_yaml import load_typed
 
-    return (load_typed(MapConfig, path, "map config") if path else MapConfig()).validate()
+    return (load_typed(MapConfig, path, "map config") if path else MapConfig()).validate(
+        f"map config {path}" if path else "map config")
 
 
 def cmd_map_build(args) -> None:
