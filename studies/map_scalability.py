@@ -35,9 +35,11 @@ house's map is cached in ``DATA/maps/`` and its figures in
 
 from __future__ import annotations
 
+import hashlib
 import json
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -183,15 +185,11 @@ def _run(args) -> int:
     import torch
 
     from topodrake.learning.policy import AStarOracle, LearnedWaypointPolicy
+    from topodrake.topomap.graph import MapConfig
+    from topodrake.topomap.map_cli import load_map_config
     from topodrake.topomap.sources import SHIPPED, shipped_checkpoint
 
     torch.set_num_threads(1)
-    from dataclasses import asdict
-    import hashlib
-
-    from topodrake.topomap.graph import MapConfig
-    from topodrake.topomap.map_cli import load_map_config
-
     args.map_config = load_map_config(args.config)
     changed = asdict(args.map_config) != asdict(MapConfig())
     args.config_tag = "-c" + hashlib.sha1(json.dumps(asdict(args.map_config), sort_keys=True)

@@ -209,9 +209,9 @@ def init_from_reachability(model, re_path, controller_path) -> dict:
 
     ck = load_checkpoint(re_path, output="reach")
     have = ((ck.meta.get("extra") or {}).get("controller") or {}).get("sha1")
-    parent = controller_parent(controller_path)
-    if not (parent and have == parent):
-        ck = load_reachability(re_path, controller_path)
+    if have is None or have not in (controller_identity(controller_path)["sha1"],
+                                    controller_parent(controller_path)):
+        load_reachability(re_path, controller_path)     # refuses it, naming both controllers
     src, dst = ck.model.state_dict(), model.state_dict()
     bad = sorted(set(src) ^ set(dst)) or [k for k in src if src[k].shape != dst[k].shape]
     if bad:

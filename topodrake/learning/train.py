@@ -31,7 +31,7 @@ import torch
 from torch.nn import functional as F
 
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_json
+from topodrake.fileio import atomic_write_json, file_sha1
 from topodrake.learning.checkpoint import (RESUME, git_revision, load_checkpoint, load_resume_state,
                                           save_checkpoint, save_resume_state)
 from topodrake.learning.config import TrainConfig
@@ -245,8 +245,6 @@ def warm_start(cfg: TrainConfig):
     """``(Task.init, card entry)`` of a C_WP fine-tuned from checkpoint
     ``cfg.init``, checked before any sample is made: the checkpoint must
     exist and have the config's network."""
-    from topodrake.fileio import file_sha1
-
     path = Path(cfg.init)
     if not path.is_file():
         raise TopodrakeError(f"init: C_WP checkpoint {path} does not exist")
