@@ -14,10 +14,11 @@ subset; existing maps are reused):
   camera RE (the navigation engine needs C_WP and RE on one modality);
 - ``sptm``: SPTM's graph (every 20th frame, retrieval shortcuts, top-1
   localization, hop-count path), followed by camera k=5 C_WP + RE;
-- ``ours_replan``: ``ours`` with replanning: a car whose dead reckoning
-  lasts ``--replan-after`` periods (or whose Search fails) is replanned from
-  where it stands without the edge it failed on, up to ``MAX_REPLANS``
-  times (:mod:`topodrake.navigation.replan`); ``replanning_gain`` is the
+- ``ours_replan``: ``ours`` with replanning on the paper's schedule: a car
+  in dead reckoning plans again from where it stands after 5 periods and
+  then every 3, without the edge it fails on, and takes the new plan when it
+  beats the current one discounted by 0.99 per try, up to 5 new plans
+  (:mod:`topodrake.navigation.replan`); ``replanning_gain`` is the
   smallest per-house gain over ``ours`` among the houses where ``ours`` is
   below 0.97;
 - ``ours_obstacles``: ``ours`` on the first ``--obstacle-trials`` trials,
@@ -77,8 +78,6 @@ HOUSES = "test-0,test-1,test-2,test-3,test-4"
 MAP_OF = {"ours": ("camera", "camera"), "lidar": ("lidar", "lidar"), "oracle": ("oracle", "camera"),
           "sptm": (None, "camera"), "ours_replan": ("camera", "camera"),
           "ours_obstacles": ("camera", "camera")}
-REPLAN_AFTER = 30       # ours_replan: dead-reckoning periods before a replan (3 s)
-MAX_REPLANS = 5
 DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (noise-free)
 SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
 
@@ -256,7 +255,8 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                tag: str = "all", bar=None) -> tuple[dict, list[dict]]:
     """One method's trials in one house: (stats, per-trial records)."""
     from topodrake.navigation.engine import NavigationConfig, NavigationEngine
-    from topodrake.navigation.plan_trials import SUCCESS_M, T_MAX_S, follow_routes
+    from topodrake.navigation.plan_trials import (SUCCESS_M, T_MAX_S, follow_routes,
+                                                  longest_link_m)
 
     places = np.asarray(world.places, np.float64)
     t0 = time.perf_counter()
@@ -277,13 +277,11 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
         if bar is not None:
             bar.update(n)
     elif method == "ours_replan":
-        from topodrake.navigation.follower import FollowerConfig
-        from topodrake.navigation.replan import follow_with_replanning
+        from topodrake.navigation.replan import ReplanSchedule, follow_with_replanning
 
-        engine = NavigationEngine(world, policy, reach, NavigationConfig(
-            follower=FollowerConfig(dr_max_iterations=cfg["replan_after"])))
+        engine = NavigationEngine(world, policy, reach, NavigationConfig())
         res = follow_with_replanning(engine, starts, routes, places[pairs[:, 1]], replan, T_MAX_S,
-                                     MAX_REPLANS, SUCCESS_M, cfg["batch"])
+                                     ReplanSchedule(**cfg["replan"]), SUCCESS_M, cfg["batch"])
         if bar is not None:
             bar.update(len(pairs))
     else:
@@ -297,10 +295,13 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                 "planned": routes[t] is not None,
                 "plan_probability": None if not np.isfinite(prob[t]) else round(float(prob[t]), 5),
                 "plan_anchors": 0 if routes[t] is None else len(routes[t]),
+                "longest_link_m": None if routes[t] is None else
+                round(longest_link_m(starts[t], routes[t], places[b]), 3),
                 "outcome": res.outcome[t], "success": bool(res.success[t]),
                 "final_distance_m": round(float(res.final_distance_m[t]), 3),
                 "steps": int(res.steps[t]),
-                **({"plans": int(res.plans[t])} if hasattr(res, "plans") else {}),
+                **({"plans": int(res.plans[t])} if getattr(res, "plans", None) is not None
+                   else {}),
                 **({"boxes": None if boxes[t] is None else np.round(boxes[t], 3).tolist()}
                    if method == "ours_obstacles" else {})}
                for t, (a, b) in enumerate(pairs)]
@@ -312,14 +313,20 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
 
 
 def _rates(records: list[dict]) -> dict:
-    """Success, plan and outcome counts of some trials' records."""
+    """Success, plan and outcome counts of some trials' records, and the
+    share of plans with a step longer than FALSE_LINK_M in truth."""
+    from topodrake.navigation.plan_trials import FALSE_LINK_M
+
     outcomes = [r["outcome"] for r in records]
     planned = [r for r in records if r["planned"]]
     probs = [r["plan_probability"] for r in planned if r["plan_probability"] is not None]
+    links = [r["longest_link_m"] for r in planned if r.get("longest_link_m") is not None]
     return {"trials": len(records),
             "success": round(float(np.mean([r["success"] for r in records])), 4),
             "planned": round(len(planned) / len(records), 4),
             "mean_plan_probability": round(float(np.mean(probs)), 4) if probs else None,
+            "false_link_plans": (round(float(np.mean(np.array(links) > FALSE_LINK_M)), 4)
+                                 if links else None),
             "outcomes": {o: outcomes.count(o) for o in sorted(set(outcomes))}}
 
 
@@ -529,9 +536,6 @@ def main(argv=None) -> int:
                     help="trials per method and house (paper: 1000)")
     ap.add_argument("--trajectories", type=at.count,
                     help="drives per map, in order (default: all 90)")
-    ap.add_argument("--replan-after", type=at.count, default=REPLAN_AFTER,
-                    help="ours_replan: dead-reckoning periods before a car is replanned "
-                         "(200 = when ours gives up)")
     ap.add_argument("--obstacle-trials", type=at.count, default=10,
                     help="trials per house of ours_obstacles (the first of the trials)")
     ap.add_argument("--obstacles", type=at.count, default=3,
@@ -592,9 +596,11 @@ def _run(args) -> int:
     pruned_spec = args.pruned_house or specs[0]
     if fractions:
         load_world(pruned_spec)
+    from topodrake.navigation.replan import ReplanSchedule
+
     cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
            "trajectories": args.trajectories, "batch": args.batch, "seed": args.seed,
-           "replan_after": args.replan_after, "obstacle_trials": args.obstacle_trials,
+           "replan": asdict(ReplanSchedule()), "obstacle_trials": args.obstacle_trials,
            "obstacles": args.obstacles,
            "pruned_fractions": fractions, "pruned_method": args.pruned_method,
            "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed}

@@ -14,6 +14,15 @@ ends the run with ``EventStatus.ReachedTermination`` when the follower
 reached the last anchor or gave up. The route's anchor features are
 computed once at construction (per route, not state).
 
+Replanning (optional, ``replanner``: a
+:class:`~topodrake.navigation.replan.Replanner` of one car, the same the
+batched engine calls): the commit asks it after each decision; a route it
+accepts is encoded once and kept in the system's append-only list of
+routes, the abstract state ``route`` (its index; 0 = the route given at
+construction) switches to it and the follower starts again in Search. The
+replanner's bookkeeping (tries, excluded edges) lives in that object, one
+per run (:class:`~topodrake.systems.navigation.NavigationRunner` resets it).
+
 Outputs: ``target`` (the active anchor's
 :class:`~topodrake.learning.policy.TargetContext` for WaypointNet; key = the
 anchor index, -1 = none), ``held_waypoint`` (the Dead reckoning waypoint,
@@ -21,6 +30,8 @@ NaN otherwise) and ``mode`` (1).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -37,7 +48,7 @@ class FollowerFsm(LeafSystem):
     oracles) and ``state`` (held car state, 5)."""
 
     def __init__(self, route, policy, reach, config: FollowerConfig | None = None,
-                 period: float = 0.1, camera=None, lidar=None):
+                 period: float = 0.1, camera=None, lidar=None, replanner=None):
         super().__init__()
         from topodrake.sensing.config import CameraConfig, LidarConfig
 
@@ -45,9 +56,10 @@ class FollowerFsm(LeafSystem):
         self.policy = policy
         self.reach = reach
         self.config = (config or FollowerConfig()).check()
-        wide = policy if policy.k >= reach.k else reach
-        self.features = encode_routes([route], policy, reach)
-        self.policy_contexts = network_context(route.contexts, wide.k, wide.frame_step, policy)
+        self.replanner = replanner
+        self._routes: list[_EncodedRoute] = []
+        self._encode(route)
+        self.features = self._routes[0].features
         kind = policy.observation
         if reach.observation != kind:
             raise ValueError(f"C_WP observes {kind}, RE {reach.observation}")
@@ -63,9 +75,11 @@ class FollowerFsm(LeafSystem):
             self.observation_port = None
         self.state_port = self.DeclareVectorInputPort("state", 5)
         self.fsm_index = self.DeclareAbstractState(AbstractValue.Make(FollowerState.initial(1)))
+        self.route_index = self.DeclareAbstractState(AbstractValue.Make(0))
         prereq = {self.input_port_ticket(p.get_index())
                   for p in (self.state_port, self.observation_port) if p is not None}
         prereq.add(self.abstract_state_ticket(self.fsm_index))
+        prereq.add(self.abstract_state_ticket(self.route_index))
         self._decision = self.DeclareCacheEntry(
             "decision", ValueProducer(allocate=lambda: AbstractValue.Make((None, None)),
                                       calc=self._calc_decision), prereq)
@@ -85,8 +99,23 @@ class FollowerFsm(LeafSystem):
         self.period = float(period)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._commit)
 
+    def _encode(self, route) -> None:
+        wide = self.policy if self.policy.k >= self.reach.k else self.reach
+        base = self._routes[-1].key_base + len(self._routes[-1].route) if self._routes else 0
+        self._routes.append(_EncodedRoute(
+            route, encode_routes([route], self.policy, self.reach),
+            network_context(route.contexts, wide.k, wide.frame_step, self.policy), base))
+
     def follower_state(self, context) -> FollowerState:
         return context.get_abstract_state(self.fsm_index).get_value()
+
+    def current_route(self, context):
+        """The route the follower drives in ``context`` (a replanned one, or
+        the route given at construction)."""
+        return self._routes[self._route_of(context)].route
+
+    def _route_of(self, context) -> int:
+        return int(context.get_abstract_state(self.route_index).get_value())
 
     def decision(self, context):
         """(the follower's state after this period, its StepOutput)."""
@@ -97,9 +126,10 @@ class FollowerFsm(LeafSystem):
         car = np.asarray(self.state_port.Eval(context))[None]
         obs = None if self.observation_port is None else \
             np.asarray(self.observation_port.Eval(context))[None]
-        ev = Evaluator(self.policy, self.reach, self.features, np.zeros(1, np.int64), obs,
+        feats = self._routes[self._route_of(context)].features
+        ev = Evaluator(self.policy, self.reach, feats, np.zeros(1, np.int64), obs,
                        poses=car[:, :3])
-        value.set_value(follower_step(state, self.features.n_anchors, car, ev, self.config))
+        value.set_value(follower_step(state, feats.n_anchors, car, ev, self.config))
 
     def _out_target(self, context, output):
         fs, out = self.decision(context)
@@ -107,9 +137,10 @@ class FollowerFsm(LeafSystem):
         if a < 0:
             output.set_value(TargetContext())
             return
-        ctx = self.policy_contexts[a]
+        enc = self._routes[self._route_of(context)]
+        ctx = enc.policy_contexts[a]
         pose = self.kind == "pose"
-        output.set_value(TargetContext(key=a, observations=None if pose else ctx,
+        output.set_value(TargetContext(key=enc.key_base + a, observations=None if pose else ctx,
                                        poses=ctx if pose else None))
 
     def _out_held(self, context, output):
@@ -121,13 +152,28 @@ class FollowerFsm(LeafSystem):
         if context.get_time() < 0.5 * self.period:
             return EventStatus.DidNothing()      # nothing decided before the first period
         fs, _ = self.decision(context)
-        state.get_mutable_abstract_state(self.fsm_index).set_value(fs.copy())
+        fs = fs.copy()
+        if self.replanner is not None:
+            car = np.asarray(self.state_port.Eval(context))[None, :3]
+            for _, new in self.replanner.step(np.zeros(1, np.int64), fs, car):
+                self._encode(new)
+                state.get_mutable_abstract_state(self.route_index).set_value(len(self._routes) - 1)
+                fs = FollowerState.initial(1)
+        state.get_mutable_abstract_state(self.fsm_index).set_value(fs)
         m = int(fs.mode[0])
         if m == REACHED:
             return EventStatus.ReachedTermination(self, "reached the last anchor")
         if m == FAILED:
             return EventStatus.ReachedTermination(self, REASONS[int(fs.reason[0])])
         return EventStatus.Succeeded()
+
+
+@dataclass
+class _EncodedRoute:
+    route: object
+    features: object          # RouteFeatures of this one route
+    policy_contexts: np.ndarray
+    key_base: int             # target keys of this route: key_base + anchor (unique over routes)
 
 
 class WaypointSelect(LeafSystem):

@@ -71,11 +71,13 @@ class NavigationDiagram:
 
 
 def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *, world=None,
-                            policy=None, reach=None) -> NavigationDiagram:
+                            policy=None, reach=None, replanner=None) -> NavigationDiagram:
     """CarPlant + sensors + FollowerFsm + WaypointNet + RmpController +
     ActuationNoise following ``plan`` (a :class:`~topodrake.navigation.route.Route`).
     ``policy`` and ``reach`` default to the scenario's checkpoints (pass
-    oracles or loaded networks to skip loading). Exported outputs: ``pose``,
+    oracles or loaded networks to skip loading). ``replanner``: a
+    :class:`~topodrake.navigation.replan.Replanner` of one car over
+    ``[plan]`` (replanning while dead reckoning). Exported outputs: ``pose``,
     ``state``, ``ranges``, ``controls``, ``waypoint``, ``mode`` and (camera)
     ``image``."""
     from pydrake.systems.framework import DiagramBuilder
@@ -96,7 +98,7 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     b = DiagramBuilder()
     c = add_chassis(b, scenario, world, camera=policy.observation == "camera", meshcat=meshcat)
     fsm = b.AddNamedSystem("follower", FollowerFsm(plan, policy, reach, scenario.follower, dt,
-                                                   scenario.camera, scenario.lidar))
+                                                   scenario.camera, scenario.lidar, replanner))
     net = b.AddNamedSystem("waypoint_net", WaypointNet(policy, dt, scenario.camera, scenario.lidar))
     select = b.AddNamedSystem("waypoint_select", WaypointSelect())
     rmp = b.AddNamedSystem("rmp", RmpController(scenario.lidar, scenario.rmp, scenario.vehicle))
@@ -136,6 +138,8 @@ class NavigationRunResult(RunResult):
     probability: float = 1.0
     visited: int = -1          # the follower's last visited anchor at the end
     active: int = -1           # ... and its active anchor
+    route: object = None       # the route driven at the end (a replanned one, or the plan)
+    plans: int = 1             # routes driven (1 + accepted replans)
 
     @property
     def outcome(self) -> str:
@@ -164,11 +168,16 @@ class NavigationRunner(DiagramRunner):
                                  f"into a wall of {world.name!r}")
         context = self._reset(start, seed)
         startup = 0.0 if self.warm else self._warm_up()
+        replanner = b.follower.replanner
+        if replanner is not None:
+            replanner.reset()
         b.mode_logger.FindMutableLog(context).Clear()
         r = self._simulate(lambda x: False, b.scenario.t_max_s if t_max_s is None else t_max_s)
         r["startup"] = startup
         context = self.simulator.get_context()
-        fs = b.follower.follower_state(b.follower.GetMyContextFromRoot(context))
+        fsm_context = b.follower.GetMyContextFromRoot(context)
+        fs = b.follower.follower_state(fsm_context)
+        route = b.follower.current_route(fsm_context)
         mode = int(fs.mode[0])
         if r["collision"]:
             result = "collision"
@@ -179,7 +188,7 @@ class NavigationRunner(DiagramRunner):
         else:
             result = "timeout"
         x = r["state"]
-        goal = b.route.goal_pose
+        goal = route.goal_pose
         modes = b.mode_logger.FindLog(context).data()[0, 1:].round().astype(np.int64)
         poses = r["poses"]
         return NavigationRunResult(
@@ -188,4 +197,5 @@ class NavigationRunner(DiagramRunner):
             r["startup"], modes=modes, result=result,
             distance_m=float(np.hypot(*np.diff(poses[:, :2], axis=0).T).sum()),
             probability=float(b.route.probability), visited=int(fs.visited[0]),
-            active=int(fs.active[0]))
+            active=int(fs.active[0]), route=route,
+            plans=1 if replanner is None else int(replanner.plans[0]))

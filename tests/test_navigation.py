@@ -164,19 +164,25 @@ def test_runner_refuses_a_start_in_a_wall(box_world, route, oracles):
         runner.run([5.0, 3.0, 0.0])
 
 
-def test_a_car_that_gives_up_is_replanned_without_the_failing_edge(box_world, route, oracles):
-    """A plan whose second anchor lies behind the partition: the follower
-    gives up on that hop, the edge is excluded, and the new plan gets the
-    car to the goal; without replanning the trial fails."""
-    from topodrake.navigation.engine import NavigationConfig, NavigationEngine
-    from topodrake.navigation.follower import FollowerConfig
-    from topodrake.navigation.replan import follow_with_replanning
+def _bad_route(route):
+    """A plan whose second anchor (the goal) lies behind the partition."""
     from topodrake.navigation.route import Route
 
-    bad = Route(route.contexts[[0, -1]], route.poses[[0, -1]], vertices=np.array([7, 8]),
-                modality=route.modality)
+    return Route(route.contexts[[0, -1]], route.poses[[0, -1]], vertices=np.array([7, 8]),
+                 modality=route.modality)
+
+
+def test_a_car_in_dead_reckoning_is_replanned_without_the_failing_edge(box_world, route, oracles):
+    """The follower cannot see the goal anchor of the bad plan and dead
+    reckons; at its 5th period it asks for a plan without the failing edge
+    (7, 8), takes it and reaches the goal; without replanning it gives up."""
+    from topodrake.navigation.engine import NavigationConfig, NavigationEngine
+    from topodrake.navigation.follower import FollowerConfig
+    from topodrake.navigation.replan import ReplanSchedule, follow_with_replanning
+
+    bad = _bad_route(route)
     engine = NavigationEngine(box_world, *oracles,
-                              NavigationConfig(follower=FollowerConfig(dr_max_iterations=10)))
+                              NavigationConfig(follower=FollowerConfig(dr_max_iterations=20)))
     goal = route.poses[-1][None]
     asked = []
 
@@ -188,8 +194,83 @@ def test_a_car_that_gives_up_is_replanned_without_the_failing_edge(box_world, ro
     res = follow_with_replanning(engine, start, [bad], goal, replan, t_max_s=60.0)
     assert res.success[0] and res.outcome[0] == "goal" and res.plans[0] == 2
     assert res.excluded[0] == [(7, 8)] and len(asked) == 1
-    assert np.hypot(*(asked[0][1][:2] - start[0, :2])) < 2.0     # replanned where it gave up
-    assert len(res.poses[0]) == res.steps[0] + 1
-    once = follow_with_replanning(engine, start, [bad], goal, replan, t_max_s=60.0, max_replans=0)
-    assert not once.success[0] and once.outcome[0] == "dead_reckoning_gave_up"
-    assert once.plans[0] == 1 and len(asked) == 1
+    assert np.hypot(*(asked[0][1][:2] - start[0, :2])) < 2.0     # replanned where it was lost
+    none = follow_with_replanning(engine, start, [bad], goal, replan, t_max_s=60.0,
+                                  schedule=ReplanSchedule(max_replans=0))
+    assert not none.success[0] and none.outcome[0] == "dead_reckoning_gave_up"
+    assert none.plans[0] == 1 and len(asked) == 1
+
+
+def test_replanning_in_the_drake_diagram_matches_the_engine(box_world, route, oracles):
+    """The same bad plan and replanner in FollowerFsm: the diagram takes the
+    new plan at the same period and drives the engine's path."""
+    from topodrake.navigation.engine import NavigationConfig, NavigationEngine
+    from topodrake.navigation.follower import FollowerConfig
+    from topodrake.navigation.replan import Replanner
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+
+    bad = _bad_route(route)
+    plan = lambda i, pose, excluded: route if (7, 8) in excluded else None   # noqa: E731
+    follower = FollowerConfig(dr_max_iterations=20)
+    start = np.array([1.0, 1.6, 0.4])
+    sc = NavigationScenario(world="box", camera_enabled=False, follower=follower, t_max_s=60.0)
+    replanner = Replanner(plan, [bad])
+    runner = NavigationRunner(make_navigation_diagram(sc, bad, world=box_world, policy=oracles[0],
+                                                      reach=oracles[1], replanner=replanner))
+    drake = runner.run(start)
+    assert drake.outcome == "reached" and drake.plans == 2 and drake.route is route
+    assert replanner.excluded[0] == [(7, 8)]
+    engine = NavigationEngine(box_world, *oracles, NavigationConfig(follower=follower))
+    again = Replanner(plan, [bad])
+    res = engine.run(start[None], [bad], t_max_s=60.0, replanner=again)
+    assert NAV_OUTCOMES_OF(res) == "reached" and again.plans[0] == 2
+    k = min(len(drake.poses), int(res.steps[0]) + 1)
+    assert np.linalg.norm(drake.poses[:k, :2] - res.poses[0, :k, :2], axis=1).max() <= 1e-6
+    # a second run of the same diagram starts again from the bad plan
+    assert runner.run(start).plans == 2 and replanner.plans[0] == 2
+
+
+def NAV_OUTCOMES_OF(res):
+    from topodrake.navigation.engine import NAV_OUTCOMES
+
+    return NAV_OUTCOMES[int(res.outcome[0])]
+
+
+def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
+    """Tries at Dead reckoning periods 5, 8, 11, ...; a worse plan is taken
+    once 0.99 ** tries brings the current plan's probability below it; no
+    more than max_replans new plans."""
+    from topodrake.navigation.follower import DEAD_RECKONING, FOLLOW, FollowerState
+    from topodrake.navigation.replan import Replanner, ReplanSchedule
+    from topodrake.navigation.route import Route
+
+    sched = ReplanSchedule()
+    assert np.flatnonzero(sched.due(np.arange(15))).tolist() == [5, 8, 11, 14]
+    cur = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([1, 2, 3]), probability=0.5)
+    worse = Route(np.zeros((2, 1)), np.zeros((2, 3)), vertices=np.array([4, 3]), probability=0.48)
+    calls = []
+    rp = Replanner(lambda i, pose, ex: calls.append(list(ex)) or worse, [cur],
+                   ReplanSchedule(max_replans=1))
+    st = FollowerState.initial(1)
+    st.mode[:], st.visited[:], st.active[:] = DEAD_RECKONING, 0, 1
+    taken = []
+    for count in range(5, 5 + 3 * 6, 3):
+        st.dr_count[:] = count
+        taken.append(len(rp.step(np.array([0]), st, np.zeros((1, 3)))))
+        st.dr_count[:] = count + 1                       # not due: no call
+        assert rp.step(np.array([0]), st, np.zeros((1, 3))) == []
+    assert taken == [0, 0, 0, 0, 1, 0]
+    # 0.5 * 0.99 ** t < 0.48 first at t = 5: four rejected tries, then taken
+    assert len(calls) == 5 and calls[0] == [(1, 2)]
+    assert rp.plans[0] == 2 and rp.routes[0] is worse and rp.excluded[0] == [(1, 2)]
+    st.mode[:] = FOLLOW
+    st.dr_count[:] = 5
+    assert rp.step(np.array([0]), st, np.zeros((1, 3))) == []    # not dead reckoning
+    st.mode[:] = DEAD_RECKONING
+    assert rp.step(np.array([0]), st, np.zeros((1, 3))) == []    # max_replans reached
+    assert len(calls) == 5
+    rp.reset()
+    assert rp.routes[0] is cur and rp.plans[0] == 1 and rp.excluded[0] == []
+    with pytest.raises(TopodrakeError, match="discount"):
+        ReplanSchedule(discount=1.5).check()

@@ -122,6 +122,25 @@ def test_replanning_gain_is_the_smallest_gain_where_ours_is_below_0_97():
     assert pt.summarize({"c": house(0.98, 0.9)}, None, None)["replanning_gain"] is None
 
 
+def test_longest_link_is_the_longest_true_step_of_start_anchors_and_goal():
+    from topodrake.navigation.route import Route
+
+    route = Route(np.zeros((3, 1)), np.array([[1.0, 0, 0], [2.0, 0, 0], [np.nan, np.nan, np.nan]]))
+    # start (0, 0) -> 1 -> 2 -> (unknown pose, skipped) -> goal place (8, 0)
+    assert pt.longest_link_m([0.0, 0.0, 0.0], route, [8.0, 0.0, 0.0]) == pytest.approx(6.0)
+    assert pt.longest_link_m([1.5, 0.0, 0.0], route, [2.5, 0.0, 0.0]) == pytest.approx(1.0)
+
+
+def test_summary_averages_the_false_link_share_per_method():
+    def house(share):
+        return {"methods": {"ours": {"success": 0.5, "vertices": 1, "edges": 1,
+                                     "false_link_plans": share},
+                            "sptm": {"success": 0.1, "vertices": 1, "false_link_plans": None}}}
+
+    s = pt.summarize({"a": house(0.2), "b": house(0.4)}, None, None)
+    assert s["false_link_plans"] == {"ours": pytest.approx(0.3)}
+
+
 def test_pruned_ratio():
     assert pt.pruned_ratio({"0.3": 0.4, "0.6": 0.72, "1": 0.8}) == 0.9
     assert pt.pruned_ratio({"0.3": 0.4, "1": 0.8}) is None

@@ -194,15 +194,20 @@ def cmd_navigate(args) -> None:
     scenario = NavigationScenario(world=args.map, noise_std=args.noise, seed=args.seed,
                                   t_max_s=args.t_max,
                                   camera_enabled=policy.observation == "camera")
-    result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
-                         meshcat_html=args.meshcat, seed=args.seed)
-    first_p = float(route.probability)
-    failed = []
+    replanner = None
     if planner is not None and args.replan:
-        result, route, replans, failed = _replan_legs(planner, scenario, route, result, goal,
-                                                      args)
-        extra["replans"] = replans
+        from topodrake.navigation.replan import ReplanSchedule, Replanner
+
+        replanner = Replanner(lambda _, pose, excluded: _route_or_none(planner.plan(
+            pose, goal, excluded)), [route], ReplanSchedule(max_replans=args.replan))
+    result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
+                         meshcat_html=args.meshcat, seed=args.seed, replanner=replanner)
+    first_p = float(route.probability)
+    if replanner is not None:
+        extra["replans"] = int(replanner.plans[0]) - 1
+        route = result.route
     if planner is not None and args.update_map:
+        failed = [] if replanner is None else replanner.excluded[0]
         extra["lowered_edges"] = _update_map(planner, route, result, failed)
     goal_dist = float(np.hypot(*(result.poses[-1, :2] - goal[:2])))
     out = {"outcome": result.outcome, "time_s": round(result.time_s, 2),
@@ -226,8 +231,8 @@ def cmd_navigate(args) -> None:
 
 
 def _update_map(planner, route, result, failed: list) -> list[dict]:
-    """Lower the edges the car failed on (the replanned legs' and the last
-    leg's, when it gave up) and save the map over its file."""
+    """Lower the edges the car failed on (those replanning left, and the
+    last route's, when it gave up) and save the map over its file."""
     from topodrake.navigation.replan import GIVE_UP, failing_edge
     from topodrake.topomap.mapfile import save_map
     from topodrake.topomap.recalibrate import lower_failed_edges
@@ -243,39 +248,8 @@ def _update_map(planner, route, result, failed: list) -> list[dict]:
     return lowered
 
 
-def _replan_legs(planner, scenario, route, result, goal, args):
-    """Replan from where the car gave up, without the edges it failed on,
-    at most ``args.replan`` times while time is left; returns the drive of
-    all legs as one result (the last leg's outcome), the last route and the
-    number of replans and the edges excluded on the way."""
-    from dataclasses import replace
-
-    from topodrake.navigation.drive import drive_route
-    from topodrake.navigation.replan import GIVE_UP, failing_edge
-
-    legs, excluded, replans = [result], [], 0
-    while (replans < args.replan and result.outcome in GIVE_UP
-           and args.t_max - sum(r.time_s for r in legs) >= 1.0):
-        edge = failing_edge(route, result.visited, result.active)
-        if edge is not None and edge not in excluded:
-            excluded.append(edge)
-        here = result.poses[-1].copy()
-        plan = planner.plan(here, goal, excluded)
-        if not plan.reachable:
-            break
-        route, replans = plan.route, replans + 1
-        leg_scenario = replace(scenario, t_max_s=args.t_max - sum(r.time_s for r in legs))
-        result = drive_route(leg_scenario, route, here, world=planner.world,
-                             policy=planner.policy, reach=planner.reach,
-                             meshcat_html=args.meshcat, seed=args.seed + replans)
-        legs.append(result)
-    if len(legs) > 1:
-        result = replace(result, poses=np.vstack([legs[0].poses] + [r.poses[1:] for r in legs[1:]]),
-                         modes=np.concatenate([r.modes for r in legs]),
-                         time_s=sum(r.time_s for r in legs),
-                         distance_m=sum(r.distance_m for r in legs),
-                         wall_time_s=sum(r.wall_time_s for r in legs))
-    return result, route, replans, excluded
+def _route_or_none(plan):
+    return plan.route if plan.reachable else None
 
 
 def add_navigate_parser(sub) -> None:
@@ -298,8 +272,10 @@ def add_navigate_parser(sub) -> None:
     nv.add_argument("--p", type=float, default=0.99,
                     help="p_sparsify of a chain (default: 0.99)")
     nv.add_argument("--replan", type=int, default=0,
-                    help="on a map: replan from where the follower gave up, without the edge it "
-                         "failed on, at most this many times (default: 0)")
+                    help="on a map: while dead reckoning (after 5 periods, then every 3), plan "
+                         "again from where the car is without the edge it fails on, and take "
+                         "the new plan when it beats the current one (discounted 0.99 per try); "
+                         "at most this many new plans (default: 0: no replanning)")
     nv.add_argument("--update-map", action="store_true",
                     help="on a map: halve the probability of each edge the car gave up on and "
                          "save the map over its file (online recalibration; default: off)")

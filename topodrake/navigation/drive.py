@@ -48,8 +48,10 @@ def make_recorder():
 
 
 def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach=None,
-                meshcat_html=None, seed: int = 0):
-    """Follow ``route`` from ``start`` in the Drake navigation diagram;
+                meshcat_html=None, seed: int = 0, replanner=None):
+    """Follow ``route`` from ``start`` in the Drake navigation diagram
+    (replanning while dead reckoning with ``replanner``, a
+    :class:`~topodrake.navigation.replan.Replanner` over ``[route]``);
     returns the :class:`~topodrake.systems.navigation.NavigationRunResult`
     with ``build_s`` (diagram construction, including the route's features)."""
     from topodrake.fileio import atomic_write_bytes
@@ -58,7 +60,7 @@ def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach
     viewer = make_recorder() if meshcat_html else None
     t0 = time.perf_counter()
     built = make_navigation_diagram(scenario, route, viewer, world=world, policy=policy,
-                                    reach=reach)
+                                    reach=reach, replanner=replanner)
     runner = NavigationRunner(built)
     build_s = time.perf_counter() - t0
     result = runner.run(start, seed=seed)

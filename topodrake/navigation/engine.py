@@ -11,6 +11,9 @@ Drake navigation diagram (``topodrake.systems.navigation``)::
     decision of period k ends the run after that period, as FollowerFsm's
     update at t_k+1 does); a ``watch`` callback (e.g. divergence from a
     reference path); timeout.
+    replanning (optional): a car whose Dead reckoning reached a try gets a
+    new route from the next period, its follower back in Search
+    (:class:`topodrake.navigation.replan.Replanner`, as FollowerFsm does).
 
 so the two executors drive the same path for the same start, route and
 noise (``tests/test_navigation_parity.py``).
@@ -24,7 +27,8 @@ from typing import Callable
 import numpy as np
 
 from topodrake.control import controls_toward
-from topodrake.navigation.evaluate import Evaluator, RouteFeatures, encode_routes
+from topodrake.navigation.evaluate import (Evaluator, RouteFeatures, encode_routes,
+                                           stack_features)
 from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, SEARCH_FAILED,
                                            FollowerConfig, FollowerState, follower_step)
 from topodrake.rollout import RolloutConfig, standard_normal_noise
@@ -106,12 +110,14 @@ class NavigationEngine:
     def run(self, starts: np.ndarray, routes, *, features: RouteFeatures | None = None,
             seeds=None, noise: np.ndarray | None = None, t_max_s=None,
             watch: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
-            progress=None) -> NavigationResult:
+            progress=None, replanner=None) -> NavigationResult:
         """Drive cars from ``starts`` (N, 3) along ``routes`` (N routes;
         ``features``: their :func:`encode_routes`, computed if not given).
         Noise as in :meth:`topodrake.rollout.ExpertRollout.run`. ``t_max_s``:
         scalar or (N,). ``watch(k, cars, states)`` may stop cars (returns a
-        bool mask over ``cars``; they end ``diverged``)."""
+        bool mask over ``cars``; they end ``diverged``). ``replanner``: a
+        :class:`~topodrake.navigation.replan.Replanner` over these N cars
+        and routes (its bookkeeping is the caller's to read afterwards)."""
         cfg = self.config.rollout
         veh = cfg.vehicle
         starts = np.asarray(starts, np.float64).reshape(-1, 3)
@@ -120,7 +126,8 @@ class NavigationEngine:
             raise ValueError(f"{n} starts and {len(routes)} routes")
         if features is None:
             features = encode_routes(routes, self.policy, self.reach)
-        n_anchors = features.n_anchors
+        n_anchors = features.n_anchors.copy()
+        route_of = np.arange(n)
         goals = np.array([r.goal_pose for r in routes]).reshape(n, 3)
         t_max = np.broadcast_to(np.asarray(cfg.t_max_s if t_max_s is None else t_max_s,
                                            np.float64), (n,))
@@ -144,11 +151,19 @@ class NavigationEngine:
                 break
             st = state[cars]
             ranges = self.lidar.scan(st[:, :3])
-            ev = Evaluator(self.policy, self.reach, features, cars, self.observe(st, ranges),
-                           poses=st[:, :3])
+            ev = Evaluator(self.policy, self.reach, features, route_of[cars],
+                           self.observe(st, ranges), poses=st[:, :3])
             fs, out = follower_step(follower.take(cars), n_anchors[cars], st, ev,
                                     self.config.follower)
             follower.put(cars, fs)
+            if replanner is not None:
+                for i, new in replanner.step(cars, fs, st[:, :3]):
+                    features = stack_features(features, encode_routes([new], self.policy,
+                                                                      self.reach))
+                    route_of[i] = len(features.offsets) - 2
+                    n_anchors[i] = len(new)
+                    goals[i] = new.goal_pose
+                    follower.put(np.array([i]), FollowerState.initial(1))
             u = controls_toward(st, out.waypoint, ranges, cfg.lidar, cfg.rmp, veh)
             if noise is not None and cfg.noise_std > 0:
                 u = u * (1.0 + cfg.noise_std * noise[cars, k])

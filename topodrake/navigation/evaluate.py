@@ -72,6 +72,17 @@ def encode_routes(routes, policy, reach, route_k: int | None = None,
                          _encode(reach, network_context(ctx, route_k, route_step, reach)), offsets)
 
 
+def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:
+    """The features of ``a``'s routes followed by ``b``'s."""
+    def cat(x, y):
+        if hasattr(x, "index_select"):
+            import torch
+            return torch.cat([x, y])
+        return np.concatenate([x, y])
+    return RouteFeatures(cat(a.cwp, b.cwp), cat(a.re, b.re),
+                         np.concatenate([a.offsets, a.offsets[-1] + b.offsets[1:]]))
+
+
 def _take(feats, rows: np.ndarray):
     if hasattr(feats, "index_select"):
         import torch

@@ -28,6 +28,7 @@ from topodrake.errors import TopodrakeError
 
 SUCCESS_M = 0.54        # the relaxed goal radius of the paper's planning protocol
 T_MAX_S = 150.0         # 1,500 control periods of 0.1 s
+FALSE_LINK_M = 5.0      # a plan step longer than this in truth joins look-alike places
 
 
 # ---------------------------------------------------------------- trials
@@ -97,6 +98,8 @@ class FollowResult:
     final_distance_m: np.ndarray  # (n,) from the last pose to the goal place
     success: np.ndarray          # (n,) bool
     steps: np.ndarray            # (n,) control periods driven
+    plans: np.ndarray | None = None       # (n,) plans driven (with replanning)
+    excluded: list | None = None          # per trial, the edges replanning excluded
 
     @classmethod
     def not_driven(cls, starts, goals) -> "FollowResult":
@@ -110,22 +113,35 @@ class FollowResult:
 
 def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
                   t_max_s: float = T_MAX_S, batch: int = 32, radius: float = SUCCESS_M,
-                  progress=None) -> FollowResult:
+                  progress=None, replan=None, schedule=None) -> FollowResult:
     """Drive cars from ``starts`` along ``routes`` (None: no plan, a failed
     trial that is not driven) toward the goal places ``goals`` (n, 3), in
-    engine batches of ``batch``. ``progress(n_done)`` is called per batch."""
+    engine batches of ``batch``. ``progress(n_done)`` is called per batch.
+    With ``replan(trial, pose, excluded_edges) -> Route | None`` cars replan
+    while dead reckoning (:mod:`topodrake.navigation.replan`, on
+    ``schedule``), and the result holds ``plans`` and ``excluded``."""
     from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
+    from topodrake.navigation.replan import Replanner
 
     n = len(starts)
     out = FollowResult.not_driven(starts, goals)
     outcome, dist, success, steps = out.outcome, out.final_distance_m, out.success, out.steps
+    if replan is not None:
+        out.plans = np.array([int(r is not None) for r in routes], np.int64)
+        out.excluded = [[] for _ in range(n)]
     todo = [i for i in range(n) if routes[i] is not None]
     for lo in range(0, len(todo), batch):
         part = todo[lo:lo + batch]
         watch = GoalWatch(goals[part], radius)
+        replanner = None
+        if replan is not None:
+            replanner = Replanner(lambda j, pose, ex, part=part: replan(part[j], pose, ex),
+                                  [routes[i] for i in part], schedule)
         res = engine.run(np.asarray(starts)[part], [routes[i] for i in part], t_max_s=t_max_s,
-                         watch=watch)
+                         watch=watch, replanner=replanner)
         for j, i in enumerate(part):
+            if replanner is not None:
+                out.plans[i], out.excluded[i] = replanner.plans[j], replanner.excluded[j]
             code = int(res.outcome[j])
             final = float(np.hypot(*(res.poses[j, int(res.steps[j]), :2] - goals[i][:2])))
             dist[i] = final
@@ -168,6 +184,18 @@ def follow_past_obstacles(world, make_engine, starts: np.ndarray, routes: list,
         out.outcome[i], out.final_distance_m[i] = res.outcome[0], res.final_distance_m[0]
         out.success[i], out.steps[i] = res.success[0], res.steps[0]
     return out, boxes
+
+
+def longest_link_m(start, route, goal) -> float:
+    """The longest straight step of a plan in truth, over the start, the
+    route's anchors and the goal place (privileged poses: evaluation only).
+    The controller's hops are at most 3 m long, so a step over
+    :data:`FALSE_LINK_M` is a link that perception made between places that
+    look alike."""
+    xy = np.vstack([np.asarray(start, np.float64)[None, :2], np.asarray(route.poses)[:, :2],
+                    np.asarray(goal, np.float64)[None, :2]])
+    xy = xy[np.all(np.isfinite(xy), axis=1)]
+    return float(np.hypot(*np.diff(xy, axis=0).T).max()) if len(xy) > 1 else 0.0
 
 
 def render_pose_route(world, route, sensor=None):
@@ -241,6 +269,13 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
              for h in houses.values() if {"ours", "ours_replan"} <= set(h["methods"])
              and h["methods"]["ours"]["success"] < 0.97]
     out["replanning_gain"] = round(min(gains), 4) if gains else None
+    # planner errors apart from follower errors: plans with a step between look-alike places
+    shares: dict = {}
+    for h in houses.values():
+        for m, st in h["methods"].items():
+            if st.get("false_link_plans") is not None:
+                shares.setdefault(m, []).append(st["false_link_plans"])
+    out["false_link_plans"] = {m: round(float(np.mean(v)), 4) for m, v in shares.items()}
     # unmapped obstacles: the success over all such trials of all houses
     obst = [h["methods"]["ours_obstacles"] for h in houses.values()
             if "ours_obstacles" in h["methods"] and h["methods"]["ours_obstacles"]["trials"]]

@@ -1,25 +1,32 @@
-"""Replanning when the follower gives up (beyond the paper's single plan).
+"""Replanning while dead reckoning (the paper's schedule) and loop breaking.
 
-The paper replans from dead reckoning (first after 5 failing periods, then
-every 3) and accepts a new plan when it beats the old one; its authors
-never detected loops. Here a car whose follower gives up (dead reckoning
-ran out, or Search found no anchor) stops where it is, the edge it was
-failing on (last visited anchor -> active anchor) joins the edges that car
-may no longer use, and the planner is asked again from the car's current
-observation; the car drives the new plan for the time it has left. A car
-that gives up on the same edge twice has looped, and excluding the edge is
-what breaks the loop. The engine's ``FollowerConfig.dr_max_iterations``
-sets how soon a car gives up, so a replanning study runs its engine with a
-short one (the paper's first replan comes after 5 periods).
+The paper lets a car replan when it stays in Dead reckoning "for too long":
+its authors' follower asks the planner after 5 failing periods and then
+every 3, and accepts the new plan when its probability beats the current
+plan's discounted by 0.99 per try; otherwise the car keeps dead reckoning
+on the current plan (and gives up after 200 periods as before). Each try
+here plans from the car's current observation without the edge the car is
+failing on (its last visited anchor -> its active anchor); once a plan is
+accepted that edge stays excluded for the car, so a car that keeps failing
+on one hop cannot be sent back onto it: that is the loop breaking the paper
+left for future work (a loop is the same edge failed again; excluding it
+breaks it). The accepted route replaces the car's current one from the
+next period, and its follower starts again in Search.
 
-:func:`follow_with_replanning` works on any planner through a callback
-``replan(trial, pose, excluded_edges) -> Route | None`` and on any
-:class:`~topodrake.navigation.engine.NavigationEngine`.
+:class:`Replanner` keeps this per-car bookkeeping for one run. Both
+executors call :meth:`Replanner.step` after each period's follower decision:
+the batched engine (:meth:`~topodrake.navigation.engine.NavigationEngine.run`
+with ``replanner=``) and the Drake ``FollowerFsm`` (its ``replanner``
+argument), so the schedule is written once. The planner is reached through
+a callback ``plan(car, pose, excluded_edges) -> Route | None`` (None: no
+plan avoids the excluded edges); ``pose`` is privileged metadata the
+callback may render the car's observation at.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -29,85 +36,104 @@ GIVE_UP = ("dead_reckoning_gave_up", "search_failed")
 
 
 @dataclass
-class ReplanResult:
-    """Per trial: the outcome of its last drive ("goal" = stopped at the
-    goal place), the distance from its last pose to the goal place, success,
-    control periods driven in all, the plans it drove, the edges it excluded
-    and its poses over all its drives."""
+class ReplanSchedule:
+    """When a car in Dead reckoning asks for a new plan, and which it takes."""
 
-    outcome: list[str]
-    final_distance_m: np.ndarray
-    success: np.ndarray
-    steps: np.ndarray
-    plans: np.ndarray
-    excluded: list[list[tuple[int, int]]] = field(default_factory=list)
-    poses: list[np.ndarray] = field(default_factory=list)
+    first: int = 5            # Dead reckoning periods before the first try
+    every: int = 3            # then a try every this many periods
+    discount: float = 0.99    # a new plan is taken when p_new > p_current * discount ** tries
+    max_replans: int = 5      # accepted new plans per car and run
+
+    def check(self) -> "ReplanSchedule":
+        if self.first < 1 or self.every < 1:
+            raise TopodrakeError(f"replanning needs first >= 1 and every >= 1, got {self.first} "
+                                 f"and {self.every}")
+        if not 0.0 < self.discount <= 1.0:
+            raise TopodrakeError(f"the replanning discount must be in (0, 1], got {self.discount}")
+        if self.max_replans < 0:
+            raise TopodrakeError(f"max_replans must be >= 0, got {self.max_replans}")
+        return self
+
+    def due(self, dr_count: np.ndarray) -> np.ndarray:
+        """Which Dead reckoning period counts are a try."""
+        c = np.asarray(dr_count, np.int64)
+        return (c >= self.first) & ((c - self.first) % self.every == 0)
+
+    def accepts(self, p_new: float, p_current: float, tries: int) -> bool:
+        return bool(p_new > p_current * self.discount ** tries)
 
 
 def failing_edge(route, visited: int, active: int) -> tuple[int, int] | None:
-    """The map edge (u, v) a follower gave up on: from its last visited
-    anchor to its active one (None when either is not a map vertex)."""
+    """The map edge (u, v) a follower fails on: from its last visited anchor
+    to its active one (None when either is not a map vertex)."""
     if not (0 <= visited < len(route) and 0 <= active < len(route)):
         return None
     u, v = int(route.vertices[visited]), int(route.vertices[active])
     return (u, v) if u >= 0 and v >= 0 and u != v else None
 
 
-def follow_with_replanning(engine, starts: np.ndarray, routes: list, goals: np.ndarray, replan,
-                           t_max_s: float, max_replans: int = 5, radius: float = 0.54,
-                           batch: int = 32, min_time_s: float = 1.0) -> ReplanResult:
-    """Drive trials from ``starts`` (n, 3) along ``routes`` (None: no plan)
-    toward the goal places ``goals`` (n, 3) within ``t_max_s`` each; a car
-    that gives up is replanned with ``replan(i, pose, excluded)`` (a Route,
-    or None when no plan avoids the excluded edges) at most ``max_replans``
-    times while at least ``min_time_s`` is left. Success: the car came
-    within ``radius`` of its goal without colliding."""
-    from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
-    from topodrake.navigation.plan_trials import GoalWatch
+PlanCallback = Callable[[int, np.ndarray, list], object]
 
-    if max_replans < 0:
-        raise TopodrakeError(f"max_replans must be >= 0, got {max_replans}")
-    dt = engine.config.rollout.vehicle.dt
-    n = len(starts)
-    starts = np.asarray(starts, np.float64).reshape(n, 3)
-    goals = np.asarray(goals, np.float64).reshape(n, 3)
-    outcome = ["no_plan"] * n
-    success = np.zeros(n, bool)
-    steps = np.zeros(n, np.int64)
-    plans = np.array([int(r is not None) for r in routes], np.int64)
-    excluded: list[list[tuple[int, int]]] = [[] for _ in range(n)]
-    poses = [starts[i][None].copy() for i in range(n)]
-    pose = starts.copy()
-    current = list(routes)
-    pending = [i for i in range(n) if current[i] is not None]
-    for attempt in range(max_replans + 1):
-        if not pending:
-            break
-        again = []
-        for lo in range(0, len(pending), batch):
-            part = pending[lo:lo + batch]
-            left = np.array([t_max_s - steps[i] * dt for i in part])
-            watch = GoalWatch(goals[part], radius)
-            res = engine.run(pose[part], [current[i] for i in part], t_max_s=left, watch=watch)
-            for j, i in enumerate(part):
-                k = int(res.steps[j])
-                steps[i] += k
-                poses[i] = np.vstack([poses[i], res.poses[j, 1:k + 1]])
-                pose[i] = res.poses[j, k]
-                code = int(res.outcome[j])
-                success[i] = code != NAV_COLLISION and bool(watch.arrived[j])
-                outcome[i] = "goal" if watch.arrived[j] else NAV_OUTCOMES[code]
-                if (outcome[i] in GIVE_UP and attempt < max_replans
-                        and t_max_s - steps[i] * dt >= min_time_s):
-                    edge = failing_edge(current[i], int(res.follower.visited[j]),
-                                        int(res.follower.active[j]))
-                    if edge is not None and edge not in excluded[i]:
-                        excluded[i].append(edge)
-                    new = replan(i, pose[i].copy(), list(excluded[i]))
-                    if new is not None:
-                        current[i] = new
-                        plans[i] += 1
-                        again.append(i)
-        pending = again
-    dist = np.array([float(np.hypot(*(pose[i, :2] - goals[i, :2]))) for i in range(n)])
-    return ReplanResult(outcome, dist, success, steps, plans, excluded, poses)
+
+class Replanner:
+    """The replanning bookkeeping of one run of N cars: each car's current
+    route, tries since that route was taken, plans driven, edges excluded."""
+
+    def __init__(self, plan: PlanCallback, routes: list, schedule: ReplanSchedule | None = None):
+        self.plan = plan
+        self.schedule = (schedule or ReplanSchedule()).check()
+        self._initial = list(routes)
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the routes given (a new run)."""
+        self.routes = list(self._initial)
+        n = len(self.routes)
+        self.tries = np.zeros(n, np.int64)
+        self.plans = np.ones(n, np.int64)
+        self.asked = np.zeros(n, np.int64)
+        self.excluded: list[list[tuple[int, int]]] = [[] for _ in range(n)]
+
+    def step(self, cars: np.ndarray, state, poses: np.ndarray) -> list[tuple[int, object]]:
+        """After a period's decision ``state`` (FollowerState of ``cars``,
+        rows in the same order; ``poses`` (len(cars), 3)): ask the planner
+        for the cars whose Dead reckoning reached a try, and return the
+        (car, new route) pairs accepted."""
+        from topodrake.navigation.follower import DEAD_RECKONING
+
+        cars = np.asarray(cars, np.int64)
+        due = np.flatnonzero((state.mode == DEAD_RECKONING) & self.schedule.due(state.dr_count))
+        taken = []
+        for r in due:
+            i = int(cars[r])
+            if self.plans[i] > self.schedule.max_replans:
+                continue
+            edge = failing_edge(self.routes[i], int(state.visited[r]), int(state.active[r]))
+            excluded = list(self.excluded[i])
+            if edge is not None and edge not in excluded:
+                excluded.append(edge)
+            self.tries[i] += 1
+            self.asked[i] += 1
+            new = self.plan(i, np.array(poses[r], np.float64), excluded)
+            if new is None or not self.schedule.accepts(new.probability,
+                                                        self.routes[i].probability,
+                                                        int(self.tries[i])):
+                continue
+            self.routes[i], self.excluded[i] = new, excluded
+            self.tries[i] = 0
+            self.plans[i] += 1
+            taken.append((i, new))
+        return taken
+
+
+def follow_with_replanning(engine, starts: np.ndarray, routes: list, goals: np.ndarray, replan,
+                           t_max_s: float, schedule: ReplanSchedule | None = None,
+                           radius: float = 0.54, batch: int = 32):
+    """:func:`~topodrake.navigation.plan_trials.follow_routes` with
+    replanning: ``replan(trial, pose, excluded_edges)`` gives a trial's car
+    a new route (or None). Returns the follow result with ``plans`` (plans
+    driven per trial) and ``excluded`` (the edges each trial excluded)."""
+    from topodrake.navigation.plan_trials import follow_routes
+
+    return follow_routes(engine, starts, routes, goals, t_max_s, batch, radius,
+                         replan=replan, schedule=schedule or ReplanSchedule())
