@@ -224,6 +224,8 @@ def test_map_config_is_checked():
         MapConfig(p_edge=1.5).validate()
     with pytest.raises(TopodrakeError, match="retrieval_k"):
         MapConfig(retrieval_k=0).validate()
+    with pytest.raises(TopodrakeError, match="retrieval_first"):
+        MapConfig(retrieval_first=-1).validate()
 
 
 def test_vertex_index_ranks_nearest_first_and_excludes():
@@ -421,3 +423,43 @@ def test_failed_edges_are_lowered_and_the_next_plan_goes_around_them():
     assert edge not in set(zip(r2.vertices[:-1], r2.vertices[1:]))
     with pytest.raises(TopodrakeError, match="factor"):
         lower_failed_edges(m, [edge], factor=1.5)
+
+
+def test_retrieval_first_checks_the_rest_of_the_ranks_only_behind_edges_deep_in_the_first():
+    """Drive 3's vertices rank their own drive first, then drives 2, 1, 0
+    (an embedding of the drive number). Its edges to drive 0 lie beyond
+    the first 8 ranks: with retrieval_first = 8 they are sought only when
+    edges reach the second half of the first 8 (drive 2 all in reach)."""
+    from topodrake.topomap.build import _deepest_edge_rank
+
+    assert _deepest_edge_rank({(5, 1): 0.99, (2, 5): 0.99, (7, 8): 0.99}, 5,
+                              np.array([1, 9, 2, 4])) == 2
+    assert _deepest_edge_rank({(7, 8): 0.99}, 5, np.array([1, 9])) == -1
+
+    class ByDrive(FlatEmbedding):
+        name = "by-drive"
+
+        def embed(self, obs):
+            return np.asarray(obs, np.float32)[:, :1] * 10.0
+
+    def rule(with_drive_2):
+        def re(a, b):
+            if {a[0], b[0]} == {0, 3}:
+                return parallel_drives(a, b)
+            if {a[0], b[0]} == {2, 3} and with_drive_2:
+                return 0.999
+            return same_drive_hops(a, b)
+        return re
+
+    def edges_0_3(re, **config):
+        m = TopoMap(TableScorer(re), ByDrive(), MapConfig(reuse=False, **config), world="table")
+        stats = build_map(m, [(drive(d, 13), None, str(d)) for d in range(4)], progress=False)
+        drive_of = {v: m.graph.nodes[v]["traj"] for v in m.graph}
+        return {(u, v) for u, v, kind in m.graph.edges(data="kind")
+                if kind == "cross" and {drive_of[u], drive_of[v]} == {0, 3}}, stats.re_pairs
+
+    for with_drive_2 in (False, True):
+        full, pairs_full = edges_0_3(rule(with_drive_2), retrieval_k=19)
+        staged, pairs_staged = edges_0_3(rule(with_drive_2), retrieval_k=19, retrieval_first=8)
+        assert full and pairs_staged < pairs_full
+        assert staged == (full if with_drive_2 else set())

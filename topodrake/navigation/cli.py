@@ -215,8 +215,10 @@ def cmd_navigate(args) -> None:
            "distance_m": round(result.distance_m, 2), **extra}
     if args.plot:
         plot_drive(world, route, result, args.plot, start=start, goal=goal, map_layers=layers,
-                   title=f"{world.name}: {result.outcome} in {result.time_s:.1f} s, plan of "
-                         f"{len(route)} anchors (p = {route.probability:.3f})")
+                   title=f"{world.name}: {result.outcome} in {result.time_s:.1f} s, "
+                         + (f"last of {extra['replans'] + 1} plans: " if extra.get("replans")
+                            else "plan of ")
+                         + f"{len(route)} anchors (p = {route.probability:.3f})")
     if args.json:
         print(json.dumps(out))
         return

@@ -177,7 +177,16 @@ def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[in
         else m.index.distances(queries)
     found = {x: m.index.nearest(row, cfg.retrieval_k, ex)[0]
              for x, row, ex in zip(xs, d, excludes)}
-    edges = _passing(m, xs, chain, positions, [found[x] for x in xs], score)
+    first = cfg.retrieval_first if 0 < cfg.retrieval_first < cfg.retrieval_k else cfg.retrieval_k
+    edges = _passing(m, xs, chain, positions, [found[x][:first] for x in xs], score)
+    if first < cfg.retrieval_k:
+        # the rest of the ranks only where edges reach the second half of the first ones: a
+        # vertex among many look-alike views (a corridor driven often) has more beyond them
+        deep = [i for i, x in enumerate(xs) if _deepest_edge_rank(edges, x, found[x][:first])
+                >= first // 2]
+        if deep:
+            edges.update(_passing(m, [xs[i] for i in deep], chain, [positions[i] for i in deep],
+                                  [found[xs[i]][first:] for i in deep], score))
     for (u, v), p in edges.items():
         m.add_edge(u, v, p, "cross")
     stats.cross_edges += len(edges)
@@ -186,6 +195,18 @@ def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[in
         every = _passing(m, xs, chain, positions, everyone, lambda s, r: m.bank.score(s, r))
         stats.exhaustive_edges += len(every)
         stats.found_edges += len(set(every) & set(edges))
+
+
+def _deepest_edge_rank(edges: dict, x: int, ranked: np.ndarray) -> int:
+    """The largest rank in ``ranked`` (x's candidates) of a vertex joined
+    to ``x`` by one of ``edges`` (-1 for none)."""
+    rank = {int(v): r for r, v in enumerate(ranked)}
+    deepest = -1
+    for u, v in edges:
+        other = v if u == x else u if v == x else None
+        if other is not None and other in rank:
+            deepest = max(deepest, rank[other])
+    return deepest
 
 
 def _ranking(m: TopoMap, chain: list[int], positions: list[int], queries: np.ndarray) -> np.ndarray:

@@ -38,6 +38,9 @@ class MapConfig:
     p_edge: float = 0.99         # cross edges: sequence-matched RE above this
     sequence_window: int = 2     # aligned anchors on each side for sequence matching
     retrieval_k: int = 32        # vertices ranked by the embedding that RE checks
+    retrieval_first: int = 0     # cross edges: RE checks this many first, the rest of the top
+                                 # retrieval_k only for a vertex with edges in the second half
+                                 # of them (0: all retrieval_k at once)
     sequence_retrieval: bool = True  # cross edges: rank by the aligned neighbours' embeddings too
     p_link: float = 0.5          # planning: start and goal links above this
     goal_mutual: bool = True     # planning: a goal link's p is min(RE(v, goal), RE(goal, v))
@@ -49,7 +52,8 @@ class MapConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
                 raise TopodrakeError(f"{where}: {name} must be in (0, 1), got {v}")
-        for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1)):
+        for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1),
+                          ("retrieval_first", 0)):
             v = getattr(self, name)
             if not isinstance(v, int) or v < low:
                 raise TopodrakeError(f"{where}: {name} must be an integer >= {low}, got {v}")
