@@ -155,7 +155,8 @@ class FollowerFsm(LeafSystem):
         fs = fs.copy()
         if self.replanner is not None:
             car = np.asarray(self.state_port.Eval(context))[None, :3]
-            for _, new in self.replanner.step(np.zeros(1, np.int64), fs, car):
+            for _, new in self.replanner.step(np.zeros(1, np.int64), fs, car,
+                                              self.config.p_search):
                 self._encode(new)
                 state.get_mutable_abstract_state(self.route_index).set_value(len(self._routes) - 1)
                 fs = FollowerState.initial(1)

@@ -272,5 +272,11 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     assert len(calls) == 5
     rp.reset()
     assert rp.routes[0] is cur and rp.plans[0] == 1 and rp.excluded[0] == []
+    # a plan the follower could not start (its start link below p_search) is not taken
+    better = Route(np.zeros((2, 1)), np.zeros((2, 3)), probability=0.9, start_probability=0.7)
+    rp = Replanner(lambda i, pose, ex: better, [cur])
+    st.dr_count[:] = 5
+    assert rp.step(np.array([0]), st, np.zeros((1, 3)), p_start=0.8) == []
+    assert rp.step(np.array([0]), st, np.zeros((1, 3)), p_start=0.6) == [(0, better)]
     with pytest.raises(TopodrakeError, match="discount"):
         ReplanSchedule(discount=1.5).check()

@@ -171,6 +171,7 @@ def test_plan_takes_the_most_probable_path_and_reports_its_probability():
     assert r.probability == pytest.approx(p)
     assert r.route is not None and len(r.route) == len(r.vertices) + 1
     assert r.route.probability == pytest.approx(p)
+    assert r.route.start_probability == pytest.approx(0.999)      # the start link's RE
     # temporary vertices and frames are gone afterwards
     assert -1 not in m.graph and -2 not in m.graph and len(m.bank) == 4
 

@@ -157,7 +157,8 @@ class NavigationEngine:
                                     self.config.follower)
             follower.put(cars, fs)
             if replanner is not None:
-                for i, new in replanner.step(cars, fs, st[:, :3]):
+                for i, new in replanner.step(cars, fs, st[:, :3],
+                                             self.config.follower.p_search):
                     features = stack_features(features, encode_routes([new], self.policy,
                                                                       self.reach))
                     route_of[i] = len(features.offsets) - 2

@@ -210,7 +210,8 @@ def render_pose_route(world, route, sensor=None):
     images = observe(world, "camera", ctx.reshape(-1, 3), sensor)
     return Route(images.reshape(*ctx.shape[:2], *images.shape[1:]), route.poses,
                  vertices=route.vertices, edge_probability=route.edge_probability,
-                 probability=route.probability, modality="camera")
+                 probability=route.probability, modality="camera",
+                 start_probability=route.start_probability)
 
 
 # ---------------------------------------------------------------- analysis

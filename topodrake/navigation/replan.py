@@ -10,8 +10,10 @@ failing on (its last visited anchor -> its active anchor); once a plan is
 accepted that edge stays excluded for the car, so a car that keeps failing
 on one hop cannot be sent back onto it: that is the loop breaking the paper
 left for future work (a loop is the same edge failed again; excluding it
-breaks it). The accepted route replaces the car's current one from the
-next period, and its follower starts again in Search.
+breaks it). A plan whose start link is below the follower's p_search is
+not taken (ours: the planner links the start above 0.5, and the new route's
+Search would fail at once). The accepted route replaces the car's current
+one from the next period, and its follower starts again in Search.
 
 :class:`Replanner` keeps this per-car bookkeeping for one run. Both
 executors call :meth:`Replanner.step` after each period's follower decision:
@@ -94,11 +96,14 @@ class Replanner:
         self.asked = np.zeros(n, np.int64)
         self.excluded: list[list[tuple[int, int]]] = [[] for _ in range(n)]
 
-    def step(self, cars: np.ndarray, state, poses: np.ndarray) -> list[tuple[int, object]]:
+    def step(self, cars: np.ndarray, state, poses: np.ndarray,
+             p_start: float = 0.0) -> list[tuple[int, object]]:
         """After a period's decision ``state`` (FollowerState of ``cars``,
         rows in the same order; ``poses`` (len(cars), 3)): ask the planner
         for the cars whose Dead reckoning reached a try, and return the
-        (car, new route) pairs accepted."""
+        (car, new route) pairs accepted. A new route whose start link is not
+        above ``p_start`` (the follower's p_search: its Search would fail
+        at once) is not taken."""
         from topodrake.navigation.follower import DEAD_RECKONING
 
         cars = np.asarray(cars, np.int64)
@@ -115,7 +120,8 @@ class Replanner:
             self.tries[i] += 1
             self.asked[i] += 1
             new = self.plan(i, np.array(poses[r], np.float64), excluded)
-            if new is None or not self.schedule.accepts(new.probability,
+            if new is None or new.start_probability <= p_start \
+                    or not self.schedule.accepts(new.probability,
                                                         self.routes[i].probability,
                                                         int(self.tries[i])):
                 continue

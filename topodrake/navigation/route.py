@@ -27,7 +27,9 @@ class Route:
     vertex of each anchor (-1 when the route does not come from a map);
     ``edge_probability`` (A - 1,): the predicted probability of each hop;
     ``probability``: the whole route's (the product of its hops, and of the
-    start and goal links when planned)."""
+    start and goal links when planned); ``start_probability``: RE of the
+    start link that the planner made from the car's observation (1 when
+    not planned)."""
 
     contexts: np.ndarray
     poses: np.ndarray
@@ -35,6 +37,7 @@ class Route:
     edge_probability: np.ndarray = field(default_factory=lambda: np.zeros(0))
     probability: float = 1.0
     modality: str = "camera"
+    start_probability: float = 1.0
 
     def __post_init__(self) -> None:
         self.contexts = np.asarray(self.contexts)

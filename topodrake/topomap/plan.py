@@ -131,7 +131,7 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
                              (goal_pose if goal_pose is not None else nan_pose)[None]]),
             vertices=np.array(vertices + [-1], np.int64),
             edge_probability=np.array(probs[1:]),
-            probability=math.exp(-cost), modality=m.modality)
+            probability=math.exp(-cost), modality=m.modality, start_probability=probs[0])
         result.reachable, result.probability = True, math.exp(-cost)
         result.vertices, result.route = vertices, route
         return result
