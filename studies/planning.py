@@ -277,11 +277,11 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
         if bar is not None:
             bar.update(n)
     elif method == "ours_replan":
-        from topodrake.navigation.replan import ReplanSchedule, follow_with_replanning
+        from topodrake.navigation.replan import ReplanSchedule
 
         engine = NavigationEngine(world, policy, reach, NavigationConfig())
-        res = follow_with_replanning(engine, starts, routes, places[pairs[:, 1]], replan, T_MAX_S,
-                                     ReplanSchedule(**cfg["replan"]), SUCCESS_M, cfg["batch"])
+        res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
+                            SUCCESS_M, replan=replan, schedule=ReplanSchedule(**cfg["replan"]))
         if bar is not None:
             bar.update(len(pairs))
     else:

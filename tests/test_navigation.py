@@ -178,7 +178,8 @@ def test_a_car_in_dead_reckoning_is_replanned_without_the_failing_edge(box_world
     (7, 8), takes it and reaches the goal; without replanning it gives up."""
     from topodrake.navigation.engine import NavigationConfig, NavigationEngine
     from topodrake.navigation.follower import FollowerConfig
-    from topodrake.navigation.replan import ReplanSchedule, follow_with_replanning
+    from topodrake.navigation.plan_trials import follow_routes
+    from topodrake.navigation.replan import ReplanSchedule
 
     bad = _bad_route(route)
     engine = NavigationEngine(box_world, *oracles,
@@ -191,12 +192,12 @@ def test_a_car_in_dead_reckoning_is_replanned_without_the_failing_edge(box_world
         return None if (7, 8) not in excluded else route
 
     start = np.array([[1.0, 1.6, 0.4]])
-    res = follow_with_replanning(engine, start, [bad], goal, replan, t_max_s=60.0)
+    res = follow_routes(engine, start, [bad], goal, t_max_s=60.0, replan=replan)
     assert res.success[0] and res.outcome[0] == "goal" and res.plans[0] == 2
     assert res.excluded[0] == [(7, 8)] and len(asked) == 1
     assert np.hypot(*(asked[0][1][:2] - start[0, :2])) < 2.0     # replanned where it was lost
-    none = follow_with_replanning(engine, start, [bad], goal, replan, t_max_s=60.0,
-                                  schedule=ReplanSchedule(max_replans=0))
+    none = follow_routes(engine, start, [bad], goal, t_max_s=60.0, replan=replan,
+                         schedule=ReplanSchedule(max_replans=0))
     assert not none.success[0] and none.outcome[0] == "dead_reckoning_gave_up"
     assert none.plans[0] == 1 and len(asked) == 1
 

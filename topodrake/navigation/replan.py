@@ -15,7 +15,9 @@ not taken (ours: the planner links the start above 0.5, and the new route's
 Search would fail at once). The accepted route replaces the car's current
 one from the next period, and its follower starts again in Search.
 
-:class:`Replanner` keeps this per-car bookkeeping for one run. Both
+:class:`Replanner` keeps this per-car bookkeeping for one run
+(:func:`topodrake.navigation.plan_trials.follow_routes` with ``replan=``
+makes one per engine batch). Both
 executors call :meth:`Replanner.step` after each period's follower decision:
 the batched engine (:meth:`~topodrake.navigation.engine.NavigationEngine.run`
 with ``replanner=``) and the Drake ``FollowerFsm`` (its ``replanner``
@@ -131,15 +133,3 @@ class Replanner:
             taken.append((i, new))
         return taken
 
-
-def follow_with_replanning(engine, starts: np.ndarray, routes: list, goals: np.ndarray, replan,
-                           t_max_s: float, schedule: ReplanSchedule | None = None,
-                           radius: float = 0.54, batch: int = 32):
-    """:func:`~topodrake.navigation.plan_trials.follow_routes` with
-    replanning: ``replan(trial, pose, excluded_edges)`` gives a trial's car
-    a new route (or None). Returns the follow result with ``plans`` (plans
-    driven per trial) and ``excluded`` (the edges each trial excluded)."""
-    from topodrake.navigation.plan_trials import follow_routes
-
-    return follow_routes(engine, starts, routes, goals, t_max_s, batch, radius,
-                         replan=replan, schedule=schedule or ReplanSchedule())
