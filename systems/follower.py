@@ -59,7 +59,6 @@ class FollowerFsm(LeafSystem):
         self.replanner = replanner
         self._routes: list[_EncodedRoute] = []
         self._encode(route)
-        self.features = self._routes[0].features
         kind = policy.observation
         if reach.observation != kind:
             raise ValueError(f"C_WP observes {kind}, RE {reach.observation}")

@@ -46,12 +46,17 @@ class RouteFeatures:
         return np.diff(self.offsets)
 
 
-def _encode(network, contexts: np.ndarray, batch: int = 64):
-    parts = [network.encode_target(contexts[lo:lo + batch]) for lo in range(0, len(contexts), batch)]
+def _concat(parts: list):
+    """Features (torch tensors or numpy arrays) stacked along rows."""
     if hasattr(parts[0], "index_select"):
         import torch
         return torch.cat(parts)
     return np.concatenate(parts)
+
+
+def _encode(network, contexts: np.ndarray, batch: int = 64):
+    return _concat([network.encode_target(contexts[lo:lo + batch])
+                    for lo in range(0, len(contexts), batch)])
 
 
 def encode_routes(routes, policy, reach, route_k: int | None = None,
@@ -74,12 +79,7 @@ def encode_routes(routes, policy, reach, route_k: int | None = None,
 
 def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:
     """The features of ``a``'s routes followed by ``b``'s."""
-    def cat(x, y):
-        if hasattr(x, "index_select"):
-            import torch
-            return torch.cat([x, y])
-        return np.concatenate([x, y])
-    return RouteFeatures(cat(a.cwp, b.cwp), cat(a.re, b.re),
+    return RouteFeatures(_concat([a.cwp, b.cwp]), _concat([a.re, b.re]),
                          np.concatenate([a.offsets, a.offsets[-1] + b.offsets[1:]]))
 
 
