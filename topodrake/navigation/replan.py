@@ -35,6 +35,7 @@ from typing import Callable
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.navigation.follower import DEAD_RECKONING
 
 GIVE_UP = ("dead_reckoning_gave_up", "search_failed")
 
@@ -95,7 +96,6 @@ class Replanner:
         n = len(self.routes)
         self.tries = np.zeros(n, np.int64)
         self.plans = np.ones(n, np.int64)
-        self.asked = np.zeros(n, np.int64)
         self.excluded: list[list[tuple[int, int]]] = [[] for _ in range(n)]
 
     def step(self, cars: np.ndarray, state, poses: np.ndarray,
@@ -106,8 +106,6 @@ class Replanner:
         (car, new route) pairs accepted. A new route whose start link is not
         above ``p_start`` (the follower's p_search: its Search would fail
         at once) is not taken."""
-        from topodrake.navigation.follower import DEAD_RECKONING
-
         cars = np.asarray(cars, np.int64)
         due = np.flatnonzero((state.mode == DEAD_RECKONING) & self.schedule.due(state.dr_count))
         taken = []
@@ -120,7 +118,6 @@ class Replanner:
             if edge is not None and edge not in excluded:
                 excluded.append(edge)
             self.tries[i] += 1
-            self.asked[i] += 1
             new = self.plan(i, np.array(poses[r], np.float64), excluded)
             if new is None or new.start_probability <= p_start \
                     or not self.schedule.accepts(new.probability,
