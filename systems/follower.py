@@ -25,8 +25,10 @@ per run (:class:`~topodrake.systems.navigation.NavigationRunner` resets it).
 
 Outputs: ``target`` (the active anchor's
 :class:`~topodrake.learning.policy.TargetContext` for WaypointNet; key = the
-anchor index, -1 = none), ``held_waypoint`` (the Dead reckoning waypoint,
-NaN otherwise) and ``mode`` (1).
+anchor index, -1 = none; it carries the anchor's C_WP features and C_WP's
+answer toward it from the period's observation, which the decision already
+computed, so WaypointNet does not run the network again), ``held_waypoint``
+(the Dead reckoning waypoint, NaN otherwise) and ``mode`` (1).
 """
 
 from __future__ import annotations
@@ -37,8 +39,8 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
-from topodrake.learning.policy import TargetContext
-from topodrake.navigation.evaluate import Evaluator, encode_routes, network_context
+from topodrake.learning.policy import TargetContext, WaypointPrediction
+from topodrake.navigation.evaluate import Evaluator, encode_routes, network_context, take_rows
 from topodrake.navigation.follower import (DEAD_RECKONING, FAILED, MODES, REACHED, REASONS,
                                            FollowerConfig, FollowerState, follower_step)
 
@@ -139,8 +141,18 @@ class FollowerFsm(LeafSystem):
         enc = self._routes[self._route_of(context)]
         ctx = enc.policy_contexts[a]
         pose = self.kind == "pose"
-        output.set_value(TargetContext(key=enc.key_base + a, observations=None if pose else ctx,
-                                       poses=ctx if pose else None))
+        # C_WP's answer toward this anchor from this period's observation,
+        # which the decision already holds: WaypointNet need not ask again
+        observed = (np.asarray(self.state_port.Eval(context))[:3] if pose
+                    else np.asarray(self.observation_port.Eval(context)))
+        prediction = None
+        if np.all(np.isfinite(out.local[0])):
+            prediction = WaypointPrediction(out.local[:1].copy(), out.heading[:1].copy(),
+                                            out.overlap[:1].copy())
+        output.set_value(TargetContext(
+            key=enc.key_base + a, observations=None if pose else ctx, poses=ctx if pose else None,
+            by=self.policy, features=take_rows(enc.features.cwp, np.array([a])),
+            prediction=prediction, observed=observed.copy()))
 
     def _out_held(self, context, output):
         fs, out = self.decision(context)

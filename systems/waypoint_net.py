@@ -100,6 +100,8 @@ class TargetConditionedNet(LeafSystem):
 
     # -- target features ---------------------------------------------------------
     def _features(self, context, target: TargetContext):
+        if target.features is not None and target.by is self.network:
+            return target.features
         cache = context.get_abstract_state(self.cache_index).get_value()
         if cache.key == target.key:
             return cache.features
@@ -108,7 +110,8 @@ class TargetConditionedNet(LeafSystem):
     def _update_cache(self, context, state):
         target = self.target_port.Eval(context)
         cache = context.get_abstract_state(self.cache_index).get_value()
-        if target.key < 0 or target.key == cache.key:
+        if target.key < 0 or target.key == cache.key or (target.features is not None
+                                                          and target.by is self.network):
             return
         feats = self.network.encode_target(target_input(self.network, target))
         if hasattr(feats, "numpy"):
@@ -120,12 +123,19 @@ class TargetConditionedNet(LeafSystem):
         if target.key < 0:
             value.set_value(self.empty())
             return
-        feats = self._features(context, target)
         if self.observation_port is None:
             obs = self.state_port.Eval(context)[None, :3]
         else:
             obs = np.asarray(self.observation_port.Eval(context))[None]
-        value.set_value(self.compute(obs, feats))
+        if self._reusable(target, obs):
+            value.set_value(target.prediction)
+            return
+        value.set_value(self.compute(obs, self._features(context, target)))
+
+    def _reusable(self, target: TargetContext, obs: np.ndarray) -> bool:
+        """The target carries the answer this system would compute: made by
+        the same network for this very observation."""
+        return False
 
 
 class WaypointNet(TargetConditionedNet):
@@ -164,6 +174,11 @@ class WaypointNet(TargetConditionedNet):
 
     def compute(self, observation, features) -> WaypointPrediction:
         return self.policy.predict(observation, features)
+
+    def _reusable(self, target: TargetContext, obs: np.ndarray) -> bool:
+        # (the follower asked this policy toward this anchor in the same period)
+        return (target.prediction is not None and target.by is self.policy and not self.direct
+                and target.observed is not None and np.array_equal(target.observed, obs[0]))
 
     def _out_waypoint(self, context, output):
         local = self.prediction(context).waypoint[:1]

@@ -495,6 +495,47 @@ def test_waypoint_net_matches_policy(box_world, modality, output):
                            atol=1e-5)
 
 
+def test_waypoint_net_reuses_what_the_target_carries_only_for_its_own_policy_and_observation(
+        box_world):
+    from topodrake.learning.policy import (LearnedWaypointPolicy, TargetContext,
+                                           WaypointPrediction, make_target_context)
+    from topodrake.sensing.config import CameraConfig
+    from topodrake.systems.scenario import Scenario
+    from topodrake.systems.waypoint_net import build_waypoint_diagram
+
+    torch.manual_seed(5)
+    cfg = NetworkConfig(k=1, image_size=32, **TINY)
+    policy = LearnedWaypointPolicy(WaypointNetwork(cfg, input_size(cfg, 64)), CameraConfig())
+    other = LearnedWaypointPolicy(WaypointNetwork(cfg, input_size(cfg, 64)), CameraConfig())
+    line = np.column_stack([np.linspace(2.5, 4.0, 11), np.full(11, 4.0), np.zeros(11)])
+    target = make_target_context(box_world, line, 5, 1, modality="camera", key=1)
+    built = build_waypoint_diagram(Scenario(world="box"), policy, world=box_world, target=target)
+    sim, ctx = _run(built, [1.5, 4.0, 0.0], 0.35)
+    obs = np.asarray(built.diagram.GetOutputPort("image").Eval(ctx))
+    net = built.waypoint_net
+    net_ctx = net.GetMyContextFromRoot(ctx)
+    source_ctx = built.target_source.GetMyContextFromRoot(ctx)
+    computed = np.array(net.waypoint_local_port.Eval(net_ctx))
+    made = WaypointPrediction(np.array([[0.123, -0.456]]), np.zeros(1), np.full((1, 2), 0.5))
+
+    def local(**carried):
+        built.target_source.set_target(source_ctx, TargetContext(
+            key=1, observations=target.observations, **carried))
+        return np.array(net.waypoint_local_port.Eval(net_ctx))
+
+    assert np.allclose(local(by=policy, prediction=made, observed=obs), made.waypoint[0])
+    changed = obs.copy()
+    changed[0, 0, 0] ^= 1
+    assert np.allclose(local(by=policy, prediction=made, observed=changed), computed, atol=1e-5)
+    assert np.allclose(local(by=other, prediction=made, observed=obs), computed, atol=1e-5)
+    # carried features are used instead of encoding the context, but only from
+    # the same policy (shifted features change the answer)
+    own = policy.encode_target(target.observations[None])
+    assert np.allclose(local(by=policy, features=own), computed, atol=1e-5)
+    assert not np.allclose(local(by=policy, features=own + 3.0), computed, atol=1e-4)
+    assert np.allclose(local(by=other, features=own + 3.0), computed, atol=1e-5)
+
+
 def test_cli_parsers_refuse_a_missing_config(tmp_path):
     import argparse
 

@@ -76,8 +76,9 @@ class InferencePlan:
         flat = self._buffer[:numel]
         if not self.two_d:
             return flat.view(shape)
-        n, m, c, h, w = shape
-        return flat.view(n, m, h, w, c).permute(0, 1, 4, 2, 3)
+        *lead, c, h, w = shape
+        d = len(lead)
+        return flat.view(*lead, h, w, c).permute(*range(d), d + 2, d, d + 1)
 
     # -- pieces -------------------------------------------------------------------
     def first_current(self, cur: torch.Tensor) -> torch.Tensor:
@@ -110,11 +111,22 @@ class InferencePlan:
 
     def cached(self, cur: torch.Tensor, target: torch.Tensor) -> dict:
         """``cur`` (N or 1, C, ...), ``target`` (N or 1, 2k+1, C0, ...)."""
-        term = self.first_current(cur).unsqueeze(1)
-        shape = (max(len(target), len(term)), *target.shape[1:])   # broadcast_shapes costs 90 us
-        pre = torch.add(target, term, out=self._scratch(shape))
-        n, m = pre.shape[:2]
-        return self.heads_of(self.after_first(pre.view(n * m, *pre.shape[2:])), n)
+        return {k: v[:, 0] for k, v in self.cached_views([cur], target).items()}
+
+    def cached_views(self, views: list, target: torch.Tensor) -> dict:
+        """V views of the current observations in one pass: view v (each
+        (N or 1, C, ...)) against frames ``v (2k+1) : (v+1) (2k+1)`` of
+        ``target`` (N or 1, V (2k+1), C0, ...); outputs (N, V, ...). One
+        pass instead of V: at the batch of one car a pass costs mostly its
+        fixed overhead (RE's mirror average asks two views)."""
+        v, b, f = len(views), len(views[0]), self.frames
+        term = self.first_current(torch.cat(views) if v > 1 else views[0])   # (V B, C0, ...)
+        term = term.view(v, b, 1, *term.shape[1:]).transpose(0, 1)          # (B, V, 1, C0, ...)
+        tgt = target.view(len(target), v, f, *target.shape[2:])
+        n = max(len(target), b)                 # (broadcast_shapes costs 90 us)
+        pre = torch.add(tgt, term, out=self._scratch((n, v, f, *target.shape[2:])))
+        out = self.heads_of(self.after_first(pre.view(n * v * f, *target.shape[2:])), n * v)
+        return {k: x.view(n, v, *x.shape[1:]) for k, x in out.items()}
 
     def naive(self, cur: torch.Tensor, ctx: torch.Tensor) -> dict:
         """The full first layer on every stacked [cur, frame, cur - frame]."""

@@ -38,20 +38,31 @@ __all__ = ["AStarOracle", "LearnedWaypointPolicy", "TargetContext", "WaypointPol
 
 
 @dataclass
-class TargetContext:
-    """A target as the follower sees it: 2k + 1 context frames, past to future."""
-
-    key: int = -1                            # changes whenever the target changes; -1 = none
-    observations: np.ndarray | None = None   # (2k+1, H, W, 3) uint8 or (2k+1, beams)
-    poses: np.ndarray | None = None          # (2k+1, 3) when known (oracle)
-
-
-@dataclass
 class WaypointPrediction:
     waypoint: np.ndarray              # (N, 2) car frame (m)
     heading_diff: np.ndarray          # (N,) target minus current heading (rad)
     overlap: np.ndarray               # (N, 2) R_cur->tgt, R_tgt->cur in [0, 1]
     controls: np.ndarray | None = None  # (N, 2) accel, steering rate (direct-control baseline)
+
+
+@dataclass
+class TargetContext:
+    """A target as the follower sees it: 2k + 1 context frames, past to future.
+
+    A sender that already ran a policy (``by``) may pass on what it has:
+    ``features``, its ``encode_target`` of this context (1, ...), and
+    ``prediction``, its answer for the observation ``observed`` (the image
+    or scan, or the pose for a pose policy). A receiver uses them only if it
+    runs that same policy, and the prediction only for that very
+    observation."""
+
+    key: int = -1                            # changes whenever the target changes; -1 = none
+    observations: np.ndarray | None = None   # (2k+1, H, W, 3) uint8 or (2k+1, beams)
+    poses: np.ndarray | None = None          # (2k+1, 3) when known (oracle)
+    by: Any = None
+    features: Any = None
+    prediction: WaypointPrediction | None = None
+    observed: np.ndarray | None = None
 
 
 @runtime_checkable

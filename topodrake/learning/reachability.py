@@ -117,9 +117,9 @@ class Reachability(ObservationNetwork):
         if target.shape[1] != want:
             raise TopodrakeError(f"target features have {target.shape[1]} frames, this RE needs "
                                  f"{want}: encode targets with this RE's encode_target")
-        parts = torch.split(target, self.cfg.frames, dim=1)     # (plain,) or (plain, mirrored)
-        return self._prob(self._mean_logit(lambda c, t: self.plan.cached(c, t)["reach_logit"][:, 0],
-                                           (cur, parts[0]), lambda: (mirrored(cur), parts[-1])))
+        views = [cur, mirrored(cur)] if self.mirror_average else [cur]
+        z = self.plan.cached_views(views, target)["reach_logit"][..., 0]      # (N, views)
+        return self._prob(0.5 * (z[:, 0] + z[:, 1]) if self.mirror_average else z[:, 0])
 
     @torch.inference_mode()
     def probability_naive(self, observation: np.ndarray, context: np.ndarray) -> np.ndarray:

@@ -50,8 +50,22 @@ def _concat(parts: list):
     """Features (torch tensors or numpy arrays) stacked along rows."""
     if hasattr(parts[0], "index_select"):
         import torch
-        return torch.cat(parts)
+        return _pixels_last(torch.cat(parts))
     return np.concatenate(parts)
+
+
+def _pixels_last(feats):
+    """Camera features (A, 2k+1, C0, H, W) stored channels-last: each pixel's
+    C0 channels side by side in memory (the shape stays). The networks add
+    the current image's half into a channels-last buffer, which from NCHW
+    rows is a slow strided copy (about 1 ms per period at batch one)."""
+    if feats.dim() != 5 or _is_pixels_last(feats):
+        return feats
+    return feats.permute(0, 1, 3, 4, 2).contiguous().permute(0, 1, 4, 2, 3)
+
+
+def _is_pixels_last(feats) -> bool:
+    return feats.dim() == 5 and feats.permute(0, 1, 3, 4, 2).is_contiguous()
 
 
 def _encode(network, contexts: np.ndarray, batch: int = 64):
@@ -83,10 +97,17 @@ def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:
                          np.concatenate([a.offsets, a.offsets[-1] + b.offsets[1:]]))
 
 
-def _take(feats, rows: np.ndarray):
+def take_rows(feats, rows: np.ndarray):
+    """Rows ``rows`` of route features (torch or numpy), keeping their layout."""
+    rows = np.asarray(rows, np.int64)
+    if len(rows) and np.all(np.diff(rows) == 1):
+        return feats[rows[0]:rows[-1] + 1]      # consecutive anchors: a view, no copy
     if hasattr(feats, "index_select"):
         import torch
-        return feats.index_select(0, torch.as_tensor(rows, dtype=torch.long))
+        index = torch.as_tensor(rows, dtype=torch.long)
+        if _is_pixels_last(feats):          # gather in memory order, keep the layout
+            return feats.permute(0, 1, 3, 4, 2).index_select(0, index).permute(0, 1, 4, 2, 3)
+        return feats.index_select(0, index)
     return feats[rows]
 
 
@@ -117,12 +138,14 @@ class Evaluator:
         if m == 0:
             return out
         if cwp:
-            pred = self.policy.predict(self._obs(self.policy, cars), _take(self.features.cwp, rows))
+            pred = self.policy.predict(self._obs(self.policy, cars),
+                                       take_rows(self.features.cwp, rows))
             out.waypoint = np.asarray(pred.waypoint, np.float64).reshape(m, 2)
             out.overlap = np.asarray(pred.overlap, np.float64).reshape(m, 2)
+            out.heading = np.asarray(pred.heading_diff, np.float64).reshape(m)
         if re:
             p = np.asarray(self.reach.probability(self._obs(self.reach, cars),
-                                                  _take(self.features.re, rows)), np.float64)
+                                                  take_rows(self.features.re, rows)), np.float64)
             out.probability = route_calibrated(self.reach, p.reshape(m))
         return out
 

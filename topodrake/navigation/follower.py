@@ -159,6 +159,8 @@ class Answers:
     waypoint: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))   # (M, 2) car frame
     overlap: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))    # (M, 2)
     probability: np.ndarray = field(default_factory=lambda: np.zeros(0))     # (M,) RE
+    heading: np.ndarray | None = None                                        # (M,) C_WP's heading
+                                                                             # difference, if known
 
 
 Evaluate = Callable[[np.ndarray, np.ndarray, bool, bool], Answers]
@@ -167,10 +169,16 @@ Evaluate = Callable[[np.ndarray, np.ndarray, bool, bool], Answers]
 @dataclass
 class StepOutput:
     """What a period's decision drives: the world-frame waypoint (N, 2)
-    (NaN = stop) and the anchor whose context C_WP sees (-1 = none)."""
+    (NaN = stop) and the anchor whose context C_WP sees (-1 = none), with
+    C_WP's answer toward that anchor from this period's observation (car-frame
+    waypoint (N, 2), overlaps (N, 2), heading difference (N,); NaN where no
+    anchor is followed), so that a consumer of the target need not ask again."""
 
     waypoint: np.ndarray
     target: np.ndarray
+    local: np.ndarray | None = None
+    overlap: np.ndarray | None = None
+    heading: np.ndarray | None = None
 
 
 def _windows(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -212,7 +220,9 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     car_state = np.asarray(car_state, np.float64).reshape(n, 5)
     new = state.copy()
     target = np.full(n, -1, np.int64)
-    local = np.full((n, 2), np.nan)          # C_WP waypoint toward the new active anchor
+    local = np.full((n, 2), np.nan)          # C_WP's answer toward the new active anchor
+    local_overlap = np.full((n, 2), np.nan)
+    local_heading = np.full(n, np.nan)
     have_wp = np.zeros(n, bool)
     need = np.zeros(n, bool)                 # cars that still need C_WP toward their active anchor
 
@@ -291,6 +301,9 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
                 r = pos[rows[m]]
                 if r >= 0 and anchors[m] == new.active[fk[r]]:
                     local[fk[r]] = ans.waypoint[m]
+                    local_overlap[fk[r]] = ans.overlap[m]
+                    if ans.heading is not None:
+                        local_heading[fk[r]] = ans.heading[m]
                     have_wp[fk[r]] = True
             same = (new.active[fk] == state.active[fk]) & (visited[keep] == state.visited[fk])
             new.stall[fk] = np.where(same, state.stall[fk] + 1, 0)
@@ -336,7 +349,11 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     moving = (new.mode == FOLLOW) | (new.mode == DEAD_RECKONING)
     ask = np.flatnonzero(need & ~have_wp & moving)
     if ask.size:
-        local[ask] = evaluate(ask, new.active[ask], True, False).waypoint
+        asked = evaluate(ask, new.active[ask], True, False)
+        local[ask] = asked.waypoint
+        local_overlap[ask] = asked.overlap
+        if asked.heading is not None:
+            local_heading[ask] = asked.heading
     fresh = np.flatnonzero(need & moving)
     if fresh.size:
         new.waypoint[fresh] = car_to_world(local[fresh, None], car_state[fresh])[:, 0]
@@ -346,7 +363,9 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     drive[follow] = new.waypoint[follow]
     dr = np.flatnonzero(new.mode == DEAD_RECKONING)
     drive[dr] = new.waypoint[dr]           # held (C_WP is not asked: target stays -1)
-    return new, StepOutput(drive, target)
+    off = target < 0
+    local[off], local_overlap[off], local_heading[off] = np.nan, np.nan, np.nan
+    return new, StepOutput(drive, target, local, local_overlap, local_heading)
 
 
 def outcome_of(state: FollowerState) -> list[str]:
