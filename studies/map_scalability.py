@@ -172,7 +172,7 @@ def main(argv=None) -> int:
     ap.add_argument("--hop-runs", type=at.count, default=2, help="noisy runs per hop")
     ap.add_argument("--seed", type=at.seed, default=0, help="seed of every sample and noise")
     ap.add_argument("--config", default=None,
-                    help="MapConfig YAML (default: the paper's settings, retrieval_k 32)")
+                    help="MapConfig YAML (default: the paper's settings, retrieval_k 64)")
     ap.add_argument("--data", default="data", help="cache of demonstrations and maps")
     ap.add_argument("--out", default="results", help="folder of the JSON and PNG results")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")

@@ -188,11 +188,22 @@ def test_inference_plan_equals_the_module(modality, output, pool):
         cached = plan.cached(cur, plan.encode_target(ctx))
         one = plan.cached(cur[:1], plan.encode_target(ctx))      # one observation, 3 targets
         ref_one = net(cur[:1].expand(3, *shape), ctx)
+        plan.chunk = 2                                           # 3 samples run as 2 + 1
+        chunked = plan.cached(cur, plan.encode_target(ctx))
+        one_chunked = plan.cached(cur[:1], plan.encode_target(ctx))
+        # two views at once: the second against the targets' second block of frames
+        flipped = cur.flip(-1)
+        both = plan.cached_views([cur, flipped], torch.cat([plan.encode_target(ctx)] * 2, dim=1))
+        ref_flipped = net(flipped, ctx)
     assert set(naive) == set(ref)
     for key in ref:
         assert torch.allclose(ref[key], naive[key], atol=1e-5), key
         assert torch.allclose(ref[key], cached[key], atol=1e-5), key
         assert torch.allclose(ref_one[key], one[key], atol=1e-5), key
+        assert torch.allclose(ref[key], chunked[key], atol=1e-5), key
+        assert torch.allclose(ref_one[key], one_chunked[key], atol=1e-5), key
+        assert torch.allclose(ref[key], both[key][:, 0], atol=1e-5), key
+        assert torch.allclose(ref_flipped[key], both[key][:, 1], atol=1e-5), key
     with pytest.raises(ValueError, match="BatchNorm"):
         InferencePlan(net)
 

@@ -30,7 +30,7 @@ def test_a_map_config_is_used_recorded_and_keys_the_caches(tmp_path, capsys):
     assert house["retrieval"]["retrieval_k"] == 3 and house["vertices"] > 2
     assert study.main(common + ["--out", str(tmp_path / "b")]) == 0
     default = json.loads((tmp_path / "b" / "map_scalability.json").read_text())
-    assert default["map_config"]["retrieval_k"] == 32
+    assert default["map_config"]["retrieval_k"] == 64
     # each config has its own cached map and per-house result
     maps = sorted(p.name for p in (tmp_path / "data" / "maps").glob("*.tdmap"))
     assert len(maps) == 2 and "test-0-oracle.tdmap" in maps

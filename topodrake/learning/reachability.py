@@ -155,7 +155,7 @@ class Reachability(ObservationNetwork):
 
     @torch.inference_mode()
     def pairwise(self, feats: FrameFeatures, source: np.ndarray, context_rows: np.ndarray,
-                 batch: int = 512, platt: tuple[float, float] | None = None) -> np.ndarray:
+                 batch: int = 32, platt: tuple[float, float] | None = None) -> np.ndarray:
         """RE(frame ``source[m]``, context frames ``context_rows[m]``) (M,),
         frames of one drive (so with the anchor calibration, or ``platt``)."""
         source = np.asarray(source, np.int64)

@@ -37,12 +37,14 @@ class MapConfig:
     p_reuse: float = 0.99        # an existing vertex replaces a new anchor above this (both hops)
     p_edge: float = 0.99         # cross edges: sequence-matched RE above this
     sequence_window: int = 2     # aligned anchors on each side for sequence matching
-    retrieval_k: int = 32        # vertices ranked by the embedding that RE checks
+    retrieval_k: int = 64        # building: vertices ranked by the embedding that RE checks
     retrieval_first: int = 0     # cross edges: RE checks this many first, the rest of the top
                                  # retrieval_k only for a vertex with edges in the second half
                                  # of them (0: all retrieval_k at once)
     sequence_retrieval: bool = True  # cross edges: rank by the aligned neighbours' embeddings too
     p_link: float = 0.5          # planning: start and goal links above this
+    link_k: int = 32             # planning: vertices ranked by the embedding that RE checks
+                                 # for the start and goal links
     goal_mutual: bool = True     # planning: a goal link's p is min(RE(v, goal), RE(goal, v))
     sparsify_window: int = 4     # first window of candidates in the greedy scan
     reuse: bool = True
@@ -53,7 +55,7 @@ class MapConfig:
             if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
                 raise TopodrakeError(f"{where}: {name} must be in (0, 1), got {v}")
         for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1),
-                          ("retrieval_first", 0)):
+                          ("retrieval_first", 0), ("link_k", 1)):
             v = getattr(self, name)
             if not isinstance(v, int) or v < low:
                 raise TopodrakeError(f"{where}: {name} must be an integer >= {low}, got {v}")

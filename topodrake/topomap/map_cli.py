@@ -221,7 +221,7 @@ def add_map_parser(sub) -> None:
     b.add_argument("--add", action="store_true",
                    help="grow the map in --out with drives it does not hold yet")
     b.add_argument("--config", help="MapConfig YAML (default: p_sparsify = p_reuse = p_edge = "
-                                    "0.99, retrieval_k 32)")
+                                    "0.99, retrieval_k 64)")
     _checkpoint_options(b)
     b.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     b.add_argument("--quiet", action="store_true", help="no progress bars")

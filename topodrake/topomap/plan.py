@@ -65,7 +65,7 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
     m = topomap
     if len(m) == 0:
         raise TopodrakeError("the map has no vertices")
-    k = retrieval_k or m.config.retrieval_k
+    k = retrieval_k or m.config.link_k
     frames = 2 * m.k + 1
     start_obs = _check_observation(m, start_observation, "start")
     goal_obs = _check_observation(m, goal_observation, "goal")
