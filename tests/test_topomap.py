@@ -176,6 +176,19 @@ def test_plan_takes_the_most_probable_path_and_reports_its_probability():
     assert -1 not in m.graph and -2 not in m.graph and len(m.bank) == 4
 
 
+def test_planning_links_among_the_top_link_k_vertices_not_the_build_s_retrieval_k():
+    m = table_map(same_drive_hops)
+    add_trajectory(m, drive(0, 10))
+    start, goal = np.array([0, 0]), np.array([0, 9])
+    wide = plan_path(m, start, goal)
+    assert wide.start_links == 2                                 # frames 0 and 3
+    m.config = MapConfig(retrieval_k=m.config.retrieval_k, link_k=1)
+    narrow = plan_path(m, start, goal)
+    assert narrow.start_links == 1 and narrow.goal_links <= 1
+    with pytest.raises(TopodrakeError, match="link_k"):
+        MapConfig(link_k=0).validate()
+
+
 def test_an_unreachable_goal_is_a_result_with_a_reason():
     m = table_map(same_drive_hops)
     add_trajectory(m, drive(0, 10))
