@@ -146,7 +146,7 @@ class FollowerFsm(LeafSystem):
         observed = (np.asarray(self.state_port.Eval(context))[:3] if pose
                     else np.asarray(self.observation_port.Eval(context)))
         prediction = None
-        if np.all(np.isfinite(out.local[0])):
+        if np.all(np.isfinite(out.local[0])) and np.isfinite(out.heading[0]):
             prediction = WaypointPrediction(out.local[:1].copy(), out.heading[:1].copy(),
                                             out.overlap[:1].copy())
         output.set_value(TargetContext(

@@ -137,9 +137,13 @@ def test_drake_diagram_and_engine_drive_the_same_path(box_world, route, oracles,
 
     start = [1.0, 1.8, 0.5]
     sc = NavigationScenario(world="box", noise_std=noise_std, camera_enabled=False, t_max_s=40.0)
-    drake = NavigationRunner(make_navigation_diagram(sc, route, world=box_world,
-                                                     policy=oracles[0], reach=oracles[1])
-                             ).run(start, seed=3)
+    built = make_navigation_diagram(sc, route, world=box_world, policy=oracles[0],
+                                    reach=oracles[1])
+    asked = []
+    compute = built.waypoint_net.compute
+    built.waypoint_net.compute = lambda *a: (asked.append(1), compute(*a))[1]
+    drake = NavigationRunner(built).run(start, seed=3)
+    assert not asked          # WaypointNet always took the follower's C_WP answer
     noise = np.zeros((1, 400, 2))
     noise[0, :len(drake.noise)] = drake.noise
     engine = NavigationEngine(box_world, *oracles, NavigationConfig(
