@@ -15,6 +15,11 @@ share of the reference path's length up to the farthest reference sample the
 robot came within 0.5 m of (in order), averaged over trajectories.
 ``--follower`` changes the follower's thresholds (an ablation).
 
+Each controller's chains and each engine batch of follows are kept in
+``OUT/trajectory_following_runs/`` with the settings and checkpoint hashes
+that made them; a rerun with the same settings reuses them, so a long run
+(``--trajectories 500``) resumes after a stop.
+
 camera_k0 has no RE of its own: its chains and its follower's RE are the
 camera k=2 ones (the network of the nearest controller).
 
@@ -30,6 +35,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -99,11 +105,15 @@ def heading_along(path: np.ndarray, ahead_m: float = 1.0) -> float:
     return float(np.arctan2(d[1], d[0]))
 
 
+def trajectories_name(worlds: list[str], n: int, seed: int) -> str:
+    return f"trajectories-v2-s{seed}-n{n}-{'_'.join(worlds)}.npz"
+
+
 def load_trajectories(data: Path, worlds: list[str], n: int, seed: int) -> list[dict]:
     """The cached trajectories (made from the seed when missing)."""
     import io
 
-    path = data / "trajectory_following" / f"trajectories-v2-s{seed}-n{n}-{'_'.join(worlds)}.npz"
+    path = data / "trajectory_following" / trajectories_name(worlds, n, seed)
     if path.is_file():
         z = np.load(path, allow_pickle=False)
         off = z["offsets"]
@@ -121,6 +131,50 @@ def load_trajectories(data: Path, worlds: list[str], n: int, seed: int) -> list[
 def path_length(poses: np.ndarray) -> np.ndarray:
     """Cumulative arc length (T,) of a trajectory."""
     return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))])
+
+
+class Observations:
+    """The network's observations along each trajectory, rendered on first
+    use (a rerun whose results are all cached renders none)."""
+
+    def __init__(self, network, trajs, world_of):
+        self.network, self.trajs, self.world_of = network, trajs, world_of
+        self._made: dict[int, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self.trajs)
+
+    def __getitem__(self, m: int) -> np.ndarray:
+        if m not in self._made:
+            t = self.trajs[m]
+            self._made[m] = self.network.observe(self.world_of(t["world"]), t["poses"])
+        return self._made[m]
+
+    def __iter__(self):
+        return (self[m] for m in range(len(self)))
+
+
+class RunCache:
+    """Finished blocks of a run, one JSON file each in ``folder``, stored
+    with the key (settings) that made them and reused only under that key."""
+
+    def __init__(self, folder: Path, base: dict):
+        self.folder = Path(folder)
+        self.base = base
+
+    def get(self, name: str, key: dict):
+        path = self.folder / f"{name}.json"
+        if not path.is_file():
+            return None
+        try:
+            stored = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return None                                # unreadable: run again
+        return stored.get("value") if stored.get("key") == {**self.base, **key} else None
+
+    def put(self, name: str, key: dict, value) -> None:
+        atomic_write_json(self.folder / f"{name}.json", {"key": {**self.base, **key},
+                                                          "value": value})
 
 
 def jittered_start(world, pose: np.ndarray, rng) -> np.ndarray:
@@ -168,13 +222,24 @@ class PathWatch:
 
 # ---------------------------------------------------------------- one controller
 
-def chains_of(trajs, obs, reach, ps) -> dict:
+def chains_of(trajs, obs, reach, ps, cache: RunCache | None = None, tag: str = "") -> dict:
     """RE anchors of every trajectory at every p: {p: [anchors, ...]}."""
-    out = {p: [] for p in ps}
-    for t, o in zip(trajs, obs):
-        feats = reach.frame_features(o)
-        for p in ps:
-            out[p].append(reach.sparsify(o, p=p, feats=feats))
+    out = {}
+    for p in ps:
+        got = cache.get(f"{tag}chains-p{p}", {"p": p}) if cache else None
+        if got is not None:
+            out[p] = [np.asarray(a, np.int64) for a in got]
+    todo = [p for p in ps if p not in out]
+    if todo:
+        made = {p: [] for p in todo}
+        for o in obs:
+            feats = reach.frame_features(o)
+            for p in todo:
+                made[p].append(reach.sparsify(o, p=p, feats=feats))
+        for p in todo:
+            out[p] = made[p]
+            if cache:
+                cache.put(f"{tag}chains-p{p}", {"p": p}, [a.tolist() for a in made[p]])
     return out
 
 
@@ -184,9 +249,11 @@ def every_nth(n_frames: int, n: int) -> np.ndarray:
 
 
 def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, seed, batch,
-                  noisy, follower=None) -> tuple[np.ndarray, list[str]]:
+                  noisy, follower=None, cache: RunCache | None = None, tag: str = ""
+                  ) -> tuple[np.ndarray, list[str]]:
     """Cover (M,) and outcomes of following chains[m] of trajs[m] (one
-    engine batch per world and chunk of ``batch`` chains)."""
+    engine batch per world and chunk of ``batch`` chains; finished batches
+    are kept in ``cache`` under ``tag``)."""
     from topodrake.montecarlo import trial_seeds
     from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
     from topodrake.navigation.follower import FollowerConfig
@@ -207,6 +274,13 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
             rollout=RolloutConfig(noise_std=noise_std if noisy else 0.0)))
         for lo in range(0, len(idx), batch):
             part = idx[lo:lo + batch]
+            key = {"noisy": noisy, "cars": part, "chains": [len(chains[m]) for m in part],
+                   "chain_hash": _hash([chains[m] for m in part])}
+            got = cache.get(f"{tag}{name}-{lo}", key) if cache else None
+            if got is not None:
+                for j, m in enumerate(part):
+                    cover[m], outcomes[m] = got["cover"][j], got["outcomes"][j]
+                continue
             routes = [route_from_observations(obs[m], trajs[m]["poses"], chains[m], wide.k,
                                               wide.frame_step, policy.observation) for m in part]
             starts = np.array([jittered_start(world, trajs[m]["poses"][0],
@@ -219,7 +293,20 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
             for j, m in enumerate(part):
                 cover[m] = watch.cover(j)
                 outcomes[m] = NAV_OUTCOMES[int(res.outcome[j])]
+            if cache:
+                cache.put(f"{tag}{name}-{lo}", key, {"cover": [float(cover[m]) for m in part],
+                                                     "outcomes": [outcomes[m] for m in part]})
     return cover, outcomes
+
+
+def _hash(arrays) -> str:
+    import hashlib
+
+    h = hashlib.sha1()
+    for a in arrays:
+        h.update(np.asarray(a, np.int64).tobytes())
+        h.update(b"|")
+    return h.hexdigest()[:16]
 
 
 def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
@@ -228,15 +315,22 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
     from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.reachability import Reachability
 
+    from topodrake.fileio import file_sha1
+
     cwp_path, re_path, re_controller = spec
     policy = LearnedWaypointPolicy.from_checkpoint(cwp_path)
     reach = Reachability.from_checkpoint(re_path, re_controller)
     wide = policy if policy.k >= reach.k else reach
     torch.set_num_threads(1)
-    obs = [reach.observe(world_of(t["world"]), t["poses"]) for t in trajs]
+    cache = RunCache(Path(args.out) / "trajectory_following_runs", {
+        "trajectories": args.trajectories_file, "controller": name,
+        "checkpoints": [file_sha1(f) for f in spec], "seed": args.seed, "noise": args.noise,
+        "follower": asdict(args.follower_config), "tolerance_m": TOLERANCE_M,
+        "diverge_m": DIVERGE_M})
+    obs = Observations(reach, trajs, world_of)
     lengths = np.array([path_length(t["poses"])[-1] for t in trajs])
     frames = np.array([len(t["poses"]) for t in trajs])
-    chains = chains_of(trajs, obs, reach, ps)
+    chains = chains_of(trajs, obs, reach, ps, cache, f"{name}-")
     out: dict = {"controller": cwp_path, "reach": re_path, "points": []}
     for p in ps:
         anchors = np.array([len(a) for a in chains[p]])
@@ -245,10 +339,12 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         sub = [every_nth(f, n) for f in frames]
         sub_density = float(sum(len(a) for a in sub) / lengths.sum())
         c_re, o_re = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide, args.noise,
-                                   args.seed, args.batch, noisy=False, follower=args.follower_config)
+                                   args.seed, args.batch, noisy=False, follower=args.follower_config,
+                                   cache=cache, tag=f"{name}-p{p}-re-")
         bar.update()
         c_sub, o_sub = follow_chains(world_of, trajs, obs, sub, policy, reach, wide, args.noise,
-                                     args.seed, args.batch, noisy=False, follower=args.follower_config)
+                                     args.seed, args.batch, noisy=False, follower=args.follower_config,
+                                     cache=cache, tag=f"{name}-p{p}-every{n}-")
         bar.update()
         point = {"p_sparsify": p, "anchors_per_m": round(density, 4), "cover": float(c_re.mean()),
                  "every_n": n, "subsampled_anchors_per_m": round(sub_density, 4),
@@ -258,7 +354,8 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         if abs(p - args.headline_p) < 1e-9:
             c_n, o_n = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide,
                                      args.noise, args.seed, args.batch, noisy=True,
-                                     follower=args.follower_config)
+                                     follower=args.follower_config, cache=cache,
+                                     tag=f"{name}-p{p}-noisy-")
             bar.update()
             point.update({"cover_noisy": float(c_n.mean()), "outcomes_noisy": _count(o_n),
                           "covers_noisy": c_n.round(4).tolist()})
@@ -341,8 +438,6 @@ def _run(args) -> int:
         raise TopodrakeError(f"--p must be comma-separated numbers, got {args.p!r}") from None
     if not ps or any(not 0 < p < 1 for p in ps):
         raise TopodrakeError("--p values must be in (0, 1)")
-    from dataclasses import asdict
-
     from topodrake.navigation.follower import FollowerConfig
 
     try:
@@ -357,6 +452,7 @@ def _run(args) -> int:
     worlds = [w for w in args.worlds.split(",") if w]
     t0 = time.perf_counter()
     trajs = load_trajectories(Path(args.data), worlds, args.trajectories, args.seed)
+    args.trajectories_file = trajectories_name(worlds, args.trajectories, args.seed)
     cache: dict = {}
     world_of = lambda n: cache.setdefault(n, load_world(n))   # noqa: E731
     lengths = [path_length(t["poses"])[-1] for t in trajs]

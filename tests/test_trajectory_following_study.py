@@ -1,0 +1,52 @@
+"""studies/trajectory_following.py resumes: finished chains and follows are
+kept with the settings that made them and reused only under those settings."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _study():
+    spec = importlib.util.spec_from_file_location("trajectory_following_study",
+                                                  ROOT / "studies" / "trajectory_following.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path, monkeypatch):
+    study = _study()
+    args = ["--trajectories", "1", "--worlds", "test-0", "--p", "0.99", "--controllers",
+            "lidar_k5", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
+            "--quiet", "--json"]
+    assert study.main(args) == 0
+    first = json.loads((tmp_path / "out" / "trajectory_following.json").read_text())
+    runs = sorted(p.name for p in (tmp_path / "out" / "trajectory_following_runs").iterdir())
+    assert runs == ["lidar_k5-chains-p0.99.json", "lidar_k5-p0.99-every%d-test-0-0.json"
+                    % first["results"]["lidar_k5"]["points"][0]["every_n"],
+                    "lidar_k5-p0.99-noisy-test-0-0.json", "lidar_k5-p0.99-re-test-0-0.json"]
+
+    def no_rendering(self, m):
+        raise AssertionError("rendered although every block was cached")
+
+    monkeypatch.setattr(study.Observations, "__getitem__", no_rendering)
+    assert study.main(args) == 0
+    again = json.loads((tmp_path / "out" / "trajectory_following.json").read_text())
+    assert again["summary"] == first["summary"]
+    with pytest.raises(AssertionError, match="rendered"):
+        study.main(args + ["--noise", "0.2"])          # another noise: nothing is reused
+
+
+def test_the_run_cache_refuses_other_settings_and_unreadable_files(tmp_path):
+    cache = _study().RunCache(tmp_path, {"seed": 0})
+    cache.put("block", {"p": 0.99}, [1, 2])
+    assert cache.get("block", {"p": 0.99}) == [1, 2]
+    assert cache.get("block", {"p": 0.98}) is None
+    assert _study().RunCache(tmp_path, {"seed": 1}).get("block", {"p": 0.99}) is None
+    (tmp_path / "block.json").write_text("{not json")
+    assert cache.get("block", {"p": 0.99}) is None
+    assert cache.get("missing", {"p": 0.99}) is None
