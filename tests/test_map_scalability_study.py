@@ -1,23 +1,11 @@
 """studies/map_scalability.py with a map config of its own: the config is
 used, recorded, and keys the caches, and a bad one is refused in one line."""
 
-import importlib.util
 import json
-from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
-def _study():
-    spec = importlib.util.spec_from_file_location("map_scalability_study",
-                                                  ROOT / "studies" / "map_scalability.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_a_map_config_is_used_recorded_and_keys_the_caches(tmp_path, capsys):
-    study = _study()
+def test_a_map_config_is_used_recorded_and_keys_the_caches(tmp_path, capsys, load_study):
+    study = load_study("map_scalability")
     cfg = tmp_path / "k3.yaml"
     cfg.write_text("retrieval_k: 3\np_edge: 0.95\n")
     common = ["--modality", "oracle", "--worlds", "test-0", "--trajectories", "2",

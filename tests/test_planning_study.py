@@ -2,24 +2,13 @@
 trials, subsets, calibration, the summary, and a tiny planned-and-followed
 run in the box world with the oracles."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
 from topodrake.navigation import plan_trials as pt
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _study():
-    spec = importlib.util.spec_from_file_location("planning_study", ROOT / "studies" / "planning.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 # ---------------------------------------------------------------- trials
@@ -167,8 +156,8 @@ def test_render_pose_route_gives_camera_contexts(box_world):
 
 # ---------------------------------------------------------------- the study's command line
 
-def test_study_refuses_bad_input_in_one_line(capsys, tmp_path):
-    study = _study()
+def test_study_refuses_bad_input_in_one_line(capsys, tmp_path, load_study):
+    study = load_study("planning")
     assert study.main(["--houses", "no-such-house", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: unknown world") and err.count("\n") == 1

@@ -1,25 +1,14 @@
 """studies/trajectory_following.py resumes: finished chains and follows are
 kept with the settings that made them and reused only under those settings."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
 
-
-def _study():
-    spec = importlib.util.spec_from_file_location("trajectory_following_study",
-                                                  ROOT / "studies" / "trajectory_following.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path, monkeypatch):
-    study = _study()
+def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path, monkeypatch,
+                                                                       load_study):
+    study = load_study("trajectory_following")
     args = ["--trajectories", "1", "--worlds", "test-0", "--p", "0.99", "--controllers",
             "lidar_k5", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
             "--quiet", "--json"]
@@ -41,12 +30,13 @@ def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path,
         study.main(args + ["--noise", "0.2"])          # another noise: nothing is reused
 
 
-def test_the_run_cache_refuses_other_settings_and_unreadable_files(tmp_path):
-    cache = _study().RunCache(tmp_path, {"seed": 0})
+def test_the_run_cache_refuses_other_settings_and_unreadable_files(tmp_path, load_study):
+    run_cache = load_study("trajectory_following").RunCache
+    cache = run_cache(tmp_path, {"seed": 0})
     cache.put("block", {"p": 0.99}, [1, 2])
     assert cache.get("block", {"p": 0.99}) == [1, 2]
     assert cache.get("block", {"p": 0.98}) is None
-    assert _study().RunCache(tmp_path, {"seed": 1}).get("block", {"p": 0.99}) is None
+    assert run_cache(tmp_path, {"seed": 1}).get("block", {"p": 0.99}) is None
     (tmp_path / "block.json").write_text("{not json")
     assert cache.get("block", {"p": 0.99}) is None
     assert cache.get("missing", {"p": 0.99}) is None
