@@ -222,7 +222,7 @@ class PathWatch:
 
 # ---------------------------------------------------------------- one controller
 
-def chains_of(trajs, obs, reach, ps, cache: RunCache | None = None, tag: str = "") -> dict:
+def chains_of(obs, reach, ps, cache: RunCache | None = None, tag: str = "") -> dict:
     """RE anchors of every trajectory at every p: {p: [anchors, ...]}."""
     out = {}
     for p in ps:
@@ -274,8 +274,7 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
             rollout=RolloutConfig(noise_std=noise_std if noisy else 0.0)))
         for lo in range(0, len(idx), batch):
             part = idx[lo:lo + batch]
-            key = {"noisy": noisy, "cars": part, "chains": [len(chains[m]) for m in part],
-                   "chain_hash": _hash([chains[m] for m in part])}
+            key = {"noisy": noisy, "cars": part, "chains": _hash([chains[m] for m in part])}
             got = cache.get(f"{tag}{name}-{lo}", key) if cache else None
             if got is not None:
                 for j, m in enumerate(part):
@@ -330,7 +329,7 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
     obs = Observations(reach, trajs, world_of)
     lengths = np.array([path_length(t["poses"])[-1] for t in trajs])
     frames = np.array([len(t["poses"]) for t in trajs])
-    chains = chains_of(trajs, obs, reach, ps, cache, f"{name}-")
+    chains = chains_of(obs, reach, ps, cache, f"{name}-")
     out: dict = {"controller": cwp_path, "reach": re_path, "points": []}
     for p in ps:
         anchors = np.array([len(a) for a in chains[p]])
