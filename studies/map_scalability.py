@@ -14,7 +14,11 @@ Also measured:
   pairs farther apart count as no edge, so the estimate is low and the
   ratio high);
 * ``growth_last_over_first``: vertices added by the last 30 drives over
-  those added by the first 30 (below 1: sublinear growth);
+  those added by the first 30 (below 1: sublinear growth). Drives are added
+  in a seeded random order (``--order shuffled``): the pairs protocol
+  collects them by start place, so in collection order (``--order
+  collected``) the last 30 drives all leave from places no earlier drive
+  left from, which is new experience rather than more of the same;
 * ``retrieval_recall``: in ``--recall-world``, while its first
   ``--recall-trajectories`` drives are added, every new vertex is also
   scored against every vertex of the map: the share of the cross edges that
@@ -79,6 +83,12 @@ def dense_edges(scorer, world, drives, p_edge: float, samples: int, seed: int,
             "edges": float(np.mean(counts) * len(poses)), "vertices": int(len(poses))}
 
 
+def tag_of_order(order: str) -> str:
+    """The file-name tag of a drive order (collected order: none, as the
+    planning study's maps)."""
+    return "-shuffled" if order == "shuffled" else ""
+
+
 def run_house(house: str, args, policy_for) -> dict:
     from topodrake.learning.samples import collect_trajectories
     from topodrake.topomap.build import BuildStats, add_trajectory
@@ -94,7 +104,12 @@ def run_house(house: str, args, policy_for) -> dict:
     root = Path(args.data) / "demos" / "pairs-s0"
     collect_trajectories([house], root, progress=not args.quiet)
     _, drives = load_demos(root / house, successful_only=True)
-    drives = drives[:args.trajectories]
+    order = np.arange(len(drives))
+    if args.order == "shuffled":
+        order = np.random.default_rng(args.seed).permutation(len(drives))
+    order = order[:args.trajectories]
+    names = [f"pairs-s0/{i}" for i in order]
+    drives = [drives[i] for i in order]
     world = load_world(house)
     scorer = make_scorer(args.modality, world)
     m = TopoMap(scorer, default_embedding(scorer.observation), args.map_config, world=house)
@@ -104,11 +119,12 @@ def run_house(house: str, args, policy_for) -> dict:
     wall = time.perf_counter()
     for i, d in enumerate(tqdm(drives, desc=f"map {house}", disable=args.quiet, unit="traj")):
         checking = audit and i < args.recall_trajectories
-        add_trajectory(m, drive_observations(world, scorer, d.poses), d.poses, f"pairs-s0/{i}",
+        add_trajectory(m, drive_observations(world, scorer, d.poses), d.poses, names[i],
                        audit_stats if checking else stats, audit=checking)
         curve.append([m.raw_frames, len(m), m.n_edges])
     build_s = time.perf_counter() - wall
-    save_map(m, Path(args.data) / "maps" / f"{house}-{args.modality}{args.config_tag}.tdmap")
+    save_map(m, Path(args.data) / "maps"
+             / f"{house}-{args.modality}{args.config_tag}{tag_of_order(args.order)}.tdmap")
     out = {"trajectories": len(drives), "raw_frames": m.raw_frames, "vertices": len(m),
            "edges": m.n_edges, "edge_kinds": m.edge_counts(),
            "keep_ratio": round(len(m) / m.raw_frames, 5), "build_s": round(build_s, 1),
@@ -162,6 +178,8 @@ def main(argv=None) -> int:
     ap.add_argument("--modality", choices=["camera", "lidar", "oracle"], default="camera",
                     help="the shipped RE the maps are built with")
     ap.add_argument("--trajectories", type=at.count, default=90, help="drives per house")
+    ap.add_argument("--order", choices=["shuffled", "collected"], default="shuffled",
+                    help="the order drives are added in (shuffled: seeded by --seed)")
     ap.add_argument("--recall-world", default="test-0", help="house where retrieval is audited")
     ap.add_argument("--recall-trajectories", type=at.count0, default=30,
                     help="drives audited against the exhaustive pass")
@@ -207,7 +225,8 @@ def _run(args) -> int:
     out = Path(args.out)
     runs = out / "map_scalability_runs"
     key = f"{args.modality}-t{args.trajectories}-r{args.recall_trajectories}-d{args.dense_samples}" \
-          f"-h{args.hop_samples}x{args.hop_runs}-s{args.seed}{args.config_tag}"
+          f"-h{args.hop_samples}x{args.hop_runs}-s{args.seed}{args.config_tag}" \
+          + tag_of_order(args.order)
     houses = {}
     for house in worlds:
         cached = runs / f"{house}-{key}.json"
@@ -232,7 +251,8 @@ def _run(args) -> int:
                               / sum(h["runs"] for h in hops), 4) if hops else None)}
     atomic_write_json(out / "map_scalability.json", {
         "command": "python studies/map_scalability.py " + " ".join(sys.argv[1:]),
-        "modality": args.modality, "seed": args.seed, "map_config": asdict(args.map_config),
+        "modality": args.modality, "seed": args.seed, "order": args.order,
+        "map_config": asdict(args.map_config),
         "summary": summary, "houses": houses})
     plot(houses, out / "map_scalability.png", args.modality)
     if args.json:

@@ -222,8 +222,10 @@ class PathWatch:
 
 # ---------------------------------------------------------------- one controller
 
-def chains_of(obs, reach, ps, cache: RunCache | None = None, tag: str = "") -> dict:
-    """RE anchors of every trajectory at every p: {p: [anchors, ...]}."""
+def chains_of(obs, reach, ps, cache: RunCache | None = None, tag: str = "",
+              slack: float = 0.0) -> dict:
+    """RE anchors of every trajectory at every p: {p: [anchors, ...]}
+    (``slack``: see :func:`topodrake.topomap.sparsify.sparsify`)."""
     out = {}
     for p in ps:
         got = cache.get(f"{tag}chains-p{p}", {"p": p}) if cache else None
@@ -235,7 +237,7 @@ def chains_of(obs, reach, ps, cache: RunCache | None = None, tag: str = "") -> d
         for o in obs:
             feats = reach.frame_features(o)
             for p in todo:
-                made[p].append(reach.sparsify(o, p=p, feats=feats))
+                made[p].append(reach.sparsify(o, p=p, feats=feats, slack=slack))
         for p in todo:
             out[p] = made[p]
             if cache:
@@ -325,11 +327,11 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         "trajectories": args.trajectories_file, "controller": name,
         "checkpoints": [file_sha1(f) for f in spec], "seed": args.seed, "noise": args.noise,
         "follower": asdict(args.follower_config), "tolerance_m": TOLERANCE_M,
-        "diverge_m": DIVERGE_M})
+        "diverge_m": DIVERGE_M, "slack": args.slack})
     obs = Observations(reach, trajs, world_of)
     lengths = np.array([path_length(t["poses"])[-1] for t in trajs])
     frames = np.array([len(t["poses"]) for t in trajs])
-    chains = chains_of(obs, reach, ps, cache, f"{name}-")
+    chains = chains_of(obs, reach, ps, cache, f"{name}-", args.slack)
     out: dict = {"controller": cwp_path, "reach": re_path, "points": []}
     for p in ps:
         anchors = np.array([len(a) for a in chains[p]])
@@ -412,6 +414,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="results", help="output folder")
     ap.add_argument("--follower", default="{}",
                     help="follower thresholds to change, as JSON (FollowerConfig fields)")
+    ap.add_argument("--slack", type=at.fraction, default=0.0,
+                    help="sparsify slack where RE passes not even the next frame above p (0: the "
+                         "paper's rule; maps use MapConfig.sparsify_slack)")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)

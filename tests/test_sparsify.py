@@ -38,6 +38,25 @@ def test_walk_always_advances_and_keeps_the_last_frame():
     assert sparsify(1, lambda i, js: np.ones(len(js))).tolist() == [0]
 
 
+def test_slack_keeps_the_farthest_frame_nearly_as_reachable_as_the_next():
+    # RE never reaches 0.99 from frames 0..9 (0.97 up to 4 frames ahead, then 0.9);
+    # from frame 10 on it passes 0.99 up to 3 frames ahead
+    def reach(i, js):
+        if i < 10:
+            return np.where(js - i <= 4, 0.97 - 0.001 * (js - i), 0.9)
+        return np.where(js - i <= 3, 0.999, 0.5)
+
+    paper = sparsify(20, reach, p=0.99)
+    assert paper.tolist()[:11] == list(range(11))          # every frame an anchor
+    # with slack the scan goes on while RE stays within 0.01 of the next frame's
+    assert sparsify(20, reach, p=0.99, slack=0.01).tolist() == [0, 4, 8, 12, 15, 18, 19]
+    # a slack smaller than the fall from the next frame's RE moves one frame at a time
+    assert sparsify(20, reach, p=0.99, slack=0.0005).tolist()[:4] == [0, 1, 2, 3]
+    # where the next frame passes p the slack changes nothing
+    assert sparsify(20, lambda i, js: np.where(js - i <= 4, 0.999, 0.98), slack=0.05).tolist() \
+        == [0, 4, 8, 12, 16, 19]
+
+
 def test_bad_arguments():
     with pytest.raises(TopodrakeError, match="empty"):
         sparsify(0, lambda i, js: js)
@@ -45,3 +64,5 @@ def test_bad_arguments():
         sparsify(5, lambda i, js: js, p=1.0)
     with pytest.raises(TopodrakeError, match="returned"):
         sparsify(5, lambda i, js: np.ones(1), window=3)
+    with pytest.raises(TopodrakeError, match="slack"):
+        sparsify(5, lambda i, js: js, slack=-0.1)

@@ -298,6 +298,21 @@ def test_map_file_round_trip(oracle_map):
     assert plan_path(m2, a, b).vertices == plan_path(m, a, b).vertices
 
 
+def test_a_map_written_before_the_sparsify_slack_loads_with_the_paper_s_rule(oracle_map, tmp_path):
+    world, m, path = oracle_map
+    with np.load(path) as z:
+        arrays = {name: z[name] for name in z.files}
+    meta = json.loads(bytes(arrays.pop("meta")).decode())
+    assert meta["config"].pop("sparsify_slack") == MapConfig().sparsify_slack
+    old = tmp_path / "old.tdmap"
+    with open(old, "wb") as f:
+        np.savez_compressed(f, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **arrays)
+    assert load_map(old, m.scorer).config.sparsify_slack == 0.0
+    assert load_map(path, m.scorer).config.sparsify_slack == MapConfig().sparsify_slack
+    with pytest.raises(TopodrakeError, match="sparsify_slack"):
+        MapConfig(sparsify_slack=1.0).validate()
+
+
 def test_map_files_that_do_not_fit_are_refused_in_one_line(oracle_map, tmp_path):
     import io
     import zipfile

@@ -181,16 +181,17 @@ class Reachability(ObservationNetwork):
 
     def sparsify(self, observations: np.ndarray, p: float = 0.99, window: int = 4,
                  feats: FrameFeatures | None = None,
-                 platt: tuple[float, float] | None = None) -> np.ndarray:
+                 platt: tuple[float, float] | None = None, slack: float = 0.0) -> np.ndarray:
         """Anchor frames of one trajectory's observations (T, ...) (with
-        the anchor calibration, or ``platt``)."""
+        the anchor calibration, or ``platt``; ``slack``: see
+        :func:`topodrake.topomap.sparsify.sparsify`)."""
         from topodrake.topomap.sparsify import sparsify
 
         feats = feats or self.frame_features(observations)
         n = len(feats)
         return sparsify(n, lambda i, js: self.pairwise(feats, np.full(len(js), i),
                                                        self.context_rows(n, js), platt=platt),
-                        p, window)
+                        p, window, slack=slack)
 
 
 def parse_estimators(text: str) -> dict:

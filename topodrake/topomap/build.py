@@ -2,7 +2,8 @@
 
 For each new drive, from its observations only:
 
-1. **Sparsify** it into anchors at ``p_sparsify``
+1. **Sparsify** it into anchors at ``p_sparsify``, with ``sparsify_slack``
+   where RE passes not even the next frame
    (:func:`topodrake.topomap.sparsify.sparsify`).
 2. **Reuse** vertices: an existing vertex v replaces a new anchor when
    RE(prev, v) and RE(v, next) both exceed ``p_reuse`` (prev: the chain's
@@ -90,7 +91,7 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     m.bank.ensure(rows)
     ctx_local = context_rows(n, np.arange(n), k, step)
     anchors = sparsify(n, lambda i, js: score(np.full(len(js), start + i), start + ctx_local[js]),
-                       cfg.p_sparsify, cfg.sparsify_window)
+                       cfg.p_sparsify, cfg.sparsify_window, slack=cfg.sparsify_slack)
     emb = m.embedding.embed(obs[anchors])
 
     # -- reuse: the chain as ("v", vertex) or ("a", anchor index) nodes

@@ -34,6 +34,8 @@ class MapConfig:
     """How a map is built and queried (the paper's settings by default)."""
 
     p_sparsify: float = 0.99     # anchors: the next one is the last frame RE passes above this
+    sparsify_slack: float = 0.01  # ... and where RE passes not even the next frame, the last one
+                                  # within this of the next frame's RE (0: the paper's rule)
     p_reuse: float = 0.99        # an existing vertex replaces a new anchor above this (both hops)
     p_edge: float = 0.99         # cross edges: sequence-matched RE above this
     sequence_window: int = 2     # aligned anchors on each side for sequence matching
@@ -54,6 +56,9 @@ class MapConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
                 raise TopodrakeError(f"{where}: {name} must be in (0, 1), got {v}")
+        if not (isinstance(self.sparsify_slack, (int, float)) and 0.0 <= self.sparsify_slack < 1.0):
+            raise TopodrakeError(f"{where}: sparsify_slack must be in [0, 1), got "
+                                 f"{self.sparsify_slack}")
         for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1),
                           ("retrieval_first", 0), ("link_k", 1)):
             v = getattr(self, name)

@@ -6,6 +6,14 @@ anchor i to each of them. The scan stops at the first frame that fails, the
 next anchor is the frame before it (at least i + 1, so the walk always
 advances) and the trajectory's last frame is always kept.
 
+Where RE does not trust even the next frame above ``p`` (it rarely reaches
+0.99 from some views, at turns and doorways), the paper's rule keeps every
+frame: runs of anchors 5 cm apart, each hop no more probable than a longer
+one and each a target too close for C_WP to aim at. With ``slack`` > 0
+(ours) the scan then goes on with the threshold ``reach(i, i+1) - slack``
+instead: the next anchor is the farthest frame RE rates nearly as reachable
+as the next one. ``slack = 0`` is the paper's rule.
+
 ``reach(i, js)`` returns the probabilities for anchor ``i`` and a batch of
 later frames ``js`` (N,), so a learned RE evaluates a window of candidates
 in one batched call (with the anchor's and the candidates' cached features).
@@ -21,7 +29,7 @@ from topodrake.errors import TopodrakeError
 
 
 def sparsify(n_frames: int, reach: Callable[[int, np.ndarray], np.ndarray], p: float = 0.99,
-             window: int = 4, max_window: int = 64) -> np.ndarray:
+             window: int = 4, max_window: int = 64, slack: float = 0.0) -> np.ndarray:
     """Anchor frame indices (increasing, first 0, last ``n_frames - 1``).
 
     Candidates are scored in windows that start at ``window`` frames and
@@ -33,10 +41,13 @@ def sparsify(n_frames: int, reach: Callable[[int, np.ndarray], np.ndarray], p: f
         raise TopodrakeError(f"p_sparsify must be in (0, 1), got {p}")
     if window < 1 or max_window < 1:
         raise TopodrakeError("window and max_window must be >= 1")
+    if not 0.0 <= slack < 1.0:
+        raise TopodrakeError(f"sparsify slack must be in [0, 1), got {slack}")
     anchors = [0]
     i = 0
     last = n_frames - 1
     while i < last:
+        threshold = p
         j_pass = i                       # last frame that passed from anchor i
         start = i + 1
         size = window
@@ -46,7 +57,9 @@ def sparsify(n_frames: int, reach: Callable[[int, np.ndarray], np.ndarray], p: f
             probs = np.asarray(reach(i, js), np.float64).reshape(-1)
             if probs.shape != js.shape:
                 raise TopodrakeError(f"reach() returned {probs.size} values for {js.size} frames")
-            fail = np.flatnonzero(~(probs > p))
+            if start == i + 1 and slack > 0 and not probs[0] > p:
+                threshold = probs[0] - slack     # the next frame fails p: stay near its RE
+            fail = np.flatnonzero(~(probs > threshold))
             if fail.size:
                 j_pass = int(js[fail[0]]) - 1
                 break
