@@ -113,6 +113,29 @@ def test_reuse_needs_both_hops_and_keeps_the_order_of_the_old_drive():
         assert pos == sorted(pos) and len(set(t.chain)) == len(t.chain)
 
 
+def test_reuse_slack_takes_a_vertex_nearly_as_reachable_as_the_anchor_it_replaces():
+    # drive 0 is sure of its hops; drive 1, beside it, rates its own hops 0.97 and the
+    # hops between the drives `cross`: below p_reuse, so the paper's rule reuses nothing
+    def beside(cross):
+        def rule(a, b):
+            if not 0 <= b[1] - a[1] <= 3:
+                return 0.1
+            if a[0] != b[0]:
+                return cross
+            return 0.999 if a[0] == 0 else 0.97
+        return rule
+
+    for cross, slack, reused in ((0.965, 0.0, 0), (0.965, 0.01, 2), (0.955, 0.01, 0)):
+        m = table_map(beside(cross), reuse_slack=slack)
+        add_trajectory(m, drive(0, 10))
+        stats = add_trajectory(m, drive(1, 10))
+        # the inner anchors' hops are 0.97: a vertex needs 0.96 on both; the ends keep p_reuse
+        assert stats.reused == reused, (cross, slack)
+        assert stats.new_vertices == 4 - reused
+    with pytest.raises(TopodrakeError, match="reuse_slack"):
+        MapConfig(reuse_slack=-0.01).validate()
+
+
 def test_cross_edges_need_the_aligned_neighbours_to_pass_too():
     # drives side by side; the single pairs pass in both directions
     m = table_map(parallel_drives, reuse=False)
@@ -298,16 +321,18 @@ def test_map_file_round_trip(oracle_map):
     assert plan_path(m2, a, b).vertices == plan_path(m, a, b).vertices
 
 
-def test_a_map_written_before_the_sparsify_slack_loads_with_the_paper_s_rule(oracle_map, tmp_path):
+def test_a_map_written_before_the_slacks_loads_with_the_paper_s_rules(oracle_map, tmp_path):
     world, m, path = oracle_map
     with np.load(path) as z:
         arrays = {name: z[name] for name in z.files}
     meta = json.loads(bytes(arrays.pop("meta")).decode())
     assert meta["config"].pop("sparsify_slack") == MapConfig().sparsify_slack
+    assert meta["config"].pop("reuse_slack") == MapConfig().reuse_slack
     old = tmp_path / "old.tdmap"
     with open(old, "wb") as f:
         np.savez_compressed(f, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **arrays)
-    assert load_map(old, m.scorer).config.sparsify_slack == 0.0
+    old_config = load_map(old, m.scorer).config
+    assert old_config.sparsify_slack == 0.0 and old_config.reuse_slack == 0.0
     assert load_map(path, m.scorer).config.sparsify_slack == MapConfig().sparsify_slack
     with pytest.raises(TopodrakeError, match="sparsify_slack"):
         MapConfig(sparsify_slack=1.0).validate()

@@ -8,7 +8,9 @@ For each new drive, from its observations only:
 2. **Reuse** vertices: an existing vertex v replaces a new anchor when
    RE(prev, v) and RE(v, next) both exceed ``p_reuse`` (prev: the chain's
    previous node, next: the drive's next anchor; the anchor itself at the
-   ends); the largest product wins. Vertices reused from one older drive
+   ends); the largest product wins. With ``reuse_slack``, where the new
+   anchor's own hop from prev (or to next) is below ``p_reuse``, v's needs
+   only that hop's RE less the slack. Vertices reused from one older drive
    must keep that drive's order, and no vertex is used twice in a chain.
 3. **Link** consecutive chain nodes with trajectory edges (p = RE).
 4. **Cross edges** between every new vertex x and the map, both ways: the
@@ -115,13 +117,14 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
                 cands = np.array([v for v in cands if m.graph.nodes[v]["traj"] != u["traj"]
                                   or m.graph.nodes[v]["pos"] > u["pos"]], np.int64)
             if len(cands):
+                need_in, need_out = _reuse_thresholds(cfg, score, src, ctx, prev, here, nxt)
                 s1 = score(np.full(len(cands), src(prev)), m.contexts(cands))
-                ok = cands[s1 > cfg.p_reuse]
+                ok = cands[s1 > need_in]
                 if len(ok):
                     s2 = score(m.centers(ok), np.repeat(ctx(nxt)[None], len(ok), 0))
-                    both = s2 > cfg.p_reuse
+                    both = s2 > need_out
                     if both.any():
-                        prod = s1[s1 > cfg.p_reuse] * s2
+                        prod = s1[s1 > need_in] * s2
                         prod[~both] = -1.0
                         best = int(ok[np.argmax(prod)])
                         choice = ("v", best)
@@ -166,6 +169,21 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
         m.index.add(np.array(new_vertices), queries)
         _cross_edges(m, new_vertices, ids, new_pos, queries, score, stats, audit)
     return stats
+
+
+def _reuse_thresholds(cfg, score, src, ctx, prev, here, nxt) -> tuple[float, float]:
+    """RE a reused vertex needs from ``prev`` and toward ``nxt``: ``p_reuse``,
+    or with ``reuse_slack`` where the new anchor's own hop is below it, that
+    hop's RE less the slack (a vertex nearly as good as the anchor it replaces)."""
+    need_in = need_out = cfg.p_reuse
+    if cfg.reuse_slack > 0:
+        if prev != here:
+            own = float(score(np.array([src(prev)]), ctx(here)[None])[0])
+            need_in = min(need_in, own - cfg.reuse_slack)
+        if nxt != here:
+            own = float(score(np.array([src(here)]), ctx(nxt)[None])[0])
+            need_out = min(need_out, own - cfg.reuse_slack)
+    return need_in, need_out
 
 
 def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[int],

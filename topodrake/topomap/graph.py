@@ -37,6 +37,8 @@ class MapConfig:
     sparsify_slack: float = 0.01  # ... and where RE passes not even the next frame, the last one
                                   # within this of the next frame's RE (0: the paper's rule)
     p_reuse: float = 0.99        # an existing vertex replaces a new anchor above this (both hops)
+    reuse_slack: float = 0.01    # ... or, where the anchor's own hop is below p_reuse, above that
+                                 # hop's RE less this (0: the paper's rule)
     p_edge: float = 0.99         # cross edges: sequence-matched RE above this
     sequence_window: int = 2     # aligned anchors on each side for sequence matching
     retrieval_k: int = 64        # building: vertices ranked by the embedding that RE checks
@@ -56,9 +58,10 @@ class MapConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
                 raise TopodrakeError(f"{where}: {name} must be in (0, 1), got {v}")
-        if not (isinstance(self.sparsify_slack, (int, float)) and 0.0 <= self.sparsify_slack < 1.0):
-            raise TopodrakeError(f"{where}: sparsify_slack must be in [0, 1), got "
-                                 f"{self.sparsify_slack}")
+        for name in ("sparsify_slack", "reuse_slack"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0.0 <= v < 1.0):
+                raise TopodrakeError(f"{where}: {name} must be in [0, 1), got {v}")
         for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1),
                           ("retrieval_first", 0), ("link_k", 1)):
             v = getattr(self, name)
