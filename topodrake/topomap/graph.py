@@ -37,7 +37,7 @@ class MapConfig:
     sparsify_slack: float = 0.01  # ... and where RE passes not even the next frame, the last one
                                   # within this of the next frame's RE (0: the paper's rule)
     p_reuse: float = 0.99        # an existing vertex replaces a new anchor above this (both hops)
-    reuse_slack: float = 0.01    # ... or, where the anchor's own hop is below p_reuse, above that
+    reuse_slack: float = 0.0     # ... or, where the anchor's own hop is below p_reuse, above that
                                  # hop's RE less this (0: the paper's rule)
     p_edge: float = 0.99         # cross edges: sequence-matched RE above this
     sequence_window: int = 2     # aligned anchors on each side for sequence matching
