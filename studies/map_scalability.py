@@ -210,8 +210,11 @@ def _run(args) -> int:
     torch.set_num_threads(1)
     args.map_config = load_map_config(args.config)
     changed = asdict(args.map_config) != asdict(MapConfig())
-    args.config_tag = "-c" + hashlib.sha1(json.dumps(asdict(args.map_config), sort_keys=True)
-                                          .encode()).hexdigest()[:8] if changed else ""
+    config_hash = hashlib.sha1(json.dumps(asdict(args.map_config), sort_keys=True)
+                               .encode()).hexdigest()[:8]
+    # map files: tagged only off the defaults (the planning study adopts the default ones);
+    # cached results: always, so a change of the defaults is never served stale figures
+    args.config_tag = "-c" + config_hash if changed else ""
     worlds = [w for w in args.worlds.split(",") if w]
     if not worlds:
         raise TopodrakeError("--worlds names no house")
@@ -225,7 +228,7 @@ def _run(args) -> int:
     out = Path(args.out)
     runs = out / "map_scalability_runs"
     key = f"{args.modality}-t{args.trajectories}-r{args.recall_trajectories}-d{args.dense_samples}" \
-          f"-h{args.hop_samples}x{args.hop_runs}-s{args.seed}{args.config_tag}" \
+          f"-h{args.hop_samples}x{args.hop_runs}-s{args.seed}-c{config_hash}" \
           + tag_of_order(args.order)
     houses = {}
     for house in worlds:

@@ -126,7 +126,7 @@ def test_reuse_slack_takes_a_vertex_nearly_as_reachable_as_the_anchor_it_replace
         return rule
 
     for cross, slack, reused in ((0.965, 0.0, 0), (0.965, 0.01, 2), (0.955, 0.01, 0)):
-        m = table_map(beside(cross), reuse_slack=slack)
+        m = table_map(beside(cross), reuse_slack=slack, reuse_rule="paper")
         add_trajectory(m, drive(0, 10))
         stats = add_trajectory(m, drive(1, 10))
         # the inner anchors' hops are 0.97: a vertex needs 0.96 on both; the ends keep p_reuse
@@ -134,6 +134,38 @@ def test_reuse_slack_takes_a_vertex_nearly_as_reachable_as_the_anchor_it_replace
         assert stats.new_vertices == 4 - reused
     with pytest.raises(TopodrakeError, match="reuse_slack"):
         MapConfig(reuse_slack=-0.01).validate()
+    with pytest.raises(TopodrakeError, match="reuse_slack applies to reuse_rule 'paper'"):
+        MapConfig(reuse_slack=0.01, reuse_rule="resume").validate()
+
+
+def test_resume_rule_reuses_where_cross_drive_hops_are_shorter_than_a_drive_s_own():
+    # two drives over the same places; RE trusts 3 frames ahead along a drive but
+    # only 2 between drives. The paper's rule asks a reused vertex to reach the
+    # next anchor, 3 ahead: never across drives. "resume" asks it to lead on to
+    # the frame after the anchor it stands in for, and rescans from it.
+    def shorter_across(a, b):
+        reach = 3 if a[0] == b[0] else 2
+        return 0.999 if 0 <= b[1] - a[1] <= reach else 0.1
+
+    paper = table_map(shorter_across, reuse_rule="paper")
+    add_trajectory(paper, drive(0, 10))
+    stats = add_trajectory(paper, drive(1, 10))
+    assert stats.reused == 0 and stats.new_vertices == 4
+
+    m = table_map(shorter_across, reuse_rule="resume")
+    add_trajectory(m, drive(0, 10))
+    stats = add_trajectory(m, drive(1, 10))
+    first = m.trajectories[0].chain
+    # drive 1 runs along drive 0's four vertices, then keeps its own last frame
+    assert m.trajectories[1].chain[:4] == first
+    assert stats.reused == 4 and stats.new_vertices == 1
+    new = m.trajectories[1].chain[4]
+    assert m.graph.nodes[new]["traj"] == 1 and m.graph.nodes[new]["frame"] == 9
+    # every trajectory edge of the chain is one RE trusts
+    chain = m.trajectories[1].chain
+    assert all(m.graph.edges[u, v]["p"] > 0.99 for u, v in zip(chain[:-1], chain[1:]) if u != v)
+    with pytest.raises(TopodrakeError, match="reuse_rule"):
+        MapConfig(reuse_rule="greedy").validate()
 
 
 def test_cross_edges_need_the_aligned_neighbours_to_pass_too():
@@ -321,18 +353,20 @@ def test_map_file_round_trip(oracle_map):
     assert plan_path(m2, a, b).vertices == plan_path(m, a, b).vertices
 
 
-def test_a_map_written_before_the_slacks_loads_with_the_paper_s_rules(oracle_map, tmp_path):
+def test_a_map_written_before_the_slacks_and_the_resume_rule_loads_with_the_paper_s_rules(oracle_map, tmp_path):
     world, m, path = oracle_map
     with np.load(path) as z:
         arrays = {name: z[name] for name in z.files}
     meta = json.loads(bytes(arrays.pop("meta")).decode())
     assert meta["config"].pop("sparsify_slack") == MapConfig().sparsify_slack
     assert meta["config"].pop("reuse_slack") == MapConfig().reuse_slack
+    assert meta["config"].pop("reuse_rule") == MapConfig().reuse_rule == "resume"
     old = tmp_path / "old.tdmap"
     with open(old, "wb") as f:
         np.savez_compressed(f, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **arrays)
     old_config = load_map(old, m.scorer).config
     assert old_config.sparsify_slack == 0.0 and old_config.reuse_slack == 0.0
+    assert old_config.reuse_rule == "paper"
     assert load_map(path, m.scorer).config.sparsify_slack == MapConfig().sparsify_slack
     with pytest.raises(TopodrakeError, match="sparsify_slack"):
         MapConfig(sparsify_slack=1.0).validate()

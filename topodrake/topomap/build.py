@@ -34,7 +34,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.topomap.graph import TopoMap, Trajectory
-from topodrake.topomap.sparsify import sparsify
+from topodrake.topomap.sparsify import sparsify, sparsify_chain
 
 
 @dataclass
@@ -92,45 +92,14 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     rows = m.bank.append(obs, poses)
     m.bank.ensure(rows)
     ctx_local = context_rows(n, np.arange(n), k, step)
-    anchors = sparsify(n, lambda i, js: score(np.full(len(js), start + i), start + ctx_local[js]),
-                       cfg.p_sparsify, cfg.sparsify_window, slack=cfg.sparsify_slack)
-    emb = m.embedding.embed(obs[anchors])
-
-    # -- reuse: the chain as ("v", vertex) or ("a", anchor index) nodes
-    def src(node) -> int:
-        return m.graph.nodes[node[1]]["center"] if node[0] == "v" else start + anchors[node[1]]
-
-    def ctx(node) -> np.ndarray:
-        return m.graph.nodes[node[1]]["context"] if node[0] == "v" else start + ctx_local[anchors[node[1]]]
-
-    chain: list[tuple[str, int]] = []
-    used: set[int] = set()
-    for i in range(len(anchors)):
-        here = ("a", i)
-        choice = here
-        if cfg.reuse and len(m.index):
-            prev = chain[-1] if chain else here
-            nxt = ("a", i + 1) if i + 1 < len(anchors) else here
-            cands = m.index.search(emb[i], cfg.retrieval_k, exclude=np.fromiter(used, np.int64))[0]
-            if prev[0] == "v":      # keep the order of a drive we reuse from
-                u = m.graph.nodes[prev[1]]
-                cands = np.array([v for v in cands if m.graph.nodes[v]["traj"] != u["traj"]
-                                  or m.graph.nodes[v]["pos"] > u["pos"]], np.int64)
-            if len(cands):
-                need_in, need_out = _reuse_thresholds(cfg, score, src, ctx, prev, here, nxt)
-                s1 = score(np.full(len(cands), src(prev)), m.contexts(cands))
-                ok = cands[s1 > need_in]
-                if len(ok):
-                    s2 = score(m.centers(ok), np.repeat(ctx(nxt)[None], len(ok), 0))
-                    both = s2 > need_out
-                    if both.any():
-                        prod = s1[s1 > need_in] * s2
-                        prod[~both] = -1.0
-                        best = int(ok[np.argmax(prod)])
-                        choice = ("v", best)
-                        used.add(best)
-                        stats.reused += 1
-        chain.append(choice)
+    if cfg.reuse and cfg.reuse_rule == "resume":
+        anchors, chain = _resume_chain(m, obs, start, ctx_local, score, stats)
+        emb = m.embedding.embed(obs[anchors])
+    else:
+        anchors = sparsify(n, lambda i, js: score(np.full(len(js), start + i), start + ctx_local[js]),
+                           cfg.p_sparsify, cfg.sparsify_window, slack=cfg.sparsify_slack)
+        emb = m.embedding.embed(obs[anchors])
+        chain = _paper_chain(m, anchors, emb, start, ctx_local, score, stats)
 
     # -- keep the frames the new vertices need, create them
     new_idx = [node[1] for node in chain if node[0] == "a"]
@@ -169,6 +138,100 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
         m.index.add(np.array(new_vertices), queries)
         _cross_edges(m, new_vertices, ids, new_pos, queries, score, stats, audit)
     return stats
+
+
+def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,
+                 ctx_local: np.ndarray, score, stats: BuildStats) -> list[tuple[str, int]]:
+    """The paper's reuse: after sparsifying, an existing vertex v replaces
+    anchor i when RE(prev, v) and RE(v, anchor i + 1) both pass p_reuse."""
+    cfg = m.config
+    # -- reuse: the chain as ("v", vertex) or ("a", anchor index) nodes
+    def src(node) -> int:
+        return m.graph.nodes[node[1]]["center"] if node[0] == "v" else start + anchors[node[1]]
+
+    def ctx(node) -> np.ndarray:
+        return m.graph.nodes[node[1]]["context"] if node[0] == "v" else start + ctx_local[anchors[node[1]]]
+
+    chain: list[tuple[str, int]] = []
+    used: set[int] = set()
+    for i in range(len(anchors)):
+        here = ("a", i)
+        choice = here
+        if cfg.reuse and len(m.index):
+            prev = chain[-1] if chain else here
+            nxt = ("a", i + 1) if i + 1 < len(anchors) else here
+            cands = m.index.search(emb[i], cfg.retrieval_k, exclude=np.fromiter(used, np.int64))[0]
+            if prev[0] == "v":      # keep the order of a drive we reuse from
+                u = m.graph.nodes[prev[1]]
+                cands = np.array([v for v in cands if m.graph.nodes[v]["traj"] != u["traj"]
+                                  or m.graph.nodes[v]["pos"] > u["pos"]], np.int64)
+            if len(cands):
+                need_in, need_out = _reuse_thresholds(cfg, score, src, ctx, prev, here, nxt)
+                s1 = score(np.full(len(cands), src(prev)), m.contexts(cands))
+                ok = cands[s1 > need_in]
+                if len(ok):
+                    s2 = score(m.centers(ok), np.repeat(ctx(nxt)[None], len(ok), 0))
+                    both = s2 > need_out
+                    if both.any():
+                        prod = s1[s1 > need_in] * s2
+                        prod[~both] = -1.0
+                        best = int(ok[np.argmax(prod)])
+                        choice = ("v", best)
+                        used.add(best)
+                        stats.reused += 1
+        chain.append(choice)
+    return chain
+
+
+def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray, score,
+                  stats: BuildStats) -> tuple[np.ndarray, list[tuple[str, int]]]:
+    """Reuse as the scan goes (ours): at each anchor frame j an existing vertex
+    v stands in for it when RE(source, v) and RE(v, frame j + 1) pass
+    p_reuse (the drive's end: RE(v, frame j)), and the scan resumes from v.
+
+    The paper's rule asks v to reach the next anchor, which the greedy scan
+    put at the edge of what anchor j itself reaches, so v has to sit almost
+    exactly on anchor j; here v needs only to be trusted from where the
+    scan stands and to lead on along the drive."""
+    cfg = m.config
+    n = len(obs)
+    used: set[int] = set()
+
+    def row(source) -> int:
+        return m.graph.nodes[source[1]]["center"] if isinstance(source, tuple) else start + source
+
+    def reach(source, js):
+        return score(np.full(len(js), row(source)), start + ctx_local[js])
+
+    def snap(j: int, source):
+        if not len(m.index):
+            return j
+        cands = m.index.search(m.embedding.embed(obs[j:j + 1])[0], cfg.retrieval_k,
+                               exclude=np.fromiter(used, np.int64))[0]
+        if isinstance(source, tuple):      # keep the order of a drive we reuse from
+            u = m.graph.nodes[source[1]]
+            cands = np.array([v for v in cands if m.graph.nodes[v]["traj"] != u["traj"]
+                              or m.graph.nodes[v]["pos"] > u["pos"]], np.int64)
+        if not len(cands):
+            return j
+        s1 = score(np.full(len(cands), row(source)), m.contexts(cands))
+        ok = cands[s1 > cfg.p_reuse]
+        if not len(ok):
+            return j
+        ahead = start + ctx_local[min(j + 1, n - 1)]
+        s2 = score(m.centers(ok), np.repeat(ahead[None], len(ok), 0))
+        if not (s2 > cfg.p_reuse).any():
+            return j
+        prod = np.where(s2 > cfg.p_reuse, s1[s1 > cfg.p_reuse] * s2, -1.0)
+        best = int(ok[np.argmax(prod)])
+        used.add(best)
+        stats.reused += 1
+        return ("v", best)
+
+    anchors, sources = sparsify_chain(n, reach, cfg.p_sparsify, cfg.sparsify_window,
+                                      slack=cfg.sparsify_slack, snap=snap)
+    chain = [src if isinstance(src, tuple) else ("a", i) for i, src in enumerate(sources)]
+    return anchors, chain
 
 
 def _reuse_thresholds(cfg, score, src, ctx, prev, here, nxt) -> tuple[float, float]:

@@ -29,6 +29,9 @@ from topodrake.topomap.retrieval import VertexIndex
 EDGE_KINDS = ("trajectory", "cross")
 
 
+REUSE_RULES = ("paper", "resume")
+
+
 @dataclass
 class MapConfig:
     """How a map is built and queried (the paper's settings by default)."""
@@ -38,7 +41,7 @@ class MapConfig:
                                   # within this of the next frame's RE (0: the paper's rule)
     p_reuse: float = 0.99        # an existing vertex replaces a new anchor above this (both hops)
     reuse_slack: float = 0.0     # ... or, where the anchor's own hop is below p_reuse, above that
-                                 # hop's RE less this (0: the paper's rule)
+                                 # hop's RE less this (0: the paper's rule; reuse_rule "paper" only)
     p_edge: float = 0.99         # cross edges: sequence-matched RE above this
     sequence_window: int = 2     # aligned anchors on each side for sequence matching
     retrieval_k: int = 64        # building: vertices ranked by the embedding that RE checks
@@ -52,6 +55,8 @@ class MapConfig:
     goal_mutual: bool = True     # planning: a goal link's p is min(RE(v, goal), RE(goal, v))
     sparsify_window: int = 4     # first window of candidates in the greedy scan
     reuse: bool = True
+    reuse_rule: str = "resume"   # "paper": a vertex replaces a sparsified anchor; "resume":
+                                 # it stands in for an anchor frame and the scan resumes from it
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link"):
@@ -62,6 +67,11 @@ class MapConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0.0 <= v < 1.0):
                 raise TopodrakeError(f"{where}: {name} must be in [0, 1), got {v}")
+        if self.reuse_rule not in REUSE_RULES:
+            raise TopodrakeError(f"{where}: reuse_rule must be one of {', '.join(REUSE_RULES)}, "
+                                 f"got {self.reuse_rule!r}")
+        if self.reuse_slack > 0 and self.reuse_rule != "paper":
+            raise TopodrakeError(f"{where}: reuse_slack applies to reuse_rule 'paper' only")
         for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1),
                           ("retrieval_first", 0), ("link_k", 1)):
             v = getattr(self, name)

@@ -162,7 +162,8 @@ def load_map(path, scorer, embedding=None) -> TopoMap:
             raise TopodrakeError(f"{path} is a {modality} map with k={k}; the reachability "
                                  f"given is {scorer.observation} with k={scorer.k}")
         # (maps written before the slacks existed were built by the paper's rules)
-        config = MapConfig(**{"sparsify_slack": 0.0, "reuse_slack": 0.0, **meta["config"]}
+        config = MapConfig(**{"sparsify_slack": 0.0, "reuse_slack": 0.0, "reuse_rule": "paper",
+                               **meta["config"]}
                            ).validate(f"{path}: config")
         embedding = embedding or default_embedding(modality)
         m = TopoMap(scorer, embedding, config, meta.get("world", ""), meta["identity"])

@@ -14,6 +14,10 @@ one and each a target too close for C_WP to aim at. With ``slack`` > 0
 instead: the next anchor is the farthest frame RE rates nearly as reachable
 as the next one. ``slack = 0`` is the paper's rule.
 
+With a ``snap`` hook (``sparsify_chain``) an existing map vertex can stand
+in for an anchor, and the scan resumes from that vertex (map building's
+``reuse_rule = "resume"``).
+
 ``reach(i, js)`` returns the probabilities for anchor ``i`` and a batch of
 later frames ``js`` (N,), so a learned RE evaluates a window of candidates
 in one batched call (with the anchor's and the candidates' cached features).
@@ -35,6 +39,22 @@ def sparsify(n_frames: int, reach: Callable[[int, np.ndarray], np.ndarray], p: f
     Candidates are scored in windows that start at ``window`` frames and
     double up to ``max_window`` while every frame passes, so a short reach
     costs few queries and a long one few calls."""
+    frames, _ = sparsify_chain(n_frames, reach, p, window, max_window, slack)
+    return frames
+
+
+def sparsify_chain(n_frames: int, reach: Callable[[object, np.ndarray], np.ndarray],
+                   p: float = 0.99, window: int = 4, max_window: int = 64, slack: float = 0.0,
+                   snap: Callable[[int, object], object] | None = None
+                   ) -> tuple[np.ndarray, list]:
+    """The greedy scan with an optional ``snap(frame, source)`` hook.
+
+    Returns the anchor frames and, for each, the source the scan went on
+    from: the frame index itself, or whatever ``snap`` returned for it (an
+    existing map vertex that stands in for the frame). ``reach(source, js)``
+    scores frames ``js`` from a source of either kind, so after a snap the
+    next anchor is the farthest frame reachable from the vertex, not from
+    the frame it replaced."""
     if n_frames < 1:
         raise TopodrakeError("cannot sparsify an empty trajectory")
     if not 0.0 < p < 1.0:
@@ -43,18 +63,20 @@ def sparsify(n_frames: int, reach: Callable[[int, np.ndarray], np.ndarray], p: f
         raise TopodrakeError("window and max_window must be >= 1")
     if not 0.0 <= slack < 1.0:
         raise TopodrakeError(f"sparsify slack must be in [0, 1), got {slack}")
-    anchors = [0]
+    snap = snap or (lambda j, source: j)
     i = 0
+    source = snap(0, 0)
+    anchors, sources = [0], [source]
     last = n_frames - 1
     while i < last:
         threshold = p
-        j_pass = i                       # last frame that passed from anchor i
+        j_pass = i                       # last frame that passed from the source
         start = i + 1
         size = window
         while start <= last:
             js = np.arange(start, min(start + size, last + 1))
             size = min(2 * size, max(max_window, window))
-            probs = np.asarray(reach(i, js), np.float64).reshape(-1)
+            probs = np.asarray(reach(source, js), np.float64).reshape(-1)
             if probs.shape != js.shape:
                 raise TopodrakeError(f"reach() returned {probs.size} values for {js.size} frames")
             if start == i + 1 and slack > 0 and not probs[0] > p:
@@ -66,5 +88,7 @@ def sparsify(n_frames: int, reach: Callable[[int, np.ndarray], np.ndarray], p: f
             j_pass = int(js[-1])
             start = j_pass + 1
         i = max(j_pass, i + 1)
+        source = snap(i, source)
         anchors.append(i)
-    return np.asarray(anchors, np.int64)
+        sources.append(source)
+    return np.asarray(anchors, np.int64), sources
