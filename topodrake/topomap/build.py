@@ -5,13 +5,19 @@ For each new drive, from its observations only:
 1. **Sparsify** it into anchors at ``p_sparsify``, with ``sparsify_slack``
    where RE passes not even the next frame
    (:func:`topodrake.topomap.sparsify.sparsify`).
-2. **Reuse** vertices: an existing vertex v replaces a new anchor when
-   RE(prev, v) and RE(v, next) both exceed ``p_reuse`` (prev: the chain's
-   previous node, next: the drive's next anchor; the anchor itself at the
-   ends); the largest product wins. With ``reuse_slack``, where the new
-   anchor's own hop from prev (or to next) is below ``p_reuse``, v's needs
-   only that hop's RE less the slack. Vertices reused from one older drive
-   must keep that drive's order, and no vertex is used twice in a chain.
+2. **Reuse** vertices, by ``reuse_rule``:
+   - ``"resume"`` (ours, the default): sparsifying, at each anchor frame j
+     an existing vertex v stands in for it when RE(source, v) and
+     RE(v, frame j + 1) both exceed ``p_reuse`` (source: where the scan
+     stands, a frame or a reused vertex), and the scan resumes from v;
+   - ``"paper"``: after sparsifying, v replaces a new anchor when
+     RE(prev, v) and RE(v, next) both exceed ``p_reuse`` (prev: the chain's
+     previous node, next: the drive's next anchor; the anchor itself at the
+     ends). With ``reuse_slack``, where the new anchor's own hop from prev
+     (or to next) is below ``p_reuse``, v needs only that hop's RE less the
+     slack.
+   The largest product wins. Vertices reused from one older drive must keep
+   that drive's order, and no vertex is used twice in a chain.
 3. **Link** consecutive chain nodes with trajectory edges (p = RE).
 4. **Cross edges** between every new vertex x and the map, both ways: the
    candidates are the ``retrieval_k`` vertices nearest in the place

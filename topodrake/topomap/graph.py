@@ -39,7 +39,7 @@ class MapConfig:
     p_sparsify: float = 0.99     # anchors: the next one is the last frame RE passes above this
     sparsify_slack: float = 0.01  # ... and where RE passes not even the next frame, the last one
                                   # within this of the next frame's RE (0: the paper's rule)
-    p_reuse: float = 0.99        # an existing vertex replaces a new anchor above this (both hops)
+    p_reuse: float = 0.99        # an existing vertex stands in for an anchor above this (both hops)
     reuse_slack: float = 0.0     # ... or, where the anchor's own hop is below p_reuse, above that
                                  # hop's RE less this (0: the paper's rule; reuse_rule "paper" only)
     p_edge: float = 0.99         # cross edges: sequence-matched RE above this
