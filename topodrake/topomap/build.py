@@ -166,25 +166,11 @@ def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,
         if cfg.reuse and len(m.index):
             prev = chain[-1] if chain else here
             nxt = ("a", i + 1) if i + 1 < len(anchors) else here
-            cands = m.index.search(emb[i], cfg.retrieval_k, exclude=np.fromiter(used, np.int64))[0]
-            if prev[0] == "v":      # keep the order of a drive we reuse from
-                u = m.graph.nodes[prev[1]]
-                cands = np.array([v for v in cands if m.graph.nodes[v]["traj"] != u["traj"]
-                                  or m.graph.nodes[v]["pos"] > u["pos"]], np.int64)
-            if len(cands):
-                need_in, need_out = _reuse_thresholds(cfg, score, src, ctx, prev, here, nxt)
-                s1 = score(np.full(len(cands), src(prev)), m.contexts(cands))
-                ok = cands[s1 > need_in]
-                if len(ok):
-                    s2 = score(m.centers(ok), np.repeat(ctx(nxt)[None], len(ok), 0))
-                    both = s2 > need_out
-                    if both.any():
-                        prod = s1[s1 > need_in] * s2
-                        prod[~both] = -1.0
-                        best = int(ok[np.argmax(prod)])
-                        choice = ("v", best)
-                        used.add(best)
-                        stats.reused += 1
+            after = prev[1] if prev[0] == "v" else None
+            best = _stand_in(m, emb[i], used, after, src(prev), ctx(nxt), score, stats,
+                             lambda: _reuse_thresholds(cfg, score, src, ctx, prev, here, nxt))
+            if best is not None:
+                choice = ("v", best)
         chain.append(choice)
     return chain
 
@@ -212,32 +198,45 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
     def snap(j: int, source):
         if not len(m.index):
             return j
-        cands = m.index.search(m.embedding.embed(obs[j:j + 1])[0], cfg.retrieval_k,
-                               exclude=np.fromiter(used, np.int64))[0]
-        if isinstance(source, tuple):      # keep the order of a drive we reuse from
-            u = m.graph.nodes[source[1]]
-            cands = np.array([v for v in cands if m.graph.nodes[v]["traj"] != u["traj"]
-                              or m.graph.nodes[v]["pos"] > u["pos"]], np.int64)
-        if not len(cands):
-            return j
-        s1 = score(np.full(len(cands), row(source)), m.contexts(cands))
-        ok = cands[s1 > cfg.p_reuse]
-        if not len(ok):
-            return j
         ahead = start + ctx_local[min(j + 1, n - 1)]
-        s2 = score(m.centers(ok), np.repeat(ahead[None], len(ok), 0))
-        if not (s2 > cfg.p_reuse).any():
-            return j
-        prod = np.where(s2 > cfg.p_reuse, s1[s1 > cfg.p_reuse] * s2, -1.0)
-        best = int(ok[np.argmax(prod)])
-        used.add(best)
-        stats.reused += 1
-        return ("v", best)
+        after = source[1] if isinstance(source, tuple) else None
+        best = _stand_in(m, m.embedding.embed(obs[j:j + 1])[0], used, after, row(source), ahead,
+                         score, stats, lambda: (cfg.p_reuse, cfg.p_reuse))
+        return j if best is None else ("v", best)
 
     anchors, sources = sparsify_chain(n, reach, cfg.p_sparsify, cfg.sparsify_window,
                                       slack=cfg.sparsify_slack, snap=snap)
     chain = [src if isinstance(src, tuple) else ("a", i) for i, src in enumerate(sources)]
     return anchors, chain
+
+
+def _stand_in(m: TopoMap, query: np.ndarray, used: set[int], after: int | None, source_row: int,
+              target_context: np.ndarray, score, stats: BuildStats, needs) -> int | None:
+    """The existing vertex v (among the ``retrieval_k`` nearest to ``query``,
+    none of ``used``) with the largest RE(source, v) RE(v, target) where
+    both pass ``needs()`` = (need_in, need_out); None when none does. After
+    a reused vertex ``after``, vertices of its drive must come later in it."""
+    cfg = m.config
+    cands = m.index.search(query, cfg.retrieval_k, exclude=np.fromiter(used, np.int64))[0]
+    if after is not None:      # keep the order of a drive we reuse from
+        u = m.graph.nodes[after]
+        cands = np.array([v for v in cands if m.graph.nodes[v]["traj"] != u["traj"]
+                          or m.graph.nodes[v]["pos"] > u["pos"]], np.int64)
+    if not len(cands):
+        return None
+    need_in, need_out = needs()
+    s1 = score(np.full(len(cands), source_row), m.contexts(cands))
+    ok = cands[s1 > need_in]
+    if not len(ok):
+        return None
+    s2 = score(m.centers(ok), np.repeat(target_context[None], len(ok), 0))
+    if not (s2 > need_out).any():
+        return None
+    prod = np.where(s2 > need_out, s1[s1 > need_in] * s2, -1.0)
+    best = int(ok[np.argmax(prod)])
+    used.add(best)
+    stats.reused += 1
+    return best
 
 
 def _reuse_thresholds(cfg, score, src, ctx, prev, here, nxt) -> tuple[float, float]:
