@@ -28,7 +28,7 @@ def test_collect_stores_every_drive(demo_dir):
         assert len(d.poses) == len(d.controls) + 1 == len(d.waypoints) + 1
         assert np.allclose(d.poses[0], d.start)
         if d.success:
-            assert np.hypot(*(d.poses[-1, :2] - d.goal)) < 0.27
+            assert np.hypot(*(d.poses[-1, :2] - d.goal[:2])) < 0.27 and np.isnan(d.goal[2])
     assert sum(d.success for d in drives) >= 4
 
 
@@ -87,3 +87,24 @@ def test_foreign_and_corrupt_files_are_refused(demo_dir, tmp_path):
     (bad / "chunk-00002.npz").write_bytes(b"PK\x03\x04 truncated")
     with pytest.raises(TopodrakeError, match="chunk-00002.npz"):
         load_demos(bad)
+
+
+def test_pairs_drives_arrive_at_the_goal_place_pose(tmp_path):
+    """Places are poses: every ordered-pair drive ends at its goal place's
+    position and heading, so its last view is the place's view."""
+    from topodrake.expert.approach import wrap
+    from topodrake.world import load_world
+
+    config = CollectConfig(protocol="pairs", chunk_size=45)
+    folder = collect(SAMPLE, tmp_path / "pairs", config, progress=False)
+    _, drives = load_demos(folder)
+    places = load_world(SAMPLE).places
+    assert len(drives) == len(places) * (len(places) - 1)
+    arrived = 0
+    for d in drives:
+        assert any(np.allclose(d.goal, p) for p in places)
+        if d.success:
+            arrived += 1
+            assert np.hypot(*(d.poses[-1, :2] - d.goal[:2])) < 0.27
+            assert abs(np.degrees(wrap(d.poses[-1, 2] - d.goal[2]))) < 15.0
+    assert arrived >= 0.95 * len(drives)

@@ -2,7 +2,7 @@
 
 On disk a demonstration set is a folder::
 
-    manifest.json       {"format": "topodrake-demos", "version": 1, "world": ...,
+    manifest.json       {"format": "topodrake-demos", "version": 2, "world": ...,
                          "config": {...}, "jobs": J, "chunk_size": C, "chunks": [...]}
     chunk-00000.npz     the drives of jobs [0, C)
     chunk-00001.npz     ...
@@ -10,10 +10,17 @@ On disk a demonstration set is a folder::
 Each chunk holds, for its drives concatenated along time, ``poses`` (sum K_i + 1, 3),
 ``controls`` and ``waypoints`` (sum K_i, 2), ``offsets`` (n + 1,) into the pose rows
 (drive i has poses ``offsets[i]:offsets[i+1]``; its controls/waypoints are the
-same rows minus i), plus per drive ``starts`` (n, 3), ``goals`` (n, 2),
+same rows minus i), plus per drive ``starts`` (n, 3), ``goals`` (n, 3),
 ``outcome`` (n,) (0 success, 1 collision, 2 timeout) and ``seeds`` (n,), and
 ``format``/``version`` tags. Images are not stored: render them from the poses
 with :class:`topodrake.sensing.camera.Camera` (cheaper than disk).
+
+Places are poses: the ``pairs`` protocol drives from one place's pose to
+another's *pose* (the expert's final Reeds-Shepp approach,
+:mod:`topodrake.expert.approach`, arrives at the place's heading), so a
+drive's last views are its goal place's view. The ``random`` protocol's
+goals are positions (heading NaN). Version 1 sets (goals were positions
+everywhere) are refused.
 
 Every file is written atomically, so an interrupted run resumes from the last
 complete chunk; a folder of another format or version is refused.
@@ -32,7 +39,7 @@ from topodrake.fileio import atomic_write_bytes, atomic_write_json
 from topodrake.fileio import read_manifest as _read_manifest
 
 FORMAT = "topodrake-demos"
-VERSION = 1
+VERSION = 2
 
 
 @dataclass
@@ -47,11 +54,13 @@ class CollectConfig:
 
 
 def plan_jobs(world, config: CollectConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Deterministic (starts (J, 3), goals (J, 2)) for a protocol."""
+    """Deterministic (starts (J, 3), goals) for a protocol: goal poses (J, 3)
+    for ``pairs``, goal positions (J, 2) for ``random``."""
     if config.protocol == "pairs":
         p = world.places
         pairs = [(i, j) for i in range(len(p)) for j in range(len(p)) if i != j]
-        return (np.array([p[i] for i, _ in pairs]), np.array([p[j, :2] for _, j in pairs]))
+        return (np.array([p[i] for i, _ in pairs]).reshape(-1, 3),
+                np.array([p[j] for _, j in pairs]).reshape(-1, 3))
     if config.protocol == "random":
         rng = np.random.default_rng(config.seed)
         starts, goals = [], []
@@ -132,9 +141,17 @@ def _write_chunk(path: Path, res, starts, goals, seeds) -> None:
         poses=np.concatenate([t["poses"] for t in trajs]).astype(np.float64),
         controls=np.concatenate([t["controls"] for t in trajs]).reshape(-1, 2),
         waypoints=np.concatenate([t["waypoints"] for t in trajs]).reshape(-1, 2),
-        offsets=offsets, starts=starts, goals=goals, outcome=res.outcome.astype(np.int8),
+        offsets=offsets, starts=starts, goals=_goal_poses(goals), outcome=res.outcome.astype(np.int8),
         seeds=np.asarray(seeds, np.int64))
     atomic_write_bytes(path, buf.getvalue())
+
+
+def _goal_poses(goals) -> np.ndarray:
+    """Goals as (n, 3) poses; position goals get a NaN heading."""
+    goals = np.asarray(goals, np.float64)
+    if goals.shape[1] == 3:
+        return goals
+    return np.column_stack([goals, np.full(len(goals), np.nan)])
 
 
 def read_manifest(folder) -> dict:
@@ -148,7 +165,7 @@ class Demonstration:
     controls: np.ndarray   # (K, 2)
     waypoints: np.ndarray  # (K, 2)
     start: np.ndarray
-    goal: np.ndarray
+    goal: np.ndarray       # (3,) pose; heading NaN where the goal was a position
     outcome: int
     seed: int
 

@@ -27,6 +27,8 @@ import numpy as np
 
 from topodrake.control import controls_toward
 from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints, initial_memory
+from topodrake.expert.approach import (ApproachConfig, PathTracker, plan_pose_path, pose_reached,
+                                       track_pose_path)
 from topodrake.rmp import RmpConfig
 from topodrake.sensing.camera import Camera
 from topodrake.sensing.config import CameraConfig, LidarConfig
@@ -49,6 +51,7 @@ class RolloutConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
     rmp: RmpConfig = field(default_factory=RmpConfig)
     expert: ExpertConfig = field(default_factory=ExpertConfig)
+    approach: ApproachConfig = field(default_factory=ApproachConfig)
 
 
 @dataclass
@@ -91,7 +94,10 @@ class ExpertRollout:
             noise: np.ndarray | None = None,
             on_images: Callable[[int, np.ndarray, np.ndarray], None] | None = None,
             paths: list[np.ndarray] | None = None) -> RolloutResult:
-        """Drive cars from ``starts`` (N, 3) to ``goals`` (N, 2).
+        """Drive cars from ``starts`` (N, 3) to ``goals``: positions (N, 2),
+        or poses (N, 3), which the expert reaches with a final Reeds-Shepp
+        approach (:mod:`topodrake.expert.approach`) within the goal
+        tolerance and ``approach.heading_tol_deg``.
 
         Noise: give ``noise`` (N, T, 2) standard normals, or ``seeds`` (N,)
         to draw them; neither means no noise. ``on_images(step, car_index,
@@ -100,13 +106,15 @@ class ExpertRollout:
         cfg = self.config
         veh = cfg.vehicle
         starts = np.asarray(starts, np.float64).reshape(-1, 3)
-        goals = np.asarray(goals, np.float64).reshape(-1, 2)
+        goals = np.asarray(goals, np.float64)
+        pose_goals = goals.ndim == 2 and goals.shape[1] == 3
+        goals = goals.reshape(-1, 3 if pose_goals else 2)
         n = len(starts)
         t_steps = int(round(cfg.t_max_s / veh.dt))
         if noise is None and seeds is not None and cfg.noise_std > 0:
             noise = standard_normal_noise(seeds, t_steps)
         if paths is None:
-            paths = [self.world.astar(s, g) for s, g in zip(starts, goals)]
+            paths = [self.world.astar(s, g[:2]) for s, g in zip(starts, goals)]
         packed = PackedPaths.pack(paths)
         progress = packed.offsets[:-1].copy()
         memory = initial_memory(starts)
@@ -118,6 +126,8 @@ class ExpertRollout:
         outcome = np.full(n, RUNNING)
         steps = np.zeros(n, np.int64)
         clearance = self.world.grid.clearance_at
+        trackers: dict[int, PathTracker] = {}
+        self._finished = np.zeros(n, bool)     # pose goals: the approach path was driven
         self._classify(state, goals, outcome, clearance, np.arange(n))
         for k in range(t_steps):
             active = np.flatnonzero(outcome == RUNNING)
@@ -135,6 +145,8 @@ class ExpertRollout:
                                                     lidar=cfg.lidar, scene=self.scene,
                                                     rmp=cfg.rmp, vehicle=veh)
             u = controls_toward(st, wp, ranges, cfg.lidar, cfg.rmp, veh)
+            if pose_goals:
+                self._approach(k, active, st, goals, trackers, u, wp, seeds)
             if noise is not None and cfg.noise_std > 0:
                 u = u * (1.0 + cfg.noise_std * noise[active, k])
             state[active] = vehicle_step(st, u, veh)
@@ -146,9 +158,41 @@ class ExpertRollout:
         outcome[outcome == RUNNING] = TIMEOUT
         return RolloutResult(poses, controls, waypoints, steps, outcome, paths)
 
+    def _approach(self, k, active, st, goals, trackers, u, wp, seeds) -> None:
+        """Cars near their goal pose drive a Reeds-Shepp path to it instead of
+        the A* expert's waypoint (``u`` and ``wp`` rows replaced in place)."""
+        cfg = self.config.approach
+        veh = self.config.vehicle
+        near = np.hypot(*(st[:, :2] - goals[active, :2]).T) < cfg.start_m
+        near |= np.isin(active, list(trackers))      # a path once started is driven to its end
+        for r in np.flatnonzero(near):
+            car = int(active[r])
+            tracker = trackers.get(car)
+            if tracker is not None:
+                u[r], target, done = track_pose_path(tracker, st[r], cfg, veh)
+                self._finished[car] = done
+                if not done:
+                    wp[r] = target
+                    continue
+                if tracker.replans >= cfg.replans:
+                    wp[r] = target      # out of new paths: stand (the drive times out)
+                    continue
+            seed = 0 if seeds is None else int(seeds[car])
+            path = plan_pose_path(self.world.grid, st[r, :3], goals[car], cfg,
+                                  seed=seed + 7919 * k)
+            if path is None:
+                continue                # the A* expert drives on; try again next period
+            trackers[car] = PathTracker(path, replans=0 if tracker is None else tracker.replans + 1)
+            u[r], wp[r], _ = track_pose_path(trackers[car], st[r], cfg, veh)
+
     def _classify(self, state, goals, outcome, clearance, idx) -> None:
         cfg = self.config
-        reached = np.hypot(*(state[:, :2] - goals).T) < cfg.goal_tolerance_m
+        if goals.shape[1] == 3:
+            # at the end of its approach path (not merely passing through the tolerance)
+            reached = self._finished[idx] & pose_reached(state[:, :3], goals, cfg.goal_tolerance_m,
+                                                         cfg.approach.heading_tol_deg)
+        else:
+            reached = np.hypot(*(state[:, :2] - goals).T) < cfg.goal_tolerance_m
         hit = in_collision(state, clearance, cfg.vehicle)
         outcome[idx[reached]] = SUCCESS
         outcome[idx[~reached & hit]] = COLLISION
