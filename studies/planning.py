@@ -72,12 +72,21 @@ from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 
-METHODS = ("ours", "lidar", "sptm", "oracle", "ours_replan", "ours_obstacles")
+METHODS = ("ours", "lidar", "sptm", "oracle", "ours_replan", "ours_obstacles", "oracle_full",
+           "ours_oracle_follow", "oracle_cwp")
+#: the perfect-perception ablations (fast: they run ``--oracle-trials`` trials)
+ORACLE_METHODS = ("oracle_full", "ours_oracle_follow", "oracle_cwp")
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
-#: method -> (map scorer modality, follower's networks' modality)
+#: method -> (map scorer modality, follower's networks: "camera", "lidar", "oracle" (A* C_WP
+#: + geometric RE) or "oracle_cwp" (A* C_WP + the learned camera RE))
 MAP_OF = {"ours": ("camera", "camera"), "lidar": ("lidar", "lidar"), "oracle": ("oracle", "camera"),
           "sptm": (None, "camera"), "ours_replan": ("camera", "camera"),
-          "ours_obstacles": ("camera", "camera")}
+          "ours_obstacles": ("camera", "camera"), "oracle_full": ("oracle", "oracle"),
+          "ours_oracle_follow": ("camera", "oracle"), "oracle_cwp": ("oracle", "oracle_cwp")}
+FOLLOWERS = {"camera": "camera k5 C_WP + learned camera k5 RE",
+             "lidar": "lidar k5 C_WP + learned lidar k5 RE",
+             "oracle": "A* oracle C_WP + geometric oracle RE",
+             "oracle_cwp": "A* oracle C_WP + learned camera k5 RE"}
 DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (noise-free)
 SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
 
@@ -184,11 +193,20 @@ class _Lazy:
 _NETWORKS: dict = {}
 
 
-def networks(modality: str):
-    """(C_WP, RE) of the shipped k=5 follower of ``modality`` (loaded once)."""
+def networks(modality: str, world=None):
+    """(C_WP, RE) of the shipped k=5 follower of ``modality`` (loaded once),
+    or of the oracles in ``world`` (``"oracle"``: A* C_WP and geometric RE;
+    ``"oracle_cwp"``: A* C_WP and the learned camera RE)."""
     from topodrake.navigation.cli import _networks
     from topodrake.topomap.sources import SHIPPED, shipped_checkpoint
 
+    if modality in ("oracle", "oracle_cwp"):
+        from topodrake.learning.policy import AStarOracle
+        from topodrake.navigation.evaluate import GeometricReachability
+
+        cwp = AStarOracle(world, k=5)
+        return cwp, (GeometricReachability(world, k=5) if modality == "oracle"
+                     else networks("camera")[1])
     if modality not in _NETWORKS:
         reach, controller = SHIPPED[modality]
         _NETWORKS[modality] = _networks(shipped_checkpoint(controller), shipped_checkpoint(reach))
@@ -240,7 +258,7 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         plans = [plan_path(m, so[t], go[g], start_pose=starts[t], goal_pose=places[g])
                  for t, g in enumerate(goal_idx)]
     routes = [p.route if p.reachable else None for p in plans]
-    if method == "oracle":
+    if method in ("oracle", "oracle_cwp"):      # the learned camera RE reads images
         policy, _ = networks("camera")
         routes = [None if r is None else render_pose_route(world, r, getattr(policy, "sensor", None))
                   for r in routes]
@@ -263,7 +281,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
     routes, prob, size, replan = plan_routes(method, spec, world, drives, indices, starts, places,
                                              pairs[:, 1], cfg, tag)
     plan_s = time.perf_counter() - t0
-    policy, reach = networks(MAP_OF[method][1])
+    policy, reach = networks(MAP_OF[method][1], world)
     if method == "ours_obstacles":
         from topodrake.navigation.plan_trials import follow_past_obstacles
 
@@ -351,18 +369,41 @@ def house_job(seed: int, jobs: dict, cfg: dict) -> dict:
     n = min(cfg["trajectories"] or len(drives), len(drives))
     indices = list(range(n))
     places = np.asarray(world.places, np.float64)
-    pairs = trial_pairs(len(places), cfg["trials"], seed)
+    # trial i is the same for every count (a prefix), so the oracles' longer
+    # runs hold the learned methods' trials
+    n_trials = {m: cfg["oracle_trials"] if m in ORACLE_METHODS else cfg["trials"]
+                for m in cfg["methods"]}
+    pairs = trial_pairs(len(places), max(n_trials.values()), seed)
     starts = jittered_starts(world, places, pairs, seed)
     out = {"house": house_key(spec), "world": spec, "seed": seed, "drives": n, "methods": {},
            "records": []}
-    with tqdm(total=len(cfg["methods"]) * len(pairs), desc=f"trials {house_key(spec)}",
+    tag = "all" if n == len(drives) else f"first{n}"
+    with tqdm(total=sum(n_trials.values()), desc=f"trials {house_key(spec)}",
               disable=cfg["quiet"], unit="trial", leave=False) as bar:
         for method in cfg["methods"]:
-            stats, records = run_method(method, spec, world, drives, indices, pairs, starts, cfg,
-                                        tag="all" if n == len(drives) else f"first{n}", bar=bar)
+            t = n_trials[method]
+            stats, records = run_method(method, spec, world, drives, indices, pairs[:t],
+                                        starts[:t], cfg, tag=tag, bar=bar)
             out["methods"][method] = stats
             out["records"].extend(records)
+    if any(MAP_OF[m][0] == "oracle" for m in cfg["methods"]):
+        out["oracle_unplanned_pairs"] = unplanned_pairs(spec, world, drives, indices, cfg, tag)
     return out
+
+
+def unplanned_pairs(spec: str, world, drives, indices, cfg: dict, tag: str) -> list:
+    """The ordered pairs of places (start place, goal place) that get no plan
+    on the oracle map, from the start place's own pose."""
+    from topodrake.topomap.plan import plan_path
+    from topodrake.topomap.sources import drive_observations
+
+    m, _ = get_map(spec, world, "oracle", drives, indices, Path(cfg["data"]), tag,
+                   not cfg["quiet"])
+    places = np.asarray(world.places, np.float64)
+    obs = drive_observations(world, m.scorer, places)
+    return [[a, b] for a in range(len(places)) for b in range(len(places))
+            if a != b and not plan_path(m, obs[a], obs[b], start_pose=places[a],
+                                        goal_pose=places[b]).reachable]
 
 
 def pruned_job(seed: int, jobs: dict, cfg: dict) -> dict:
@@ -534,6 +575,9 @@ def main(argv=None) -> int:
     ap.add_argument("--methods", default=",".join(METHODS), help="methods to run")
     ap.add_argument("--trials", type=at.count, default=20,
                     help="trials per method and house (paper: 1000)")
+    ap.add_argument("--oracle-trials", type=at.count, default=100,
+                    help="trials per house of the oracle ablations (" + ", ".join(ORACLE_METHODS)
+                         + ")")
     ap.add_argument("--trajectories", type=at.count,
                     help="drives per map, in order (default: all 90)")
     ap.add_argument("--obstacle-trials", type=at.count, default=10,
@@ -599,6 +643,7 @@ def _run(args) -> int:
     from topodrake.navigation.replan import ReplanSchedule
 
     cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
+           "oracle_trials": args.oracle_trials,
            "trajectories": args.trajectories, "batch": args.batch, "seed": args.seed,
            "replan": asdict(ReplanSchedule()), "obstacle_trials": args.obstacle_trials,
            "obstacles": args.obstacles,
@@ -643,8 +688,7 @@ def _run(args) -> int:
                    "success_m": SUCCESS_M, "t_max_s": T_MAX_S, "speed_cap_mps": 0.5,
                    "jitter": "0.3 m to a random side, 9 deg to a random side",
                    "demo_seed": DEMO_SEED, "workers": args.workers,
-                   "followers": {m: f"{MAP_OF[m][1]} k5 C_WP + learned {MAP_OF[m][1]} k5 RE"
-                                 for m in methods},
+                   "followers": {m: FOLLOWERS[MAP_OF[m][1]] for m in methods},
                    "calibration": "planned trials only; unplanned trials count as failures in "
                                   "the success rates"},
         "wall_time_s": round(wall, 1), "summary": summary,
@@ -659,7 +703,8 @@ def _run(args) -> int:
         print(json.dumps(summary))
     else:
         for name, h in summary["houses"].items():
-            print(f"{name:<10} " + ", ".join(f"{m} {h[m]:.3f}" for m in METHODS if m in h)
+            print(f"{name:<10} " + ", ".join(f"{m} {h[m]:.3f}" for m in METHODS
+                                             if h.get(m) is not None)
                   + (f"; {h['vertices']} vertices, {h['edges']} edges" if "vertices" in h else ""))
         print(f"min ours {summary['min_ours']}, min margin over SPTM "
               f"{summary['min_margin_over_sptm']}, plan ECE {summary['plan_probability_ece']}, "

@@ -94,10 +94,11 @@ class NavigationEngine:
         self.config.follower.check()
         cfg = self.config.rollout
         self.lidar = Lidar(world, cfg.lidar)
-        kinds = {policy.observation, reach.observation}
-        if len(kinds) != 1:
+        # a pose oracle may stand in for either network (it reads the car's pose)
+        kinds = {policy.observation, reach.observation} - {"pose"}
+        if len(kinds) > 1:
             raise ValueError(f"C_WP observes {policy.observation}, RE {reach.observation}")
-        self.kind = kinds.pop()
+        self.kind = kinds.pop() if kinds else "pose"
         self.camera = None
         if self.kind == "camera":
             self.camera = Camera(world, getattr(policy, "sensor", None) or cfg.camera)

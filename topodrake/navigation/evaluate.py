@@ -77,18 +77,35 @@ def encode_routes(routes, policy, reach, route_k: int | None = None,
                   route_step: int | None = None) -> RouteFeatures:
     """Target features of every anchor of ``routes`` for C_WP ``policy`` and
     RE ``reach``. The routes' contexts were rendered with ``route_k`` and
-    ``route_step`` (default: the larger k of the two networks, and its frame step)."""
-    if route_k is None:
-        wide = policy if policy.k >= reach.k else reach
-        route_k, route_step = wide.k, wide.frame_step
-    for r in routes:
-        if r.contexts.shape[1] != 2 * route_k + 1:
-            raise TopodrakeError(f"a route has {r.contexts.shape[1]} context frames per anchor; "
-                                 f"the follower's networks need {2 * route_k + 1}")
-    ctx = np.concatenate([r.contexts for r in routes])
+    ``route_step`` (default: the larger k of the two networks, and its frame step).
+    A pose oracle (observation ``"pose"``) on a route of images reads the
+    anchors' poses (a privileged ablation: the route's own perception is
+    left out, its anchors kept)."""
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in routes])]).astype(np.int64)
-    return RouteFeatures(_encode(policy, network_context(ctx, route_k, route_step, policy)),
-                         _encode(reach, network_context(ctx, route_k, route_step, reach)), offsets)
+    sensed = [n for n in (policy, reach) if not _reads_poses(n, routes)]
+    if route_k is None and sensed:
+        wide = max(sensed, key=lambda n: n.k)
+        route_k, route_step = wide.k, wide.frame_step
+    ctx = None
+    if sensed:
+        for r in routes:
+            if r.contexts.shape[1] != 2 * route_k + 1:
+                raise TopodrakeError(f"a route has {r.contexts.shape[1]} context frames per "
+                                     f"anchor; the follower's networks need {2 * route_k + 1}")
+        ctx = np.concatenate([r.contexts for r in routes])
+
+    def features(network):
+        if _reads_poses(network, routes):
+            poses = np.concatenate([r.poses for r in routes])
+            return _encode(network, np.repeat(poses[:, None], 2 * network.k + 1, axis=1))
+        return _encode(network, network_context(ctx, route_k, route_step, network))
+
+    return RouteFeatures(features(policy), features(reach), offsets)
+
+
+def _reads_poses(network, routes) -> bool:
+    """A pose oracle on routes whose contexts are observations, not poses."""
+    return network.observation == "pose" and any(r.modality != "pose" for r in routes)
 
 
 def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:

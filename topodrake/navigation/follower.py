@@ -17,8 +17,13 @@ Per period, with the current observation:
   one (the paper looks up to 5 ahead; 2 followed more of the study's test
   trajectories: see ``studies/trajectory_following.py``). Proximity = the mean of the two predicted overlaps; the farthest
   anchor with proximity above ``p_visited`` *and* a C_WP waypoint shorter
-  than ``visit_m`` (or pointing backwards: passed) becomes the last
-  visited one (the last anchor of the route visited ends the plan:
+  than ``visit_m`` (or pointing backwards: passed), or with a waypoint
+  shorter than ``visit_m`` and proximity above only ``p_visited_close``
+  (ours: a car standing on an anchor at another heading, at a junction or
+  in a turn, sees less of its view; without it the car circled such
+  anchors), becomes the last visited one; the route's last anchor (the
+  goal) needs proximity above ``p_goal`` as well (ours: near a wall the A*
+  waypoint is short while the goal is still a metre off) (the last anchor of the route visited ends the plan:
   ``reached``). The distance condition is ours:
   in a straight corridor the predicted overlap of an anchor 2 m ahead
   already passes 0.65, and marking it visited made the follower aim at
@@ -33,11 +38,16 @@ Per period, with the current observation:
 * **Dead reckoning**: the car drives to the last Follow waypoint, held in
   the odometry frame (the car's integrated pose, which is the world frame
   here: odometry has no drift in this simulator). Each period RE is asked
-  about a window of anchors around the next unvisited one that widens by one
-  anchor on each side every ``dr_widen_every`` periods; the best above
+  about a window of anchors from the next unvisited one forward, which
+  widens by two anchors every ``dr_widen_every`` periods (ours: the paper's
+  window also widens backwards, and taking an anchor before the last
+  visited one drove routes backwards until time ran out); the best above
   ``p_follow`` becomes active and the follower returns to Follow. A car
   that arrives within ``dr_arrive_m`` of the held waypoint while RE still
-  says no holds C_WP's next waypoint toward the active anchor instead (ours:
+  says no holds C_WP's next waypoint toward the active anchor instead, or,
+  when that waypoint is shorter than ``visit_m`` (the car overshot a
+  junction and stands on the anchor), marks it visited and holds the
+  waypoint toward the next one (ours:
   the paper replans at that point, which a single route cannot; without it
   a car that stands at an anchor at the wrong heading waits until it gives
   up). After ``dr_max_iterations`` periods it gives up
@@ -75,6 +85,9 @@ class FollowerConfig:
     p_visited: float = 0.65         # proximity (mean predicted overlap) that marks an anchor visited
     p_near: float = 0.6             # proximity the anchor after the next needs to become active
     visit_m: float = 0.35           # ... and C_WP's waypoint toward a visited anchor is this short
+    p_visited_close: float = 0.3    # proximity enough within visit_m (the car stands on the
+                                    # anchor at another heading: a turn or a junction)
+    p_goal: float = 0.75            # proximity that the route's last anchor (the goal) needs
     lookahead: int = 2              # anchors after the last visited one checked in Follow (<= 5)
     advance: str = "next"           # "next": the paper's advance rule; "proximity": the authors' code
     dr_max_iterations: int = 200    # Dead reckoning gives up after this many periods
@@ -89,7 +102,7 @@ class FollowerConfig:
         for name in ("visit_m", "dr_arrive_m"):
             if not getattr(self, name) > 0:
                 raise TopodrakeError(f"follower {name} must be > 0, got {getattr(self, name)}")
-        for name in ("p_search", "p_follow", "p_visited", "p_near"):
+        for name in ("p_search", "p_follow", "p_visited", "p_visited_close", "p_goal", "p_near"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise TopodrakeError(f"follower {name} must be in [0, 1], got {v}")
@@ -261,7 +274,10 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         length = np.hypot(*ans.waypoint.T)
         # (the route's last anchor, the goal, only when close: passing it is not arriving)
         passed = (ans.waypoint[:, 0] < 0.0) & (anchors < n_anchors[f[rows]] - 1)
-        there = (prox > cfg.p_visited) & ((length < cfg.visit_m) | passed)
+        last = anchors == n_anchors[f[rows]] - 1
+        there = (((prox > cfg.p_visited) & ((length < cfg.visit_m) | passed))
+                 | ((prox > cfg.p_visited_close) & (length < cfg.visit_m)))
+        there &= ~last | ((prox > cfg.p_goal) & (length < cfg.visit_m))
         visited = start.copy()
         for m in np.flatnonzero(there):
             visited[rows[m]] = max(visited[rows[m]], anchors[m])
@@ -318,8 +334,9 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     if d.size:
         grow = state.dr_count[d] // cfg.dr_widen_every
         nxt = state.visited[d] + 1
-        lo = np.maximum(nxt - grow, 0)
-        hi = np.minimum(nxt + cfg.lookahead - 1 + grow, n_anchors[d] - 1)
+        # forward only: an anchor before the next unvisited one would drive the route backwards
+        lo = nxt
+        hi = np.minimum(nxt + cfg.lookahead - 1 + 2 * grow, n_anchors[d] - 1)
         lo = np.maximum(lo, hi - cfg.dr_max_window + 1)
         rows, anchors = _windows(lo, hi)
         p = evaluate(d[rows], anchors, False, True).probability
@@ -343,6 +360,15 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
                         < cfg.dr_arrive_m]
         if arrived.size:
             leg = evaluate(arrived, new.active[arrived], True, False).waypoint
+            # standing on the active anchor (a junction overshot): it counts as visited and
+            # the leg goes to the next one, which RE may not see from this heading
+            on = np.flatnonzero((np.hypot(*leg.T) < cfg.visit_m)
+                                & (new.active[arrived] < n_anchors[arrived] - 1))
+            if on.size:
+                cars_on = arrived[on]
+                new.visited[cars_on] = new.active[cars_on]
+                new.active[cars_on] += 1
+                leg[on] = evaluate(cars_on, new.active[cars_on], True, False).waypoint
             new.waypoint[arrived] = car_to_world(leg[:, None], car_state[arrived])[:, 0]
 
     # -- C_WP toward active anchors not asked yet; the waypoints to drive ---------------

@@ -148,6 +148,8 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
             steps[i] = int(res.steps[j])
             success[i] = code != NAV_COLLISION and (watch.arrived[j] or final <= radius)
             outcome[i] = "goal" if watch.arrived[j] else NAV_OUTCOMES[code]
+            if outcome[i] == "reached" and final > radius:
+                outcome[i] = "false_reached"    # the follower ended its plan away from the goal
         if progress is not None:
             progress(len(part))
     return out
@@ -250,9 +252,7 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
     out: dict = {"houses": {}}
     ours, margins = [], []
     for name, h in houses.items():
-        row = {m: h["methods"][m]["success"]
-               for m in ("ours", "lidar", "sptm", "oracle", "ours_replan", "ours_obstacles")
-               if m in h["methods"]}
+        row = {m: st["success"] for m, st in h["methods"].items()}
         if "ours" in h["methods"]:
             row["vertices"] = h["methods"]["ours"]["vertices"]
             row["edges"] = h["methods"]["ours"]["edges"]
@@ -263,6 +263,13 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
             margins.append(row["ours"] - row["sptm"])
         out["houses"][name] = row
     out["min_ours"] = round(min(ours), 4) if ours else None
+    for m in ("oracle_full", "ours_oracle_follow", "oracle_cwp"):
+        rates = [h["methods"][m]["success"] for h in houses.values() if m in h["methods"]]
+        out[f"min_{m}"] = round(min(rates), 4) if rates else None
+    unplanned = [(name, pair) for name, h in houses.items()
+                 for pair in h.get("oracle_unplanned_pairs") or []]
+    out["oracle_unplanned_pairs"] = (len(unplanned) if any("oracle_unplanned_pairs" in h
+                                                           for h in houses.values()) else None)
     out["min_margin_over_sptm"] = round(min(margins), 4) if margins else None
     out["plan_probability_ece"] = ece
     out["pruned_60_over_peak"] = pruned_60_over_peak
