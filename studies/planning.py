@@ -114,9 +114,12 @@ def house_drives(spec: str, data: Path, progress: bool) -> list:
 
 
 def map_path(data: Path, key: str, modality: str, tag: str) -> Path:
-    scorer = "oracle" if modality == "oracle" else "re"
-    name = "pose" if modality == "oracle" else modality
-    return data / "planning" / f"{key}-{name}-{scorer}-demos{DEMO_SEED}-{tag}.tdmap"
+    if modality == "oracle":        # keyed by the oracle's parameters, which may change
+        from topodrake.topomap.scorer import OracleConfig
+
+        digest = zlib.crc32(json.dumps(asdict(OracleConfig()), sort_keys=True).encode())
+        return data / "planning" / f"{key}-pose-oracle{digest:08x}-demos{DEMO_SEED}-{tag}.tdmap"
+    return data / "planning" / f"{key}-{modality}-re-demos{DEMO_SEED}-{tag}.tdmap"
 
 
 def _adoptable(candidate: Path, world: str, modality: str, names: list[str]) -> bool:

@@ -183,14 +183,20 @@ def route_calibrated(reach, p: np.ndarray) -> np.ndarray:
 
 
 class GeometricReachability:
-    """A privileged RE from poses: ``p_max`` while the target is within
-    ``reach_m`` of the car and in view of it (either camera overlap above
-    ``min_overlap``), falling off with the extra distance over ``falloff_m``;
-    ``p_hidden`` when out of view. Observation ``"pose"``."""
+    """A privileged RE from poses for the follower: ``p_max`` while the
+    target is within ``reach_m`` of the car and in view of it (either camera
+    overlap above ``min_overlap``), falling off with the extra distance over
+    ``falloff_m``; ``p_hidden`` when out of view. Observation ``"pose"``.
+
+    ``reach_m`` is the distance the A* oracle C_WP reaches: in its labelled
+    rollouts (``studies/oracle_reach.py``) success does not fall with the
+    distance up to 6 m where the target is in sight, only with the overlap,
+    the line of sight and the bearing. The map's oracle is
+    :class:`topodrake.topomap.scorer.OracleScorer`."""
 
     observation = "pose"
 
-    def __init__(self, world, k: int = 0, frame_step: int = 3, reach_m: float = 2.5,
+    def __init__(self, world, k: int = 0, frame_step: int = 3, reach_m: float = 6.0,
                  falloff_m: float = 0.5, p_max: float = 0.99, p_hidden: float = 0.3,
                  min_overlap: float = 0.05, camera=None):
         from topodrake.sensing.config import CameraConfig
