@@ -12,7 +12,10 @@ chains are followed again with actuation noise N(1, ``--noise``). The robot
 stops when it strays more than 1 m from the reference path (``DIVERGE_M``),
 collides, the follower ends, or at 2 x frames + 100 periods. Cover: the
 share of the reference path's length up to the farthest reference sample the
-robot came within 0.5 m of (in order), averaged over trajectories.
+robot came within 0.5 m of (in order), averaged over trajectories. At
+that ``p`` the RE chains are also followed with perfect perception (the A*
+oracle C_WP and the geometric oracle RE: ``cover_oracle``), which separates
+the follower's design from the networks' errors.
 ``--follower`` changes the follower's thresholds (an ablation).
 
 Each controller's chains and each engine batch of follows are kept in
@@ -26,7 +29,7 @@ camera k=2 ones (the network of the nearest controller).
     python studies/trajectory_following.py --json
 
 prints at p = 0.99 ``{"camera_k0": {"cover": c, "cover_noisy": c,
-"cover_subsampled": c, "anchors_per_m": a}, ...}`` and writes
+"cover_subsampled": c, "cover_oracle": c, "anchors_per_m": a}, ...}`` and writes
 ``results/trajectory_following.json`` and ``.png``.
 """
 
@@ -251,11 +254,13 @@ def every_nth(n_frames: int, n: int) -> np.ndarray:
 
 
 def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, seed, batch,
-                  noisy, follower=None, cache: RunCache | None = None, tag: str = ""
-                  ) -> tuple[np.ndarray, list[str]]:
+                  noisy, follower=None, cache: RunCache | None = None, tag: str = "",
+                  oracle: bool = False) -> tuple[np.ndarray, list[str]]:
     """Cover (M,) and outcomes of following chains[m] of trajs[m] (one
     engine batch per world and chunk of ``batch`` chains; finished batches
-    are kept in ``cache`` under ``tag``)."""
+    are kept in ``cache`` under ``tag``). ``oracle``: the same chains
+    followed by the A* oracle C_WP and the geometric oracle RE instead of
+    ``policy`` and ``reach`` (perfect perception)."""
     from topodrake.montecarlo import trial_seeds
     from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
     from topodrake.navigation.follower import FollowerConfig
@@ -271,6 +276,12 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
         by_world.setdefault(t["world"], []).append(m)
     for name, idx in by_world.items():
         world = world_of(name)
+        if oracle:
+            from topodrake.learning.policy import AStarOracle
+            from topodrake.navigation.evaluate import GeometricReachability
+
+            policy = AStarOracle(world, k=wide.k, frame_step=wide.frame_step)
+            reach = GeometricReachability(world, k=wide.k, frame_step=wide.frame_step)
         engine = NavigationEngine(world, policy, reach, NavigationConfig(
             follower=follower or FollowerConfig(),
             rollout=RolloutConfig(noise_std=noise_std if noisy else 0.0)))
@@ -282,7 +293,8 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
                 for j, m in enumerate(part):
                     cover[m], outcomes[m] = got["cover"][j], got["outcomes"][j]
                 continue
-            routes = [route_from_observations(obs[m], trajs[m]["poses"], chains[m], wide.k,
+            routes = [route_from_observations(trajs[m]["poses"] if oracle else obs[m],
+                                              trajs[m]["poses"], chains[m], wide.k,
                                               wide.frame_step, policy.observation) for m in part]
             starts = np.array([jittered_start(world, trajs[m]["poses"][0],
                                               np.random.default_rng(seeds[m])) for m in part])
@@ -360,6 +372,13 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
             bar.update()
             point.update({"cover_noisy": float(c_n.mean()), "outcomes_noisy": _count(o_n),
                           "covers_noisy": c_n.round(4).tolist()})
+            c_o, o_o = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide,
+                                     args.noise, args.seed, args.batch, noisy=False,
+                                     follower=args.follower_config, cache=cache,
+                                     tag=f"{name}-p{p}-oracle-", oracle=True)
+            bar.update()
+            point.update({"cover_oracle": float(c_o.mean()), "outcomes_oracle": _count(o_o),
+                          "covers_oracle": c_o.round(4).tolist()})
         out["points"].append(point)
         bar.set_postfix_str(f"{name} p={p}: cover {point['cover']:.3f}, "
                             f"every-{n} {point['cover_subsampled']:.3f}")
@@ -460,7 +479,7 @@ def _run(args) -> int:
     cache: dict = {}
     world_of = lambda n: cache.setdefault(n, load_world(n))   # noqa: E731
     lengths = [path_length(t["poses"])[-1] for t in trajs]
-    steps = len(names) * (2 * len(ps) + (1 if any(abs(p - args.headline_p) < 1e-9 for p in ps) else 0))
+    steps = len(names) * (2 * len(ps) + (2 if any(abs(p - args.headline_p) < 1e-9 for p in ps) else 0))
     results = {}
     with tqdm(total=steps, desc="trajectory following", disable=args.quiet, unit="sweep") as bar:
         for name in names:
@@ -471,6 +490,7 @@ def _run(args) -> int:
         summary[name] = {"cover": round(q["cover"], 4),
                          "cover_noisy": round(q.get("cover_noisy", float("nan")), 4),
                          "cover_subsampled": round(q["cover_subsampled"], 4),
+                         "cover_oracle": round(q.get("cover_oracle", float("nan")), 4),
                          "anchors_per_m": q["anchors_per_m"]}
     out = Path(args.out)
     wall = time.perf_counter() - t0
@@ -486,7 +506,8 @@ def _run(args) -> int:
         print(json.dumps(summary))
     else:
         for name, s in summary.items():
-            print(f"{name:<10} cover {s['cover']:.3f}, noisy {s['cover_noisy']:.3f}, every n-th "
+            print(f"{name:<10} cover {s['cover']:.3f}, oracle {s['cover_oracle']:.3f}, "
+                  f"noisy {s['cover_noisy']:.3f}, every n-th "
                   f"{s['cover_subsampled']:.3f} at {s['anchors_per_m']:.2f} anchors/m")
     print(f"{len(trajs)} trajectories (mean {np.mean(lengths):.1f} m), {len(names)} controllers, "
           f"{len(ps)} p values in {wall / 60:.1f} min", file=sys.stderr)

@@ -118,10 +118,11 @@ def test_dead_reckoning_widens_its_search_and_returns_to_follow():
     s = following(active=1, visited=0)
     s.mode[:] = DEAD_RECKONING
     s.waypoint[:] = [[3.0, 2.0]]
-    s.dr_count[:] = 25                                      # widened by 2 on each side
+    s.dr_count[:] = 25                                      # widened twice, by 2 anchors each
     s, _ = step(s, ev, 12, lookahead=3, dr_widen_every=10)
     _, anchors, _, re = ev.calls[-1]
-    assert re and anchors.tolist() == [0, 1, 2, 3, 4, 5]    # next (1) - 2 .. next + 3 - 1 + 2
+    # forward only: next (1) .. next + 3 - 1 + 2 * 2, never the visited anchor 0 behind
+    assert re and anchors.tolist() == [1, 2, 3, 4, 5, 6, 7]
     assert s.mode[0] == DEAD_RECKONING and s.dr_count[0] == 26
     ev.p[0, 4] = 0.95                                       # an anchor ahead becomes reachable
     s, out = step(s, ev, 12, lookahead=3, dr_widen_every=10)
@@ -189,3 +190,32 @@ def test_an_anchor_not_reached_for_stall_periods_is_skipped_but_never_the_last()
     for _ in range(8):
         last, _ = step(last, ev, 4, stall_periods=5)
     assert last.active[0] == 3 and last.visited[0] == 2 and last.mode[0] == FOLLOW
+
+
+def test_an_anchor_stood_on_at_another_heading_counts_as_visited():
+    # close (0.2 m) but the views overlap only 0.4 (the car turned at a junction)
+    ev = Scripted(p=[0.99] * 4, prox=[0.9, 0.4, 0.4, 0.4], dist=[0.0, 0.2, 1.5, 2.5])
+    s, _ = step(following(active=1, visited=0), ev, 4)
+    assert s.visited[0] == 1 and s.active[0] == 2
+    s, _ = step(following(active=1, visited=0), ev, 4, p_visited_close=0.5)
+    assert s.visited[0] == 0 and s.active[0] == 1           # the rule's own threshold
+
+
+def test_the_goal_needs_a_high_proximity_to_end_the_route():
+    ev = Scripted(p=[0.99] * 3, prox=[0.9, 0.9, 0.7], dist=[0.0, 0.0, 0.2])
+    s, _ = step(following(active=2, visited=1), ev, 3)
+    assert s.mode[0] == FOLLOW and s.visited[0] == 1        # a short waypoint is not arriving
+    ev.prox[0, 2] = 0.8
+    s, _ = step(following(active=2, visited=1), ev, 3)
+    assert s.mode[0] == REACHED
+
+
+def test_dead_reckoning_on_the_active_anchor_marks_it_visited_and_heads_on():
+    # RE sees nothing; the car stands at its held waypoint, on the active anchor 1
+    ev = Scripted(p=[0.3] * 4, prox=[0.1] * 4, dist=[0.0, 0.1, 1.5, 2.5])
+    s = following(active=1, visited=0)
+    s.mode[:] = DEAD_RECKONING
+    s.waypoint[:] = CAR[:, :2]
+    s, out = step(s, ev, 4)
+    assert s.mode[0] == DEAD_RECKONING and s.visited[0] == 1 and s.active[0] == 2
+    np.testing.assert_allclose(out.waypoint[0], [2.5, 2.0])  # C_WP's leg toward anchor 2

@@ -11,10 +11,10 @@ the house, actuation noise, success within 0.27 m or both overlaps above
 0.7 before ``A* / 0.25 m/s``; collisions and losing sight fail).
 
 :func:`oracle_reach_pairs` draws the pairs and rolls them out,
-:func:`pair_geometry` gives the quantities the oracle reads (straight-line
-distance, heading change, the smaller mutual image overlap, a clear straight
-line), and :func:`fit_reach` fits the oracle's distance scale to the
-outcomes (maximum likelihood over a grid).
+:func:`topodrake.topomap.scorer.pair_geometry` gives what the oracle reads,
+:func:`fit_oracle` fits its parameters to the outcomes (maximum likelihood,
+coordinate descent over candidate values) and :func:`calibration_scores`
+rates any probabilities against them (ECE, AUROC, log-likelihood).
 """
 
 from __future__ import annotations
@@ -75,41 +75,40 @@ def oracle_reach_pairs(world, drives: list[np.ndarray], n: int, seed: int, *,
     return {"src": src, "tgt": tgt, "same": np.array(same), **out}
 
 
-def pair_geometry(world, a: np.ndarray, b: np.ndarray, sight_clearance_m: float = 0.12) -> dict:
-    """The oracle's inputs for poses ``a`` -> ``b`` (N, 3): ``distance``,
-    ``turn`` (absolute heading change), ``overlap`` (the smaller mutual image
-    overlap) and ``sight`` (a straight line keeping ``sight_clearance_m``)."""
-    from topodrake.expert.sight import segment_clear
-    from topodrake.sensing.overlap import mutual_overlap
-
-    a = np.asarray(a, np.float64).reshape(-1, 3)
-    b = np.asarray(b, np.float64).reshape(-1, 3)
-    g = world.grid
-    clear, (ox, oy), res = g.clearance, g.origin, g.resolution
-    return {"distance": np.hypot(*(b[:, :2] - a[:, :2]).T),
-            "turn": np.abs((b[:, 2] - a[:, 2] + np.pi) % (2 * np.pi) - np.pi),
-            "overlap": mutual_overlap(world, a, b).min(axis=1),
-            "sight": np.array([bool(segment_clear(clear, ox, oy, res, sight_clearance_m,
-                                                  *a[i, :2], *b[i, :2])) for i in range(len(a))])}
-
-
 def _nll(p: np.ndarray, y: np.ndarray) -> float:
     p = np.clip(p, 1e-6, 1 - 1e-6)
     return float(-np.mean(y * np.log(p) + (1 - y) * np.log1p(-p)))
 
 
-def fit_reach(geometry: dict, label: np.ndarray, model, grid: dict) -> tuple[dict, float]:
-    """The parameters in the product ``grid`` (name -> candidate values) that
-    maximise the likelihood of ``label`` under ``model(geometry, **params)``;
-    returns (params, mean negative log-likelihood)."""
-    import itertools
+def calibration_scores(probability: np.ndarray, label: np.ndarray, bins: int = 10) -> dict:
+    """ECE (``bins`` equal bins), AUROC and mean negative log-likelihood of
+    predicted probabilities against 0/1 outcomes."""
+    from scipy.stats import rankdata
 
-    names = list(grid)
-    best, best_nll = None, np.inf
+    p = np.asarray(probability, np.float64)
     y = np.asarray(label, np.float64)
-    for values in itertools.product(*(grid[k] for k in names)):
-        params = dict(zip(names, values))
-        nll = _nll(model(geometry, **params), y)
-        if nll < best_nll:
-            best, best_nll = params, nll
-    return best, best_nll
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    idx = np.clip(np.searchsorted(edges, p, side="right") - 1, 0, bins - 1)
+    ece = sum(np.mean(idx == b) * abs(p[idx == b].mean() - y[idx == b].mean())
+              for b in range(bins) if np.any(idx == b))
+    n1, n0 = y.sum(), len(y) - y.sum()
+    auroc = float((rankdata(p)[y == 1].sum() - n1 * (n1 + 1) / 2) / (n1 * n0)) if n1 and n0 \
+        else float("nan")
+    return {"ece": round(float(ece), 4), "auroc": round(auroc, 4), "nll": round(_nll(p, y), 4)}
+
+
+def fit_oracle(geometry: dict, label: np.ndarray, start, grid: dict, rounds: int = 4):
+    """The :class:`~topodrake.topomap.scorer.OracleConfig` that maximises the
+    likelihood of ``label`` by coordinate descent from ``start`` over the
+    candidate values ``grid`` (field name -> values); returns (config, nll)."""
+    from dataclasses import replace
+
+    from topodrake.topomap.scorer import reach_from_geometry
+
+    y = np.asarray(label, np.float64)
+    best = start
+    for _ in range(rounds):
+        for name, values in grid.items():
+            best = min((replace(best, **{name: v}) for v in values),
+                       key=lambda c: _nll(reach_from_geometry(geometry, c), y))
+    return best, _nll(reach_from_geometry(geometry, best), y)

@@ -98,15 +98,15 @@ class OracleConfig:
     """
 
     p_max: float = 0.9995
-    reach_m: float = 2.5
-    reach_soft_m: float = 0.2
-    bearing_rad: float = math.inf
+    reach_m: float = 10.0
+    reach_soft_m: float = 0.1
+    bearing_rad: float = 3.2
     bearing_soft_rad: float = 0.2
-    turn_rad: float = 1.2
-    turn_soft_rad: float = 0.1
-    min_overlap: float = 0.3
-    overlap_soft: float = 0.05
-    hidden: float = 0.0
+    turn_rad: float = 2.0
+    turn_soft_rad: float = 0.2
+    min_overlap: float = 0.0
+    overlap_soft: float = 0.1
+    hidden: float = 0.2
     sight_clearance_m: float = 0.12
 
 
@@ -132,36 +132,69 @@ def _logistic(x: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * x))
 
 
-def geometric_reach(world, a: np.ndarray, b: np.ndarray, config: OracleConfig) -> np.ndarray:
-    """p(the oracle controller at poses ``a`` (N, 3) reaches poses ``b`` (N, 3))
-    under ``config`` (:class:`OracleConfig`)."""
+def pair_geometry(world, a: np.ndarray, b: np.ndarray, sight_clearance_m: float = 0.12,
+                  rows: np.ndarray | None = None) -> dict:
+    """What the geometric oracle reads of poses ``a`` -> ``b`` (N, 3):
+    ``distance``, ``turn`` (absolute heading change), ``bearing`` (absolute
+    angle of the target off the source's heading), and for ``rows`` (default
+    all; NaN / False elsewhere) ``overlap`` (the smaller mutual image
+    overlap) and ``sight`` (a straight line keeping ``sight_clearance_m``)."""
     from topodrake.expert.sight import segment_clear
     from topodrake.sensing.overlap import mutual_overlap
 
-    c = config
     a = np.asarray(a, np.float64).reshape(-1, 3)
     b = np.asarray(b, np.float64).reshape(-1, 3)
     a, b = np.broadcast_arrays(a, b)
     delta = b[:, :2] - a[:, :2]
     d = np.hypot(*delta.T)
-    turn = np.abs((b[:, 2] - a[:, 2] + np.pi) % (2 * np.pi) - np.pi)
     ahead = delta[:, 0] * np.cos(a[:, 2]) + delta[:, 1] * np.sin(a[:, 2])
     side = -delta[:, 0] * np.sin(a[:, 2]) + delta[:, 1] * np.cos(a[:, 2])
-    bearing = np.where(d > 1e-9, np.abs(np.arctan2(side, ahead)), 0.0)
-    p = (c.p_max * _logistic((c.reach_m - d) / c.reach_soft_m)
-         * _logistic((c.turn_rad - turn) / c.turn_soft_rad))
-    if math.isfinite(c.bearing_rad):
-        p *= _logistic((c.bearing_rad - bearing) / c.bearing_soft_rad)
-    near = np.flatnonzero(p > 1e-4)
-    if len(near):
+    out = {"distance": d,
+           "turn": np.abs((b[:, 2] - a[:, 2] + np.pi) % (2 * np.pi) - np.pi),
+           "bearing": np.where(d > 1e-9, np.abs(np.arctan2(side, ahead)), 0.0),
+           "overlap": np.full(len(a), np.nan), "sight": np.zeros(len(a), bool)}
+    rows = np.arange(len(a)) if rows is None else np.asarray(rows, np.int64)
+    if len(rows):
         g = world.grid
         clear, (ox, oy), res = g.clearance, g.origin, g.resolution
-        sight = np.array([segment_clear(clear, ox, oy, res, c.sight_clearance_m,
-                                        *a[i, :2], *b[i, :2]) for i in near], bool)
-        ov = mutual_overlap(world, a[near], b[near]).min(axis=1)
-        p[near] *= np.where(sight, 1.0, c.hidden) * _logistic((ov - c.min_overlap) / c.overlap_soft)
-    p[(d < 1e-9) & (turn < 1e-6)] = c.p_max
+        out["sight"][rows] = [bool(segment_clear(clear, ox, oy, res, sight_clearance_m,
+                                                 *a[i, :2], *b[i, :2])) for i in rows]
+        out["overlap"][rows] = mutual_overlap(world, a[rows], b[rows]).min(axis=1)
+    return out
+
+
+def _shape(g: dict, c: OracleConfig) -> np.ndarray:
+    """The oracle's factors that need neither overlap nor sight."""
+    p = (c.p_max * _logistic((c.reach_m - g["distance"]) / c.reach_soft_m)
+         * _logistic((c.turn_rad - g["turn"]) / c.turn_soft_rad))
+    if math.isfinite(c.bearing_rad):
+        p = p * _logistic((c.bearing_rad - g["bearing"]) / c.bearing_soft_rad)
     return p
+
+
+def reach_from_geometry(g: dict, config: OracleConfig) -> np.ndarray:
+    """The oracle's probability from :func:`pair_geometry` (every row's
+    overlap and sight known)."""
+    c = config
+    p = _shape(g, c) * np.where(g["sight"], 1.0, c.hidden)
+    p = p * _logistic((g["overlap"] - c.min_overlap) / c.overlap_soft)
+    p[(g["distance"] < 1e-9) & (g["turn"] < 1e-6)] = c.p_max
+    return p
+
+
+def geometric_reach(world, a: np.ndarray, b: np.ndarray, config: OracleConfig) -> np.ndarray:
+    """p(the oracle controller at poses ``a`` (N, 3) reaches poses ``b`` (N, 3))
+    under ``config`` (:class:`OracleConfig`); overlap and sight are computed
+    only where the other factors leave more than 1e-4."""
+    a, b = np.broadcast_arrays(np.asarray(a, np.float64).reshape(-1, 3),
+                               np.asarray(b, np.float64).reshape(-1, 3))
+    g = pair_geometry(world, a, b, config.sight_clearance_m, rows=np.zeros(0, np.int64))
+    near = np.flatnonzero(_shape(g, config) > 1e-4)
+    if len(near):
+        sub = pair_geometry(world, a[near], b[near], config.sight_clearance_m)
+        g["overlap"][near], g["sight"][near] = sub["overlap"], sub["sight"]
+    g["overlap"] = np.nan_to_num(g["overlap"], nan=-1.0)     # (far: the shape is ~0 anyway)
+    return reach_from_geometry(g, config)
 
 
 class OracleScorer:
