@@ -35,3 +35,12 @@ def test_readme_is_for_users():
     quick = text.split("## Quick start", 1)[1].split("```bash", 1)[1].split("```", 1)[0]
     lines = [line for line in quick.splitlines() if line.strip()]
     assert len(lines) == 2 and "topodrake demo" in lines[0] and "pytest" in lines[1]
+
+
+def test_code_and_docs_speak_of_the_project_only():
+    """No work history (issue numbers, sessions) in the code, studies or docs."""
+    pattern = re.compile(r"\bissues? #?\d+\b|\bwork sessions?\b", re.I)
+    files = [p for folder in ("topodrake", "systems", "studies", "docs")
+             for p in (ROOT / folder).rglob("*") if p.suffix in (".py", ".md")]
+    found = [str(p.relative_to(ROOT)) for p in files if pattern.search(p.read_text())]
+    assert not found, f"files that speak of the project's history: {found}"

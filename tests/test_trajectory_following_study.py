@@ -17,7 +17,12 @@ def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path,
     runs = sorted(p.name for p in (tmp_path / "out" / "trajectory_following_runs").iterdir())
     assert runs == ["lidar_k5-chains-p0.99.json", "lidar_k5-p0.99-every%d-test-0-0.json"
                     % first["results"]["lidar_k5"]["points"][0]["every_n"],
-                    "lidar_k5-p0.99-noisy-test-0-0.json", "lidar_k5-p0.99-re-test-0-0.json"]
+                    "lidar_k5-p0.99-noisy-test-0-0.json", "lidar_k5-p0.99-oracle-test-0-0.json",
+                    "lidar_k5-p0.99-re-test-0-0.json"]
+    summary = first["summary"]["lidar_k5"]
+    assert set(summary) == {"cover", "cover_noisy", "cover_subsampled", "cover_oracle",
+                            "anchors_per_m"}
+    assert 0.0 <= summary["cover_oracle"] <= 1.0
 
     def no_rendering(self, m):
         raise AssertionError("rendered although every block was cached")

@@ -1,7 +1,7 @@
 """Throughput of the waypoint network: training and closed-loop inference.
 
 ``bench_networks()`` returns the figures ``topodrake bench networks --json``
-prints (issue 4):
+prints:
 
 * ``train_samples_per_s``: full training steps (render the batch from
   poses, forward, backward, Adam) on real samples of one house;
@@ -136,7 +136,7 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
 def bench_reachability(config=None, controller: str | None = None, world_name: str = "test-0",
                        pairs: int = 256, label_pairs: int = 128, min_seconds: float = 3.0,
                        threads: int = 1, seed: int = 0) -> dict:
-    """The RE figures of issue 5 (``topodrake bench reachability``).
+    """The RE throughput figures (``topodrake bench reachability``).
 
     * ``pairs_per_s_naive``: RE on (source image, 2k + 1 context images)
       pairs, the full network on the stacked inputs;
