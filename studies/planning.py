@@ -21,12 +21,24 @@ subset; existing maps are reused):
   (:mod:`topodrake.navigation.replan`); ``replanning_gain`` is the
   smallest per-house gain over ``ours`` among the houses where ``ours`` is
   below 0.97;
+- ``oracle_full``: perfect perception, the design's ceiling: the oracle map
+  followed by the A* oracle C_WP and the geometric oracle RE;
+- ``ours_oracle_follow``: our camera map (learned RE) followed by the two
+  oracles (reading the route's anchor poses): the map's share of the errors;
+- ``oracle_cwp``: the oracle map followed by the A* oracle C_WP and the
+  learned camera RE: RE's share of the follower's errors;
 - ``ours_obstacles``: ``ours`` on the first ``--obstacle-trials`` trials,
   each alone in a copy of its house with ``--obstacles`` boxes (0.3-0.6 m)
   that the map never saw, placed on its planned route away from its start
   and goal without closing the way; the lidar RMP has to steer around them
   (``unmapped_obstacles``: success over these trials of all houses; a route
   with no room for the boxes is left out and counted as ``no_room``).
+
+The oracle ablations are fast and run ``--oracle-trials`` (100) trials per
+house, whose first ones are the learned methods' trials; every house also
+reports ``oracle_unplanned_pairs``, the ordered place pairs without a plan
+on its oracle map. An outcome ``false_reached`` is a follower that ended its
+plan more than 0.54 m from the goal.
 
 A trial starts at one place jittered (0.3 m sideways, 9 deg) and gets the
 observation at another place as its goal; it succeeds when the car comes
@@ -49,9 +61,11 @@ lidar one 0.5-2 min, an oracle one and SPTM's graph a few minutes); the
 paper's protocol is ``--trials 1000`` with the ten fractions.
 
 ``--json`` prints ``{"houses": {"test-0": {"ours": s, "lidar": s, "sptm": s,
-"oracle": s, "vertices": n, "edges": n, "sptm_vertices": n}, ...},
-"min_ours": s, "min_margin_over_sptm": m, "plan_probability_ece": e,
-"pruned_60_over_peak": r, "replanning_gain": g, "unmapped_obstacles": s}``
+"oracle": s, "oracle_full": s, ..., "vertices": n, "edges": n, "sptm_vertices": n}, ...},
+"min_ours": s, "min_oracle_full": s, "min_ours_oracle_follow": s,
+"min_oracle_cwp": s, "oracle_unplanned_pairs": n, "min_margin_over_sptm": m,
+"plan_probability_ece": e, "pruned_60_over_peak": r, "replanning_gain": g,
+"false_link_plans": {method: share}, "unmapped_obstacles": s}``
 and writes ``results/planning.json`` (command, seed, config, per-trial
 records), ``planning.png``, ``plan_calibration.png`` and ``pruned_maps.png``.
 """
