@@ -219,3 +219,14 @@ def test_dead_reckoning_on_the_active_anchor_marks_it_visited_and_heads_on():
     s, out = step(s, ev, 4)
     assert s.mode[0] == DEAD_RECKONING and s.visited[0] == 1 and s.active[0] == 2
     np.testing.assert_allclose(out.waypoint[0], [2.5, 2.0])  # C_WP's leg toward anchor 2
+
+
+def test_dead_reckoning_may_search_backwards_as_the_paper_does():
+    ev = Scripted(p=np.full(12, 0.5), prox=[0.3] * 12, dist=[1.0] * 12)
+    s = following(active=3, visited=2)
+    s.mode[:] = DEAD_RECKONING
+    s.waypoint[:] = [[3.0, 2.0]]
+    s.dr_count[:] = 25
+    step(s, ev, 12, lookahead=3, dr_widen_every=10, dr_backwards=True)
+    _, anchors, _, _ = ev.calls[-1]
+    assert anchors.tolist() == [1, 2, 3, 4, 5, 6, 7]       # next (3) - 2 .. next + 3 - 1 + 2

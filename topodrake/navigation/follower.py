@@ -40,8 +40,10 @@ Per period, with the current observation:
   here: odometry has no drift in this simulator). Each period RE is asked
   about a window of anchors from the next unvisited one forward, which
   widens by two anchors every ``dr_widen_every`` periods (ours: the paper's
-  window also widens backwards, and taking an anchor before the last
-  visited one drove routes backwards until time ran out); the best above
+  window also widens backwards, ``dr_backwards``, and taking an anchor
+  before the last visited one drove routes backwards until time ran out;
+  a learned C_WP that drifts off the route finds it again more often with
+  the paper's window, see docs/limits.md); the best above
   ``p_follow`` becomes active and the follower returns to Follow. A car
   that arrives within ``dr_arrive_m`` of the held waypoint while RE still
   says no holds C_WP's next waypoint toward the active anchor instead, or,
@@ -94,6 +96,7 @@ class FollowerConfig:
     dr_widen_every: int = 10        # the Dead reckoning search widens by one anchor each side
     dr_max_window: int = 15         # at most this many anchors asked per Dead reckoning period
     dr_arrive_m: float = 0.3        # at the held waypoint, C_WP gives the next one (see above)
+    dr_backwards: bool = False      # the Dead reckoning window also widens backwards (the paper)
     stall_periods: int = 50         # Follow periods on one active anchor before it is skipped
 
     def check(self) -> "FollowerConfig":
@@ -335,8 +338,12 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         grow = state.dr_count[d] // cfg.dr_widen_every
         nxt = state.visited[d] + 1
         # forward only: an anchor before the next unvisited one would drive the route backwards
-        lo = nxt
-        hi = np.minimum(nxt + cfg.lookahead - 1 + 2 * grow, n_anchors[d] - 1)
+        if cfg.dr_backwards:
+            lo = np.maximum(nxt - grow, 0)
+            hi = np.minimum(nxt + cfg.lookahead - 1 + grow, n_anchors[d] - 1)
+        else:
+            lo = nxt
+            hi = np.minimum(nxt + cfg.lookahead - 1 + 2 * grow, n_anchors[d] - 1)
         lo = np.maximum(lo, hi - cfg.dr_max_window + 1)
         rows, anchors = _windows(lo, hi)
         p = evaluate(d[rows], anchors, False, True).probability
