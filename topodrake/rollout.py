@@ -127,8 +127,8 @@ class ExpertRollout:
         steps = np.zeros(n, np.int64)
         clearance = self.world.grid.clearance_at
         trackers: dict[int, PathTracker] = {}
-        self._finished = np.zeros(n, bool)     # pose goals: the approach path was driven
-        self._classify(state, goals, outcome, clearance, np.arange(n))
+        finished = np.zeros(n, bool)           # pose goals: the approach path was driven
+        self._classify(state, goals, outcome, clearance, np.arange(n), finished)
         for k in range(t_steps):
             active = np.flatnonzero(outcome == RUNNING)
             if active.size == 0:
@@ -146,7 +146,7 @@ class ExpertRollout:
                                                     rmp=cfg.rmp, vehicle=veh)
             u = controls_toward(st, wp, ranges, cfg.lidar, cfg.rmp, veh)
             if pose_goals:
-                self._approach(k, active, st, goals, trackers, u, wp, seeds)
+                self._approach(k, active, st, goals, trackers, finished, u, wp, seeds)
             if noise is not None and cfg.noise_std > 0:
                 u = u * (1.0 + cfg.noise_std * noise[active, k])
             state[active] = vehicle_step(st, u, veh)
@@ -154,11 +154,11 @@ class ExpertRollout:
             waypoints[active, k] = wp
             steps[active] = k + 1
             poses[active, k + 1:] = state[active, None, :3]
-            self._classify(state[active], goals[active], outcome, clearance, active)
+            self._classify(state[active], goals[active], outcome, clearance, active, finished)
         outcome[outcome == RUNNING] = TIMEOUT
         return RolloutResult(poses, controls, waypoints, steps, outcome, paths)
 
-    def _approach(self, k, active, st, goals, trackers, u, wp, seeds) -> None:
+    def _approach(self, k, active, st, goals, trackers, finished, u, wp, seeds) -> None:
         """Cars near their goal pose drive a Reeds-Shepp path to it instead of
         the A* expert's waypoint (``u`` and ``wp`` rows replaced in place)."""
         cfg = self.config.approach
@@ -170,7 +170,7 @@ class ExpertRollout:
             tracker = trackers.get(car)
             if tracker is not None:
                 u[r], target, done = track_pose_path(tracker, st[r], cfg, veh)
-                self._finished[car] = done
+                finished[car] = done
                 if not done:
                     wp[r] = target
                     continue
@@ -185,11 +185,11 @@ class ExpertRollout:
             trackers[car] = PathTracker(path, replans=0 if tracker is None else tracker.replans + 1)
             u[r], wp[r], _ = track_pose_path(trackers[car], st[r], cfg, veh)
 
-    def _classify(self, state, goals, outcome, clearance, idx) -> None:
+    def _classify(self, state, goals, outcome, clearance, idx, finished=None) -> None:
         cfg = self.config
         if goals.shape[1] == 3:
             # at the end of its approach path (not merely passing through the tolerance)
-            reached = self._finished[idx] & pose_reached(state[:, :3], goals, cfg.goal_tolerance_m,
+            reached = finished[idx] & pose_reached(state[:, :3], goals, cfg.goal_tolerance_m,
                                                          cfg.approach.heading_tol_deg)
         else:
             reached = np.hypot(*(state[:, :2] - goals).T) < cfg.goal_tolerance_m

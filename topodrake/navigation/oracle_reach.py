@@ -83,18 +83,12 @@ def _nll(p: np.ndarray, y: np.ndarray) -> float:
 def calibration_scores(probability: np.ndarray, label: np.ndarray, bins: int = 10) -> dict:
     """ECE (``bins`` equal bins), AUROC and mean negative log-likelihood of
     predicted probabilities against 0/1 outcomes."""
-    from scipy.stats import rankdata
+    from topodrake.learning.calibration import auroc, ece
 
     p = np.asarray(probability, np.float64)
     y = np.asarray(label, np.float64)
-    edges = np.linspace(0.0, 1.0, bins + 1)
-    idx = np.clip(np.searchsorted(edges, p, side="right") - 1, 0, bins - 1)
-    ece = sum(np.mean(idx == b) * abs(p[idx == b].mean() - y[idx == b].mean())
-              for b in range(bins) if np.any(idx == b))
-    n1, n0 = y.sum(), len(y) - y.sum()
-    auroc = float((rankdata(p)[y == 1].sum() - n1 * (n1 + 1) / 2) / (n1 * n0)) if n1 and n0 \
-        else float("nan")
-    return {"ece": round(float(ece), 4), "auroc": round(auroc, 4), "nll": round(_nll(p, y), 4)}
+    return {"ece": round(ece(p, y, bins), 4), "auroc": round(auroc(p, y), 4),
+            "nll": round(_nll(p, y), 4)}
 
 
 def fit_oracle(geometry: dict, label: np.ndarray, start, grid: dict, rounds: int = 4):
