@@ -46,6 +46,7 @@ import numpy as np
 from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes, atomic_write_json
+from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, follow_chains_once, path_length
 
 CONTROLLERS = {
     # name: (C_WP checkpoint, RE checkpoint, the controller the RE was trained for)
@@ -58,10 +59,6 @@ CONTROLLERS = {
     "lidar_k5": ("checkpoints/lidar_k5/checkpoint.pt", "checkpoints/reach_lidar_k5/checkpoint.pt",
                  "checkpoints/lidar_k5/checkpoint.pt"),
 }
-TOLERANCE_M = 0.5      # a reference sample is covered when the robot comes this close
-DIVERGE_M = 1.0        # the robot is stopped this far from the reference path
-AHEAD = 120            # reference samples (about 6 m) searched ahead of the progress
-BEHIND = 40            # the robot may fall back this many samples before it diverges
 
 
 # ---------------------------------------------------------------- trajectories
@@ -131,11 +128,6 @@ def load_trajectories(data: Path, worlds: list[str], n: int, seed: int) -> list[
     return trajs
 
 
-def path_length(poses: np.ndarray) -> np.ndarray:
-    """Cumulative arc length (T,) of a trajectory."""
-    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))])
-
-
 class Observations:
     """The network's observations along each trajectory, rendered on first
     use (a rerun whose results are all cached renders none)."""
@@ -180,49 +172,6 @@ class RunCache:
                                                           "value": value})
 
 
-def jittered_start(world, pose: np.ndarray, rng) -> np.ndarray:
-    """``pose`` moved 0.3 m to a random side and turned 9 deg to a random
-    side (the other side, or no jitter, when that puts the car into a wall)."""
-    from topodrake.vehicle import VehicleConfig, in_collision
-
-    side, turn = rng.choice([-1.0, 1.0], size=2)
-    for sd, tn in ((side, turn), (-side, turn), (0.0, 0.0)):
-        s = pose.copy()
-        s[0] -= 0.3 * sd * np.sin(pose[2])
-        s[1] += 0.3 * sd * np.cos(pose[2])
-        s[2] += np.radians(9.0) * tn
-        if not in_collision(np.array([[*s, 0.0, 0.0]]), world.grid.clearance_at, VehicleConfig())[0]:
-            return s
-    return pose.copy()
-
-
-class PathWatch:
-    """Progress along each car's reference path (the farthest sample, in
-    order, it came within ``TOLERANCE_M`` of); stops cars that strayed more
-    than ``DIVERGE_M`` from it (the engine's ``watch``)."""
-
-    def __init__(self, references: list[np.ndarray]):
-        self.refs = references
-        self.progress = np.zeros(len(references), np.int64)
-
-    def __call__(self, k: int, cars: np.ndarray, states: np.ndarray) -> np.ndarray:
-        stop = np.zeros(len(cars), bool)
-        for m, c in enumerate(cars):
-            ref = self.refs[c]
-            p = self.progress[c]
-            lo = max(p - BEHIND, 0)
-            d = np.hypot(*(ref[lo:, :2] - states[m, :2]).T)         # the path from just behind on
-            ahead = np.flatnonzero(d[p - lo:p - lo + AHEAD] < TOLERANCE_M)
-            if ahead.size:
-                self.progress[c] = p + ahead.max()
-            stop[m] = d.min() > DIVERGE_M
-        return stop
-
-    def cover(self, c: int) -> float:
-        s = path_length(self.refs[c])
-        return float(s[self.progress[c]] / s[-1]) if s[-1] > 0 else 1.0
-
-
 # ---------------------------------------------------------------- one controller
 
 def chains_of(obs, reach, ps, cache: RunCache | None = None, tag: str = "",
@@ -264,8 +213,7 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
     from topodrake.montecarlo import trial_seeds
     from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
     from topodrake.navigation.follower import FollowerConfig
-    from topodrake.navigation.route import route_from_observations
-    from topodrake.rollout import RolloutConfig, standard_normal_noise
+    from topodrake.rollout import RolloutConfig
 
     m_all = len(chains)
     cover = np.zeros(m_all)
@@ -293,16 +241,11 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
                 for j, m in enumerate(part):
                     cover[m], outcomes[m] = got["cover"][j], got["outcomes"][j]
                 continue
-            routes = [route_from_observations(trajs[m]["poses"] if oracle else obs[m],
-                                              trajs[m]["poses"], chains[m], wide.k,
-                                              wide.frame_step, policy.observation) for m in part]
-            starts = np.array([jittered_start(world, trajs[m]["poses"][0],
-                                              np.random.default_rng(seeds[m])) for m in part])
-            limits = np.array([(2 * len(trajs[m]["poses"]) + 100) * 0.1 for m in part])
-            noise = standard_normal_noise([seeds[m] + 1 for m in part], int(round(limits.max() / 0.1))) \
-                if noisy else None
-            watch = PathWatch([trajs[m]["poses"] for m in part])
-            res = engine.run(starts, routes, noise=noise, t_max_s=limits, watch=watch)
+            res, watch = follow_chains_once(
+                engine, [trajs[m]["poses"] for m in part],
+                [trajs[m]["poses"] if oracle else obs[m] for m in part],
+                [chains[m] for m in part], wide.k, wide.frame_step, [seeds[m] for m in part],
+                noisy=noisy)
             for j, m in enumerate(part):
                 cover[m] = watch.cover(j)
                 outcomes[m] = NAV_OUTCOMES[int(res.outcome[j])]

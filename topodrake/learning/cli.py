@@ -87,6 +87,15 @@ def add_train_parser(sub) -> None:
         tw.add_argument("--quiet", action="store_true", help="no progress bar")
         tw.add_argument("--json", action="store_true", help="print the result as one JSON object")
         tw.set_defaults(func=func)
+    td = tsub.add_parser("dagger", help="on-policy rounds of C_WP: follow chains, label the "
+                                        "visited states with the expert, fine-tune")
+    td.add_argument("--config", required=True, help="DAgger YAML (see configs/dagger_*.yaml)")
+    td.add_argument("--out", required=True, help="output folder: rounds, dagger.json, best.pt")
+    td.add_argument("--data", default="data", help="cache of demonstrations and sample sets")
+    td.add_argument("--rounds", type=at.count, help="override the config's number of rounds")
+    td.add_argument("--quiet", action="store_true", help="no progress output")
+    td.add_argument("--json", action="store_true", help="print the rounds as one JSON object")
+    td.set_defaults(func=cmd_train_dagger)
     tp = tsub.add_parser("place", help="train the place embedding that ranks map vertices")
     tp.add_argument("config", help="training YAML (see configs/place_*.yaml)")
     tp.add_argument("--out", help="output folder (default: checkpoints/<config name>)")
@@ -99,6 +108,27 @@ def add_train_parser(sub) -> None:
     ts.add_argument("--data", default="data", help="cache of demonstrations")
     ts.add_argument("--quiet", action="store_true", help="no progress lines")
     ts.set_defaults(func=cmd_train_sptm)
+
+
+def cmd_train_dagger(args) -> None:
+    import json
+    import sys
+
+    from topodrake.learning.dagger import load_dagger_config, run_dagger
+
+    cfg = load_dagger_config(args.config)
+    if args.rounds:
+        cfg.rounds = args.rounds
+        cfg.validate(f"config {args.config}")
+    state = run_dagger(cfg, args.out, args.data, progress=not args.quiet,
+                       command="topodrake " + " ".join(sys.argv[1:]))
+    if args.json:
+        print(json.dumps(state["rounds"]))
+    else:
+        for r in state["rounds"]:
+            print(f"round {r['round']}: {r['states']} states in {len(r['worlds'])} houses, "
+                  f"followed cover {r['followed_cover']:.3f}, val error "
+                  f"{r['val_waypoint_error_m']:.3f} m")
 
 
 def cmd_train_place(args) -> None:

@@ -381,9 +381,14 @@ def apply_jitter(world, base: np.ndarray, lat: np.ndarray, dth: np.ndarray
     return jit[first, np.arange(base.shape[0])], free.any(axis=0)
 
 
-def _world_samples(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
-                   rng: np.random.Generator, cfg: SampleConfig) -> dict:
-    """Up to ``n`` samples from the trajectories ``traj_ids`` of one world."""
+def label_samples(world, trajs: TrajectorySet, traj: np.ndarray, src: np.ndarray,
+                  tgt: np.ndarray, src_pose: np.ndarray, speed_steer: np.ndarray,
+                  distance: np.ndarray, cfg: SampleConfig, lidar=None) -> dict:
+    """Label source poses toward target frames of one world: the sample
+    fields of the rows whose both overlaps exceed ``cfg.min_overlap`` and
+    whose A* label exists (rows dropped otherwise, order kept). ``src`` is
+    the frame a source came from (bookkeeping), ``speed_steer`` (M, 2) the
+    car's speed and steering there (for the direct-control label)."""
     from topodrake.control import controls_toward
     from topodrake.rmp import RmpConfig
     from topodrake.sensing.config import CameraConfig, LidarConfig
@@ -391,8 +396,37 @@ def _world_samples(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
     from topodrake.sensing.overlap import mutual_overlap
     from topodrake.vehicle import VehicleConfig
 
-    lidar_cfg = LidarConfig()
-    lidar = Lidar(world, lidar_cfg)
+    lidar = lidar or Lidar(world, LidarConfig())
+    traj, src, tgt = (np.asarray(a, np.int64) for a in (traj, src, tgt))
+    src_pose = np.asarray(src_pose, np.float64).reshape(-1, 3)
+    tgt_pose = trajs.poses[trajs.traj_offsets[traj] + tgt]
+    ov = mutual_overlap(world, src_pose, tgt_pose, CameraConfig(), cfg.overlap_rays) \
+        if len(src_pose) else np.zeros((0, 2))
+    idx = np.flatnonzero((ov > cfg.min_overlap).all(axis=1))
+    wp, valid = expert_waypoint_labels(world, src_pose[idx], tgt_pose[idx, :2],
+                                       cfg.lookahead_m, cfg.target_snap_m)
+    idx, wp = idx[valid], wp[valid]
+    state = np.column_stack([src_pose[idx], np.asarray(speed_steer, np.float64)[idx]])
+    # direct-control label: the RMP toward the label waypoint at the source state
+    ranges = lidar.scan(src_pose[idx])
+    c, s = np.cos(state[:, 2]), np.sin(state[:, 2])
+    wp_world = state[:, :2] + np.column_stack([c * wp[:, 0] - s * wp[:, 1],
+                                               s * wp[:, 0] + c * wp[:, 1]])
+    u = controls_toward(state, wp_world, ranges, lidar.config,
+                        RmpConfig(), VehicleConfig()) if len(idx) else np.zeros((0, 2))
+    return {"traj": traj[idx], "src": src[idx], "tgt": tgt[idx], "src_pose": src_pose[idx],
+            "src_speed_steer": state[:, 3:5], "distance": np.asarray(distance)[idx],
+            "waypoint": wp, "heading_diff": wrap_angle(tgt_pose[idx, 2] - src_pose[idx, 2]),
+            "overlap": ov[idx], "control": u}
+
+
+def _world_samples(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
+                   rng: np.random.Generator, cfg: SampleConfig) -> dict:
+    """Up to ``n`` samples from the trajectories ``traj_ids`` of one world."""
+    from topodrake.sensing.config import LidarConfig
+    from topodrake.sensing.lidar import Lidar
+
+    lidar = Lidar(world, LidarConfig())
     lengths = np.array([trajs.rows(t).stop - trajs.rows(t).start for t in traj_ids])
     arcs = [_arclength(trajs.poses[trajs.rows(t)]) for t in traj_ids]
     out: dict[str, list] = {name: [] for name in _SAMPLE_FIELDS}
@@ -425,34 +459,13 @@ def _world_samples(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
         src_pose, free = apply_jitter(world, base, lat, dth)
         ok &= free
         idx = np.flatnonzero(ok)
-        tgt_pose = trajs.poses[rows0[idx] + tgt[idx]]
-        ov = mutual_overlap(world, src_pose[idx], tgt_pose, CameraConfig(), cfg.overlap_rays)
-        keep = (ov > cfg.min_overlap).all(axis=1)
-        idx, ov, tgt_pose = idx[keep], ov[keep], tgt_pose[keep]
-        wp, valid = expert_waypoint_labels(world, src_pose[idx], tgt_pose[:, :2],
-                                           cfg.lookahead_m, cfg.target_snap_m)
-        idx, ov, tgt_pose, wp = idx[valid], ov[valid], tgt_pose[valid], wp[valid]
-        if len(idx) == 0:
+        got = label_samples(world, trajs, traj_ids[pick[idx]], src[idx], tgt[idx], src_pose[idx],
+                            trajs.states[rows0[idx] + src[idx], 3:5], dist[idx], cfg, lidar)
+        take = min(len(got["traj"]), n - have)
+        if take == 0:
             continue
-        take = min(len(idx), n - have)
-        idx, ov, tgt_pose, wp = idx[:take], ov[:take], tgt_pose[:take], wp[:take]
-        state = np.column_stack([src_pose[idx], trajs.states[rows0[idx] + src[idx], 3:5]])
-        # direct-control label: the RMP toward the label waypoint at the jittered state
-        ranges = lidar.scan(src_pose[idx])
-        c, s = np.cos(state[:, 2]), np.sin(state[:, 2])
-        wp_world = state[:, :2] + np.column_stack([c * wp[:, 0] - s * wp[:, 1],
-                                                   s * wp[:, 0] + c * wp[:, 1]])
-        u = controls_toward(state, wp_world, ranges, lidar_cfg, RmpConfig(), VehicleConfig())
-        out["traj"].append(traj_ids[pick[idx]])
-        out["src"].append(src[idx])
-        out["tgt"].append(tgt[idx])
-        out["src_pose"].append(src_pose[idx])
-        out["src_speed_steer"].append(state[:, 3:5])
-        out["distance"].append(dist[idx])
-        out["waypoint"].append(wp)
-        out["heading_diff"].append(wrap_angle(tgt_pose[:, 2] - src_pose[idx, 2]))
-        out["overlap"].append(ov)
-        out["control"].append(u)
+        for name in _SAMPLE_FIELDS:
+            out[name].append(got[name][:take])
         have += take
     return {k: np.concatenate(v) if v else np.zeros((0,)) for k, v in out.items()}
 
