@@ -10,7 +10,9 @@ prints:
 * ``infer_cached_per_s``: the same with the target half of the first layer
   cached (what a follower does while it follows one anchor);
 * ``infer_*_batch_per_s``: the same per sample at batch ``batch`` (the
-  batched engine), and ``cached_speedup`` = cached / naive at batch 1.
+  batched engine), and ``cached_speedup`` = cached / naive at batch 1;
+* ``registration_per_s``: lidar scan pairs registered per second by the
+  compiled ICP (:mod:`topodrake.registration.bench`).
 
 Naive and cached are timed in alternating windows (median of 5 each), so a
 change of load during the run affects both figures alike.
@@ -85,6 +87,7 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
     from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.samples import make_samples
     from topodrake.learning.train import waypoint_loss
+    from topodrake.registration.bench import registration_rate
     from topodrake.world import load_world
 
     cfg = config or TrainConfig()
@@ -129,6 +132,8 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
             batch, 2 * min_seconds)
         out["encode_target_per_s"] = _rate(lambda: policy.encode_target(ctx[:1]), 1, min_seconds)
         out["cached_speedup"] = out["infer_cached_per_s"] / out["infer_naive_per_s"]
+        out["registration_per_s"] = registration_rate(world, trajs.poses[trajs.rows(0)], 256,
+                                                       min_seconds, seed)
         out["batch"] = batch
         return {k: (round(v, 1) if isinstance(v, float) else v) for k, v in out.items()}
 

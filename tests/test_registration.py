@@ -1,0 +1,163 @@
+"""Scan registration: the compiled point-to-line ICP against known transforms
+and against KISS-ICP."""
+
+import numpy as np
+import pytest
+
+from topodrake.errors import TopodrakeError
+from topodrake.registration.icp import IcpConfig, compose, invert, register, scan_points
+from topodrake.sensing.config import LidarConfig
+from topodrake.sensing.lidar import Lidar
+from topodrake.world import load_world
+
+
+@pytest.fixture(scope="module")
+def house():
+    return load_world("test-0")
+
+
+def _pairs(world, n, seed, shift=0.3, turn=0.25):
+    """Scans of ``n`` free poses of ``world`` (targets) and of the same poses
+    moved by known offsets (sources), with those offsets."""
+    from topodrake.vehicle import VehicleConfig, in_collision
+
+    rng = np.random.default_rng(seed)
+    lidar = Lidar(world)
+    tgt, delta = [], []
+    while len(tgt) < n:
+        t = world.sample_free_pose(rng)
+        d = np.array([rng.uniform(-shift, shift), rng.uniform(-shift, shift),
+                      rng.uniform(-turn, turn)])
+        s = compose(t, d)[0]
+        if not in_collision(np.array([[*s, 0.0, 0.0]]), world.grid.clearance_at, VehicleConfig())[0]:
+            tgt.append(t)
+            delta.append(d)
+    tgt, delta = np.array(tgt), np.array(delta)
+    return lidar.scan(compose(tgt, delta)), lidar.scan(tgt), delta
+
+
+def _errors(pose, truth):
+    return np.hypot(*(pose[:, :2] - truth[:, :2]).T), \
+        np.abs((pose[:, 2] - truth[:, 2] + np.pi) % (2 * np.pi) - np.pi)
+
+
+def test_pose_algebra():
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    np.testing.assert_allclose(compose(a, invert(a)), 0.0, atol=1e-12)
+    # points: (a o b) applied to p equals a applied to (b applied to p)
+    p = rng.normal(size=2)
+    apply = lambda t, q: np.array([t[0] + np.cos(t[2]) * q[0] - np.sin(t[2]) * q[1],   # noqa: E731
+                                   t[1] + np.sin(t[2]) * q[0] + np.cos(t[2]) * q[1]])
+    ab = compose(a, b)
+    for i in range(5):
+        np.testing.assert_allclose(apply(ab[i], p), apply(a[i], apply(b[i], p)), atol=1e-12)
+
+
+def test_scan_points_drop_misses():
+    cfg = LidarConfig()
+    r = np.full((1, cfg.beams), 2.0)
+    r[0, 5] = np.inf
+    r[0, 6] = cfg.range_m
+    pts, valid = scan_points(r, cfg)
+    assert valid.sum() == cfg.beams - 2 and not valid[0, 5] and not valid[0, 6]
+    # the middle beams look ahead, from the lidar's mount forward_m ahead of the car
+    mid = cfg.beams // 2
+    assert pts[0, mid, 0] == pytest.approx(cfg.forward_m + 2.0 * np.cos(cfg.beam_angles()[mid]))
+    with pytest.raises(TopodrakeError, match="ranges"):
+        scan_points(np.ones((2, 10)), cfg)
+
+
+def test_recovers_known_transforms(house):
+    src, tgt, delta = _pairs(house, 150, seed=1)
+    res = register(src, tgt)
+    e, a = _errors(res.pose, delta)
+    good = (e < 0.05) & (a < np.radians(2.0))
+    assert good.mean() > 0.9
+    # accepted fits are right where the walls pin the translation; in a
+    # corridor (constraint ~ 0) the fit keeps the rotation and slides
+    assert res.accepted.mean() > 0.8
+    pinned = res.constraint > 0.05
+    assert 0.8 < pinned.mean() < 1.0
+    assert good[res.accepted & pinned].mean() > 0.97
+    assert np.all(a[res.accepted & ~pinned] < np.radians(1.0))
+    assert np.median(res.rms[res.accepted]) < 0.02
+    assert np.all(res.iterations[res.accepted] <= IcpConfig().max_iterations)
+    # a scan onto itself: identity, full overlap both ways
+    same = register(tgt[:20], tgt[:20])
+    np.testing.assert_allclose(same.pose, 0.0, atol=1e-6)
+    assert np.all(same.inlier > 0.95) and np.all(same.inlier_back > 0.95)
+
+
+def test_warm_start_and_broadcast(house):
+    src, tgt, delta = _pairs(house, 60, seed=2, shift=0.8, turn=0.6)
+    cold = register(src, tgt)
+    warm = register(src, tgt, delta + np.array([0.1, -0.1, 0.05]))
+    ec, _ = _errors(cold.pose, delta)
+    ew, aw = _errors(warm.pose, delta)
+    assert ((ew < 0.05) & (aw < 0.035)).mean() > ((ec < 0.05)).mean()
+    assert ((ew < 0.05) & (aw < 0.035)).mean() > 0.85
+    # one target and one guess shared by a batch gives the same as repeating them
+    one = register(src[:4], tgt[0], delta[0])
+    rep = register(src[:4], np.repeat(tgt[:1], 4, axis=0), np.repeat(delta[:1], 4, axis=0))
+    np.testing.assert_allclose(one.pose, rep.pose)
+
+
+def test_rejects_bad_input_and_empty_scans(house):
+    src, tgt, _ = _pairs(house, 3, seed=3)
+    with pytest.raises(TopodrakeError, match="target scans"):
+        register(src, tgt[:2])
+    with pytest.raises(TopodrakeError, match="finite"):
+        register(src, tgt, np.full(3, np.nan))
+    with pytest.raises(TopodrakeError, match="gate"):
+        register(src, tgt, config=IcpConfig(gate_m=0.1, gate_min_m=0.2))
+    empty = np.full_like(src, np.inf)
+    res = register(empty, tgt)
+    assert not res.accepted.any() and not res.converged.any() and np.all(res.inlier == 0)
+
+
+def test_agrees_with_kiss_icp(house):
+    """On pairs with good overlap our fit agrees with KISS-ICP's
+    point-to-point registration (on the scans' points at z = 0) and is
+    nearer the truth: 64 beams sample a wall too sparsely for point-to-point."""
+    kiss = pytest.importorskip("kiss_icp")
+    from kiss_icp.mapping import VoxelHashMap
+    from kiss_icp.registration import Registration
+
+    assert kiss is not None
+    src, tgt, delta = _pairs(house, 120, seed=4, shift=0.3, turn=0.2)
+    ours = register(src, tgt)
+    sp, sv = scan_points(src)
+    tp, tv = scan_points(tgt)
+    reg = Registration(max_num_iterations=50, convergence_criterion=1e-4, max_num_threads=1)
+    theirs = np.zeros((len(src), 3))
+    for i in range(len(src)):
+        voxels = VoxelHashMap(voxel_size=0.25, max_distance=100.0, max_points_per_voxel=50)
+        voxels.add_points(np.column_stack([tp[i][tv[i]], np.zeros(tv[i].sum())]))
+        t = reg.align_points_to_map(np.column_stack([sp[i][sv[i]], np.zeros(sv[i].sum())]),
+                                    voxels, np.eye(4), 0.75, 0.1)
+        theirs[i] = [t[0, 3], t[1, 3], np.arctan2(t[1, 0], t[0, 0])]
+    overlap = ours.inlier > 0.7
+    assert overlap.mean() > 0.6
+    d, a = _errors(ours.pose, theirs)
+    assert ((d < 0.1) & (a < 0.05))[overlap].mean() > 0.75
+    eo, ao = _errors(ours.pose, delta)
+    et, at_ = _errors(theirs, delta)
+    ok_ours = ((eo < 0.1) & (ao < 0.05))[overlap].mean()
+    ok_theirs = ((et < 0.1) & (at_ < 0.05))[overlap].mean()
+    assert ok_ours >= ok_theirs and ok_ours > 0.9
+    assert np.median(eo[overlap]) < np.median(et[overlap])
+
+
+def test_throughput_one_core(house):
+    """The acceptance figure is 5,000 registrations per second on one core;
+    the test asks for a fifth of it (a loaded test machine)."""
+    from topodrake.registration.bench import registration_rate
+
+    rng = np.random.default_rng(5)
+    path = house.astar(house.sample_free_pose(rng), house.sample_free_pose(rng))
+    heading = np.arctan2(*np.diff(path, axis=0)[:, ::-1].T)
+    drive = np.column_stack([path[1:], heading])
+    if len(drive) < 10:
+        pytest.skip("a very short A* path")
+    assert registration_rate(house, drive, batch=128, min_seconds=0.3) > 1000
