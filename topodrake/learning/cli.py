@@ -222,6 +222,20 @@ def add_bench_parser(bsub) -> None:
     br.add_argument("--seed", type=at.seed, default=0, help="seed of the pairs and weights")
     br.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     br.set_defaults(func=cmd_bench_reachability)
+    bf = bsub.add_parser("follower", help="C_WP error and RE calibration on the states the "
+                                          "follower visits in the test houses")
+    bf.add_argument("--controllers", default="camera_k5,lidar_k5", help="controllers to bench")
+    bf.add_argument("--cwp", action="append", metavar="NAME=CHECKPOINT",
+                    help="bench another C_WP under NAME (with NAME's RE); repeatable")
+    bf.add_argument("--drives", type=at.count, default=8, help="chains followed per test house")
+    bf.add_argument("--re-states", type=at.count, default=300,
+                    help="visited states rolled out to score RE")
+    bf.add_argument("--data", default="data", help="cache of demonstrations")
+    bf.add_argument("--threads", type=at.count, default=1, help="torch threads")
+    bf.add_argument("--seed", type=at.seed, default=0, help="seed of the chains, starts and noise")
+    bf.add_argument("--quiet", action="store_true", help="no progress lines")
+    bf.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    bf.set_defaults(func=cmd_bench_follower)
     bp = bsub.add_parser("place", help="place-embedding recall@K against a thumbnail baseline, "
                                        "and search time at 100,000 vertices")
     bp.add_argument("--checkpoint", default="checkpoints/place_camera/checkpoint.pt",
@@ -235,6 +249,30 @@ def add_bench_parser(bsub) -> None:
     bp.add_argument("--seed", type=at.seed, default=0, help="seed of the sampled frames")
     bp.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     bp.set_defaults(func=cmd_bench_place)
+
+
+def cmd_bench_follower(args) -> None:
+    import json
+
+    import torch
+
+    from topodrake.learning.follower_bench import bench_follower, parse_controllers
+
+    torch.set_num_threads(args.threads)
+    result = bench_follower(parse_controllers(args.controllers, args.cwp), data=args.data,
+                            drives_per_world=args.drives, re_states=args.re_states,
+                            seed=args.seed, progress=not args.quiet)
+    if args.json:
+        print(json.dumps(result))
+        return
+    for name, r in result.items():
+        print(f"{name}: on-policy waypoint error {r['onpolicy_error_m']:.3f} m (validation "
+              f"{r['val_error_m']}, ratio {r['error_ratio']}), RE ECE {r['re_ece']:.3f} AUROC "
+              f"{r['re_auroc']:.3f} on {r['re_states']} states, followed cover "
+              f"{r['followed_cover']:.3f}")
+        for band, b in r["bands"].items():
+            print(f"    {band:>6}: {b['share']:.2f} of states, error {b['error_m']} m, "
+                  f"angle {b['angle_error_deg']} deg")
 
 
 def cmd_bench_place(args) -> None:
