@@ -6,7 +6,9 @@ A thin wrapper over :func:`topodrake.navigation.follower.follower_step`
 Timing (10 Hz, sample and hold). The period's decision is a cache entry
 computed from the held observation, the held car state and the follower's
 abstract state (a :class:`~topodrake.navigation.follower.FollowerState` of
-one car: mode, active and last visited anchor, the held waypoint, counters),
+one car: mode, active and last visited anchor, the held waypoint, counters,
+and a stateful C_WP's per-car track, which the decision updates from the held
+car state as odometry),
 never from time or the continuous state: it is computed once per period from
 the observation sampled at the period's start. A periodic unrestricted
 update at the end of each period (the start of the next) commits it, and
@@ -40,7 +42,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
 from topodrake.learning.policy import TargetContext, WaypointPrediction
-from topodrake.navigation.evaluate import Evaluator, encode_routes, network_context, take_rows
+from topodrake.navigation.evaluate import (Evaluator, encode_routes, initial_track,
+                                           network_context, take_rows)
 from topodrake.navigation.follower import (DEAD_RECKONING, FAILED, MODES, REACHED, REASONS,
                                            FollowerConfig, FollowerState, follower_step)
 
@@ -62,7 +65,8 @@ class FollowerFsm(LeafSystem):
         self._routes: list[_EncodedRoute] = []
         self._encode(route)
         kind = policy.observation
-        if reach.observation != kind:
+        # a pose oracle RE may stand beside a sensing C_WP (it reads the held car state)
+        if reach.observation not in (kind, "pose"):
             raise ValueError(f"C_WP observes {kind}, RE {reach.observation}")
         self.kind = kind
         if kind == "camera":
@@ -75,7 +79,7 @@ class FollowerFsm(LeafSystem):
         else:
             self.observation_port = None
         self.state_port = self.DeclareVectorInputPort("state", 5)
-        self.fsm_index = self.DeclareAbstractState(AbstractValue.Make(FollowerState.initial(1)))
+        self.fsm_index = self.DeclareAbstractState(AbstractValue.Make(self._initial_state()))
         self.route_index = self.DeclareAbstractState(AbstractValue.Make(0))
         prereq = {self.input_port_ticket(p.get_index())
                   for p in (self.state_port, self.observation_port) if p is not None}
@@ -107,6 +111,9 @@ class FollowerFsm(LeafSystem):
             route, encode_routes([route], self.policy, self.reach),
             network_context(route.contexts, wide.k, wide.frame_step, self.policy), base))
 
+    def _initial_state(self) -> FollowerState:
+        return FollowerState.initial(1, initial_track(self.policy, 1))
+
     def follower_state(self, context) -> FollowerState:
         return context.get_abstract_state(self.fsm_index).get_value()
 
@@ -129,8 +136,10 @@ class FollowerFsm(LeafSystem):
             np.asarray(self.observation_port.Eval(context))[None]
         feats = self._routes[self._route_of(context)].features
         ev = Evaluator(self.policy, self.reach, feats, np.zeros(1, np.int64), obs,
-                       poses=car[:, :3])
-        value.set_value(follower_step(state, feats.n_anchors, car, ev, self.config))
+                       poses=car[:, :3], track=state.track, odometry=car[:, :3])
+        fs, out = follower_step(state, feats.n_anchors, car, ev, self.config)
+        fs.track = ev.track
+        value.set_value((fs, out))
 
     def _out_target(self, context, output):
         fs, out = self.decision(context)
@@ -170,7 +179,7 @@ class FollowerFsm(LeafSystem):
                                               self.config.p_search):
                 self._encode(new)
                 state.get_mutable_abstract_state(self.route_index).set_value(len(self._routes) - 1)
-                fs = FollowerState.initial(1)
+                fs = self._initial_state()
         state.get_mutable_abstract_state(self.fsm_index).set_value(fs)
         m = int(fs.mode[0])
         if m == REACHED:

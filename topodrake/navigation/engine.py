@@ -4,7 +4,9 @@ Per control period ``k``, for the cars still driving, in the order of the
 Drake navigation diagram (``topodrake.systems.navigation``)::
 
     ranges_k, obs_k  = lidar(pose_k), camera(pose_k)      (the policy's observation)
-    follower_k, out  = follower_step(follower_k-1, obs_k)  (C_WP and RE on cached anchors)
+    follower_k, out  = follower_step(follower_k-1, obs_k)  (C_WP and RE on cached anchors;
+                                                            a stateful C_WP also gets the
+                                                            car's odometry, state_k)
     u_k              = rmp(state_k, out.waypoint, ranges_k) * (1 + noise_std * w_k)
     state_k+1        = vehicle_step(state_k, u_k)
     stop: collision; the follower reached the last anchor or gave up (its
@@ -28,7 +30,7 @@ import numpy as np
 
 from topodrake.control import controls_toward
 from topodrake.navigation.evaluate import (Evaluator, RouteFeatures, encode_routes,
-                                           stack_features)
+                                           initial_track, stack_features)
 from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, SEARCH_FAILED,
                                            FollowerConfig, FollowerState, follower_step)
 from topodrake.rollout import RolloutConfig, standard_normal_noise
@@ -143,7 +145,7 @@ class NavigationEngine:
         active_log = np.full((n, t_steps), -1, np.int64)
         outcome = np.full(n, RUNNING)
         steps = np.zeros(n, np.int64)
-        follower = FollowerState.initial(n)
+        follower = FollowerState.initial(n, initial_track(self.policy, n))
         clearance = self.world.grid.clearance_at
         for k in range(t_steps):
             outcome[(outcome == RUNNING) & (limit <= k)] = NAV_TIMEOUT
@@ -152,10 +154,12 @@ class NavigationEngine:
                 break
             st = state[cars]
             ranges = self.lidar.scan(st[:, :3])
+            fs = follower.take(cars)
             ev = Evaluator(self.policy, self.reach, features, route_of[cars],
-                           self.observe(st, ranges), poses=st[:, :3])
-            fs, out = follower_step(follower.take(cars), n_anchors[cars], st, ev,
-                                    self.config.follower)
+                           self.observe(st, ranges), poses=st[:, :3], track=fs.track,
+                           odometry=st[:, :3])
+            fs, out = follower_step(fs, n_anchors[cars], st, ev, self.config.follower)
+            fs.track = ev.track
             follower.put(cars, fs)
             if replanner is not None:
                 for i, new in replanner.step(cars, fs, st[:, :3],
@@ -165,7 +169,8 @@ class NavigationEngine:
                     route_of[i] = len(features.offsets) - 2
                     n_anchors[i] = len(new)
                     goals[i] = new.goal_pose
-                    follower.put(np.array([i]), FollowerState.initial(1))
+                    follower.put(np.array([i]), FollowerState.initial(
+                        1, initial_track(self.policy, 1)))
             u = controls_toward(st, out.waypoint, ranges, cfg.lidar, cfg.rmp, veh)
             if noise is not None and cfg.noise_std > 0:
                 u = u * (1.0 + cfg.noise_std * noise[cars, k])

@@ -6,6 +6,18 @@ the middle frames). :class:`Evaluator` answers
 :func:`topodrake.navigation.follower.follower_step`'s queries from the cars'
 current observations and those cached features; both executors (the Drake
 ``FollowerFsm`` and the batched engine) build one per period.
+
+A stateful C_WP (one with ``track_size`` > 0, e.g. the registration
+controller of :mod:`topodrake.registration.policy`) keeps (N, S) floats per
+car, ``FollowerState.track`` (:func:`initial_track` makes them). The
+executor hands the Evaluator a copy of the batch's rows and the cars'
+odometry poses (the integrated pose; in simulation the car's state), and
+stores the rows back after the period (:attr:`Evaluator.track`). Each C_WP
+query then goes to ``policy.predict_tracked(observations, target features,
+track, cars, keys, odometry)``, which answers like ``predict`` and updates
+``track[cars]`` in place; ``keys`` name the anchors (rows of the route
+features). Such a policy reads only observations and the motion between
+odometry poses, never the poses themselves.
 :class:`GeometricReachability` is a privileged pose oracle for RE (tests
 and oracle studies), the counterpart of the A* oracle for C_WP.
 """
@@ -128,18 +140,39 @@ def take_rows(feats, rows: np.ndarray):
     return feats[rows]
 
 
+def track_size(policy) -> int:
+    """The per-car state size of a stateful C_WP (0: stateless)."""
+    return int(getattr(policy, "track_size", 0) or 0)
+
+
+def initial_track(policy, n: int) -> np.ndarray:
+    """(n, track_size) initial per-car state of ``policy`` ((n, 0) when stateless)."""
+    if track_size(policy) == 0:
+        return np.zeros((n, 0))
+    return np.asarray(policy.initial_track(n), np.float64).reshape(n, track_size(policy))
+
+
 class Evaluator:
     """Answers for cars of one batch: ``observations`` (B, ...) (poses for
-    pose oracles), ``route_of`` (B,) the route of each car in ``features``."""
+    pose oracles), ``route_of`` (B,) the route of each car in ``features``;
+    for a stateful C_WP, ``track`` (B, S), the cars' state, updated in place
+    (read it back from :attr:`track`), and ``odometry`` (B, 3), the cars'
+    odometry poses (default: ``poses``)."""
 
     def __init__(self, policy, reach, features: RouteFeatures, route_of: np.ndarray,
-                 observations: np.ndarray, poses: np.ndarray | None = None):
+                 observations: np.ndarray, poses: np.ndarray | None = None,
+                 track: np.ndarray | None = None, odometry: np.ndarray | None = None):
         self.policy = policy
         self.reach = reach
         self.features = features
         self.start = features.offsets[np.asarray(route_of, np.int64)]
         self.observations = observations
         self.poses = poses
+        self.stateful = track_size(policy) > 0
+        self.track = None if track is None else np.array(track, np.float64)
+        self.odometry = poses if odometry is None else np.asarray(odometry, np.float64)
+        if self.stateful and (self.track is None or self.odometry is None):
+            raise TopodrakeError("a stateful C_WP needs the cars' track state and odometry")
 
     def _obs(self, network, cars: np.ndarray) -> np.ndarray:
         if network.observation == "pose":
@@ -154,9 +187,14 @@ class Evaluator:
         out = Answers(np.full((m, 2), np.nan), np.full((m, 2), np.nan), np.full(m, np.nan))
         if m == 0:
             return out
-        if cwp:
+        if cwp and self.stateful:
+            pred = self.policy.predict_tracked(self.observations[cars],
+                                               take_rows(self.features.cwp, rows), self.track,
+                                               cars, rows, self.odometry[cars])
+        elif cwp:
             pred = self.policy.predict(self._obs(self.policy, cars),
                                        take_rows(self.features.cwp, rows))
+        if cwp:
             out.waypoint = np.asarray(pred.waypoint, np.float64).reshape(m, 2)
             out.overlap = np.asarray(pred.overlap, np.float64).reshape(m, 2)
             out.heading = np.asarray(pred.heading_diff, np.float64).reshape(m)

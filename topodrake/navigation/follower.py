@@ -56,7 +56,11 @@ Per period, with the current observation:
   (``dead_reckoning_gave_up``).
 
 The state is a handful of numbers per car (:class:`FollowerState`): mode,
-active anchor, last visited anchor, the held waypoint and counters.
+active anchor, last visited anchor, the held waypoint and counters, and
+``track``: (N, S) floats that a stateful C_WP keeps per car (S =
+``policy.track_size``, 0 for the stateless networks; see
+:class:`topodrake.navigation.evaluate.Evaluator`). The follower logic never
+reads it; it travels with the state so both executors keep it alike.
 """
 
 from __future__ import annotations
@@ -128,12 +132,22 @@ class FollowerState:
     reason: np.ndarray               # (N,) int: why a follower failed (REASONS)
     best_p: np.ndarray               # (N,) float: RE of the last choice (for reports)
     stall: np.ndarray                # (N,) int: Follow periods on the same active anchor
+    track: np.ndarray | None = None  # (N, S) float: a stateful C_WP's per-car state (S may be 0)
+
+    def __post_init__(self) -> None:
+        if self.track is None:
+            self.track = np.zeros((len(self.mode), 0))
 
     @classmethod
-    def initial(cls, n: int) -> "FollowerState":
+    def initial(cls, n: int, track: np.ndarray | int = 0) -> "FollowerState":
+        """``n`` followers before their first period; ``track``: the policy's
+        initial per-car state (N, S) or its size S (zeros)."""
+        t = np.zeros((n, int(track))) if np.ndim(track) == 0 else np.array(track, np.float64)
+        if t.ndim != 2 or len(t) != n:
+            raise TopodrakeError(f"a track state for {n} followers must be ({n}, S), got {t.shape}")
         return cls(np.full(n, SEARCH, np.int64), np.full(n, -1, np.int64),
                    np.full(n, -1, np.int64), np.full((n, 2), np.nan), np.zeros(n, np.int64),
-                   np.zeros(n, np.int64), np.zeros(n), np.zeros(n, np.int64))
+                   np.zeros(n, np.int64), np.zeros(n), np.zeros(n, np.int64), t)
 
     def __len__(self) -> int:
         return len(self.mode)
@@ -149,7 +163,7 @@ class FollowerState:
         return self.take(slice(None))
 
     def to_vector(self) -> np.ndarray:
-        """One car's state as 9 floats (for a Drake discrete state)."""
+        """One car's state as 9 floats (for a Drake discrete state; without ``track``)."""
         if len(self) != 1:
             raise ValueError("to_vector packs the state of one car")
         return np.array([self.mode[0], self.active[0], self.visited[0], *self.waypoint[0],
@@ -164,7 +178,8 @@ class FollowerState:
                    np.array([v[7]]), i(v[8]))
 
 
-_FIELDS = ("mode", "active", "visited", "waypoint", "dr_count", "reason", "best_p", "stall")
+_FIELDS = ("mode", "active", "visited", "waypoint", "dr_count", "reason", "best_p", "stall",
+           "track")
 STATE_SIZE = 9
 
 

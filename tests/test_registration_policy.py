@@ -1,0 +1,163 @@
+"""RegistrationPolicy: taught frames from scans, tracking with odometry, and
+following taught routes in both executors."""
+
+import numpy as np
+import pytest
+
+from topodrake.errors import TopodrakeError
+from topodrake.registration.icp import compose, invert
+from topodrake.registration.policy import RegistrationConfig, RegistrationPolicy
+
+K, STEP = 5, 3
+
+
+@pytest.fixture(scope="module")
+def house():
+    from topodrake.world import load_world
+
+    return load_world("test-0")
+
+
+@pytest.fixture(scope="module")
+def drives(house):
+    """Noise-free expert drives between places of the test house."""
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+
+    p = house.places
+    pairs = [(0, 3), (2, 5), (4, 1), (6, 8)]
+    res = ExpertRollout(house, RolloutConfig(t_max_s=120.0)).run(
+        np.array([p[i] for i, _ in pairs]), np.array([p[j, :2] for _, j in pairs]))
+    out = [res.trajectory(i)["poses"] for i in range(len(pairs)) if res.success[i]]
+    assert len(out) >= 3
+    return out
+
+
+@pytest.fixture(scope="module")
+def policy():
+    return RegistrationPolicy(RegistrationConfig(k=K, frame_step=STEP))
+
+
+def _contexts(house, poses, anchors):
+    from topodrake.learning.frames import context_frames
+    from topodrake.sensing.lidar import Lidar
+
+    rows = context_frames(len(poses), np.asarray(anchors), K, STEP)
+    return Lidar(house).scan(poses[rows.ravel()]).reshape(*rows.shape, -1), rows
+
+
+def test_taught_frames_come_from_the_scans(house, drives, policy):
+    poses = drives[0]
+    anchors = np.arange(0, len(poses), 20)
+    ctx, rows = _contexts(house, poses, anchors)
+    feats = policy.encode_target(ctx)
+    assert feats.shape == (len(anchors), 2 * K + 1, 4 + ctx.shape[2])
+    np.testing.assert_array_equal(feats[:, K, :4], [[0, 0, 0, 1]] * len(anchors))
+    np.testing.assert_array_equal(feats[:, :, 4:], ctx)
+    truth = np.stack([compose(np.repeat(invert(poses[a]), 2 * K + 1, axis=0), poses[r])
+                      for a, r in zip(anchors, rows)])
+    ok = feats[:, :, 3] > 0.5
+    assert ok.mean() > 0.85
+    err = np.hypot(*(feats[..., :2] - truth[..., :2]).T).T
+    assert np.quantile(err[ok], 0.95) < 0.05
+    assert np.quantile(np.abs(feats[..., 2] - truth[..., 2])[ok], 0.95) < np.radians(2.0)
+    with pytest.raises(TopodrakeError, match="lidar ranges"):
+        policy.encode_target(ctx[:, :3])
+
+
+def test_config_and_queries_are_checked(policy):
+    with pytest.raises(TopodrakeError, match="lookahead"):
+        RegistrationConfig(lookahead_m=0.0).check()
+    with pytest.raises(TopodrakeError, match="odometry_error"):
+        RegistrationConfig(odometry_error=(0.1,)).check()
+    track = policy.initial_track(1)
+    with pytest.raises(TopodrakeError, match="registration queries"):
+        policy.predict_tracked(np.ones((2, 64)), np.ones((1, 2 * K + 1, 68)), track,
+                               np.zeros(2, np.int64), np.arange(2), np.zeros((2, 3)))
+
+
+def test_tracks_with_odometry_and_holds_through_a_failed_registration(house, drives, policy):
+    from topodrake.sensing.lidar import Lidar
+
+    poses = drives[0]
+    a = 60
+    ctx, _ = _contexts(house, poses, [a])
+    feats = policy.encode_target(ctx)
+    lidar = Lidar(house)
+    track = policy.initial_track(1)
+    keys, cars = np.array([7]), np.zeros(1, np.int64)
+    # the car drives the taught path from 0.6 m before the anchor, off by 0.15 m
+    path = [compose(poses[i], np.array([0.0, 0.15, 0.05]))[0] for i in range(a - 12, a + 1, 2)]
+    for i, p in enumerate(path):
+        pred = policy.predict_tracked(lidar.scan(p[None]), feats, track, cars, keys, p[None])
+        truth = compose(invert(poses[a]), p)[0]
+        slot = track[0].reshape(policy.config.slots, -1)[0]
+        assert slot[0] == 7
+        np.testing.assert_allclose(slot[1:3], truth[:2], atol=0.05)
+        # the waypoint leads toward the anchor, no farther than it
+        anchor_in_car = compose(invert(truth), np.zeros(3))[0]
+        assert np.hypot(*pred.waypoint[0]) <= np.hypot(*anchor_in_car[:2]) + 0.05
+        assert i == len(path) - 1 or pred.waypoint[0, 0] > 0
+        if i >= policy.config.confirm:
+            assert pred.overlap[0].min() > 0.5       # confirmed: overlaps reported
+    # a scan that registers to nothing: the estimate is held, moved by the odometry
+    moved = compose(path[-1], np.array([0.2, 0.0, 0.0]))
+    held = policy.predict_tracked(np.full((1, 64), np.inf), feats, track, cars, keys, moved)
+    slot = track[0].reshape(policy.config.slots, -1)[0]
+    truth = compose(invert(poses[a]), moved)[0]
+    np.testing.assert_allclose(slot[1:3], truth[:2], atol=0.06)
+    assert slot[9] == 1 and np.all(held.overlap == 0.0)
+    # a fresh policy state from the stateless call still answers (it searches the frames)
+    fresh = policy.predict(lidar.scan(poses[a - 3][None]), feats)
+    assert np.hypot(*fresh.waypoint[0]) < 0.5
+
+
+def test_follows_taught_routes_in_the_house(house, drives, policy):
+    """A route of anchors every 25 frames of an expert drive, followed by
+    the batched engine from a jittered start with the geometric oracle RE:
+    the registration controller covers most of each drive."""
+    from topodrake.navigation.chains import follow_chains_once
+    from topodrake.navigation.engine import NavigationConfig, NavigationEngine
+    from topodrake.navigation.evaluate import GeometricReachability
+    from topodrake.rollout import RolloutConfig
+    from topodrake.sensing.lidar import Lidar
+
+    lidar = Lidar(house)
+    obs = [lidar.scan(d) for d in drives]
+    chains = [np.unique(np.r_[np.arange(0, len(d), 25), len(d) - 1]) for d in drives]
+    engine = NavigationEngine(house, policy, GeometricReachability(house, k=K, frame_step=STEP),
+                              NavigationConfig(rollout=RolloutConfig(noise_std=0.0)))
+    res, watch = follow_chains_once(engine, drives, obs, chains, K, STEP, list(range(len(drives))))
+    cover = np.array([watch.cover(i) for i in range(len(drives))])
+    assert cover.mean() >= 0.8, cover
+    assert (cover > 0.95).sum() >= len(drives) // 2, cover
+
+
+def test_drake_diagram_and_engine_drive_the_same_path(box_world):
+    """The per-car tracking state rides in the follower state: the Drake
+    navigation diagram and the batched engine drive the same path."""
+    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+    from topodrake.navigation.evaluate import GeometricReachability
+    from topodrake.navigation.route import route_from_trajectory
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+
+    drive = ExpertRollout(box_world, RolloutConfig(t_max_s=60.0)).run(
+        np.array([[1.0, 1.5, 0.3]]), np.array([[8.0, 2.0]])).trajectory(0)["poses"]
+    pol = RegistrationPolicy(RegistrationConfig(k=1, frame_step=3))
+    reach = GeometricReachability(box_world, k=1)
+    anchors = np.r_[np.arange(0, len(drive) - 1, 10), len(drive) - 1]
+    route = route_from_trajectory(box_world, drive, anchors, pol)
+    start = [1.0, 1.8, 0.5]
+    sc = NavigationScenario(world="box", noise_std=0.0, camera_enabled=False, t_max_s=40.0)
+    built = make_navigation_diagram(sc, route, world=box_world, policy=pol, reach=reach)
+    drake = NavigationRunner(built).run(start, seed=3)
+    engine = NavigationEngine(box_world, pol, reach, NavigationConfig(
+        rollout=RolloutConfig(noise_std=0.0, t_max_s=40.0)))
+    res = engine.run(np.array([start]), [route])
+    k = int(res.steps[0])
+    assert k == round(drake.time_s / 0.1) and k > 100
+    dev = np.linalg.norm(drake.poses[:k + 1, :2] - res.poses[0, :k + 1, :2], axis=1)
+    assert dev.max() <= 1e-6
+    assert drake.outcome == NAV_OUTCOMES[int(res.outcome[0])] == "reached"
+    np.testing.assert_array_equal(drake.modes[:k], res.modes[0, :k])
