@@ -69,6 +69,10 @@ def test_config_and_queries_are_checked(policy):
         RegistrationConfig(lookahead_m=0.0).check()
     with pytest.raises(TopodrakeError, match="odometry_error"):
         RegistrationConfig(odometry_error=(0.1,)).check()
+    # odometry with a scale error: each period's motion is stretched
+    biased = RegistrationPolicy(RegistrationConfig(odometry_error=(0.1, -0.5)))
+    move = biased._motion(np.array([1.0, 2.0, np.pi / 2]), np.array([1.0, 3.0, np.pi / 2 + 0.2]))
+    np.testing.assert_allclose(move, [1.1, 0.0, 0.1], atol=1e-12)
     track = policy.initial_track(1)
     with pytest.raises(TopodrakeError, match="registration queries"):
         policy.predict_tracked(np.ones((2, 64)), np.ones((1, 2 * K + 1, 68)), track,

@@ -23,7 +23,8 @@ A query toward an anchor (``predict_tracked``):
 2. registers the current scan against the taught frames nearest that
    prediction, warm-started from it; a fresh anchor (or one lost for
    ``relocalise_after`` periods) is also tried from every taught frame and
-   from ``behind_m`` behind the first one;
+   from ``behind_m`` behind the first one, each at the headings
+   ``search_turns`` (every ``search_every`` periods while it stays lost);
 3. keeps the best accepted fit (inlier share, residual, agreement with
    the prediction: :class:`~topodrake.registration.icp.IcpConfig`), or holds
    the odometry prediction when none passes; an estimate counts as confirmed
@@ -45,7 +46,8 @@ earlier anchor's last taught frames and this one's first, frames of the same
 drive where the contexts overlap, are registered to each other, and the
 car's prediction in the earlier anchor's frame carries over. An anchor
 without any estimate is approached along the exit of the previous anchor's
-taught path when the car tracks that one, else straight ahead. The policy reads the scans and the motion between odometry
+taught path (``exit_m`` on past its last frame) when the car tracks that
+one, else straight ahead. The policy reads the scans and the motion between odometry
 poses, never the map or the car's true pose. ``predict`` (the stateless
 :class:`~topodrake.learning.policy.WaypointPolicy` call) answers each query
 from a fresh state.
@@ -81,12 +83,15 @@ class RegistrationConfig:
     k: int = 5                       # context frames either side of an anchor (2k + 1)
     frame_step: int = 3              # periods between context frames
     lookahead_m: float = 3.0        # pure-pursuit lookahead along the taught path
+    exit_m: float = 3.0              # the approach goes on this far past the exit
     slots: int = 4                   # anchors tracked per car
     nearest: int = 2                 # taught frames registered against per query
     relocalise_after: int = 10       # failed periods before every frame is tried again
     behind_m: tuple[float, ...] = (0.5, 1.0)   # searched too: the car this far behind the
                                                # first taught frame (approaching the anchor)
     link_frames: int = 3             # frames at each end tried when linking two anchors
+    search_turns: tuple[float, ...] = (0.0, -0.5, 0.5, -1.0, 1.0)   # headings tried (rad)
+    search_every: int = 3            # a lost anchor is searched every this many periods
     confirm: int = 3                 # fits agreeing with odometry before overlaps are reported
     agree_m: float = 0.15            # a fit agrees with the odometry prediction this closely
     agree_rad: float = 0.1
@@ -109,8 +114,9 @@ class RegistrationConfig:
         if self.k < 0 or self.frame_step < 1:
             raise TopodrakeError(f"registration k must be >= 0 and frame_step >= 1, got "
                                  f"{self.k} and {self.frame_step}")
-        if not self.lookahead_m > 0:
-            raise TopodrakeError(f"registration lookahead_m must be > 0, got {self.lookahead_m}")
+        if not (self.lookahead_m > 0 and self.exit_m > 0):
+            raise TopodrakeError(f"registration lookahead_m and exit_m must be > 0, got "
+                                 f"{self.lookahead_m} and {self.exit_m}")
         if self.slots < 2 or self.nearest < 1 or self.relocalise_after < 1 or self.confirm < 1:
             raise TopodrakeError("registration slots must be >= 2, nearest, relocalise_after and "
                                  "confirm >= 1")
@@ -252,7 +258,9 @@ class RegistrationPolicy:
         self._link(prior, feats, cars, keys)
         for q in range(m):
             s = track[cars[q]].reshape(cfg.slots, SLOT)[slot[q]]
-            search[q] = not np.all(np.isfinite(prior[q])) or s[_MISS] >= cfg.relocalise_after
+            late = s[_MISS] - cfg.relocalise_after
+            search[q] = (not np.all(np.isfinite(prior[q])) or late >= 0) \
+                and (late <= 0 or late % cfg.search_every == 0)
         # 2. registrations: the frames nearest the prediction, and every frame when searching
         jq, jf, jg, js = [], [], [], []
         for q in range(m):
@@ -265,16 +273,17 @@ class RegistrationPolicy:
                     jg.append(compose(invert(frames[q, f]), prior[q])[0])
                     js.append(False)
             if search[q]:
-                for f in good:
-                    jq.append(q)
-                    jf.append(f)
-                    jg.append(np.zeros(3))
-                    js.append(True)
-                for b in cfg.behind_m:
-                    jq.append(q)
-                    jf.append(good[0])
-                    jg.append(np.array([-b, 0.0, 0.0]))
-                    js.append(True)
+                for turn in cfg.search_turns:
+                    for f in good:
+                        jq.append(q)
+                        jf.append(f)
+                        jg.append(np.array([0.0, 0.0, turn]))
+                        js.append(True)
+                    for b in cfg.behind_m:
+                        jq.append(q)
+                        jf.append(good[0])
+                        jg.append(np.array([-b, 0.0, turn]))
+                        js.append(True)
         jq, jf, js = np.array(jq, np.int64), np.array(jf, np.int64), np.array(js, bool)
         best = np.full(m, -1, np.int64)
         if len(jq):
@@ -414,7 +423,7 @@ class RegistrationPolicy:
         if prev.size:
             s = row[prev[0]]
             est = compose(s[_EST], self._motion(s[_ODO], odo))[0]
-            ahead = compose(s[_EXIT], np.array([cfg.lookahead_m, 0.0, 0.0]))[0]
+            ahead = compose(s[_EXIT], np.array([cfg.exit_m, 0.0, 0.0]))[0]
             path = np.array([[0.0, 0.0], s[_EXIT][:2], ahead[:2]])
             return (_to_car(est, _pursuit(path, est[:2], cfg.lookahead_m)),
                     float(_wrap(s[_EXIT][2] - est[2])))
