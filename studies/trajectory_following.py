@@ -340,6 +340,18 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
     return out
 
 
+def _registration_code() -> str:
+    """A hash of the registration package's sources (part of its runs' cache key)."""
+    import hashlib
+
+    import topodrake.registration as package
+
+    h = hashlib.sha1()
+    for f in sorted(Path(package.__file__).parent.glob("*.py")):
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def run_registration(name, trajs, world_of, ps, args, bar) -> dict:
     """The study's figures for the registration controller (see the module
     docstring): chains from the geometric oracle RE at its short reach,
@@ -357,7 +369,8 @@ def run_registration(name, trajs, world_of, ps, args, bar) -> dict:
     k, step = policy.k, policy.frame_step
     cache = RunCache(Path(args.out) / "trajectory_following_runs", {
         "trajectories": args.trajectories_file, "controller": name,
-        "registration": repr(policy.config), "reach_m": REGISTRATION_REACH_M,
+        "registration": repr(policy.config), "code": _registration_code(),
+        "reach_m": REGISTRATION_REACH_M,
         "p_max": REGISTRATION_P_MAX, "seed": args.seed, "noise": args.noise,
         "follower": asdict(args.follower_config), "tolerance_m": TOLERANCE_M,
         "diverge_m": DIVERGE_M, "slack": args.slack})

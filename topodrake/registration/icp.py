@@ -14,7 +14,9 @@ longer first gate matches the wrong walls of small rooms) and shrinks by
 ``shrink`` per iteration down to ``gate_min_m``; it then minimises the
 point-to-line distances to the target's local wall lines (normals from each
 target point's beam neighbours) with a damped Gauss-Newton step. A fit has
-converged when its step is below ``tol`` once the gate is at its minimum.
+converged when its step is below ``tol`` once the gate is at its minimum
+(or below ``50 tol`` when the iterations run out there: correspondences
+that flip between near neighbours keep the step from vanishing).
 
 The result check: ``inlier`` (the share of source points within the final
 gate of a target point), ``inlier_back`` (the share of target points within
@@ -259,6 +261,7 @@ def _register_one(sp, sv, tp, tv, x0, y0, t0, gate0, shrink, gate_min, max_it, t
     gate = gate0
     converged = False
     it = 0
+    last_step = math.inf
     while it < max_it:
         it += 1
         c = math.cos(t)
@@ -311,11 +314,15 @@ def _register_one(sp, sv, tp, tv, x0, y0, t0, gate0, shrink, gate_min, max_it, t
         x += dx
         y += dy
         t += dt
-        small = abs(dx) < tol and abs(dy) < tol and abs(dt) < tol
-        if small and gate <= gate_min * 1.0000001:
+        last_step = max(abs(dx), abs(dy), abs(dt))
+        if last_step < tol and gate <= gate_min * 1.0000001:
             converged = True
             break
         gate = max(gate * shrink, gate_min)
+    # out of iterations at the final gate, flipping between nearly equal
+    # correspondences: the step is still tiny
+    if not converged and it == max_it and last_step < 50.0 * tol:
+        converged = True
     t = (t + math.pi) % (2 * math.pi) - math.pi
     out[0], out[1], out[2] = x, y, t
     # the result check at the final gate

@@ -103,7 +103,7 @@ class RegistrationConfig:
     search_icp: IcpConfig = field(default_factory=IcpConfig)
     # two anchors' taught frames where their contexts overlap (a wrong link misleads
     # the tracking of the later anchor until it fails: demand a clear overlap)
-    link_icp: IcpConfig = field(default_factory=lambda: IcpConfig(min_inlier=0.7, max_shift_m=0.75,
+    link_icp: IcpConfig = field(default_factory=lambda: IcpConfig(min_inlier=0.6, max_shift_m=0.75,
                                                                   max_turn_rad=0.5))
     # consecutive taught frames (a short move; a turn on the spot changes much of the view)
     teach_icp: IcpConfig = field(default_factory=lambda: IcpConfig(min_inlier=0.4, max_shift_m=1.0,
