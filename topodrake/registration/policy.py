@@ -91,6 +91,7 @@ class RegistrationConfig:
                                                # first taught frame (approaching the anchor)
     link_frames: int = 3             # frames at each end tried when linking two anchors
     search_turns: tuple[float, ...] = (0.0, -0.5, 0.5, -1.0, 1.0)   # headings tried (rad)
+    search_back: float = 0.5         # a search fit also covers this share of the frame's points
     search_every: int = 3            # a lost anchor is searched every this many periods
     confirm: int = 3                 # fits agreeing with odometry before overlaps are reported
     agree_m: float = 0.15            # a fit agrees with the odometry prediction this closely
@@ -289,7 +290,8 @@ class RegistrationPolicy:
         if len(jq):
             res = self._register(obs[jq], feats[jq, jf, 4:], np.array(jg), js)
             # a search fit must be pinned: in a corridor it could sit anywhere along it
-            usable_fit = res.accepted & (~js | (res.constraint >= cfg.slide_constraint))
+            usable_fit = res.accepted & (~js | ((res.constraint >= cfg.slide_constraint)
+                                                & (res.inlier_back >= cfg.search_back)))
             score = np.where(usable_fit, res.inlier - res.rms, -np.inf)
             for i in range(len(jq)):
                 if score[i] > -np.inf and (best[jq[i]] < 0 or score[i] > score[best[jq[i]]]):
