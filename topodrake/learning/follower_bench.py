@@ -15,7 +15,9 @@ anchor it aimed at, and reports:
   with the controller alone toward the anchor (the RE labels' rules:
   :func:`topodrake.learning.reach_labels.rollout_to_targets`, with actuation
   noise), and RE's probability is scored against the outcomes (ECE, AUROC);
-* the followed chains' cover and how far cars were off the path.
+* the followed chains' cover and outcomes, how far cars were off the path,
+  and the cover of the same chains followed with perfect perception (the A*
+  oracle C_WP and the geometric oracle RE: ``oracle_cover``).
 
     topodrake bench follower --json
 
@@ -80,7 +82,7 @@ def _errors(model, network_cfg, sensor, samples) -> tuple[np.ndarray, np.ndarray
 
 def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TEST_WORLDS,
                      drives_per_world: int = 8, re_states: int = 300, seed: int = 0,
-                     progress: bool = False) -> dict:
+                     oracle: bool = True, progress: bool = False) -> dict:
     """The figures of one controller (see the module docstring)."""
     from topodrake.learning.calibration import auroc, ece
     from topodrake.learning.checkpoint import load_checkpoint
@@ -104,7 +106,7 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
     trajs = collect_trajectories(list(worlds), Path(data) / "demos" / "pairs-s0", progress=progress)
     cfg = OnPolicyConfig(drives_per_world=drives_per_world, next_anchor=False)
     cfg = replace(cfg, samples=replace(cfg.samples, min_overlap=0.0))
-    parts, covers, offs, dist_parts = [], [], [], []
+    parts, covers, offs, dist_parts, outcomes, oracle_covers = [], [], [], [], [], []
     p_re, y_re = [], []
     rng = np.random.default_rng([seed, 7])
     per_world_re = -(-re_states // len(trajs.worlds))
@@ -113,11 +115,21 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
         drives = pick_drives(trajs, w, drives_per_world, seed)
         visited = collect_visited(world, trajs, drives, policy, reach, cfg, seed=seed * 100 + w)
         covers.extend(visited.cover.tolist())
+        outcomes.extend(visited.outcomes)
         offs.append(visited.off_path_m)
         fields = label_visited(world, trajs, visited, cfg)
         parts.append(fields)
         tgt = trajs.poses[trajs.traj_offsets[fields["traj"]] + fields["tgt"]]
         dist_parts.append(np.hypot(*(tgt[:, :2] - fields["src_pose"][:, :2]).T))
+        if oracle:
+            from topodrake.learning.policy import AStarOracle
+            from topodrake.navigation.evaluate import GeometricReachability
+
+            wide = max(policy.k, reach.k)
+            ov = collect_visited(world, trajs, drives, AStarOracle(world, k=wide),
+                                 GeometricReachability(world, k=wide), cfg, seed=seed * 100 + w,
+                                 chain_reach=reach)
+            oracle_covers.extend(ov.cover.tolist())
         if progress:
             print(f"follower bench {Path(cwp_path).parent.name}: {name}: {len(visited)} states, "
                   f"cover {visited.cover.mean():.3f}", flush=True)
@@ -158,6 +170,8 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
             "re_states": int(len(y_re)), "re_success_rate": round(float(y_re.mean()), 4),
             "re_mean_p": round(float(p_re.mean()), 4),
             "followed_cover": round(float(np.mean(covers)), 4), "chains": len(covers),
+            "outcomes": {o: outcomes.count(o) for o in sorted(set(outcomes))},
+            "oracle_cover": round(float(np.mean(oracle_covers)), 4) if oracle_covers else None,
             "off_path_quartiles_m": [round(float(q), 3) for q in np.quantile(off, [0.25, 0.5, 0.75])]}
 
 

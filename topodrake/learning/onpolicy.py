@@ -99,9 +99,11 @@ def pick_drives(trajs: TrajectorySet, world: int, n: int, seed: int) -> np.ndarr
 
 def collect_visited(world, trajs: TrajectorySet, drives: np.ndarray, policy, reach,
                     cfg: OnPolicyConfig | None = None, seed: int = 0, follower=None,
-                    progress=None) -> VisitedStates:
+                    progress=None, chain_reach=None) -> VisitedStates:
     """Follow the RE chains of ``drives`` (indices into ``trajs``, all of
-    ``world``) with ``policy`` and ``reach`` and record the states."""
+    ``world``) with ``policy`` and ``reach`` and record the states.
+    ``chain_reach``: the RE that makes the chains when another than
+    ``reach`` (e.g. the learned RE's chains followed by pose oracles)."""
     from topodrake.montecarlo import trial_seeds
     from topodrake.navigation.chains import follow_chains_once
     from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
@@ -110,10 +112,13 @@ def collect_visited(world, trajs: TrajectorySet, drives: np.ndarray, policy, rea
 
     cfg = (cfg or OnPolicyConfig()).validate()
     drives = np.asarray(drives, np.int64)
-    wide = policy if policy.k >= reach.k else reach
+    chain_reach = chain_reach or reach
+    wide = max((policy, reach, chain_reach), key=lambda n: n.k)
     refs = [trajs.poses[trajs.rows(int(t))] for t in drives]
-    obs = [reach.observe(world, r) for r in refs]
-    chains = [reach.sparsify(o, p=cfg.p_sparsify) for o in obs]
+    obs = [chain_reach.observe(world, r) for r in refs]
+    chains = [chain_reach.sparsify(o, p=cfg.p_sparsify) for o in obs]
+    if {policy.observation, reach.observation} == {"pose"}:
+        obs = refs                       # pose oracles read the anchors' poses
     seeds = trial_seeds(seed, len(drives))
     noisy = np.random.default_rng([seed, 1]).random(len(drives)) < cfg.noisy_share
     rows: dict[str, list] = {k: [] for k in ("traj", "state", "anchor", "next", "off", "noisy")}
