@@ -77,6 +77,13 @@ class DaggerConfig:
         for name in ("init", "reach", "reach_controller"):
             if not Path(getattr(self, name)).is_file():
                 raise TopodrakeError(f"{where}: {name} checkpoint {getattr(self, name)} does not exist")
+        from topodrake.learning.checkpoint import load_checkpoint
+        from topodrake.learning.train import _diff
+
+        diff = _diff(load_checkpoint(self.init).network.to_dict(), self.train.network.to_dict())
+        if diff:
+            raise TopodrakeError(f"{where}: init {self.init} has network {diff[0]} = {diff[1]!r}, "
+                                 f"train.network says {diff[2]!r}")
         return self
 
     def round_worlds(self, r: int, n: int = 1) -> list[str]:
