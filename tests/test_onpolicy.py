@@ -160,8 +160,8 @@ def test_dagger_config_names_what_is_wrong(tmp_path):
     shipped = load_dagger_config("configs/dagger_lidar_k5.yaml")
     assert shipped.train.network.modality == "lidar" and shipped.rounds * 12 + 12 <= 96
     assert load_dagger_config("configs/dagger_camera_k5.yaml").train.network.modality == "camera"
-    with pytest.raises(TopodrakeError, match="has network modality"):
-        DaggerConfig(init="checkpoints/camera_k5/checkpoint.pt").validate()
+    with pytest.raises(TopodrakeError, match="has network channels"):
+        DaggerConfig(init="checkpoints/lidar_k5/checkpoint.pt").validate()
 
 
 def test_dagger_refuses_an_output_folder_of_another_run(tmp_path):

@@ -49,9 +49,9 @@ class DaggerConfig:
     ``lr`` is the fine-tuning rate)."""
 
     train: TrainConfig = field(default_factory=TrainConfig)
-    init: str = "checkpoints/lidar_k5/checkpoint.pt"        # C_WP of round 0
-    reach: str = "checkpoints/reach_lidar_k5/checkpoint.pt"  # the follower's RE
-    reach_controller: str = "checkpoints/lidar_k5/checkpoint.pt"  # the C_WP that RE measured
+    init: str = "checkpoints/camera_k5/checkpoint.pt"       # C_WP of round 0
+    reach: str = "checkpoints/reach_camera_k5/checkpoint.pt"  # the follower's RE
+    reach_controller: str = "checkpoints/camera_k5/checkpoint.pt"  # the C_WP that RE measured
     rounds: int = 7
     first_world: int = 12
     worlds_per_round: int = 12
