@@ -703,10 +703,63 @@ def test_shipped_res_were_trained_with_their_configs_and_controllers(name):
     assert ("anchor_platt" in ck.meta["extra"]) == bool(cfg.anchor_calibration.pairs)
     trained_for = ck.meta["extra"]["controller"]
     assert trained_for["checkpoint"] == cfg.controller
-    assert trained_for["sha1"] == controller_identity(root / cfg.controller)["sha1"]
+    named = cfg.controller if cfg.controller == "registration" else root / cfg.controller
+    assert trained_for["sha1"] == controller_identity(named)["sha1"]
     houses = set(catalogue_names())
     for more in cfg.labels.more:
         assert set(more.worlds or []) <= houses
     if cfg.init not in ("controller", "scratch"):     # fine-tuned from the RE it names, as shipped
         card = json.loads((root / "checkpoints" / name / "card.json").read_text())
         assert card["init"]["sha1"] == file_sha1(root / cfg.init)
+
+
+def test_registration_controller_is_named_by_its_settings(labels, tmp_path):
+    """The registration C_WP has no checkpoint file: its RE is tied to the
+    fingerprint of its settings, and a registration controller with other
+    settings (or a C_WP checkpoint) is refused next to it."""
+    from topodrake.learning.reach_train import (controller_identity, controller_policy,
+                                                file_sha1, load_reachability,
+                                                registration_identity, train_reachability)
+    from topodrake.learning.reachability import Reachability
+    from topodrake.registration.policy import RegistrationConfig, RegistrationPolicy
+
+    ident = controller_identity("registration")
+    assert ident == registration_identity() == controller_identity(RegistrationPolicy())
+    assert ident["checkpoint"] == "registration" and len(ident["sha1"]) == 40
+    other = RegistrationPolicy(RegistrationConfig(lookahead_m=2.0))
+    assert controller_identity(other)["sha1"] != ident["sha1"]
+    assert isinstance(controller_policy("registration"), RegistrationPolicy)
+    with pytest.raises(TopodrakeError, match="C_WP checkpoint path"):
+        controller_identity(3)
+    # no network to start from
+    with pytest.raises(TopodrakeError, match="no network to start from"):
+        _config(controller="registration", init="controller").validate()
+    train_reachability(_config(controller="registration", max_samples=32), tmp_path / "re",
+                       labels=(labels, labels), controller=ident, progress=False)
+    path = tmp_path / "re" / "checkpoint.pt"
+    assert load_reachability(path, "registration").meta["extra"]["controller"] == ident
+    reach = Reachability.from_checkpoint(path, RegistrationPolicy())
+    assert reach.controller == ident
+    with pytest.raises(TopodrakeError, match="trained for controller 'registration'"):
+        Reachability.from_checkpoint(path, other)
+    cwp = tmp_path / "cwp.pt"
+    cwp.write_bytes(b"controller weights")
+    with pytest.raises(TopodrakeError, match="trained for controller 'registration'"):
+        load_reachability(path, cwp)
+    # an RE of another controller seeds it only when the config says so
+    base = tmp_path / "base"
+    train_reachability(_config(max_samples=32), base, labels=(labels, labels),
+                       controller=controller_identity(cwp), progress=False)
+    init = str(base / "checkpoint.pt")
+    with pytest.raises(TopodrakeError, match="trained for controller"):
+        train_reachability(_config(controller="registration", max_samples=16, init=init),
+                           tmp_path / "x", labels=(labels, labels), controller=ident,
+                           progress=False)
+    assert not (tmp_path / "x").exists()
+    train_reachability(_config(controller="registration", max_samples=16, init=init,
+                               init_any_controller=True), tmp_path / "warm",
+                       labels=(labels, labels), controller=ident, progress=False)
+    card = json.loads((tmp_path / "warm" / "card.json").read_text())
+    assert card["controller"] == ident
+    assert card["init"] == {"checkpoint": init, "sha1": file_sha1(init), "samples_seen": 32,
+                            "controller": controller_identity(cwp)}

@@ -183,3 +183,34 @@ def test_trajectory_following_study_has_a_lidar_reg_entry(tmp_path, load_study, 
     assert entry["anchors_per_m"] > 0
     assert study.main(["--controllers", "lidar_nope", "--data", str(tmp_path / "data")]) == 2
     assert "unknown controllers ['lidar_nope']" in capsys.readouterr().err
+
+
+def test_label_rollouts_carry_each_cars_tracking_state(house, drives, policy):
+    """PolicyRollout (RE's label rollouts) asks a stateful C_WP through
+    ``predict_tracked``, one state row per car kept from period to period,
+    with the car's pose as odometry: hops along the taught drive succeed."""
+    from topodrake.rollout import SUCCESS, PolicyRollout, RolloutConfig
+
+    seen = []
+
+    class Spy(RegistrationPolicy):
+        def predict_tracked(self, observation, target, track, cars, keys, odometry):
+            before = track[cars, 1].copy()             # slot 0's estimate x, before the query
+            seen.append((id(track), np.asarray(cars).copy(), np.asarray(keys).copy(), before))
+            return super().predict_tracked(observation, target, track, cars, keys, odometry)
+
+    spy = Spy(policy.config)
+    starts, targets, anchors = [], [], []
+    for d in drives:
+        for a in range(30, len(d) - 5, 40):
+            starts.append(d[a - 15])
+            targets.append(d[a])
+            anchors.append((d, a))
+    ctx = np.concatenate([_contexts(house, d, [a])[0] for d, a in anchors])
+    res = PolicyRollout(house, spy, RolloutConfig(noise_std=0.0, t_max_s=20.0)).run(
+        np.array(starts), np.array(targets), spy.encode_target(ctx))
+    assert (res.outcome == SUCCESS).mean() >= 0.8, res.outcome
+    assert len({s[0] for s in seen}) == 1                # one state array for the whole run
+    assert all(np.all(s[2] == 0) for s in seen)          # each car's target is its anchor 0
+    assert not np.isfinite(seen[0][3]).any()             # fresh at the start ...
+    assert np.isfinite(seen[2][3]).mean() >= 0.8         # ... then carried over

@@ -218,6 +218,11 @@ class PolicyRollout:
     ``goal_tolerance_m`` of the target position or both image overlaps above
     ``overlap_success``; collision; ``lost`` when ``overlap_lost`` is set and
     both overlaps fall below it; timeout at the car's ``t_max``.
+
+    A stateful policy (``track_size`` > 0, e.g. the registration C_WP) keeps
+    one row of tracking state per car (``policy.initial_track``) and is asked
+    through ``policy.predict_tracked`` with the car's target as anchor 0 and
+    the car's state as its odometry pose, as the navigation executors do.
     """
 
     def __init__(self, world, policy, config: RolloutConfig | None = None, *,
@@ -283,6 +288,8 @@ class PolicyRollout:
         clearance = self.world.grid.clearance_at
         direct = bool(getattr(self.policy, "is_direct_control", False))
         feats, feats_cars = target_features, np.arange(n)
+        stateful = int(getattr(self.policy, "track_size", 0) or 0) > 0
+        track = self.policy.initial_track(n) if stateful else None
         for k in range(t_steps):
             outcome[(outcome == RUNNING) & (limit <= k)] = TIMEOUT
             active = np.flatnonzero(outcome == RUNNING)
@@ -295,7 +302,11 @@ class PolicyRollout:
                 keep = np.searchsorted(feats_cars, active)
                 feats = feats.index_select(0, _torch_index(keep)) if is_torch else feats[keep]
                 feats_cars = active
-            pred = self.policy.predict(self._observe(st, ranges), feats)
+            if stateful:
+                pred = self.policy.predict_tracked(self._observe(st, ranges), feats, track, active,
+                                                   np.zeros(active.size, np.int64), st[:, :3])
+            else:
+                pred = self.policy.predict(self._observe(st, ranges), feats)
             if direct:
                 u = np.asarray(pred.controls, np.float64)
             else:

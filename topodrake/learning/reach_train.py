@@ -7,6 +7,15 @@ training, test houses for validation (ECE, Brier score, AUROC). The
 checkpoint names its controller (path and SHA-1 of the C_WP checkpoint), and
 :func:`load_reachability` refuses an RE next to another controller.
 
+A controller without a network, the registration C_WP
+(:class:`~topodrake.registration.policy.RegistrationPolicy`), is named
+``controller: registration``; its fingerprint is the SHA-1 of its settings
+and lidar (:func:`registration_identity`), so an RE trained for it is
+refused next to a registration controller with other settings. It has no
+encoder to start from: ``init`` is ``scratch`` or an RE checkpoint, and
+with ``init_any_controller`` that RE may be another controller's (its
+weights only: a warm start from an RE that has learnt to compare scans).
+
 Beyond the paper's recipe (each a config switch): RE starts from its
 controller's encoder, frame combiner and overlap head (``init``), or from
 all the weights of an earlier RE of the same controller, to fine-tune it on
@@ -104,6 +113,9 @@ class ReachTrainConfig(TrainConfig):
     # RE checkpoint for the same controller and profile: a warm start from
     # all its weights with a fresh optimizer (fine-tuning on new labels)
     init: str = "controller"
+    # the RE checkpoint in ``init`` may describe another controller (its weights
+    # are a starting point only; the card names it)
+    init_any_controller: bool = False
     # weight of the auxiliary loss on the pair's starting image overlaps
     # (geometric, from the poses; 0 = the paper's RE, reach logit only)
     overlap_weight: float = 1.0
@@ -131,6 +143,9 @@ class ReachTrainConfig(TrainConfig):
         if not 0.0 <= (self.mirror_augment or 0.0) <= 1.0:
             raise TopodrakeError(f"{where}: mirror_augment must be a probability, got "
                                  f"{self.mirror_augment}")
+        if self.init == "controller" and self.controller == REGISTRATION:
+            raise TopodrakeError(f"{where}: the registration controller has no network to start "
+                                 "from; set init to 'scratch' or the path of an RE checkpoint")
         if not self.init:
             raise TopodrakeError(f"{where}: init must be 'controller', 'scratch' or the path of an "
                                  "RE checkpoint to start from")
@@ -162,11 +177,55 @@ def load_reach_config(path) -> ReachTrainConfig:
     return load_typed(ReachTrainConfig, path, "config").validate(f"config {path}")
 
 
+#: The ``controller`` name of the registration C_WP (no checkpoint file).
+REGISTRATION = "registration"
+
+
+def registration_identity(policy=None) -> dict:
+    """The fingerprint of a registration C_WP (default settings when
+    ``policy`` is None): ``{"checkpoint": "registration", "sha1": ...}``, the
+    SHA-1 of its settings and lidar."""
+    from topodrake.registration.policy import RegistrationPolicy
+
+    policy = policy or RegistrationPolicy()
+    blob = json.dumps({"registration": asdict(policy.config), "lidar": asdict(policy.sensor)},
+                      sort_keys=True)
+    return {"checkpoint": REGISTRATION, "sha1": hashlib.sha1(blob.encode()).hexdigest()}
+
+
 def controller_identity(path) -> dict:
+    """``{"checkpoint", "sha1"}`` of a controller: a C_WP checkpoint's path
+    and file SHA-1; for ``"registration"`` or a
+    :class:`~topodrake.registration.policy.RegistrationPolicy`, the
+    fingerprint of its settings (:func:`registration_identity`)."""
+    if str(path) == REGISTRATION:
+        return registration_identity()
+    if getattr(path, "name", None) == REGISTRATION and hasattr(path, "config"):
+        return registration_identity(path)
+    if not isinstance(path, (str, Path)):
+        raise TopodrakeError(f"a controller is a C_WP checkpoint path or {REGISTRATION!r}, got "
+                             f"{type(path).__name__}")
     path = Path(path)
     if not path.is_file():
         raise TopodrakeError(f"controller checkpoint {path} does not exist")
     return {"checkpoint": str(path), "sha1": file_sha1(path)}
+
+
+def controller_policy(path):
+    """The waypoint policy a controller name stands for: the registration
+    C_WP for ``"registration"``, else the C_WP checkpoint's network (a
+    direct-control network is refused: RE needs a C_WP)."""
+    from topodrake.learning.policy import LearnedWaypointPolicy
+
+    if str(path) == REGISTRATION:
+        from topodrake.registration.policy import RegistrationPolicy
+
+        return RegistrationPolicy()
+    controller_identity(path)
+    policy = LearnedWaypointPolicy.from_checkpoint(path)
+    if policy.is_direct_control:
+        raise TopodrakeError(f"{path} is a direct-control network; RE needs a C_WP")
+    return policy
 
 
 def init_from_controller(model, controller_path) -> None:
@@ -192,6 +251,8 @@ def controller_parent(controller_path) -> str | None:
     (None for a controller trained from scratch or not readable)."""
     from topodrake.learning.checkpoint import load_checkpoint
 
+    if str(controller_path) == REGISTRATION:
+        return None
     try:
         extra = load_checkpoint(controller_path).meta.get("extra") or {}
     except TopodrakeError:
@@ -199,18 +260,20 @@ def controller_parent(controller_path) -> str | None:
     return (extra.get("init") or {}).get("sha1")
 
 
-def init_from_reachability(model, re_path, controller_path) -> dict:
+def init_from_reachability(model, re_path, controller_path, any_controller: bool = False) -> dict:
     """Copy every weight of the RE checkpoint ``re_path`` (trained for
     ``controller_path``, or for the C_WP that controller was fine-tuned
-    from; same profile) into ``model``: a warm start for fine-tuning on new
-    labels. Returns its identity for the card (path, SHA-1 and the samples
-    it had seen)."""
+    from, or for any controller with ``any_controller``; same profile) into
+    ``model``: a warm start for fine-tuning on new labels. Returns its
+    identity for the card (path, SHA-1, the samples it had seen and, with
+    ``any_controller``, the controller it was trained for)."""
     from topodrake.learning.checkpoint import load_checkpoint
 
     ck = load_checkpoint(re_path, output="reach")
-    have = ((ck.meta.get("extra") or {}).get("controller") or {}).get("sha1")
-    if have is None or have not in (controller_identity(controller_path)["sha1"],
-                                    controller_parent(controller_path)):
+    owner = (ck.meta.get("extra") or {}).get("controller") or {}
+    have = owner.get("sha1")
+    if not any_controller and (have is None or have not in (
+            controller_identity(controller_path)["sha1"], controller_parent(controller_path))):
         load_reachability(re_path, controller_path)     # refuses it, naming both controllers
     src, dst = ck.model.state_dict(), model.state_dict()
     bad = sorted(set(src) ^ set(dst)) or [k for k in src if src[k].shape != dst[k].shape]
@@ -218,8 +281,11 @@ def init_from_reachability(model, re_path, controller_path) -> dict:
         raise TopodrakeError(f"cannot start RE from {re_path}: its network profile differs "
                              f"(e.g. {bad[0]}); give the config that RE's network section")
     model.load_state_dict(src)
-    return {"checkpoint": str(re_path), "sha1": file_sha1(re_path),
-            "samples_seen": ck.meta.get("samples_seen")}
+    out = {"checkpoint": str(re_path), "sha1": file_sha1(re_path),
+           "samples_seen": ck.meta.get("samples_seen")}
+    if any_controller:
+        out["controller"] = owner
+    return out
 
 
 def _init(cfg: ReachTrainConfig, controller: dict):
@@ -237,7 +303,8 @@ def _init(cfg: ReachTrainConfig, controller: dict):
         raise TopodrakeError(f"init: RE checkpoint {cfg.init} does not exist (init must be "
                              "'controller', 'scratch' or the path of an RE checkpoint)")
     probe = WaypointNetwork(cfg.network, input_size(cfg.network, cfg.lidar.beams))
-    ident = init_from_reachability(probe, cfg.init, controller["checkpoint"])
+    ident = init_from_reachability(probe, cfg.init, controller["checkpoint"],
+                                   cfg.init_any_controller)
     return (lambda model: model.load_state_dict(probe.state_dict())), {"init": ident}
 
 
@@ -401,12 +468,8 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
     once into ``data_dir/reach-labels/`` (resumable) and reused. ``only``
     ("train" or "val") makes just that split (the other is None), so two
     processes can roll out both at once."""
-    from topodrake.learning.policy import LearnedWaypointPolicy
-
     ident = controller_identity(cfg.controller)
-    policy = LearnedWaypointPolicy.from_checkpoint(cfg.controller)
-    if policy.is_direct_control:
-        raise TopodrakeError(f"{cfg.controller} is a direct-control network; RE needs a C_WP")
+    policy = controller_policy(cfg.controller)
     d, lab = cfg.data, cfg.labels
     sets = {"train": [(d.train_worlds, lab.train_pairs, lab.seed, lab.rollout)]
             + [(m.worlds or d.train_worlds, m.train_pairs, m.seed, m.rollout) for m in lab.more],
@@ -442,12 +505,10 @@ def prepare_anchor_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True
                           ) -> ReachLabels | None:
     """The anchor-hop rollouts of :class:`AnchorCalibration` in the
     validation houses (None when ``pairs`` is 0), made once and reused."""
-    from topodrake.learning.policy import LearnedWaypointPolicy
-
     a = cfg.anchor_calibration
     if not a.pairs:
         return None
-    return _label_set(cfg, data_dir, LearnedWaypointPolicy.from_checkpoint(cfg.controller),
+    return _label_set(cfg, data_dir, controller_policy(cfg.controller),
                       controller_identity(cfg.controller), "anchor", cfg.data.val_worlds, a.pairs,
                       a.seed, a.rollout, progress)
 
@@ -514,8 +575,10 @@ def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resum
 
 
 def load_reachability(path, controller_checkpoint):
-    """An RE checkpoint for ``controller_checkpoint``; an RE trained for
-    another controller (other file contents) is refused."""
+    """An RE checkpoint for ``controller_checkpoint`` (a C_WP checkpoint
+    path, ``"registration"`` or a registration policy: see
+    :func:`controller_identity`); an RE trained for another controller
+    (other file contents, or other registration settings) is refused."""
     from topodrake.learning.checkpoint import load_checkpoint
 
     ck = load_checkpoint(path, output="reach")
