@@ -1,6 +1,7 @@
 """The paper's Table I: success rate of each local controller, in Drake.
 
-For every controller (C_WP camera k=0/2/5, lidar k=5, the direct-control
+For every controller (C_WP camera k=0/2/5, lidar k=5, the registration
+C_WP ``lidar_reg`` (lidar teach and repeat, no network), the direct-control
 baseline; optionally the A* oracle as a protocol check) and for clean and
 noisy actuation, run ``--trials`` seeded Monte Carlo trials of the C_WP + RMP
 diagram (``topodrake.systems.trials.controller_trial``): source on a
@@ -36,7 +37,9 @@ from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 from topodrake.montecarlo import add_study_arguments, study_main
 
-CONTROLLERS = ("camera_k0", "camera_k2", "camera_k5", "lidar_k5", "direct_k0")
+CONTROLLERS = ("camera_k0", "camera_k2", "camera_k5", "lidar_k5", "lidar_reg", "direct_k0")
+#: Controllers without a checkpoint folder: name -> what the trials run.
+BUILT_IN = {"oracle": "oracle", "lidar_reg": "registration"}
 #: Table I of the paper (clean actuation; no lidar row there).
 PAPER = {"direct_k0": 0.46, "camera_k0": 0.88, "camera_k2": 0.91, "camera_k5": 0.95}
 
@@ -70,6 +73,10 @@ def summarize(results: list[dict]) -> dict:
 def _fingerprint(checkpoint: str) -> str:
     if checkpoint == "oracle":
         return "oracle"
+    if checkpoint == "registration":
+        from topodrake.learning.reach_train import registration_runs_key
+
+        return registration_runs_key()
     return hashlib.sha1(Path(checkpoint).read_bytes()).hexdigest()[:16]
 
 
@@ -131,7 +138,7 @@ def main(argv=None) -> int:
     ap.add_argument("--trials", type=at.count, default=400, help="trials per controller and noise setting")
     ap.add_argument("--controllers", default=",".join(CONTROLLERS),
                     help="comma-separated checkpoint folder names under --checkpoints "
-                         "('oracle' = the A* oracle)")
+                         "('oracle' = the A* oracle, 'lidar_reg' = the registration C_WP)")
     ap.add_argument("--checkpoints", default="checkpoints", help="folder of the checkpoints")
     add_study_arguments(ap, "cache of the test houses' demonstrations")
     return study_main(_run, ap.parse_args(argv))
@@ -145,8 +152,8 @@ def _run(args) -> int:
     names = [n.strip() for n in args.controllers.split(",") if n.strip()]
     checkpoints = {}
     for name in names:
-        if name == "oracle":
-            checkpoints[name] = "oracle"
+        if name in BUILT_IN:
+            checkpoints[name] = BUILT_IN[name]
             continue
         path = Path(args.checkpoints) / name / "checkpoint.pt"
         if not path.is_file():

@@ -58,6 +58,10 @@ def _policy(checkpoint: str):
     torch.set_num_threads(1)        # one trial per core
     if checkpoint == "oracle":
         return AStarOracle
+    if checkpoint == "registration":           # the registration C_WP: no checkpoint
+        from topodrake.registration.policy import RegistrationPolicy
+
+        return RegistrationPolicy()
     return LearnedWaypointPolicy.from_checkpoint(checkpoint)
 
 

@@ -19,6 +19,14 @@ in abstract state as ``TargetCache(key, features)``. A periodic update
 target's ``key`` differs from the cached one; in the one period after a
 target change the prediction encodes the new target on the fly. The policy
 object holds weights only; nothing per-run is kept in ``self``.
+
+A stateful C_WP (``track_size`` > 0, the registration C_WP) keeps its
+per-car track in abstract state too. The period's prediction is computed
+from a copy of it (with the held car state as odometry and the target's
+``key`` as the anchor's) and carries the updated copy
+(:class:`TrackedPrediction`); the periodic update at the end of the period
+commits it, as the follower commits its decision, so the track sees each
+period's observation once, as in the batched engine.
 """
 
 from __future__ import annotations
@@ -31,6 +39,13 @@ from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from topodrake.learning.policy import TargetContext, WaypointPrediction, target_input
 from topodrake.vehicle import car_to_world
+
+
+@dataclass
+class TrackedPrediction(WaypointPrediction):
+    """A stateful C_WP's prediction with its per-car track after it."""
+
+    track: np.ndarray | None = None
 
 
 @dataclass
@@ -80,6 +95,16 @@ class TargetConditionedNet(LeafSystem):
                   if p is not None]
         prereq = {self.input_port_ticket(p.get_index()) for p in inputs}
         prereq.add(self.abstract_state_ticket(self.cache_index))
+        self.period = float(period)
+        self.track_index = None
+        from topodrake.navigation.evaluate import initial_track, track_size
+
+        if track_size(network) > 0:
+            if self.state_port is None:
+                raise ValueError("a stateful network needs the state input (its odometry)")
+            self.track_index = self.DeclareAbstractState(
+                AbstractValue.Make(initial_track(network, 1)))
+            prereq.add(self.abstract_state_ticket(self.track_index))
         self._prediction = self.DeclareCacheEntry(
             "prediction", ValueProducer(allocate=lambda: AbstractValue.Make(self.empty()),
                                         calc=self._calc_prediction), prereq)
@@ -108,6 +133,11 @@ class TargetConditionedNet(LeafSystem):
         return self.network.encode_target(target_input(self.network, target))
 
     def _update_cache(self, context, state):
+        if self.track_index is not None and context.get_time() >= 0.5 * self.period:
+            # commit the track of the period that ends now (none before the first)
+            pred = self.prediction(context)
+            if isinstance(pred, TrackedPrediction) and pred.track is not None:
+                state.get_mutable_abstract_state(self.track_index).set_value(pred.track.copy())
         target = self.target_port.Eval(context)
         cache = context.get_abstract_state(self.cache_index).get_value()
         if target.key < 0 or target.key == cache.key or (target.features is not None
@@ -130,7 +160,16 @@ class TargetConditionedNet(LeafSystem):
         if self._reusable(target, obs):
             value.set_value(target.prediction)
             return
-        value.set_value(self.compute(obs, self._features(context, target)))
+        feats = self._features(context, target)
+        if self.track_index is not None:
+            track = np.array(context.get_abstract_state(self.track_index).get_value(), np.float64)
+            car = np.asarray(self.state_port.Eval(context))[None, :3]
+            p = self.network.predict_tracked(obs, feats, track, np.zeros(1, np.int64),
+                                             np.array([target.key], np.int64), car)
+            value.set_value(TrackedPrediction(p.waypoint, p.heading_diff, p.overlap, p.controls,
+                                              track))
+            return
+        value.set_value(self.compute(obs, feats))
 
     def _reusable(self, target: TargetContext, obs: np.ndarray) -> bool:
         """The target carries the answer this system would compute: made by

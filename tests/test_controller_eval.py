@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import numpy as np
@@ -168,3 +169,21 @@ def test_target_runner_stops_when_the_target_is_lost(box_world):
     # behind the partition and facing away: no overlap at all from the start
     r = runner.run([4.0, 1.0, 3.14], [6.0, 1.0, 0.0], _target([6.0, 1.0, 0.0], 9), t_max_s=20.0)
     assert r.lost and r.outcome == "lost" and not r.timeout and r.time_s < 1.0
+
+
+def test_study_runs_the_registration_controller_without_a_checkpoint(tmp_path, capsys):
+    """``lidar_reg`` (the registration C_WP) needs no checkpoint folder; its
+    blocks are keyed by the controller's settings and sources."""
+    study = _study()
+    out = tmp_path / "out"
+    code = study.main(["--controllers", "lidar_reg", "--checkpoints", str(tmp_path / "none"),
+                       "--trials", "3", "--workers", "1", "--out", str(out), "--json", "--quiet"])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(summary) == {"lidar_reg"}
+    assert all(0.0 <= summary["lidar_reg"][c] <= 1.0 for c in ("clean", "noisy"))
+    details = json.loads((out / "controller_success_details.json").read_text())
+    assert details["checkpoints"] == {"lidar_reg": "registration"}
+    block = json.loads((out / "controller_success_runs" / "lidar_reg-clean.json").read_text())
+    assert block["key"]["checkpoint"].startswith("registration-")
+    assert len(block["results"]) == 3

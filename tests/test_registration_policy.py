@@ -214,3 +214,42 @@ def test_label_rollouts_carry_each_cars_tracking_state(house, drives, policy):
     assert all(np.all(s[2] == 0) for s in seen)          # each car's target is its anchor 0
     assert not np.isfinite(seen[0][3]).any()             # fresh at the start ...
     assert np.isfinite(seen[2][3]).mean() >= 0.8         # ... then carried over
+
+
+def test_drake_waypoint_diagram_and_label_rollouts_drive_the_same_path(house, drives, policy):
+    """Table I's Drake diagram keeps the registration C_WP's track in the
+    WaypointNet's state and commits it once a period: it drives the same
+    path as the batched label rollouts, noise included."""
+    from topodrake.learning.policy import make_target_context, target_input
+    from topodrake.registration.icp import compose
+    from topodrake.rollout import PolicyRollout, RolloutConfig
+    from topodrake.systems.run import TargetRunner
+    from topodrake.systems.scenario import Scenario
+    from topodrake.systems.waypoint_net import build_waypoint_diagram
+
+    poses, a = drives[0], 80
+    start, goal = compose(poses[a - 25], np.array([0.0, 0.1, 0.05]))[0], poses[a]
+    target = make_target_context(house, poses, a, K, frame_step=STEP, modality="lidar", key=5)
+    runner = TargetRunner(build_waypoint_diagram(Scenario(world=house.name, noise_std=0.33,
+                                                          camera_enabled=False), policy,
+                                                 world=house))
+    drake = runner.run(start, goal, target, seed=4, t_max_s=20.0)
+    noise = np.zeros((1, 200, 2))
+    noise[0, :len(drake.noise)] = drake.noise
+    batched = PolicyRollout(house, policy, RolloutConfig(noise_std=0.33)).run(
+        start[None], goal[None], policy.encode_target(target_input(policy, target)),
+        t_max_s=20.0, noise=noise)
+    k = int(batched.steps[0])
+    assert k == round(drake.time_s / 0.1) and k > 10
+    dev = np.linalg.norm(drake.poses[:k + 1, :2] - batched.poses[0, :k + 1, :2], axis=1)
+    assert dev.max() <= 0.01
+    assert drake.success and batched.success[0]
+    # the committed track: the target's slot with an estimate confirmed period after period
+    net = runner.built.waypoint_net
+    ctx = net.GetMyContextFromRoot(runner.simulator.get_context())
+    slot = ctx.get_abstract_state(net.track_index).get_value()[0].reshape(policy.config.slots,
+                                                                           -1)[0]
+    assert slot[0] == 5 and np.isfinite(slot[1:4]).all() and slot[13] >= policy.config.confirm
+    # a second run on the same runner starts from a fresh track again
+    again = runner.run(start, goal, target, seed=4, t_max_s=20.0)
+    np.testing.assert_array_equal(again.poses, drake.poses)

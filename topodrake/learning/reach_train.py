@@ -193,6 +193,18 @@ def registration_identity(policy=None) -> dict:
     return {"checkpoint": REGISTRATION, "sha1": hashlib.sha1(blob.encode()).hexdigest()}
 
 
+def registration_runs_key() -> str:
+    """A key for cached runs of the registration C_WP: its default settings'
+    fingerprint and a hash of the registration package's sources (a code
+    change invalidates the runs, which a settings fingerprint alone would not)."""
+    import topodrake.registration as package
+
+    h = hashlib.sha1(registration_identity()["sha1"].encode())
+    for f in sorted(Path(package.__file__).parent.glob("*.py")):
+        h.update(f.read_bytes())
+    return f"{REGISTRATION}-{h.hexdigest()[:16]}"
+
+
 def controller_identity(path) -> dict:
     """``{"checkpoint", "sha1"}`` of a controller: a C_WP checkpoint's path
     and file SHA-1; for ``"registration"`` or a
