@@ -8,6 +8,11 @@ subset; existing maps are reused):
 
 - ``ours``: the camera k=5 map (learned RE), followed by camera k=5 C_WP + RE;
 - ``lidar``: the lidar k=5 map, followed by lidar k=5 C_WP + RE;
+- ``lidar_reg``: the map built with the RE of the registration C_WP (lidar
+  teach and repeat, no network; ``checkpoints/reach_lidar_reg``), followed
+  by that controller and its RE; its short reach keeps denser anchors
+  (every map method reports ``anchors_per_m``: vertices per metre of the
+  drives it was built from);
 - ``oracle``: our map built with the geometric oracle RE from the same
   drives (perception errors out of the map); its anchors' contexts are
   rendered as camera images and followed by camera k=5 C_WP with the learned
@@ -60,8 +65,9 @@ cache took 80 min more beside other jobs (a camera map takes 5-15 min, a
 lidar one 0.5-2 min, an oracle one and SPTM's graph a few minutes); the
 paper's protocol is ``--trials 1000`` with the ten fractions.
 
-``--json`` prints ``{"houses": {"test-0": {"ours": s, "lidar": s, "sptm": s,
-"oracle": s, "oracle_full": s, ..., "vertices": n, "edges": n, "sptm_vertices": n}, ...},
+``--json`` prints ``{"houses": {"test-0": {"ours": s, "lidar": s, "lidar_reg": s, "sptm": s,
+"oracle": s, "oracle_full": s, ..., "vertices": n, "edges": n, "sptm_vertices": n,
+"<method>_anchors_per_m": a, ...}, ...},
 "min_ours": s, "min_oracle_full": s, "min_ours_oracle_follow": s,
 "min_oracle_cwp": s, "oracle_unplanned_pairs": n, "min_margin_over_sptm": m,
 "plan_probability_ece": e, "pruned_60_over_peak": r, "replanning_gain": g,
@@ -86,19 +92,21 @@ from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 
-METHODS = ("ours", "lidar", "sptm", "oracle", "ours_replan", "ours_obstacles", "oracle_full",
-           "ours_oracle_follow", "oracle_cwp")
+METHODS = ("ours", "lidar", "lidar_reg", "sptm", "oracle", "ours_replan", "ours_obstacles",
+           "oracle_full", "ours_oracle_follow", "oracle_cwp")
 #: the perfect-perception ablations (fast: they run ``--oracle-trials`` trials)
 ORACLE_METHODS = ("oracle_full", "ours_oracle_follow", "oracle_cwp")
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
 #: method -> (map scorer modality, follower's networks: "camera", "lidar", "oracle" (A* C_WP
 #: + geometric RE) or "oracle_cwp" (A* C_WP + the learned camera RE))
-MAP_OF = {"ours": ("camera", "camera"), "lidar": ("lidar", "lidar"), "oracle": ("oracle", "camera"),
+MAP_OF = {"ours": ("camera", "camera"), "lidar": ("lidar", "lidar"),
+          "lidar_reg": ("lidar_reg", "lidar_reg"), "oracle": ("oracle", "camera"),
           "sptm": (None, "camera"), "ours_replan": ("camera", "camera"),
           "ours_obstacles": ("camera", "camera"), "oracle_full": ("oracle", "oracle"),
           "ours_oracle_follow": ("camera", "oracle"), "oracle_cwp": ("oracle", "oracle_cwp")}
 FOLLOWERS = {"camera": "camera k5 C_WP + learned camera k5 RE",
              "lidar": "lidar k5 C_WP + learned lidar k5 RE",
+             "lidar_reg": "registration C_WP (lidar teach and repeat) + its learned RE",
              "oracle": "A* oracle C_WP + geometric oracle RE",
              "oracle_cwp": "A* oracle C_WP + learned camera k5 RE"}
 DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (noise-free)
@@ -211,11 +219,12 @@ _NETWORKS: dict = {}
 
 
 def networks(modality: str, world=None):
-    """(C_WP, RE) of the shipped k=5 follower of ``modality`` (loaded once),
-    or of the oracles in ``world`` (``"oracle"``: A* C_WP and geometric RE;
-    ``"oracle_cwp"``: A* C_WP and the learned camera RE)."""
-    from topodrake.navigation.cli import _networks
-    from topodrake.topomap.sources import SHIPPED, shipped_checkpoint
+    """(C_WP, RE) of the shipped k=5 follower of ``modality`` (``lidar_reg``:
+    the registration C_WP and its RE; loaded once), or of the oracles in
+    ``world`` (``"oracle"``: A* C_WP and geometric RE; ``"oracle_cwp"``: A*
+    C_WP and the learned camera RE)."""
+    from topodrake.topomap.sources import (SHIPPED, load_networks, shipped_checkpoint,
+                                           shipped_controller)
 
     if modality in ("oracle", "oracle_cwp"):
         from topodrake.learning.policy import AStarOracle
@@ -225,8 +234,8 @@ def networks(modality: str, world=None):
         return cwp, (GeometricReachability(world, k=5) if modality == "oracle"
                      else networks("camera")[1])
     if modality not in _NETWORKS:
-        reach, controller = SHIPPED[modality]
-        _NETWORKS[modality] = _networks(shipped_checkpoint(controller), shipped_checkpoint(reach))
+        _NETWORKS[modality] = load_networks(shipped_controller(modality),
+                                            shipped_checkpoint(SHIPPED[modality][0]))
     return _NETWORKS[modality]
 
 
@@ -263,7 +272,10 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     else:
         modality = MAP_OF[method][0]
         m, build_s = get_map(spec, world, modality, drives, indices, data, tag, progress)
-        size = {"vertices": len(m), "edges": m.n_edges, "build_s": round(build_s, 1)}
+        metres = sum(float(np.hypot(*np.diff(drives[i].poses[:, :2], axis=0).T).sum())
+                     for i in indices)
+        size = {"vertices": len(m), "edges": m.n_edges, "build_s": round(build_s, 1),
+                "anchors_per_m": round(len(m) / max(metres, 1e-9), 4)}
         so = drive_observations(world, m.scorer, starts)
         go = drive_observations(world, m.scorer, places)
 

@@ -41,19 +41,9 @@ class NavigationScenario(Scenario):
 
 def load_networks(scenario: NavigationScenario):
     """(C_WP policy, RE) from the scenario's checkpoints."""
-    from pathlib import Path
+    from topodrake.topomap.sources import load_networks
 
-    from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reachability import Reachability
-
-    from topodrake.topomap.sources import resolve_checkpoint
-
-    controller, reach = resolve_checkpoint(scenario.controller), resolve_checkpoint(scenario.reach)
-    for what, path in (("controller", controller), ("reach", reach)):
-        if not Path(path).is_file():
-            raise TopodrakeError(f"{what} checkpoint {path} does not exist")
-    return (LearnedWaypointPolicy.from_checkpoint(controller),
-            Reachability.from_checkpoint(reach, controller))
+    return load_networks(scenario.controller, scenario.reach)
 
 
 @dataclass

@@ -298,3 +298,13 @@ def test_engine_refuses_networks_of_two_sensors(box_world):
     with pytest.raises(ValueError, match="C_WP observes camera, RE lidar"):
         NavigationEngine(box_world, Net("camera"), Net("lidar"))
     assert NavigationEngine(box_world, Net("pose"), Net("pose")).kind == "pose"
+
+
+def test_summary_reports_each_map_methods_anchors_per_metre():
+    houses = {"test-0": {"methods": {
+        "lidar": {"success": 0.5, "vertices": 40, "edges": 90, "anchors_per_m": 0.3},
+        "lidar_reg": {"success": 0.9, "vertices": 120, "edges": 300, "anchors_per_m": 0.8},
+        "sptm": {"success": 0.2, "vertices": 500}}}}
+    row = pt.summarize(houses, None, None)["houses"]["test-0"]
+    assert row == {"lidar": 0.5, "lidar_reg": 0.9, "sptm": 0.2, "sptm_vertices": 500,
+                   "lidar_anchors_per_m": 0.3, "lidar_reg_anchors_per_m": 0.8}

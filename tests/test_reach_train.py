@@ -763,3 +763,36 @@ def test_registration_controller_is_named_by_its_settings(labels, tmp_path):
     assert card["controller"] == ident
     assert card["init"] == {"checkpoint": init, "sha1": file_sha1(init), "samples_seen": 32,
                             "controller": controller_identity(cwp)}
+
+
+def test_maps_and_followers_load_the_registration_controller_by_name(labels, tmp_path):
+    """A map built with a registration RE records the controller by name;
+    the follower's networks load from that name, and a mismatched pair is
+    refused."""
+    from topodrake.learning.networks import NetworkConfig
+    from topodrake.learning.reach_train import controller_identity, train_reachability
+    from topodrake.registration.policy import RegistrationPolicy
+    from topodrake.topomap.sources import load_networks, make_scorer
+
+    cfg = _config(controller="registration", max_samples=16)
+    cfg.network = NetworkConfig(modality="lidar", output="reach", k=5, channels=[8, 8, 16],
+                                feature_dim=16, combine_channels=16, hidden=16)
+    train_reachability(cfg, tmp_path / "re", labels=(labels, labels),
+                       controller=controller_identity("registration"), progress=False)
+    path = tmp_path / "re" / "checkpoint.pt"
+    policy, reach = load_networks("registration", path)
+    assert isinstance(policy, RegistrationPolicy) and reach.observation == "lidar"
+    assert (policy.k, policy.frame_step) == (reach.k, reach.frame_step)
+    scorer = make_scorer("lidar", reach=path, controller="registration")
+    assert scorer.identity["controller"] == "registration"
+    assert scorer.identity["controller_sha1"] == controller_identity("registration")["sha1"]
+    with pytest.raises(TopodrakeError, match="not a camera one"):
+        make_scorer("camera", reach=path, controller="registration")
+    cwp = tmp_path / "cwp.pt"
+    cwp.write_bytes(b"controller weights")
+    with pytest.raises(TopodrakeError, match="trained for controller 'registration'"):
+        load_networks(cwp, path)
+    with pytest.raises(TopodrakeError, match="give the RE checkpoint"):
+        load_networks(cwp)
+    with pytest.raises(TopodrakeError, match="missing.pt does not exist"):
+        load_networks("registration", tmp_path / "missing.pt")

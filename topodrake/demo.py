@@ -3,9 +3,11 @@
 The learned demo (:func:`run_learned_demo`): the expert's drive between two
 places of a test house is the experience; the camera RE sparsifies it into
 a chain of anchors, and the car follows the chain in the Drake navigation
-diagram with the learned camera C_WP and RE. With ``--map`` the route is
-instead a plan on a map file (``topodrake map build``) from the start
-place's observation to the goal place's. It writes the drive over the
+diagram with the learned camera C_WP and RE (``--controller registration``:
+the lidar teach-and-repeat C_WP and its RE, no C_WP network). With ``--map``
+the route is instead a plan on a map file (``topodrake map build``) from the
+start place's observation to the goal place's, followed by the controller
+the map was built for. It writes the drive over the
 floor plan (the anchors, the map, and the path coloured by the follower's
 mode) and a Meshcat HTML recording whose camera frames the whole house.
 
@@ -100,12 +102,13 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
 def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_place: int = 9,
                      out_dir: str = "out/demo", seed: int = 0, noise_std: float = 0.0,
                      p: float = 0.99, controller: str = "checkpoints/camera_k5/checkpoint.pt",
-                     reach: str = "checkpoints/reach_camera_k5/checkpoint.pt",
-                     meshcat: bool = True, map_path=None) -> dict:
-    """The learned camera follower between two places: a plan on
-    ``map_path``, or without a map a chain of anchors from one expert drive;
-    returns the written files and a summary (outcome, times, real-time
-    factor warm and cold)."""
+                     reach: str | None = None, meshcat: bool = True, map_path=None) -> dict:
+    """The learned follower between two places: a plan on ``map_path``
+    (followed by the controller it was built for), or without a map a chain
+    of anchors from one expert drive, followed by ``controller`` (a C_WP
+    checkpoint or ``"registration"``) and ``reach`` (default: the camera k=5
+    RE, or the registration C_WP's shipped RE); returns the written files
+    and a summary (outcome, times, real-time factor warm and cold)."""
     from topodrake.errors import TopodrakeError
     from topodrake.navigation.cli import chain_from_expert, plan_on_map
     from topodrake.navigation.drive import drive_route, plot_drive
@@ -115,6 +118,10 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
 
     wall = time.perf_counter()
     import torch
+
+    if reach is None:
+        reach = ("checkpoints/reach_lidar_reg/checkpoint.pt" if controller == "registration"
+                 else "checkpoints/reach_camera_k5/checkpoint.pt")
 
     # one car: batch-1 inference runs faster on one thread than on two here
     # (and far faster when other processes share the cores)
@@ -142,7 +149,8 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
         _, route = chain_from_expert(world_name, start, goal, policy, reach_net, p)
     map_s = time.perf_counter() - t0
     scenario = NavigationScenario(world=world_name, noise_std=noise_std, seed=seed,
-                                  controller=controller, reach=reach)
+                                  controller=controller, reach=reach,
+                                  camera_enabled=policy.observation == "camera")
     out = Path(out_dir)
     files: dict[str, Path] = {}
     html = out / "meshcat.html" if meshcat else None
@@ -160,6 +168,8 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
                "probability": round(float(route.probability), 4),
                "distance_m": round(result.distance_m, 2), "distance_to_goal_m": round(goal_m, 3),
                "anchors": len(route), "map": str(map_path) if map_path else "one expert drive",
+               "controller": getattr(policy, "name", None)
+               or ("the map's" if map_path else str(controller)),
                "world": world.name, "start_place": start_place,
                "goal_place": goal_place, "seed": seed, "noise": noise_std,
                "map_s": round(map_s, 2), "startup_s": round(result.startup_s, 2),
@@ -187,8 +197,13 @@ def cmd_demo(args) -> None:
         result = run_demo(args.world, args.start_place, args.goal_place, args.out, args.seed,
                           noise, args.meshcat)
     else:
+        if args.map and (args.controller or args.reach):
+            raise TopodrakeError("--controller and --reach go without --map (a map is followed "
+                                 "by the controller it was built for)")
+        extra = {"controller": args.controller} if args.controller else {}
         result = run_learned_demo(args.world, args.start_place, args.goal_place, args.out,
-                                  args.seed, args.noise or 0.0, map_path=args.map)
+                                  args.seed, args.noise or 0.0, map_path=args.map,
+                                  reach=args.reach, **extra)
     for what, path in result["files"].items():
         print(f"wrote {what}: {path}")
     print(json.dumps(result["summary"]))
@@ -218,5 +233,10 @@ def add_demo_parser(sub) -> None:
     demo.add_argument("--meshcat", action="store_true",
                       help="with --expert, also save a Meshcat HTML recording; the learned demo "
                            "always saves one (default: off)")
+    demo.add_argument("--controller", help="C_WP checkpoint, or 'registration' for the lidar "
+                                           "teach-and-repeat C_WP, without --map (default: "
+                                           "checkpoints/camera_k5/checkpoint.pt)")
+    demo.add_argument("--reach", help="RE checkpoint trained for --controller (default: the "
+                                      "controller's shipped RE)")
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     demo.set_defaults(func=cmd_demo)

@@ -56,18 +56,12 @@ def check_args(args) -> None:
         raise TopodrakeError(f"--drive must be >= 0, got {args.drive}")
 
 
-def _networks(controller: str, reach: str):
-    from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reachability import Reachability
+def _networks(controller: str, reach: str | None):
+    """(C_WP, RE): ``controller`` a C_WP checkpoint or ``"registration"``
+    (whose RE defaults to its shipped one)."""
+    from topodrake.topomap.sources import load_networks
 
-    from topodrake.topomap.sources import resolve_checkpoint
-
-    controller, reach = resolve_checkpoint(controller), resolve_checkpoint(reach)
-    for what, path in (("controller", controller), ("reach", reach)):
-        if not Path(path).is_file():
-            raise TopodrakeError(f"--{what} checkpoint {path} does not exist")
-    return (LearnedWaypointPolicy.from_checkpoint(controller),
-            Reachability.from_checkpoint(reach, controller))
+    return load_networks(controller, reach)
 
 
 class MapPlanner:
@@ -76,7 +70,7 @@ class MapPlanner:
     given edges."""
 
     def __init__(self, path: Path, reach_path=None, controller_path=None):
-        from topodrake.learning.policy import LearnedWaypointPolicy
+        from topodrake.learning.reach_train import controller_policy
         from topodrake.topomap.mapfile import load_map, read_map_meta
         from topodrake.topomap.plot import _map_layers
         from topodrake.topomap.sources import _resolve, scorer_for_map
@@ -89,7 +83,7 @@ class MapPlanner:
         if not hasattr(self.scorer, "reach"):
             raise TopodrakeError(f"{path} is an oracle map; navigate follows learned maps")
         controller = controller_path or _resolve(meta.get("identity", {}).get("controller", ""))
-        self.policy = LearnedWaypointPolicy.from_checkpoint(controller)
+        self.policy = controller_policy(controller)
         self.reach = self.scorer.reach
         self.topomap = load_map(path, self.scorer)
         self.layers = _map_layers(self.topomap)
@@ -180,8 +174,9 @@ def cmd_navigate(args) -> None:
     else:
         if args.replan:
             raise TopodrakeError("--replan needs a map file (.tdmap) as MAP")
-        policy, reach = _networks(args.controller or DEFAULT_CONTROLLER,
-                                  args.reach or DEFAULT_REACH)
+        controller = args.controller or DEFAULT_CONTROLLER
+        reach = args.reach or (None if controller == "registration" else DEFAULT_REACH)
+        policy, reach = _networks(controller, reach)
         if source.is_dir():
             world, route, drive = chain_from_demos(source, start, goal, args.drive, policy, reach,
                                                    args.p)
@@ -266,9 +261,11 @@ def add_navigate_parser(sub) -> None:
     nv.add_argument("--seed", type=int, default=0, help="seed of the actuation noise (default: 0)")
     nv.add_argument("--t-max", type=float, default=150.0,
                     help="time limit of the drive in s (default: 150)")
-    nv.add_argument("--controller", help=f"C_WP checkpoint (default: the map's, else "
+    nv.add_argument("--controller", help=f"C_WP checkpoint, or 'registration' for the lidar "
+                                         f"teach-and-repeat C_WP (default: the map's, else "
                                          f"{DEFAULT_CONTROLLER})")
-    nv.add_argument("--reach", help=f"RE checkpoint (default: the map's, else {DEFAULT_REACH})")
+    nv.add_argument("--reach", help=f"RE checkpoint (default: the map's, else the controller's "
+                                    f"shipped RE for 'registration', else {DEFAULT_REACH})")
     nv.add_argument("--drive", type=int, help="index of the demonstration folder's drive to follow "
                                               "(default: the one nearest the start and goal)")
     nv.add_argument("--p", type=float, default=0.99,

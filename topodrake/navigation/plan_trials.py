@@ -247,12 +247,14 @@ def calibration(probability, success, bins: int = 10) -> tuple[list[dict], float
 
 def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None) -> dict:
     """The study's summary: per house the methods' success rates, our map's
-    size and SPTM's; ``min_ours`` (our worst house) and
+    size and SPTM's, each map method's anchors per metre of drive; ``min_ours`` (our worst house) and
     ``min_margin_over_sptm`` (the smallest per-house ours - sptm)."""
     out: dict = {"houses": {}}
     ours, margins = [], []
     for name, h in houses.items():
         row = {m: st["success"] for m, st in h["methods"].items()}
+        row.update({f"{m}_anchors_per_m": st["anchors_per_m"] for m, st in h["methods"].items()
+                    if st.get("anchors_per_m") is not None})
         if "ours" in h["methods"]:
             row["vertices"] = h["methods"]["ours"]["vertices"]
             row["edges"] = h["methods"]["ours"]["edges"]

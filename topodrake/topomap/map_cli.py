@@ -198,8 +198,8 @@ def cmd_map_plan(args) -> None:
 def _checkpoint_options(p) -> None:
     p.add_argument("--reach", help="RE checkpoint (default: the shipped RE of the modality, or "
                                    "the one the map was built for)")
-    p.add_argument("--controller", help="the C_WP checkpoint that RE was trained for "
-                                        "(default: as --reach)")
+    p.add_argument("--controller", help="the C_WP checkpoint that RE was trained for, or "
+                                        "'registration' (default: as --reach)")
 
 
 def add_map_parser(sub) -> None:
@@ -208,9 +208,11 @@ def add_map_parser(sub) -> None:
 
     b = msub.add_parser("build", help="build a map from a world's demonstrations (or grow one)")
     b.add_argument("world", help="catalogue name or ROS map YAML")
-    b.add_argument("--modality", choices=["camera", "lidar", "oracle"], default="camera",
-                   help="observations and RE: the shipped camera k=5 or lidar k=5 RE, or the "
-                        "geometric oracle (default: camera)")
+    b.add_argument("--modality", choices=["camera", "lidar", "lidar_reg", "oracle"],
+                   default="camera",
+                   help="observations and RE: the shipped camera k=5 or lidar k=5 RE, the RE "
+                        "of the registration C_WP (lidar_reg), or the geometric oracle "
+                        "(default: camera)")
     b.add_argument("--demos", help="demonstration folder (default: data/demos/pairs-s0/WORLD, "
                                    "collected first when missing)")
     b.add_argument("--trajectories", type=at.count,

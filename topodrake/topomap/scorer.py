@@ -55,12 +55,13 @@ class LearnedScorer:
     @classmethod
     def from_checkpoints(cls, reach_path, controller_path) -> "LearnedScorer":
         from topodrake.fileio import file_sha1
+        from topodrake.learning.reach_train import controller_identity
         from topodrake.learning.reachability import Reachability
 
         reach = Reachability.from_checkpoint(reach_path, controller_path)
         return cls(reach, {"reach": str(reach_path), "reach_sha1": file_sha1(reach_path),
                            "controller": str(controller_path),
-                           "controller_sha1": file_sha1(controller_path)})
+                           "controller_sha1": controller_identity(controller_path)["sha1"]})
 
     def features(self, observations: np.ndarray) -> dict:
         ff = self.reach.frame_features(observations)

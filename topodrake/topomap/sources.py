@@ -2,8 +2,10 @@
 
 ``make_scorer`` gives the reachability a map is built with: the shipped
 learned RE of a modality (camera k=5 or lidar k=5, with the C_WP it was
-trained for), explicit checkpoints, or the geometric oracle.
-``scorer_for_map`` gives the one a map file was built for.
+trained for; ``lidar_reg``: the RE of the registration C_WP, which has no
+checkpoint and is named ``registration``), explicit checkpoints, or the
+geometric oracle. ``scorer_for_map`` gives the one a map file was built for;
+``load_networks`` the C_WP and RE a follower drives with.
 ``demo_trajectories`` reads (collecting them first if needed) a world's
 expert demonstrations and renders each drive's observations lazily.
 """
@@ -17,9 +19,15 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 
 ROOT = Path(__file__).resolve().parents[2]
-#: modality -> (RE checkpoint folder, C_WP checkpoint folder) shipped in checkpoints/
-SHIPPED = {"camera": ("reach_camera_k5", "camera_k5"), "lidar": ("reach_lidar_k5", "lidar_k5")}
-MODALITIES = ("camera", "lidar", "oracle")
+#: map kind -> (RE checkpoint folder, C_WP checkpoint folder or "registration") shipped in
+#: checkpoints/
+SHIPPED = {"camera": ("reach_camera_k5", "camera_k5"), "lidar": ("reach_lidar_k5", "lidar_k5"),
+           "lidar_reg": ("reach_lidar_reg", "registration")}
+MODALITIES = ("camera", "lidar", "lidar_reg", "oracle")
+#: the registration C_WP's name where a C_WP checkpoint would go
+REGISTRATION = "registration"
+#: what each map kind observes
+OBSERVES = {"camera": "camera", "lidar": "lidar", "lidar_reg": "lidar"}
 
 
 def shipped_checkpoint(name: str) -> Path:
@@ -39,8 +47,43 @@ def resolve_checkpoint(path) -> Path:
     return p
 
 
+def controller_checkpoint(controller):
+    """A C_WP checkpoint path resolved as :func:`resolve_checkpoint` does;
+    ``"registration"`` (the registration C_WP) stays a name."""
+    return REGISTRATION if str(controller) == REGISTRATION else resolve_checkpoint(controller)
+
+
+def shipped_controller(kind: str):
+    """The shipped C_WP of a map kind: its checkpoint, or ``"registration"``."""
+    name = SHIPPED[kind][1]
+    return REGISTRATION if name == REGISTRATION else shipped_checkpoint(name)
+
+
+def load_networks(controller, reach=None):
+    """(C_WP, RE) a follower drives with: ``controller`` a C_WP checkpoint or
+    ``"registration"``; ``reach`` the RE checkpoint trained for it (default
+    for the registration C_WP: its shipped RE). An RE of another controller
+    is refused."""
+    from topodrake.learning.reach_train import controller_policy
+    from topodrake.learning.reachability import Reachability
+
+    controller = controller_checkpoint(controller)
+    if reach is None:
+        if controller != REGISTRATION:
+            raise TopodrakeError("give the RE checkpoint trained for the controller")
+        reach = shipped_checkpoint(SHIPPED["lidar_reg"][0])
+    reach = resolve_checkpoint(reach)
+    for what, path in (("controller", controller), ("reach", reach)):
+        if path != REGISTRATION and not Path(path).is_file():
+            raise TopodrakeError(f"{what} checkpoint {path} does not exist")
+    re = Reachability.from_checkpoint(reach, controller)      # refuses a mismatch first
+    return controller_policy(controller), re
+
+
 def _relative(path) -> str:
     """A checkpoint path as recorded in a map: relative to the installation when inside it."""
+    if str(path) == REGISTRATION:
+        return REGISTRATION
     p = Path(path).resolve()
     try:
         return str(p.relative_to(ROOT))
@@ -48,13 +91,16 @@ def _relative(path) -> str:
         return str(p)
 
 
-def _resolve(recorded: str) -> Path:
+def _resolve(recorded: str):
+    if recorded == REGISTRATION:
+        return REGISTRATION
     p = Path(recorded)
     return p if p.is_absolute() else ROOT / p
 
 
 def make_scorer(modality: str, world=None, reach=None, controller=None):
-    """The reachability to build a ``modality`` map with (``"oracle"`` needs ``world``)."""
+    """The reachability to build a ``modality`` map with (``"oracle"`` needs
+    ``world``; ``"lidar_reg"``: the registration C_WP's RE)."""
     from topodrake.topomap.scorer import LearnedScorer, OracleScorer
 
     if modality == "oracle":
@@ -66,14 +112,14 @@ def make_scorer(modality: str, world=None, reach=None, controller=None):
     if (reach is None) != (controller is None):
         raise TopodrakeError("give both --reach and --controller, or neither")
     reach = resolve_checkpoint(reach) if reach else shipped_checkpoint(SHIPPED[modality][0])
-    controller = (resolve_checkpoint(controller) if controller
-                  else shipped_checkpoint(SHIPPED[modality][1]))
+    controller = controller_checkpoint(controller) if controller else shipped_controller(modality)
     for p in (reach, controller):
-        if not p.is_file():
+        if p != REGISTRATION and not p.is_file():
             raise TopodrakeError(f"checkpoint {p} does not exist")
     scorer = LearnedScorer.from_checkpoints(reach, controller)
-    if scorer.observation != modality:
-        raise TopodrakeError(f"{reach} is a {scorer.observation} RE, not a {modality} one")
+    if scorer.observation != OBSERVES[modality]:
+        raise TopodrakeError(f"{reach} is a {scorer.observation} RE, not a {OBSERVES[modality]} "
+                             "one")
     scorer.identity.update(reach=_relative(reach), controller=_relative(controller))
     return scorer
 
@@ -91,7 +137,7 @@ def scorer_for_map(path, reach=None, controller=None):
     reach = reach or _resolve(ident.get("reach", ""))
     controller = controller or _resolve(ident.get("controller", ""))
     for p, what in ((reach, "reachability estimator"), (controller, "controller")):
-        if not Path(p).is_file():
+        if p != REGISTRATION and not Path(p).is_file():
             raise TopodrakeError(f"{path} was built for the {what} {p}, which does not exist "
                                  f"here; pass it with --reach/--controller")
     return make_scorer(meta["modality"], reach=reach, controller=controller)
