@@ -10,8 +10,9 @@ Each round:
    (:mod:`topodrake.learning.onpolicy`);
 2. fine-tunes the current C_WP for ``round_minutes`` on the aggregate: a
    fixed base set of demonstration samples (``base_samples`` from the
-   config's ``data.train_worlds``) plus the on-policy samples of every round
-   so far, validated on the config's validation samples.
+   config's ``data.train_worlds``, drawn with its ``data.samples``: targets
+   as far as the follower's hops reach) plus the on-policy samples of every
+   round so far, validated on the standard validation samples.
 
 Everything is kept under the output folder and resumed: ``round-<r>/onpolicy.npz``
 (the round's labelled states), ``round-<r>/checkpoint.pt`` (its network;
@@ -102,13 +103,21 @@ def _key(obj) -> str:
 
 
 def base_and_val_samples(cfg: DaggerConfig, data_dir: Path, progress: bool):
-    """The fixed demonstration samples (train houses) and validation samples."""
+    """The fixed demonstration samples of the base houses (drawn with
+    ``train.data.samples``, e.g. farther targets than the first training
+    had) and the validation samples (drawn as the networks' validation sets
+    are, with the default :class:`SampleConfig`, so errors compare)."""
     from dataclasses import replace
 
+    from topodrake.learning.samples import SampleConfig
     from topodrake.learning.train import prepare_samples
 
     d = replace(cfg.train.data, train_samples=cfg.base_samples)
-    return prepare_samples(replace(cfg.train, data=d), data_dir, progress)
+    base, val = prepare_samples(replace(cfg.train, data=d), data_dir, progress)
+    if d.samples != SampleConfig():
+        d = replace(d, samples=SampleConfig(), train_samples=cfg.train.batch_size)
+        _, val = prepare_samples(replace(cfg.train, data=d), data_dir, progress)
+    return base, val
 
 
 def _demo_root(cfg: DaggerConfig, data_dir: Path) -> Path:
