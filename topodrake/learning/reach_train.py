@@ -114,8 +114,9 @@ class ReachTrainConfig(TrainConfig):
     # all its weights with a fresh optimizer (fine-tuning on new labels)
     init: str = "controller"
     # the RE checkpoint in ``init`` may describe another controller (its weights
-    # are a starting point only; the card names it)
-    init_any_controller: bool = False
+    # are a starting point only; the card names it; None: no, as configs before
+    # the switch read)
+    init_any_controller: bool | None = None
     # weight of the auxiliary loss on the pair's starting image overlaps
     # (geometric, from the poses; 0 = the paper's RE, reach logit only)
     overlap_weight: float = 1.0
@@ -316,7 +317,7 @@ def _init(cfg: ReachTrainConfig, controller: dict):
                              "'controller', 'scratch' or the path of an RE checkpoint)")
     probe = WaypointNetwork(cfg.network, input_size(cfg.network, cfg.lidar.beams))
     ident = init_from_reachability(probe, cfg.init, controller["checkpoint"],
-                                   cfg.init_any_controller)
+                                   bool(cfg.init_any_controller))
     return (lambda model: model.load_state_dict(probe.state_dict())), {"init": ident}
 
 
