@@ -28,11 +28,10 @@ camera k=2 ones (the network of the nearest controller).
 
 lidar_reg is the registration controller
 (:class:`topodrake.registration.policy.RegistrationPolicy`: no network,
-scans registered against the anchors' taught scans). Until it has a learned
-RE, its chains and its follower's RE come from the geometric oracle RE with
-the registration's short reach (``REGISTRATION_REACH_M``; peak 0.999 so that
-``--p`` values select anchors), and its ``cover_oracle`` follows the same
-chains with the A* oracle C_WP.
+scans registered against the anchors' taught scans) with the RE learnt from
+its own rollouts (``checkpoints/reach_lidar_reg``); its runs are keyed by
+the controller's settings and the registration package's sources instead of
+a checkpoint's hash.
 
     python studies/trajectory_following.py --json
 
@@ -66,11 +65,9 @@ CONTROLLERS = {
                   "checkpoints/camera_k5/checkpoint.pt"),
     "lidar_k5": ("checkpoints/lidar_k5/checkpoint.pt", "checkpoints/reach_lidar_k5/checkpoint.pt",
                  "checkpoints/lidar_k5/checkpoint.pt"),
+    # the registration C_WP has no checkpoint: "registration" names it
+    "lidar_reg": ("registration", "checkpoints/reach_lidar_reg/checkpoint.pt", "registration"),
 }
-# not a checkpoint pair: the registration controller with the geometric oracle RE
-REGISTRATION = {"lidar_reg"}
-REGISTRATION_REACH_M = 1.5       # the oracle RE's reach for the registration controller
-REGISTRATION_P_MAX = 0.999
 
 
 # ---------------------------------------------------------------- trajectories
@@ -280,19 +277,17 @@ def _hash(arrays) -> str:
 def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
     import torch
 
-    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.reach_train import controller_policy
     from topodrake.learning.reachability import Reachability
 
-    from topodrake.fileio import file_sha1
-
     cwp_path, re_path, re_controller = spec
-    policy = LearnedWaypointPolicy.from_checkpoint(cwp_path)
+    policy = controller_policy(cwp_path)
     reach = Reachability.from_checkpoint(re_path, re_controller)
     wide = policy if policy.k >= reach.k else reach
     torch.set_num_threads(1)
     cache = RunCache(Path(args.out) / "trajectory_following_runs", {
         "trajectories": args.trajectories_file, "controller": name,
-        "checkpoints": [file_sha1(f) for f in spec], "seed": args.seed, "noise": args.noise,
+        "checkpoints": [_fingerprint(f) for f in spec], "seed": args.seed, "noise": args.noise,
         "follower": asdict(args.follower_config), "tolerance_m": TOLERANCE_M,
         "diverge_m": DIVERGE_M, "slack": args.slack})
     obs = Observations(reach, trajs, world_of)
@@ -340,130 +335,12 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
     return out
 
 
-def _registration_code() -> str:
-    """A hash of the registration package's sources (part of its runs' cache key)."""
-    import hashlib
+def _fingerprint(path: str) -> str:
+    """A checkpoint's SHA-1, or the registration controller's runs key."""
+    from topodrake.fileio import file_sha1
+    from topodrake.learning.reach_train import REGISTRATION, registration_runs_key
 
-    import topodrake.registration as package
-
-    h = hashlib.sha1()
-    for f in sorted(Path(package.__file__).parent.glob("*.py")):
-        h.update(f.read_bytes())
-    return h.hexdigest()[:16]
-
-
-def run_registration(name, trajs, world_of, ps, args, bar) -> dict:
-    """The study's figures for the registration controller (see the module
-    docstring): chains from the geometric oracle RE at its short reach,
-    followed with that RE; the same keys as :func:`run_controller`."""
-    from topodrake.learning.policy import AStarOracle
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
-    from topodrake.navigation.evaluate import GeometricReachability
-    from topodrake.registration.policy import RegistrationPolicy
-    from topodrake.rollout import RolloutConfig
-    from topodrake.sensing.observe import observe
-    from topodrake.topomap.sparsify import sparsify
-
-    policy = RegistrationPolicy()
-    k, step = policy.k, policy.frame_step
-    cache = RunCache(Path(args.out) / "trajectory_following_runs", {
-        "trajectories": args.trajectories_file, "controller": name,
-        "registration": repr(policy.config), "code": _registration_code(),
-        "reach_m": REGISTRATION_REACH_M,
-        "p_max": REGISTRATION_P_MAX, "seed": args.seed, "noise": args.noise,
-        "follower": asdict(args.follower_config), "tolerance_m": TOLERANCE_M,
-        "diverge_m": DIVERGE_M, "slack": args.slack})
-    reaches: dict = {}
-
-    def reach_of(world_name):
-        if world_name not in reaches:
-            reaches[world_name] = GeometricReachability(
-                world_of(world_name), k=k, frame_step=step, reach_m=REGISTRATION_REACH_M,
-                p_max=REGISTRATION_P_MAX)
-        return reaches[world_name]
-
-    scans: dict = {}
-
-    def scans_of(m):
-        if m not in scans:
-            scans[m] = observe(world_of(trajs[m]["world"]), "lidar", trajs[m]["poses"],
-                               policy.sensor)
-        return scans[m]
-
-    chains = {}
-    for p in ps:
-        got = cache.get(f"{name}-chains-p{p}", {"p": p})
-        if got is None:
-            got = []
-            for t in trajs:
-                re, poses = reach_of(t["world"]), t["poses"]
-                got.append(sparsify(len(poses), lambda i, js: re.probability(
-                    np.repeat(poses[i:i + 1], len(js), axis=0), poses[js]), p,
-                    slack=args.slack).tolist())
-            cache.put(f"{name}-chains-p{p}", {"p": p}, got)
-        chains[p] = [np.asarray(a, np.int64) for a in got]
-    seeds = trial_seeds(args.seed, len(trajs))
-
-    def follow(chain_set, tag, noisy=False, oracle=False):
-        cover = np.zeros(len(trajs))
-        outcomes = [""] * len(trajs)
-        by_world: dict[str, list[int]] = {}
-        for m, t in enumerate(trajs):
-            by_world.setdefault(t["world"], []).append(m)
-        for wname, idx in by_world.items():
-            world = world_of(wname)
-            cwp = AStarOracle(world, k=k, frame_step=step) if oracle else policy
-            engine = NavigationEngine(world, cwp, reach_of(wname), NavigationConfig(
-                follower=args.follower_config,
-                rollout=RolloutConfig(noise_std=args.noise if noisy else 0.0)))
-            for lo in range(0, len(idx), args.batch):
-                part = idx[lo:lo + args.batch]
-                key = {"noisy": noisy, "cars": part, "chains": _hash([chain_set[m] for m in part])}
-                got = cache.get(f"{tag}{wname}-{lo}", key)
-                if got is None:
-                    res, watch = follow_chains_once(
-                        engine, [trajs[m]["poses"] for m in part],
-                        [trajs[m]["poses"] if oracle else scans_of(m) for m in part],
-                        [chain_set[m] for m in part], k, step, [seeds[m] for m in part],
-                        noisy=noisy)
-                    got = {"cover": [watch.cover(j) for j in range(len(part))],
-                           "outcomes": [NAV_OUTCOMES[int(o)] for o in res.outcome]}
-                    cache.put(f"{tag}{wname}-{lo}", key, got)
-                for j, m in enumerate(part):
-                    cover[m], outcomes[m] = got["cover"][j], got["outcomes"][j]
-        return cover, outcomes
-
-    lengths = np.array([path_length(t["poses"])[-1] for t in trajs])
-    frames = np.array([len(t["poses"]) for t in trajs])
-    out: dict = {"controller": "registration (no checkpoint)",
-                 "reach": f"geometric oracle, reach {REGISTRATION_REACH_M} m", "points": []}
-    for p in ps:
-        anchors = np.array([len(a) for a in chains[p]])
-        n = max(1, int(round(frames.sum() / anchors.sum())))
-        sub = [every_nth(f, n) for f in frames]
-        c_re, o_re = follow(chains[p], f"{name}-p{p}-re-")
-        bar.update()
-        c_sub, o_sub = follow(sub, f"{name}-p{p}-every{n}-")
-        bar.update()
-        point = {"p_sparsify": p, "anchors_per_m": round(float(anchors.sum() / lengths.sum()), 4),
-                 "cover": float(c_re.mean()), "every_n": n,
-                 "subsampled_anchors_per_m": round(float(sum(len(a) for a in sub) / lengths.sum()), 4),
-                 "cover_subsampled": float(c_sub.mean()),
-                 "outcomes": _count(o_re), "outcomes_subsampled": _count(o_sub),
-                 "covers": c_re.round(4).tolist(), "covers_subsampled": c_sub.round(4).tolist()}
-        if abs(p - args.headline_p) < 1e-9:
-            c_n, o_n = follow(chains[p], f"{name}-p{p}-noisy-", noisy=True)
-            bar.update()
-            c_o, o_o = follow(chains[p], f"{name}-p{p}-oracle-", oracle=True)
-            bar.update()
-            point.update({"cover_noisy": float(c_n.mean()), "outcomes_noisy": _count(o_n),
-                          "covers_noisy": c_n.round(4).tolist(),
-                          "cover_oracle": float(c_o.mean()), "outcomes_oracle": _count(o_o),
-                          "covers_oracle": c_o.round(4).tolist()})
-        out["points"].append(point)
-        bar.set_postfix_str(f"{name} p={p}: cover {point['cover']:.3f}")
-    return out
+    return registration_runs_key() if path == REGISTRATION else file_sha1(path)
 
 
 def _count(outcomes: list[str]) -> dict:
@@ -506,7 +383,7 @@ def main(argv=None) -> int:
     ap.add_argument("--p", default="0.9,0.95,0.98,0.99,0.995", help="p_sparsify values")
     ap.add_argument("--headline-p", type=at.probability, default=0.99,
                     help="p_sparsify of the printed summary and of the noisy runs")
-    ap.add_argument("--controllers", default=",".join([*CONTROLLERS, *sorted(REGISTRATION)]),
+    ap.add_argument("--controllers", default=",".join(CONTROLLERS),
                     help="controllers to follow with")
     ap.add_argument("--batch", type=at.count, default=48, help="cars per engine batch")
     ap.add_argument("--seed", type=at.seed, default=0, help="seed of the trajectories, starts and noise")
@@ -551,7 +428,7 @@ def _run(args) -> int:
         raise TopodrakeError(f"--follower is not a JSON object of FollowerConfig fields ({e})") \
             from None
     names = [c for c in args.controllers.split(",") if c]
-    known = [*CONTROLLERS, *sorted(REGISTRATION)]
+    known = list(CONTROLLERS)
     unknown = [c for c in names if c not in known]
     if unknown or not names:
         raise TopodrakeError(f"unknown controllers {unknown}; choose from {', '.join(known)}")
@@ -566,11 +443,8 @@ def _run(args) -> int:
     results = {}
     with tqdm(total=steps, desc="trajectory following", disable=args.quiet, unit="sweep") as bar:
         for name in names:
-            if name in REGISTRATION:
-                results[name] = run_registration(name, trajs, world_of, ps, args, bar)
-            else:
-                results[name] = run_controller(name, CONTROLLERS[name], trajs, world_of, ps,
-                                               args, bar)
+            results[name] = run_controller(name, CONTROLLERS[name], trajs, world_of, ps, args,
+                                           bar)
     summary = {}
     for name, r in results.items():
         q = min(r["points"], key=lambda q: abs(q["p_sparsify"] - args.headline_p))

@@ -65,3 +65,46 @@ def test_map_build_refuses_unknown_places(capsys, tmp_path):
     err = capsys.readouterr().err.strip()
     assert code == 2 and "no place 99" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "m.tdmap").exists()
+
+
+def test_navigate_drives_the_registration_controller_with_its_re(capsys):
+    """``--controller registration``: the lidar teach-and-repeat C_WP with its
+    shipped RE by default; another controller's RE is refused in one line."""
+    code = main(["navigate", "test-0", "--start", "16.42,14.88,2.95", "--goal", "8.22,14.08,-0.2",
+                 "--controller", "registration", "--t-max", "2", "--json"])
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert code == 0
+    assert out["outcome"] == "timeout" and out["time_s"] == pytest.approx(2.0)
+    assert 0.0 < out["probability"] <= 1.0 and out["distance_m"] > 0.1
+    code = main(["navigate", "test-0", "--start", "16.42,14.88,2.95", "--goal", "8.22,14.08,-0.2",
+                 "--controller", "registration", "--reach",
+                 "checkpoints/reach_lidar_k5/checkpoint.pt", "--t-max", "2"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "trained for controller" in err and len(err.splitlines()) == 1
+
+
+def test_demo_takes_the_controller_only_without_a_map(capsys):
+    code = main(["demo", "--map", "t0.tdmap", "--controller", "registration",
+                 "--out", "/tmp/unused-demo"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "without --map" in err and len(err.splitlines()) == 1
+
+
+def test_a_lidar_reg_map_records_and_drives_the_registration_controller(capsys, tmp_path):
+    """A map built with the registration C_WP's RE names that controller;
+    navigate follows it with the registration C_WP."""
+    from topodrake.topomap.mapfile import read_map_meta
+    from topodrake.world import load_world
+
+    path = tmp_path / "reg.tdmap"
+    assert main(["map", "build", "test-0", "--modality", "lidar_reg", "--places", "4,9",
+                 "--out", str(path), "--quiet"]) == 0
+    capsys.readouterr()
+    ident = read_map_meta(path)["identity"]
+    assert ident["controller"] == "registration"
+    assert ident["reach"] == "checkpoints/reach_lidar_reg/checkpoint.pt"
+    p = load_world("test-0").places
+    start, goal = (",".join(f"{v:.4f}" for v in p[i]) for i in (4, 9))
+    code = main(["navigate", str(path), "--start", start, "--goal", goal, "--t-max", "2", "--json"])
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert code == 0 and out["outcome"] == "timeout" and out["distance_m"] > 0.1
