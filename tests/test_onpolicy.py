@@ -181,3 +181,15 @@ def test_follower_bench_controllers_parse_with_overrides(tmp_path):
         parse_controllers("lidar_k9", [])
     with pytest.raises(TopodrakeError, match="NAME=CHECKPOINT"):
         parse_controllers("lidar_k5", ["camera_k5=x.pt"])
+
+
+def test_the_oracle_c_wp_follows_the_learned_res_chains(drives, networks):
+    """A pose oracle beside a sensor RE reads the anchors' poses from the
+    route (the mixed ablation of the follower benchmark and the studies)."""
+    from topodrake.learning.policy import AStarOracle
+
+    world, trajs = drives
+    _, reach = networks
+    cfg = OnPolicyConfig(drives_per_world=2, noisy_share=0.0)
+    got = collect_visited(world, trajs, np.arange(2), AStarOracle(world, k=5), reach, cfg, seed=5)
+    assert len(got) > 0 and got.cover.mean() > 0.6
