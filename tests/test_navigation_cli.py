@@ -108,3 +108,16 @@ def test_a_lidar_reg_map_records_and_drives_the_registration_controller(capsys, 
     code = main(["navigate", str(path), "--start", start, "--goal", goal, "--t-max", "2", "--json"])
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert code == 0 and out["outcome"] == "timeout" and out["distance_m"] > 0.1
+
+
+def test_demo_drives_the_registration_controller(capsys, tmp_path):
+    """The learned demo with ``--controller registration``: the chain of one
+    expert drive, sparsified by the registration C_WP's RE, followed in the
+    Drake navigation diagram by that controller."""
+    assert main(["demo", "--controller", "registration", "--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    summary = json.loads(next(line for line in lines if line.startswith("{")))
+    assert summary["controller"] == "registration" and summary["anchors"] >= 2
+    assert summary["distance_m"] > 1.0 and 0.0 < summary["probability"] <= 1.0
+    assert (tmp_path / "plan.png").stat().st_size > 10_000
+    assert (tmp_path / "meshcat.html").is_file()
