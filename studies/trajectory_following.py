@@ -385,6 +385,8 @@ def main(argv=None) -> int:
                     help="p_sparsify of the printed summary and of the noisy runs")
     ap.add_argument("--controllers", default=",".join(CONTROLLERS),
                     help="controllers to follow with")
+    ap.add_argument("--cwp", action="append", metavar="NAME=CHECKPOINT",
+                    help="follow NAME's chains with another C_WP (NAME's RE stays; repeatable)")
     ap.add_argument("--batch", type=at.count, default=48, help="cars per engine batch")
     ap.add_argument("--seed", type=at.seed, default=0, help="seed of the trajectories, starts and noise")
     ap.add_argument("--noise", type=at.nonnegative, default=0.33, help="actuation noise std of the noisy runs")
@@ -432,6 +434,14 @@ def _run(args) -> int:
     unknown = [c for c in names if c not in known]
     if unknown or not names:
         raise TopodrakeError(f"unknown controllers {unknown}; choose from {', '.join(known)}")
+    specs = {n: CONTROLLERS[n] for n in names}
+    for o in args.cwp or []:
+        name, sep, path = o.partition("=")
+        if not sep or name not in specs:
+            raise TopodrakeError(f"--cwp {o!r} is not NAME=CHECKPOINT with NAME one of {names}")
+        if not Path(path).is_file():
+            raise TopodrakeError(f"--cwp: checkpoint {path} does not exist")
+        specs[name] = (path, *specs[name][1:])
     worlds = [w for w in args.worlds.split(",") if w]
     t0 = time.perf_counter()
     trajs = load_trajectories(Path(args.data), worlds, args.trajectories, args.seed)
@@ -443,8 +453,7 @@ def _run(args) -> int:
     results = {}
     with tqdm(total=steps, desc="trajectory following", disable=args.quiet, unit="sweep") as bar:
         for name in names:
-            results[name] = run_controller(name, CONTROLLERS[name], trajs, world_of, ps, args,
-                                           bar)
+            results[name] = run_controller(name, specs[name], trajs, world_of, ps, args, bar)
     summary = {}
     for name, r in results.items():
         q = min(r["points"], key=lambda q: abs(q["p_sparsify"] - args.headline_p))

@@ -45,3 +45,12 @@ def test_the_run_cache_refuses_other_settings_and_unreadable_files(tmp_path, loa
     (tmp_path / "block.json").write_text("{not json")
     assert cache.get("block", {"p": 0.99}) is None
     assert cache.get("missing", {"p": 0.99}) is None
+
+
+def test_another_c_wp_is_named_per_controller_and_checked(tmp_path, load_study, capsys):
+    study = load_study("trajectory_following")
+    args = ["--controllers", "lidar_k5", "--out", str(tmp_path), "--quiet"]
+    assert study.main(args + ["--cwp", "camera_k5=checkpoints/camera_k5/checkpoint.pt"]) == 2
+    assert "NAME=CHECKPOINT with NAME one of ['lidar_k5']" in capsys.readouterr().err
+    assert study.main(args + ["--cwp", f"lidar_k5={tmp_path / 'none.pt'}"]) == 2
+    assert "does not exist" in capsys.readouterr().err
