@@ -193,3 +193,27 @@ def test_the_oracle_c_wp_follows_the_learned_res_chains(drives, networks):
     cfg = OnPolicyConfig(drives_per_world=2, noisy_share=0.0)
     got = collect_visited(world, trajs, np.arange(2), AStarOracle(world, k=5), reach, cfg, seed=5)
     assert len(got) > 0 and got.cover.mean() > 0.6
+
+
+def test_a_dagger_card_carries_the_rounds_up_to_its_network():
+    from topodrake.learning.dagger import dagger_card
+
+    state = {"config": {"init": "a.pt"}, "rounds": [
+        {"round": 0, "worlds": ["train-12"], "train_wall_time_s": 600.0},
+        {"round": 1, "worlds": ["train-24"], "train_wall_time_s": 300.0},
+        {"round": 2, "worlds": ["train-36"], "train_wall_time_s": 300.0}]}
+    card = dagger_card({"data": {"train_worlds": ["train-00"]}, "metrics": {}}, state, 1)
+    assert card["data"]["onpolicy_worlds"] == ["train-12", "train-24"]
+    assert card["data"]["train_worlds"] == ["train-00"]
+    assert card["dagger"]["train_wall_time_s"] == 900.0 and len(card["dagger"]["rounds"]) == 2
+
+
+def test_the_shipped_dagger_lidar_c_wp_loads_with_its_card():
+    from topodrake.learning.policy import LearnedWaypointPolicy
+
+    policy = LearnedWaypointPolicy.from_checkpoint("checkpoints/lidar_k5_dagger/checkpoint.pt",
+                                                   modality="lidar", k=5)
+    assert policy.observation == "lidar"
+    card = json.loads(open("checkpoints/lidar_k5_dagger/card.json").read())
+    assert card["data"]["onpolicy_worlds"] and card["command"].startswith("topodrake train dagger")
+    assert card["dagger"]["rounds"][-1]["round"] == len(card["dagger"]["rounds"]) - 1

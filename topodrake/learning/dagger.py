@@ -214,12 +214,26 @@ def run_dagger(cfg: DaggerConfig, out_dir, data_dir="data", *, progress: bool = 
             "train_wall_time_s": round(res.wall_time_s, 1)})
         atomic_write_json(state_path, state)
         shutil.copyfile(rdir / CHECKPOINT, out_dir / "best.pt")
-        shutil.copyfile(rdir / CARD, out_dir / "best.card.json")
+        atomic_write_json(out_dir / "best.card.json",
+                          dagger_card(json.loads((rdir / CARD).read_text()), state, r))
         if progress:
             print(f"dagger round {r} done: followed cover {samples.meta.get('cover'):.3f}, val "
                   f"error {res.metrics.get('waypoint_error_m'):.3f} m "
                   f"({(time.perf_counter() - t0) / 60:.1f} min)", flush=True)
     return state
+
+
+def dagger_card(card: dict, state: dict, last_round: int) -> dict:
+    """The card of round ``last_round``'s network with its lineage: every
+    round up to it (houses, visited states, the chains' cover, validation
+    error, training time) and the houses its samples came from."""
+    rounds = [r for r in state["rounds"] if r["round"] <= last_round]
+    onpolicy = [w for r in rounds for w in r.get("worlds") or []]
+    data = dict(card.get("data", {}))
+    data["onpolicy_worlds"] = onpolicy
+    return {**card, "data": data,
+            "dagger": {"rounds": rounds, "init": state["config"]["init"],
+                       "train_wall_time_s": round(sum(r["train_wall_time_s"] for r in rounds), 1)}}
 
 
 def _comparable(config: dict) -> dict:
