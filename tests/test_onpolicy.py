@@ -179,6 +179,8 @@ def test_follower_bench_controllers_parse_with_overrides(tmp_path):
     assert got == {"lidar_k5": ("x.pt", *CONTROLLERS["lidar_k5"][1:])}
     with pytest.raises(TopodrakeError, match="unknown controllers"):
         parse_controllers("lidar_k9", [])
+    both = parse_controllers("lidar_k5", ["lidar_k5=x.pt"], ["lidar_k5=r.pt"])
+    assert both == {"lidar_k5": ("x.pt", "r.pt", "x.pt")}
     with pytest.raises(TopodrakeError, match="NAME=CHECKPOINT"):
         parse_controllers("lidar_k5", ["camera_k5=x.pt"])
 

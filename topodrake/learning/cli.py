@@ -227,6 +227,8 @@ def add_bench_parser(bsub) -> None:
     bf.add_argument("--controllers", default="camera_k5,lidar_k5", help="controllers to bench")
     bf.add_argument("--cwp", action="append", metavar="NAME=CHECKPOINT",
                     help="bench another C_WP under NAME (with NAME's RE); repeatable")
+    bf.add_argument("--re", action="append", metavar="NAME=CHECKPOINT",
+                    help="with another RE under NAME, trained for NAME's (--cwp) C_WP; repeatable")
     bf.add_argument("--drives", type=at.count, default=8, help="chains followed per test house")
     bf.add_argument("--re-states", type=at.count, default=300,
                     help="visited states rolled out to score RE")
@@ -259,7 +261,7 @@ def cmd_bench_follower(args) -> None:
     from topodrake.learning.follower_bench import bench_follower, parse_controllers
 
     torch.set_num_threads(args.threads)
-    result = bench_follower(parse_controllers(args.controllers, args.cwp), data=args.data,
+    result = bench_follower(parse_controllers(args.controllers, args.cwp, args.re), data=args.data,
                             drives_per_world=args.drives, re_states=args.re_states,
                             seed=args.seed, progress=not args.quiet)
     if args.json:

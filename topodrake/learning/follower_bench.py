@@ -182,17 +182,21 @@ def bench_follower(controllers: dict | None = None, **kw) -> dict:
     return {name: bench_controller(*spec, **kw) for name, spec in controllers.items()}
 
 
-def parse_controllers(names: str, overrides: list[str]) -> dict:
+def parse_controllers(names: str, overrides: list[str], reach: list[str] | None = None) -> dict:
     """The controllers to bench: ``names`` (comma-separated keys of
-    :data:`CONTROLLERS`), with ``NAME=C_WP.pt`` overrides of their C_WP."""
+    :data:`CONTROLLERS`), with ``NAME=C_WP.pt`` overrides of their C_WP and
+    ``NAME=RE.pt`` overrides of their RE (an RE trained for NAME's C_WP,
+    the overridden one if given)."""
     chosen = [n for n in names.split(",") if n]
     unknown = [n for n in chosen if n not in CONTROLLERS]
     if unknown or not chosen:
         raise TopodrakeError(f"unknown controllers {unknown}; choose from {', '.join(CONTROLLERS)}")
     out = {n: CONTROLLERS[n] for n in chosen}
-    for o in overrides or []:
-        name, sep, path = o.partition("=")
-        if not sep or name not in out:
-            raise TopodrakeError(f"--cwp {o!r} is not NAME=CHECKPOINT with NAME one of {chosen}")
-        out[name] = (path, *out[name][1:])
+    for flag, items in (("--cwp", overrides), ("--re", reach)):
+        for o in items or []:
+            name, sep, path = o.partition("=")
+            if not sep or name not in out:
+                raise TopodrakeError(f"{flag} {o!r} is not NAME=CHECKPOINT with NAME one of {chosen}")
+            cwp, re, _ = out[name]
+            out[name] = (path, re, out[name][2]) if flag == "--cwp" else (cwp, path, cwp)
     return out
