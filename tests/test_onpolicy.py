@@ -210,12 +210,14 @@ def test_a_dagger_card_carries_the_rounds_up_to_its_network():
     assert card["dagger"]["train_wall_time_s"] == 900.0 and len(card["dagger"]["rounds"]) == 2
 
 
-def test_the_shipped_dagger_lidar_c_wp_loads_with_its_card():
+@pytest.mark.parametrize("name,modality", [("lidar_k5_dagger", "lidar"),
+                                           ("camera_k5_dagger", "camera")])
+def test_the_shipped_dagger_c_wps_load_with_their_cards(name, modality):
     from topodrake.learning.policy import LearnedWaypointPolicy
 
-    policy = LearnedWaypointPolicy.from_checkpoint("checkpoints/lidar_k5_dagger/checkpoint.pt",
-                                                   modality="lidar", k=5)
-    assert policy.observation == "lidar"
-    card = json.loads(open("checkpoints/lidar_k5_dagger/card.json").read())
+    policy = LearnedWaypointPolicy.from_checkpoint(f"checkpoints/{name}/checkpoint.pt",
+                                                   modality=modality, k=5)
+    assert policy.observation == modality
+    card = json.loads(open(f"checkpoints/{name}/card.json").read())
     assert card["data"]["onpolicy_worlds"] and card["command"].startswith("topodrake train dagger")
     assert card["dagger"]["rounds"][-1]["round"] == len(card["dagger"]["rounds"]) - 1
