@@ -28,7 +28,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.learning.samples import (_SAMPLE_FIELDS, SampleConfig, SampleSet, TrajectorySet,
-                                        _DTYPES, _SHAPES, label_samples)
+                                        _DTYPES, _SHAPES, _arclength, label_samples)
 
 
 def _onpolicy_sample_config() -> SampleConfig:
@@ -192,17 +192,13 @@ def label_visited(world, trajs: TrajectorySet, visited: VisitedStates,
         ss.append(visited.state[has, 3:5])
     traj, tgt, src_pose, ss = (np.concatenate(a) for a in (traj, tgt, src_pose, ss))
     src = np.zeros(len(traj), np.int64)
+    dist = np.zeros(len(traj))      # signed arc length from the nearest drive frame to the target
     for t in np.unique(traj):
         sel = np.flatnonzero(traj == t)
         ref = trajs.poses[trajs.rows(int(t))]
         d = np.hypot(src_pose[sel, None, 0] - ref[None, :, 0], src_pose[sel, None, 1] - ref[None, :, 1])
         src[sel] = d.argmin(axis=1)
-    # the signed arc length from the nearest drive frame to the target frame
-    dist = np.zeros(len(traj))
-    for t in np.unique(traj):
-        sel = np.flatnonzero(traj == t)
-        ref = trajs.poses[trajs.rows(int(t))]
-        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(ref[:, :2], axis=0).T))])
+        s = _arclength(ref)
         dist[sel] = s[tgt[sel]] - s[src[sel]]
     return label_samples(world, trajs, traj, src, tgt, src_pose, ss, dist, cfg.samples)
 
