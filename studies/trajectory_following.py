@@ -336,11 +336,16 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
 
 
 def _fingerprint(path: str) -> str:
-    """A checkpoint's SHA-1, or the registration controller's runs key."""
+    """A checkpoint's SHA-1 (with its follower calibration's, where it has
+    one), or the registration controller's runs key."""
     from topodrake.fileio import file_sha1
+    from topodrake.learning.follower_calibration import SIDECAR
     from topodrake.learning.reach_train import REGISTRATION, registration_runs_key
 
-    return registration_runs_key() if path == REGISTRATION else file_sha1(path)
+    if path == REGISTRATION:
+        return registration_runs_key()
+    side = Path(path).parent / SIDECAR
+    return file_sha1(path) + (f"+{file_sha1(side)}" if side.is_file() else "")
 
 
 def _count(outcomes: list[str]) -> dict:
@@ -387,6 +392,9 @@ def main(argv=None) -> int:
                     help="controllers to follow with")
     ap.add_argument("--cwp", action="append", metavar="NAME=CHECKPOINT",
                     help="follow NAME's chains with another C_WP (NAME's RE stays; repeatable)")
+    ap.add_argument("--re", action="append", metavar="NAME=CHECKPOINT",
+                    help="with another RE under NAME, trained for NAME's C_WP (the --cwp one if "
+                         "given): its chains and its answers; repeatable")
     ap.add_argument("--batch", type=at.count, default=48, help="cars per engine batch")
     ap.add_argument("--seed", type=at.seed, default=0, help="seed of the trajectories, starts and noise")
     ap.add_argument("--noise", type=at.nonnegative, default=0.33, help="actuation noise std of the noisy runs")
@@ -442,6 +450,13 @@ def _run(args) -> int:
         if not Path(path).is_file():
             raise TopodrakeError(f"--cwp: checkpoint {path} does not exist")
         specs[name] = (path, *specs[name][1:])
+    for o in args.re or []:
+        name, sep, path = o.partition("=")
+        if not sep or name not in specs:
+            raise TopodrakeError(f"--re {o!r} is not NAME=CHECKPOINT with NAME one of {names}")
+        if not Path(path).is_file():
+            raise TopodrakeError(f"--re: checkpoint {path} does not exist")
+        specs[name] = (specs[name][0], path, specs[name][0])
     worlds = [w for w in args.worlds.split(",") if w]
     t0 = time.perf_counter()
     trajs = load_trajectories(Path(args.data), worlds, args.trajectories, args.seed)

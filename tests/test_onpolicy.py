@@ -221,3 +221,33 @@ def test_the_shipped_dagger_c_wps_load_with_their_cards(name, modality):
     card = json.loads(open(f"checkpoints/{name}/card.json").read())
     assert card["data"]["onpolicy_worlds"] and card["command"].startswith("topodrake train dagger")
     assert card["dagger"]["rounds"][-1]["round"] == len(card["dagger"]["rounds"]) - 1
+
+
+def test_follower_state_labels_are_re_logits_and_c_wp_rollouts(drives, networks, visited):
+    import torch
+
+    from topodrake.learning.follower_calibration import follower_probability, label_visited_reach
+    from topodrake.learning.reach_labels import target_contexts
+
+    world, trajs = drives
+    policy, reach = networks
+    labels = label_visited_reach(world, trajs, visited, policy, reach, 12,
+                                 np.random.default_rng(0), seed=1)
+    assert len(labels.logit) == len(labels.label) == 12
+    assert set(np.unique(labels.label)) <= {0.0, 1.0}
+    # the same states drawn again: the logits are RE's own, the probability its calibrated one
+    pick = np.random.default_rng(0).permutation(len(visited))[:12]
+    vs = visited.subset(pick)
+    feats = reach.encode_target(target_contexts(world, reach, trajs, vs.traj, vs.anchor))
+    obs = reach.observe(world, vs.state[:, :3])
+    np.testing.assert_allclose(labels.logit, reach.logit(obs, feats), atol=1e-5)
+    np.testing.assert_allclose(torch.sigmoid(torch.as_tensor(labels.logit) / reach.temperature),
+                               reach.probability(obs, feats), atol=1e-6)
+    a, b = reach.anchor_platt
+    expect = 1 / (1 + np.exp(-(a * labels.logit + b))) if reach.follower_platt is None else \
+        1 / (1 + np.exp(-(reach.follower_platt[0] * labels.logit + reach.follower_platt[1])))
+    np.testing.assert_allclose(follower_probability(reach, labels.logit), expect)
+    # deterministic in the seed
+    again = label_visited_reach(world, trajs, visited, policy, reach, 12,
+                                np.random.default_rng(0), seed=1)
+    np.testing.assert_array_equal(again.label, labels.label)

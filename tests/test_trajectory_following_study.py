@@ -54,3 +54,15 @@ def test_another_c_wp_is_named_per_controller_and_checked(tmp_path, load_study, 
     assert "NAME=CHECKPOINT with NAME one of ['lidar_k5']" in capsys.readouterr().err
     assert study.main(args + ["--cwp", f"lidar_k5={tmp_path / 'none.pt'}"]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_another_re_is_named_per_controller_and_must_fit_its_c_wp(tmp_path, load_study, capsys):
+    study = load_study("trajectory_following")
+    args = ["--controllers", "lidar_k5", "--out", str(tmp_path), "--quiet", "--trajectories", "1"]
+    assert study.main(args + ["--re", "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt"]) == 2
+    assert "NAME=CHECKPOINT with NAME one of ['lidar_k5']" in capsys.readouterr().err
+    assert study.main(args + ["--re", f"lidar_k5={tmp_path / 'none.pt'}"]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    # the on-policy RE belongs to the on-policy C_WP: with the shipped one it is refused
+    assert study.main(args + ["--re", "lidar_k5=checkpoints/reach_lidar_k5_dagger/checkpoint.pt"]) == 2
+    assert "was trained for controller" in capsys.readouterr().err

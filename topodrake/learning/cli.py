@@ -96,6 +96,23 @@ def add_train_parser(sub) -> None:
     td.add_argument("--quiet", action="store_true", help="no progress output")
     td.add_argument("--json", action="store_true", help="print the rounds as one JSON object")
     td.set_defaults(func=cmd_train_dagger)
+    tf = tsub.add_parser("follower-calibration",
+                         help="calibrate RE on rollouts from the states the follower visits")
+    tf.add_argument("--cwp", required=True,
+                    help="the C_WP followed, the one RE was trained for (checkpoint or "
+                         "'registration')")
+    tf.add_argument("--re", required=True, help="RE checkpoint; the calibration is written beside "
+                                                "it (follower_calibration.json)")
+    tf.add_argument("--worlds", help="comma-separated training houses to follow chains in "
+                                     "(default: train-84..train-91)")
+    tf.add_argument("--drives", type=at.count, default=8, help="chains followed per house")
+    tf.add_argument("--states", type=at.count, default=100, help="visited states rolled out per house")
+    tf.add_argument("--seed", type=at.seed, default=0, help="seed of the chains, starts and states")
+    tf.add_argument("--data", default="data", help="cache of demonstrations")
+    tf.add_argument("--threads", type=at.count, default=1, help="torch threads")
+    tf.add_argument("--quiet", action="store_true", help="no progress lines")
+    tf.add_argument("--json", action="store_true", help="print the calibration as one JSON object")
+    tf.set_defaults(func=cmd_train_follower_calibration)
     tp = tsub.add_parser("place", help="train the place embedding that ranks map vertices")
     tp.add_argument("config", help="training YAML (see configs/place_*.yaml)")
     tp.add_argument("--out", help="output folder (default: checkpoints/<config name>)")
@@ -129,6 +146,31 @@ def cmd_train_dagger(args) -> None:
             print(f"round {r['round']}: {r['states']} states in {len(r['worlds'])} houses, "
                   f"followed cover {r['followed_cover']:.3f}, val error "
                   f"{r['val_waypoint_error_m']:.3f} m")
+
+
+def cmd_train_follower_calibration(args) -> None:
+    import sys
+
+    import torch
+
+    from topodrake.learning.follower_calibration import (FollowerCalibrationConfig,
+                                                         calibrate_follower)
+
+    torch.set_num_threads(args.threads)
+    cfg = FollowerCalibrationConfig(drives_per_world=args.drives, states_per_world=args.states,
+                                    seed=args.seed)
+    if args.worlds is not None:
+        cfg = FollowerCalibrationConfig(tuple(w for w in args.worlds.split(",") if w),
+                                        args.drives, args.states, args.seed)
+    out = calibrate_follower(args.cwp, args.re, cfg, args.data, progress=not args.quiet,
+                             command="topodrake " + " ".join(sys.argv[1:]))
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(f"follower calibration of {args.re}: Platt {out['follower_platt']} on "
+              f"{out['states']} states (success {out['success_rate']:.3f}); ECE "
+              f"{out['ece_anchor_platt']:.3f} under the anchor-hop calibration, "
+              f"{out['ece_fitted']:.3f} fitted")
 
 
 def cmd_train_place(args) -> None:

@@ -14,7 +14,11 @@ anchor it aimed at, and reports:
 * RE's calibration on those states: ``re_states`` of them are rolled out
   with the controller alone toward the anchor (the RE labels' rules:
   :func:`topodrake.learning.reach_labels.rollout_to_targets`, with actuation
-  noise), and RE's probability is scored against the outcomes (ECE, AUROC);
+  noise: :func:`~topodrake.learning.follower_calibration.label_visited_reach`),
+  and the probability the follower acts on (its follower calibration where
+  the RE has one, else the anchor-hop one: ``re_calibration``) is scored
+  against the outcomes (``re_ece``, ``re_auroc``; ``re_ece_temperature``:
+  under the validation pairs' temperature);
 * the followed chains' cover and outcomes, how far cars were off the path,
   and the cover of the same chains followed with perfect perception (the A*
   oracle C_WP and the geometric oracle RE: ``oracle_cover``).
@@ -89,8 +93,8 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
     from topodrake.learning.onpolicy import (OnPolicyConfig, collect_visited, label_visited,
                                              pick_drives, samples_from_fields)
     from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reach_labels import (ReachLabelConfig, rollout_to_targets,
-                                                 target_contexts)
+    from topodrake.learning.follower_calibration import (StateLabels, follower_probability,
+                                                         label_visited_reach)
     from topodrake.learning.reachability import Reachability
     from topodrake.learning.samples import collect_trajectories
     from topodrake.world import load_world
@@ -107,7 +111,7 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
     cfg = OnPolicyConfig(drives_per_world=drives_per_world, next_anchor=False)
     cfg = replace(cfg, samples=replace(cfg.samples, min_overlap=0.0))
     parts, covers, offs, dist_parts, outcomes, oracle_covers = [], [], [], [], [], []
-    p_re, y_re = [], []
+    re_labels = StateLabels()
     rng = np.random.default_rng([seed, 7])
     per_world_re = -(-re_states // len(trajs.worlds))
     for w, name in enumerate(trajs.worlds):
@@ -134,18 +138,8 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
             print(f"follower bench {Path(cwp_path).parent.name}: {name}: {len(visited)} states, "
                   f"cover {visited.cover.mean():.3f}", flush=True)
         # RE on the follower's own states: roll out C_WP alone toward the anchor
-        pick = rng.permutation(len(visited))[:per_world_re]
-        if len(pick) == 0:
-            continue
-        vs = visited.subset(pick)
-        tgt_pose = trajs.poses[trajs.traj_offsets[vs.traj] + vs.anchor]
-        lab = rollout_to_targets(
-            world, policy, vs.state[:, :3], tgt_pose,
-            lambda sl: target_contexts(world, policy, trajs, vs.traj[sl], vs.anchor[sl]),
-            np.arange(len(pick)) + 10_000 * (seed * 100 + w), ReachLabelConfig())
-        feats = reach.encode_target(target_contexts(world, reach, trajs, vs.traj, vs.anchor))
-        p_re.append(reach.probability(reach.observe(world, vs.state[:, :3]), feats))
-        y_re.append(lab["label"])
+        re_labels = re_labels.extend(label_visited_reach(world, trajs, visited, policy, reach,
+                                                         per_world_re, rng, seed * 100 + w))
     samples = samples_from_fields(trajs, parts, {"bench": "follower"})
     err, ang = _errors(ck.model, ck.network, ck.sensor, samples)
     dist = np.concatenate(dist_parts)
@@ -159,7 +153,9 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
                       "error_m": round(float(err[sel].mean()), 4) if sel.any() else None,
                       "angle_error_deg": round(float(np.degrees(ang[sel & long].mean())), 2)
                       if (sel & long).any() else None}
-    p_re, y_re = np.concatenate(p_re), np.concatenate(y_re)
+    y_re = re_labels.label
+    p_re = follower_probability(reach, re_labels.logit)             # what the follower acts on
+    p_temp = 1.0 / (1.0 + np.exp(-re_labels.logit / reach.temperature))
     off = np.concatenate(offs)
     onpolicy = float(err.mean())
     return {"onpolicy_error_m": round(onpolicy, 4), "val_error_m": val,
@@ -169,6 +165,8 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
             "re_ece": round(ece(p_re, y_re), 4), "re_auroc": round(auroc(p_re, y_re), 4),
             "re_states": int(len(y_re)), "re_success_rate": round(float(y_re.mean()), 4),
             "re_mean_p": round(float(p_re.mean()), 4),
+            "re_calibration": "follower" if reach.follower_platt else "anchor hops",
+            "re_ece_temperature": round(ece(p_temp, y_re), 4),
             "followed_cover": round(float(np.mean(covers)), 4), "chains": len(covers),
             "outcomes": {o: outcomes.count(o) for o in sorted(set(outcomes))},
             "oracle_cover": round(float(np.mean(oracle_covers)), 4) if oracle_covers else None,

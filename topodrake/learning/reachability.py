@@ -55,12 +55,17 @@ class Reachability(ObservationNetwork):
     instead, ``sigmoid(a * logit + b)`` fitted on rollouts of such hops:
     calibration holds for the pairs it was fitted on, and these hops
     succeed far more often than the average pair (default: the temperature,
-    ``(1 / T, 0)``). ``mirror_average``: the logit is the mean of the pair's
+    ``(1 / T, 0)``). ``follower_platt`` (a, b), when given, is the
+    calibration of the follower's own queries (fitted on rollouts from the
+    states the follower visits: :mod:`topodrake.learning.follower_calibration`;
+    :func:`topodrake.navigation.evaluate.route_calibrated` prefers it to
+    ``anchor_platt``). ``mirror_average``: the logit is the mean of the pair's
     and its mirror image's (what the calibrations were fitted on)."""
 
     def __init__(self, model, sensor, name: str = "", controller: dict | None = None,
                  temperature: float = 1.0, anchor_platt: tuple[float, float] | None = None,
-                 mirror_average: bool = False):
+                 mirror_average: bool = False,
+                 follower_platt: tuple[float, float] | None = None):
         if model.cfg.output != "reach":
             raise ValueError("Reachability needs a network with output 'reach'")
         super().__init__(model, sensor, name)
@@ -68,6 +73,8 @@ class Reachability(ObservationNetwork):
         self.temperature = float(temperature)
         a, b = (1.0 / self.temperature, 0.0) if anchor_platt is None else anchor_platt
         self.anchor_platt = (float(a), float(b))
+        self.follower_platt = None if follower_platt is None else \
+            (float(follower_platt[0]), float(follower_platt[1]))
         self.mirror_average = bool(mirror_average)
 
     @classmethod
@@ -75,7 +82,10 @@ class Reachability(ObservationNetwork):
                         anchor_platt: tuple[float, float] | None = None) -> "Reachability":
         """Load an RE, refusing one trained for another controller. The
         calibrations default to the ones fitted after training (T = 1 if
-        none; anchor hops fall back to the temperature)."""
+        none; anchor hops fall back to the temperature), and the follower's
+        to a ``follower_calibration.json`` beside the checkpoint made for
+        this file (:func:`~topodrake.learning.follower_calibration.load_follower_platt`)."""
+        from topodrake.learning.follower_calibration import load_follower_platt
         from topodrake.learning.reach_train import checkpoint_temperature, load_reachability
 
         ck = load_reachability(path, controller_checkpoint)
@@ -85,7 +95,8 @@ class Reachability(ObservationNetwork):
             anchor_platt = tuple(extra["anchor_platt"])
         return cls(ck.model, ck.sensor, name=Path(path).parent.name,
                    controller=extra.get("controller"), temperature=t, anchor_platt=anchor_platt,
-                   mirror_average=bool(extra.get("mirror_average", False)))
+                   mirror_average=bool(extra.get("mirror_average", False)),
+                   follower_platt=load_follower_platt(path))
 
     def _prob(self, z: torch.Tensor, platt: tuple[float, float] | None = None) -> np.ndarray:
         z = z / self.temperature if platt is None else platt[0] * z + platt[1]
@@ -111,6 +122,12 @@ class Reachability(ObservationNetwork):
     def probability(self, observation: np.ndarray, target) -> np.ndarray:
         """(N,) for current observations (N or 1, ...) and target features
         (N or 1, ...) from :meth:`encode_target`."""
+        return self._prob(torch.as_tensor(self.logit(observation, target)))
+
+    @torch.inference_mode()
+    def logit(self, observation: np.ndarray, target) -> np.ndarray:
+        """(N,) the uncalibrated logit behind :meth:`probability` (mean of the
+        pair's and its mirror image's with ``mirror_average``)."""
         cur = self.to_input(np.asarray(observation))
         target = torch.as_tensor(target)
         want = self.cfg.frames * (2 if self.mirror_average else 1)
@@ -119,7 +136,7 @@ class Reachability(ObservationNetwork):
                                  f"{want}: encode targets with this RE's encode_target")
         views = [cur, mirrored(cur)] if self.mirror_average else [cur]
         z = self.plan.cached_views(views, target)["reach_logit"][..., 0]      # (N, views)
-        return self._prob(0.5 * (z[:, 0] + z[:, 1]) if self.mirror_average else z[:, 0])
+        return (0.5 * (z[:, 0] + z[:, 1]) if self.mirror_average else z[:, 0]).numpy()
 
     @torch.inference_mode()
     def probability_naive(self, observation: np.ndarray, context: np.ndarray) -> np.ndarray:

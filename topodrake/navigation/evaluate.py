@@ -206,12 +206,14 @@ class Evaluator:
 
 
 def route_calibrated(reach, p: np.ndarray) -> np.ndarray:
-    """RE's probability toward a route's anchors under the calibration of the
-    hops that placed them (``reach.anchor_platt``, fitted on pairs of frames
-    of one drive: a car on a route asks about such pairs), converted from
-    the general one (temperature ``T``) that ``reach.probability`` applies.
-    Oracles without these calibrations answer unchanged."""
-    platt = getattr(reach, "anchor_platt", None)
+    """RE's probability toward a route's anchors under the follower's own
+    calibration (``reach.follower_platt``, fitted on rollouts from the
+    states the follower visits) where the RE has one, else under the
+    calibration of the hops that placed the anchors (``reach.anchor_platt``,
+    fitted on pairs of frames of one drive), converted from the general one
+    (temperature ``T``) that ``reach.probability`` applies. Oracles without
+    these calibrations answer unchanged."""
+    platt = getattr(reach, "follower_platt", None) or getattr(reach, "anchor_platt", None)
     temperature = getattr(reach, "temperature", None)
     if platt is None or temperature is None:
         return p
