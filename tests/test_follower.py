@@ -119,13 +119,13 @@ def test_dead_reckoning_widens_its_search_and_returns_to_follow():
     s.mode[:] = DEAD_RECKONING
     s.waypoint[:] = [[3.0, 2.0]]
     s.dr_count[:] = 25                                      # widened twice, by 2 anchors each
-    s, _ = step(s, ev, 12, lookahead=3, dr_widen_every=10)
+    s, _ = step(s, ev, 12, lookahead=3, dr_widen_every=10, dr_back_anchors=0)
     _, anchors, _, re = ev.calls[-1]
     # forward only: next (1) .. next + 3 - 1 + 2 * 2, never the visited anchor 0 behind
     assert re and anchors.tolist() == [1, 2, 3, 4, 5, 6, 7]
     assert s.mode[0] == DEAD_RECKONING and s.dr_count[0] == 26
     ev.p[0, 4] = 0.95                                       # an anchor ahead becomes reachable
-    s, out = step(s, ev, 12, lookahead=3, dr_widen_every=10)
+    s, out = step(s, ev, 12, lookahead=3, dr_widen_every=10, dr_back_anchors=0)
     assert s.mode[0] == FOLLOW and s.active[0] == 4 and s.visited[0] == 3 and s.dr_count[0] == 0
     assert out.target[0] == 4
 
@@ -227,6 +227,13 @@ def test_dead_reckoning_may_search_backwards_as_the_paper_does():
     s.mode[:] = DEAD_RECKONING
     s.waypoint[:] = [[3.0, 2.0]]
     s.dr_count[:] = 25
-    step(s, ev, 12, lookahead=3, dr_widen_every=10, dr_backwards=True)
+    step(s, ev, 12, lookahead=3, dr_widen_every=10, dr_back_anchors=-1)
     _, anchors, _, _ = ev.calls[-1]
     assert anchors.tolist() == [1, 2, 3, 4, 5, 6, 7]       # next (3) - 2 .. next + 3 - 1 + 2
+    # ours reaches back one anchor at most; forward only widens two ahead instead
+    step(s, ev, 12, lookahead=3, dr_widen_every=10, dr_back_anchors=1)
+    assert ev.calls[-1][1].tolist() == [2, 3, 4, 5, 6, 7]
+    step(s, ev, 12, lookahead=3, dr_widen_every=10, dr_back_anchors=0)
+    assert ev.calls[-1][1].tolist() == [3, 4, 5, 6, 7, 8, 9]
+    with pytest.raises(TopodrakeError, match="dr_back_anchors"):
+        FollowerConfig(dr_back_anchors=-2).check()

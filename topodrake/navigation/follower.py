@@ -38,12 +38,14 @@ Per period, with the current observation:
 * **Dead reckoning**: the car drives to the last Follow waypoint, held in
   the odometry frame (the car's integrated pose, which is the world frame
   here: odometry has no drift in this simulator). Each period RE is asked
-  about a window of anchors from the next unvisited one forward, which
-  widens by two anchors every ``dr_widen_every`` periods (ours: the paper's
-  window also widens backwards, ``dr_backwards``, and taking an anchor
-  before the last visited one drove routes backwards until time ran out;
-  a learned C_WP that drifts off the route finds it again more often with
-  the paper's window, see docs/limits.md); the best above
+  about a window of anchors around the next unvisited one, which widens by
+  one anchor each way every ``dr_widen_every`` periods, as the paper's
+  does, but reaches back ``dr_back_anchors`` (1) anchors at most (ours: a
+  learned C_WP that drifts off the route finds it again more often when the
+  window may reach back, while with the paper's unbounded window the A*
+  oracle took anchors far behind and drove routes backwards until time ran
+  out; 0 keeps the window forward only, widening two anchors ahead, and -1
+  is the paper's; see docs/figures.md); the best above
   ``p_follow`` becomes active and the follower returns to Follow. A car
   that arrives within ``dr_arrive_m`` of the held waypoint while RE still
   says no holds C_WP's next waypoint toward the active anchor instead, or,
@@ -100,7 +102,8 @@ class FollowerConfig:
     dr_widen_every: int = 10        # the Dead reckoning search widens by one anchor each side
     dr_max_window: int = 15         # at most this many anchors asked per Dead reckoning period
     dr_arrive_m: float = 0.3        # at the held waypoint, C_WP gives the next one (see above)
-    dr_backwards: bool = False      # the Dead reckoning window also widens backwards (the paper)
+    dr_back_anchors: int = 1        # the Dead reckoning window reaches back this many anchors
+                                    # at most (0: forward only; -1: as far as it widens, the paper)
     stall_periods: int = 50         # Follow periods on one active anchor before it is skipped
 
     def check(self) -> "FollowerConfig":
@@ -113,6 +116,9 @@ class FollowerConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise TopodrakeError(f"follower {name} must be in [0, 1], got {v}")
+        if self.dr_back_anchors < -1:
+            raise TopodrakeError(f"follower dr_back_anchors must be >= -1 (-1: unbounded), got "
+                                 f"{self.dr_back_anchors}")
         for name in ("lookahead", "dr_max_iterations", "dr_widen_every", "dr_max_window",
                      "stall_periods"):
             if getattr(self, name) < 1:
@@ -352,13 +358,14 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     if d.size:
         grow = state.dr_count[d] // cfg.dr_widen_every
         nxt = state.visited[d] + 1
-        # forward only: an anchor before the next unvisited one would drive the route backwards
-        if cfg.dr_backwards:
-            lo = np.maximum(nxt - grow, 0)
-            hi = np.minimum(nxt + cfg.lookahead - 1 + grow, n_anchors[d] - 1)
-        else:
+        if cfg.dr_back_anchors == 0:
             lo = nxt
             hi = np.minimum(nxt + cfg.lookahead - 1 + 2 * grow, n_anchors[d] - 1)
+        else:
+            # the paper's window widens both ways; ours reaches back dr_back_anchors at most
+            back = grow if cfg.dr_back_anchors < 0 else np.minimum(grow, cfg.dr_back_anchors)
+            lo = np.maximum(nxt - back, 0)
+            hi = np.minimum(nxt + cfg.lookahead - 1 + grow, n_anchors[d] - 1)
         lo = np.maximum(lo, hi - cfg.dr_max_window + 1)
         rows, anchors = _windows(lo, hi)
         p = evaluate(d[rows], anchors, False, True).probability
