@@ -339,7 +339,7 @@ def _fingerprint(path: str) -> str:
     """A checkpoint's SHA-1 (with its follower calibration's, where it has
     one), or the registration controller's runs key."""
     from topodrake.fileio import file_sha1
-    from topodrake.learning.follower_calibration import SIDECAR
+    from topodrake.learning.follower_platt import SIDECAR
     from topodrake.learning.reach_train import REGISTRATION, registration_runs_key
 
     if path == REGISTRATION:

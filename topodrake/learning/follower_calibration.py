@@ -35,7 +35,6 @@ The same state labels score RE in ``topodrake bench follower``
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,9 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-
-SIDECAR = "follower_calibration.json"
-FORMAT = "topodrake-follower-calibration"
+from topodrake.learning.follower_platt import FORMAT, SIDECAR, load_follower_platt  # noqa: F401
 
 
 @dataclass(frozen=True)
@@ -182,32 +179,3 @@ def calibrate_follower(cwp_path, re_path, config: FollowerCalibrationConfig | No
     }
     atomic_write_json(Path(re_path).parent / SIDECAR, out)
     return out
-
-
-def load_follower_platt(re_path) -> tuple[float, float] | None:
-    """The follower Platt (a, b) of ``follower_calibration.json`` beside
-    the RE checkpoint ``re_path``; None when there is none. A file that is
-    unreadable or made for other checkpoint contents is refused."""
-    from topodrake.fileio import file_sha1
-
-    path = Path(re_path).parent / SIDECAR
-    if not path.is_file():
-        return None
-    try:
-        blob = json.loads(path.read_text())
-        platt = blob["follower_platt"]
-        a, b = float(platt[0]), float(platt[1])
-        sha = blob["checkpoint_sha1"]
-    except (ValueError, KeyError, TypeError, IndexError) as e:
-        raise TopodrakeError(f"{path} is not a follower calibration ({type(e).__name__}: {e})"
-                             ) from None
-    if blob.get("format") != FORMAT:
-        raise TopodrakeError(f"{path} is not a follower calibration (format "
-                             f"{blob.get('format')!r})")
-    if sha != file_sha1(re_path):
-        raise TopodrakeError(f"{path} was fitted for another {Path(re_path).name} (sha1 "
-                             f"{str(sha)[:10]}); refit it with topodrake train "
-                             f"follower-calibration or delete it")
-    if not (np.isfinite(a) and np.isfinite(b) and a > 0):
-        raise TopodrakeError(f"{path} has an invalid follower_platt {platt}")
-    return a, b

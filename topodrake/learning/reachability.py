@@ -84,8 +84,8 @@ class Reachability(ObservationNetwork):
         calibrations default to the ones fitted after training (T = 1 if
         none; anchor hops fall back to the temperature), and the follower's
         to a ``follower_calibration.json`` beside the checkpoint made for
-        this file (:func:`~topodrake.learning.follower_calibration.load_follower_platt`)."""
-        from topodrake.learning.follower_calibration import load_follower_platt
+        this file (:func:`~topodrake.learning.follower_platt.load_follower_platt`)."""
+        from topodrake.learning.follower_platt import load_follower_platt
         from topodrake.learning.reach_train import checkpoint_temperature, load_reachability
 
         ck = load_reachability(path, controller_checkpoint)
