@@ -437,26 +437,10 @@ def _run(args) -> int:
     except (ValueError, TypeError) as e:
         raise TopodrakeError(f"--follower is not a JSON object of FollowerConfig fields ({e})") \
             from None
-    names = [c for c in args.controllers.split(",") if c]
-    known = list(CONTROLLERS)
-    unknown = [c for c in names if c not in known]
-    if unknown or not names:
-        raise TopodrakeError(f"unknown controllers {unknown}; choose from {', '.join(known)}")
-    specs = {n: CONTROLLERS[n] for n in names}
-    for o in args.cwp or []:
-        name, sep, path = o.partition("=")
-        if not sep or name not in specs:
-            raise TopodrakeError(f"--cwp {o!r} is not NAME=CHECKPOINT with NAME one of {names}")
-        if not Path(path).is_file():
-            raise TopodrakeError(f"--cwp: checkpoint {path} does not exist")
-        specs[name] = (path, *specs[name][1:])
-    for o in args.re or []:
-        name, sep, path = o.partition("=")
-        if not sep or name not in specs:
-            raise TopodrakeError(f"--re {o!r} is not NAME=CHECKPOINT with NAME one of {names}")
-        if not Path(path).is_file():
-            raise TopodrakeError(f"--re: checkpoint {path} does not exist")
-        specs[name] = (specs[name][0], path, specs[name][0])
+    from topodrake.learning.follower_bench import parse_controllers
+
+    specs = parse_controllers(args.controllers, args.cwp, args.re, table=CONTROLLERS,
+                              must_exist=True)
     worlds = [w for w in args.worlds.split(",") if w]
     t0 = time.perf_counter()
     trajs = load_trajectories(Path(args.data), worlds, args.trajectories, args.seed)
@@ -464,10 +448,10 @@ def _run(args) -> int:
     cache: dict = {}
     world_of = lambda n: cache.setdefault(n, load_world(n))   # noqa: E731
     lengths = [path_length(t["poses"])[-1] for t in trajs]
-    steps = len(names) * (2 * len(ps) + (2 if any(abs(p - args.headline_p) < 1e-9 for p in ps) else 0))
+    steps = len(specs) * (2 * len(ps) + (2 if any(abs(p - args.headline_p) < 1e-9 for p in ps) else 0))
     results = {}
     with tqdm(total=steps, desc="trajectory following", disable=args.quiet, unit="sweep") as bar:
-        for name in names:
+        for name in specs:
             results[name] = run_controller(name, specs[name], trajs, world_of, ps, args, bar)
     summary = {}
     for name, r in results.items():
@@ -494,7 +478,7 @@ def _run(args) -> int:
             print(f"{name:<10} cover {s['cover']:.3f}, oracle {s['cover_oracle']:.3f}, "
                   f"noisy {s['cover_noisy']:.3f}, every n-th "
                   f"{s['cover_subsampled']:.3f} at {s['anchors_per_m']:.2f} anchors/m")
-    print(f"{len(trajs)} trajectories (mean {np.mean(lengths):.1f} m), {len(names)} controllers, "
+    print(f"{len(trajs)} trajectories (mean {np.mean(lengths):.1f} m), {len(specs)} controllers, "
           f"{len(ps)} p values in {wall / 60:.1f} min", file=sys.stderr)
     return 0
 

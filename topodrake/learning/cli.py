@@ -157,11 +157,9 @@ def cmd_train_follower_calibration(args) -> None:
                                                          calibrate_follower)
 
     torch.set_num_threads(args.threads)
-    cfg = FollowerCalibrationConfig(drives_per_world=args.drives, states_per_world=args.states,
-                                    seed=args.seed)
-    if args.worlds is not None:
-        cfg = FollowerCalibrationConfig(tuple(w for w in args.worlds.split(",") if w),
-                                        args.drives, args.states, args.seed)
+    worlds = FollowerCalibrationConfig.worlds if args.worlds is None else \
+        tuple(w for w in args.worlds.split(",") if w)
+    cfg = FollowerCalibrationConfig(worlds, args.drives, args.states, args.seed)
     out = calibrate_follower(args.cwp, args.re, cfg, args.data, progress=not args.quiet,
                              command="topodrake " + " ".join(sys.argv[1:]))
     if args.json:

@@ -94,7 +94,7 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
                                              pick_drives, samples_from_fields)
     from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.follower_calibration import (StateLabels, follower_probability,
-                                                         label_visited_reach)
+                                                         label_visited_reach, platt_probability)
     from topodrake.learning.reachability import Reachability
     from topodrake.learning.samples import collect_trajectories
     from topodrake.world import load_world
@@ -155,7 +155,7 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
                       if (sel & long).any() else None}
     y_re = re_labels.label
     p_re = follower_probability(reach, re_labels.logit)             # what the follower acts on
-    p_temp = 1.0 / (1.0 + np.exp(-re_labels.logit / reach.temperature))
+    p_temp = platt_probability(re_labels.logit, (1.0 / reach.temperature, 0.0))
     off = np.concatenate(offs)
     onpolicy = float(err.mean())
     return {"onpolicy_error_m": round(onpolicy, 4), "val_error_m": val,
@@ -180,21 +180,27 @@ def bench_follower(controllers: dict | None = None, **kw) -> dict:
     return {name: bench_controller(*spec, **kw) for name, spec in controllers.items()}
 
 
-def parse_controllers(names: str, overrides: list[str], reach: list[str] | None = None) -> dict:
+def parse_controllers(names: str, overrides: list[str], reach: list[str] | None = None, *,
+                      table: dict | None = None, must_exist: bool = False) -> dict:
     """The controllers to bench: ``names`` (comma-separated keys of
-    :data:`CONTROLLERS`), with ``NAME=C_WP.pt`` overrides of their C_WP and
-    ``NAME=RE.pt`` overrides of their RE (an RE trained for NAME's C_WP,
-    the overridden one if given)."""
+    ``table``, default :data:`CONTROLLERS`: name -> (C_WP, RE, the C_WP
+    that RE was trained for)), with ``NAME=C_WP.pt`` overrides of their C_WP
+    and ``NAME=RE.pt`` overrides of their RE (an RE trained for NAME's C_WP,
+    the overridden one if given); ``must_exist``: an override's file must
+    exist."""
+    table = CONTROLLERS if table is None else table
     chosen = [n for n in names.split(",") if n]
-    unknown = [n for n in chosen if n not in CONTROLLERS]
+    unknown = [n for n in chosen if n not in table]
     if unknown or not chosen:
-        raise TopodrakeError(f"unknown controllers {unknown}; choose from {', '.join(CONTROLLERS)}")
-    out = {n: CONTROLLERS[n] for n in chosen}
+        raise TopodrakeError(f"unknown controllers {unknown}; choose from {', '.join(table)}")
+    out = {n: table[n] for n in chosen}
     for flag, items in (("--cwp", overrides), ("--re", reach)):
         for o in items or []:
             name, sep, path = o.partition("=")
             if not sep or name not in out:
                 raise TopodrakeError(f"{flag} {o!r} is not NAME=CHECKPOINT with NAME one of {chosen}")
+            if must_exist and not Path(path).is_file():
+                raise TopodrakeError(f"{flag}: checkpoint {path} does not exist")
             cwp, re, _ = out[name]
             out[name] = (path, re, out[name][2]) if flag == "--cwp" else (cwp, path, cwp)
     return out

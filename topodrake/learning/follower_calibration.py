@@ -98,25 +98,27 @@ def label_visited_reach(world, trajs, visited, policy, reach, n: int, rng,
     return StateLabels(np.asarray(z, np.float64), np.asarray(lab["label"], np.float64))
 
 
+def platt_probability(logit: np.ndarray, platt: tuple[float, float]) -> np.ndarray:
+    """``sigmoid(a * logit + b)`` for ``platt`` = (a, b)."""
+    return 1.0 / (1.0 + np.exp(-(platt[0] * np.asarray(logit, np.float64) + platt[1])))
+
+
 def follower_probability(reach, logit: np.ndarray) -> np.ndarray:
     """The probability the follower acts on for RE logits (its follower
     calibration, else the anchor-hop one)."""
-    a, b = reach.follower_platt or reach.anchor_platt
-    return 1.0 / (1.0 + np.exp(-(a * np.asarray(logit) + b)))
+    return platt_probability(logit, reach.follower_platt or reach.anchor_platt)
 
 
-def collect_state_labels(cwp_path, re_path, re_controller, config: FollowerCalibrationConfig,
-                         data="data", progress: bool = False) -> tuple[StateLabels, dict]:
-    """Follow chains in ``config.worlds`` and label visited states; also
-    returns the followed chains' cover per world."""
+def collect_state_labels(policy, reach, config: FollowerCalibrationConfig, data="data",
+                         progress: bool = False) -> tuple[StateLabels, dict]:
+    """Follow chains in ``config.worlds`` with ``policy`` and ``reach`` (as
+    loaded: a calibration already beside the RE steers the follower) and
+    label visited states; also returns the followed chains' cover per
+    world."""
     from topodrake.learning.onpolicy import OnPolicyConfig, collect_visited, pick_drives
-    from topodrake.learning.reach_train import controller_policy
-    from topodrake.learning.reachability import Reachability
     from topodrake.learning.samples import collect_trajectories
     from topodrake.world import load_world
 
-    policy = controller_policy(cwp_path)
-    reach = Reachability.from_checkpoint(re_path, re_controller)
     trajs = collect_trajectories(list(config.worlds), Path(data) / "demos" / "pairs-s0",
                                  progress=progress)
     cfg = OnPolicyConfig(drives_per_world=config.drives_per_world, next_anchor=False)
@@ -145,7 +147,7 @@ def calibrate_follower(cwp_path, re_path, config: FollowerCalibrationConfig | No
     what was written."""
     from topodrake.fileio import atomic_write_json, file_sha1
     from topodrake.learning.calibration import auroc, ece, fit_platt
-    from topodrake.learning.reach_train import controller_identity
+    from topodrake.learning.reach_train import controller_identity, controller_policy
     from topodrake.learning.reachability import Reachability
 
     config = (config or FollowerCalibrationConfig()).check()
@@ -153,15 +155,16 @@ def calibrate_follower(cwp_path, re_path, config: FollowerCalibrationConfig | No
         raise TopodrakeError(f"checkpoint {re_path} does not exist")
     reach = Reachability.from_checkpoint(re_path, cwp_path)     # refuses another controller's RE
     start = time.time()
-    labels, covers = collect_state_labels(cwp_path, re_path, cwp_path, config, data, progress)
+    labels, covers = collect_state_labels(controller_policy(cwp_path), reach, config, data,
+                                          progress)
     y = labels.label
     if len(y) < 20 or y.min() == y.max():
         raise TopodrakeError(f"follower calibration needs both outcomes among at least 20 "
                              f"labels; got {len(y)} with success rate "
                              f"{y.mean() if len(y) else float('nan'):.2f}")
     a, b = fit_platt(labels.logit, y)
-    before = 1.0 / (1.0 + np.exp(-(reach.anchor_platt[0] * labels.logit + reach.anchor_platt[1])))
-    after = 1.0 / (1.0 + np.exp(-(a * labels.logit + b)))
+    before = platt_probability(labels.logit, reach.anchor_platt)
+    after = platt_probability(labels.logit, (a, b))
     out = {
         "format": FORMAT, "checkpoint_sha1": file_sha1(re_path),
         "controller": controller_identity(cwp_path),
