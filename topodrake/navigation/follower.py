@@ -21,7 +21,9 @@ Per period, with the current observation:
   shorter than ``visit_m`` and proximity above only ``p_visited_close``
   (ours: a car standing on an anchor at another heading, at a junction or
   in a turn, sees less of its view; without it the car circled such
-  anchors), becomes the last visited one; the route's last anchor (the
+  anchors) when no anchor of the window looks nearer (ours: a camera C_WP
+  that said "here" toward an anchor a room away marked it visited, and the
+  car lost the route), becomes the last visited one; the route's last anchor (the
   goal) needs proximity above ``p_goal`` as well (ours: near a wall the A*
   waypoint is short while the goal is still a metre off) (the last anchor of the route visited ends the plan:
   ``reached``). The distance condition is ours:
@@ -299,8 +301,13 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         # (the route's last anchor, the goal, only when close: passing it is not arriving)
         passed = (ans.waypoint[:, 0] < 0.0) & (anchors < n_anchors[f[rows]] - 1)
         last = anchors == n_anchors[f[rows]] - 1
+        # (the looser proximity only for the anchor that looks nearest in the car's window:
+        # a C_WP that says "here" toward an anchor a room away is wrong)
+        best = np.full(len(f), -np.inf)
+        np.maximum.at(best, rows, prox)
+        nearest = prox >= best[rows]
         there = (((prox > cfg.p_visited) & ((length < cfg.visit_m) | passed))
-                 | ((prox > cfg.p_visited_close) & (length < cfg.visit_m)))
+                 | ((prox > cfg.p_visited_close) & (length < cfg.visit_m) & nearest))
         there &= ~last | ((prox > cfg.p_goal) & (length < cfg.visit_m))
         visited = start.copy()
         for m in np.flatnonzero(there):
