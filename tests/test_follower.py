@@ -201,7 +201,7 @@ def test_an_anchor_stood_on_at_another_heading_counts_as_visited():
     assert s.visited[0] == 0 and s.active[0] == 1           # the rule's own threshold
 
 
-def test_a_short_waypoint_toward_an_anchor_that_looks_farther_than_another_is_not_a_visit():
+def test_a_short_waypoint_toward_an_anchor_that_looks_farther_than_an_earlier_one_is_no_visit():
     # C_WP says "here" toward anchor 2 (a room away), while anchor 1 looks nearer
     ev = Scripted(p=[0.99] * 5, prox=[0.9, 0.6, 0.45, 0.3, 0.3], dist=[0.0, 1.0, 0.3, 2.0, 2.5])
     s, _ = step(following(active=1, visited=0), ev, 5)
@@ -212,6 +212,10 @@ def test_a_short_waypoint_toward_an_anchor_that_looks_farther_than_another_is_no
     ev.prox[0, 2] = 0.45            # the strict rule needs no comparison
     s, _ = step(following(active=1, visited=0), ev, 5, p_visited=0.4)
     assert s.visited[0] == 2
+    # a later anchor that looks nearer (the car at a junction faces it) does not block a visit
+    ev = Scripted(p=[0.99] * 5, prox=[0.9, 0.4, 0.6, 0.3, 0.3], dist=[0.0, 0.2, 1.0, 2.0, 2.5])
+    s, _ = step(following(active=1, visited=0), ev, 5)
+    assert s.visited[0] == 1 and s.active[0] == 2
 
 
 def test_the_goal_needs_a_high_proximity_to_end_the_route():

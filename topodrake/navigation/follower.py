@@ -21,7 +21,7 @@ Per period, with the current observation:
   shorter than ``visit_m`` and proximity above only ``p_visited_close``
   (ours: a car standing on an anchor at another heading, at a junction or
   in a turn, sees less of its view; without it the car circled such
-  anchors) when no anchor of the window looks nearer (ours: a camera C_WP
+  anchors) when no earlier anchor of the window looks nearer (ours: a camera C_WP
   that said "here" toward an anchor a room away marked it visited, and the
   car lost the route), becomes the last visited one; the route's last anchor (the
   goal) needs proximity above ``p_goal`` as well (ours: near a wall the A*
@@ -301,11 +301,11 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         # (the route's last anchor, the goal, only when close: passing it is not arriving)
         passed = (ans.waypoint[:, 0] < 0.0) & (anchors < n_anchors[f[rows]] - 1)
         last = anchors == n_anchors[f[rows]] - 1
-        # (the looser proximity only for the anchor that looks nearest in the car's window:
+        # (the looser proximity only where no earlier anchor of the window looks nearer:
         # a C_WP that says "here" toward an anchor a room away is wrong)
-        best = np.full(len(f), -np.inf)
-        np.maximum.at(best, rows, prox)
-        nearest = prox >= best[rows]
+        # (rows ascend and proximities lie in [0, 1]: shifting each row by 2 per row keeps
+        # the running maximum within its row)
+        nearest = prox >= np.maximum.accumulate(prox + 2.0 * rows) - 2.0 * rows
         there = (((prox > cfg.p_visited) & ((length < cfg.visit_m) | passed))
                  | ((prox > cfg.p_visited_close) & (length < cfg.visit_m) & nearest))
         there &= ~last | ((prox > cfg.p_goal) & (length < cfg.visit_m))
