@@ -50,6 +50,11 @@ from topodrake.errors import TopodrakeError
 from topodrake.fileio import file_sha1
 from topodrake.learning.calibration import calibration_summary
 from topodrake.learning.config import TrainConfig
+from topodrake.learning.controllers import (REGISTRATION, checkpoint_temperature,  # noqa: F401
+                                            controller_identity, controller_policy,
+                                            load_reachability, registration_identity,
+                                            registration_runs_key)
+from topodrake.learning.follower_reach_labels import FollowerStateLabels, label_follower_states
 from topodrake.learning.data import ObservationSource, to_network_input
 from topodrake.learning.networks import NetworkConfig, mirrored
 from topodrake.learning.reach_labels import (ReachLabelConfig, ReachLabels, concat_reach_labels,
@@ -77,6 +82,8 @@ class ReachLabelSets:
     seed: int = 0                  # training pairs; validation uses seed + 1
     rollout: ReachLabelConfig = field(default_factory=ReachLabelConfig)
     more: list[MoreReachLabels] = field(default_factory=list)
+    # training pairs from states the follower visits (sources off the drives)
+    follower: list[FollowerStateLabels] = field(default_factory=list)
 
 
 def _anchor_hops() -> ReachLabelConfig:
@@ -170,75 +177,25 @@ class ReachTrainConfig(TrainConfig):
                                      f"seed of its own (seed {extra.seed} is taken)")
             seeds.append(extra.seed)
             extra.rollout.validate()
+        for extra in self.labels.follower:
+            extra.validate(where)
+            if extra.worlds is not None and (not extra.worlds
+                                             or set(extra.worlds) & set(self.data.val_worlds)):
+                raise TopodrakeError(f"{where}: labels.follower worlds must be a non-empty list of "
+                                     f"houses outside data.val_worlds, got {extra.worlds}")
+            if extra.seed in seeds:
+                raise TopodrakeError(f"{where}: every labels.follower set needs a seed of its own "
+                                     f"(seed {extra.seed} is taken)")
+            seeds.append(extra.seed)
+            if extra.reach is None and self.init in ("controller", "scratch"):
+                raise TopodrakeError(f"{where}: labels.follower needs reach (the RE that steers "
+                                     "the follower) when init is not an RE checkpoint")
         super().validate(where)
         return self
 
 
 def load_reach_config(path) -> ReachTrainConfig:
     return load_typed(ReachTrainConfig, path, "config").validate(f"config {path}")
-
-
-#: The ``controller`` name of the registration C_WP (no checkpoint file).
-REGISTRATION = "registration"
-
-
-def registration_identity(policy=None) -> dict:
-    """The fingerprint of a registration C_WP (default settings when
-    ``policy`` is None): ``{"checkpoint": "registration", "sha1": ...}``, the
-    SHA-1 of its settings and lidar."""
-    from topodrake.registration.policy import RegistrationPolicy
-
-    policy = policy or RegistrationPolicy()
-    blob = json.dumps({"registration": asdict(policy.config), "lidar": asdict(policy.sensor)},
-                      sort_keys=True)
-    return {"checkpoint": REGISTRATION, "sha1": hashlib.sha1(blob.encode()).hexdigest()}
-
-
-def registration_runs_key() -> str:
-    """A key for cached runs of the registration C_WP: its default settings'
-    fingerprint and a hash of the registration package's sources (a code
-    change invalidates the runs, which a settings fingerprint alone would not)."""
-    import topodrake.registration as package
-
-    h = hashlib.sha1(registration_identity()["sha1"].encode())
-    for f in sorted(Path(package.__file__).parent.glob("*.py")):
-        h.update(f.read_bytes())
-    return f"{REGISTRATION}-{h.hexdigest()[:16]}"
-
-
-def controller_identity(path) -> dict:
-    """``{"checkpoint", "sha1"}`` of a controller: a C_WP checkpoint's path
-    and file SHA-1; for ``"registration"`` or a
-    :class:`~topodrake.registration.policy.RegistrationPolicy`, the
-    fingerprint of its settings (:func:`registration_identity`)."""
-    if str(path) == REGISTRATION:
-        return registration_identity()
-    if getattr(path, "name", None) == REGISTRATION and hasattr(path, "config"):
-        return registration_identity(path)
-    if not isinstance(path, (str, Path)):
-        raise TopodrakeError(f"a controller is a C_WP checkpoint path or {REGISTRATION!r}, got "
-                             f"{type(path).__name__}")
-    path = Path(path)
-    if not path.is_file():
-        raise TopodrakeError(f"controller checkpoint {path} does not exist")
-    return {"checkpoint": str(path), "sha1": file_sha1(path)}
-
-
-def controller_policy(path):
-    """The waypoint policy a controller name stands for: the registration
-    C_WP for ``"registration"``, else the C_WP checkpoint's network (a
-    direct-control network is refused: RE needs a C_WP)."""
-    from topodrake.learning.policy import LearnedWaypointPolicy
-
-    if str(path) == REGISTRATION:
-        from topodrake.registration.policy import RegistrationPolicy
-
-        return RegistrationPolicy()
-    controller_identity(path)
-    policy = LearnedWaypointPolicy.from_checkpoint(path)
-    if policy.is_direct_control:
-        raise TopodrakeError(f"{path} is a direct-control network; RE needs a C_WP")
-    return policy
 
 
 def init_from_controller(model, controller_path) -> None:
@@ -450,21 +407,17 @@ def fit_reach_temperature(model, batcher: ReachBatcher, mirror: bool = False) ->
     return {"temperature": round(float(t), 5), "calibrated_metrics": after}
 
 
-def checkpoint_temperature(meta: dict) -> float:
-    """The temperature an RE checkpoint was calibrated with (1 if none)."""
-    return float((meta.get("extra") or {}).get("temperature", 1.0))
-
-
 # ---------------------------------------------------------------- data and training
 
 def label_folder(data_dir, controller: dict, split: str, demos: str, worlds: list[str], n: int,
-                 seed: int, rollout: ReachLabelConfig) -> Path:
+                 seed: int, rollout: ReachLabelConfig | dict) -> Path:
     """``data_dir/reach-labels/<controller sha1[:10]>-<split>-<key>``: where one
     label set lives. The key hashes what the labels depend on, the
     demonstrations by their folder's name ``demos``, not its path, so a
     relative and an absolute ``--data`` find the same labels."""
+    cfg = rollout if isinstance(rollout, dict) else asdict(rollout)
     key = hashlib.sha1(json.dumps({"worlds": list(worlds), "n": int(n), "seed": int(seed),
-                                   "cfg": asdict(rollout), "demos": str(demos)},
+                                   "cfg": cfg, "demos": str(demos)},
                                   sort_keys=True).encode()).hexdigest()[:10]
     return Path(data_dir) / "reach-labels" / f"{controller['sha1'][:10]}-{split}-{key}"
 
@@ -492,10 +445,42 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
         if only is not None and split != only:
             out.append(None)
             continue
-        out.append(concat_reach_labels([
-            _label_set(cfg, data_dir, policy, ident, split, worlds, n, seed, rollout, progress)
-            for worlds, n, seed, rollout in parts]))
+        sets = [_label_set(cfg, data_dir, policy, ident, split, worlds, n, seed, rollout, progress)
+                for worlds, n, seed, rollout in parts]
+        if split == "train":
+            sets += [_follower_set(cfg, data_dir, policy, ident, extra, progress)
+                     for extra in lab.follower]
+        out.append(concat_reach_labels(sets))
     return out[0], out[1], ident
+
+
+def _follower_set(cfg: ReachTrainConfig, data_dir, policy, ident: dict,
+                  extra: FollowerStateLabels, progress: bool) -> ReachLabels:
+    """One set of follower-state labels (:mod:`topodrake.learning.follower_reach_labels`),
+    made once in ``data_dir/reach-labels/`` (resumable) and loaded."""
+    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.samples import collect_trajectories
+    from topodrake.navigation.follower import FollowerConfig
+
+    d = cfg.data
+    reach_path = extra.reach or cfg.init
+    reach = Reachability.from_checkpoint(reach_path, cfg.controller)
+    reach_ident = {"checkpoint": str(reach_path), "sha1": file_sha1(reach_path),
+                   "follower_platt": list(reach.follower_platt or [])}
+    worlds = extra.worlds or d.train_worlds
+    demo_root = _demo_root(cfg, data_dir)
+    key_cfg = {"follower_states": [reach_ident["sha1"], reach_ident["follower_platt"],
+                                   extra.drives_per_world, extra.next_share,
+                                   asdict(FollowerConfig())], **asdict(extra.rollout)}
+    folder = label_folder(data_dir, ident, "follower", demo_root.name, worlds, extra.train_pairs,
+                          extra.seed, key_cfg)
+    trajs = collect_trajectories(worlds, demo_root, protocol=d.demo_protocol, count=d.demo_count,
+                                 seed=d.demo_seed, progress=progress)
+    label_follower_states(trajs, policy, reach, folder, extra.train_pairs, seed=extra.seed,
+                          controller=ident, reach_identity=reach_ident,
+                          drives_per_world=extra.drives_per_world, next_share=extra.next_share,
+                          config=extra.rollout, progress=progress)
+    return load_reach_labels(folder)
 
 
 def _label_set(cfg: ReachTrainConfig, data_dir, policy, ident: dict, split: str, worlds, n: int,
@@ -585,20 +570,3 @@ def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resum
         finish=lambda model, val: calibrate(model, val, anchors, cfg.temperature_scaling,
                                             cfg.mirror_average))
     return train_network(cfg, task, out_dir, resume=resume, progress=progress, command=command)
-
-
-def load_reachability(path, controller_checkpoint):
-    """An RE checkpoint for ``controller_checkpoint`` (a C_WP checkpoint
-    path, ``"registration"`` or a registration policy: see
-    :func:`controller_identity`); an RE trained for another controller
-    (other file contents, or other registration settings) is refused."""
-    from topodrake.learning.checkpoint import load_checkpoint
-
-    ck = load_checkpoint(path, output="reach")
-    want = controller_identity(controller_checkpoint)
-    have = (ck.meta.get("extra") or {}).get("controller") or {}
-    if have.get("sha1") != want["sha1"]:
-        raise TopodrakeError(f"reachability estimator {path} was trained for controller "
-                             f"{have.get('checkpoint', 'unknown')!r} (sha1 {str(have.get('sha1'))[:10]}), "
-                             f"not {want['checkpoint']!r} (sha1 {want['sha1'][:10]})")
-    return ck

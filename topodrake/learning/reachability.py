@@ -86,7 +86,7 @@ class Reachability(ObservationNetwork):
         to a ``follower_calibration.json`` beside the checkpoint made for
         this file (:func:`~topodrake.learning.follower_platt.load_follower_platt`)."""
         from topodrake.learning.follower_platt import load_follower_platt
-        from topodrake.learning.reach_train import checkpoint_temperature, load_reachability
+        from topodrake.learning.controllers import checkpoint_temperature, load_reachability
 
         ck = load_reachability(path, controller_checkpoint)
         t = checkpoint_temperature(ck.meta) if temperature is None else temperature
