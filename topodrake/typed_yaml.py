@@ -19,9 +19,15 @@ def resolve_field_types(cls, seen=None) -> None:
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
         f.type = hints[f.name]
-        for t in (f.type, *typing.get_args(f.type)):    # nested, or listed (list[Config])
-            if dataclasses.is_dataclass(t):
-                resolve_field_types(t, seen)
+        _resolve_within(f.type, seen)
+
+
+def _resolve_within(t, seen) -> None:
+    # nested, listed (list[Config]) or optional and listed (list[Config] | None)
+    if dataclasses.is_dataclass(t):
+        resolve_field_types(t, seen)
+    for arg in typing.get_args(t):
+        _resolve_within(arg, seen)
 
 
 def first_line(e: Exception) -> str:

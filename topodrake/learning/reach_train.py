@@ -82,8 +82,9 @@ class ReachLabelSets:
     seed: int = 0                  # training pairs; validation uses seed + 1
     rollout: ReachLabelConfig = field(default_factory=ReachLabelConfig)
     more: list[MoreReachLabels] = field(default_factory=list)
-    # training pairs from states the follower visits (sources off the drives)
-    follower: list[FollowerStateLabels] = field(default_factory=list)
+    # training pairs from states the follower visits (sources off the drives; None: none,
+    # as configs before the switch read)
+    follower: list[FollowerStateLabels] | None = None
 
 
 def _anchor_hops() -> ReachLabelConfig:
@@ -177,7 +178,7 @@ class ReachTrainConfig(TrainConfig):
                                      f"seed of its own (seed {extra.seed} is taken)")
             seeds.append(extra.seed)
             extra.rollout.validate()
-        for extra in self.labels.follower:
+        for extra in self.labels.follower or []:
             extra.validate(where)
             if extra.worlds is not None and (not extra.worlds
                                              or set(extra.worlds) & set(self.data.val_worlds)):
@@ -449,7 +450,7 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
                 for worlds, n, seed, rollout in parts]
         if split == "train":
             sets += [_follower_set(cfg, data_dir, policy, ident, extra, progress)
-                     for extra in lab.follower]
+                     for extra in lab.follower or []]
         out.append(concat_reach_labels(sets))
     return out[0], out[1], ident
 
