@@ -8,7 +8,6 @@ import pytest
 from topodrake.errors import TopodrakeError
 from topodrake.learning.follower_reach_labels import FollowerStateLabels, label_follower_states
 from topodrake.learning.reach_labels import load_reach_labels
-from topodrake.learning.samples import TrajectorySet
 
 LIDAR = "checkpoints/lidar_k5/checkpoint.pt"
 LIDAR_RE = "checkpoints/reach_lidar_k5/checkpoint.pt"
@@ -17,26 +16,9 @@ REACH_IDENT = {"checkpoint": LIDAR_RE, "sha1": "r" * 40}
 
 
 @pytest.fixture(scope="module")
-def drives():
+def drives(test0_drives):
     """Two expert drives of test-0 as a TrajectorySet."""
-    from topodrake.rollout import ExpertRollout, RolloutConfig
-    from topodrake.world import load_world
-
-    world = load_world("test-0")
-    rng = np.random.default_rng(3)
-    got = []
-    while len(got) < 2:
-        s, g = world.sample_free_pose(rng), world.sample_free_pose(rng)
-        path = world.astar(s, g)
-        if not 5.0 < np.hypot(*np.diff(path, axis=0).T).sum() < 9.0:
-            continue
-        d = path[min(10, len(path) - 1)] - path[0]
-        s[2] = np.arctan2(d[1], d[0])
-        res = ExpertRollout(world, RolloutConfig(t_max_s=60.0)).run(s[None], g[None, :2])
-        if res.success[0]:
-            t = res.trajectory(0)
-            got.append((0, t["poses"], t["controls"]))
-    return TrajectorySet.from_drives(["test-0"], got)
+    return test0_drives[1]
 
 
 @pytest.fixture(scope="module")

@@ -22,17 +22,15 @@ all it has.
 
 from __future__ import annotations
 
-import io
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_bytes, atomic_write_json
-from topodrake.learning.reach_labels import (FORMAT, VERSION, ReachLabelConfig, _trajectory_digest,
-                                             _write_trajectories, read_manifest,
-                                             rollout_to_targets, target_contexts)
+from topodrake.learning.reach_labels import (ReachLabelConfig, open_label_folder,
+                                             rollout_to_targets, target_contexts,
+                                             write_label_chunk)
 
 
 @dataclass
@@ -83,22 +81,10 @@ def label_follower_states(trajs, policy, reach, out_dir, n: int, *, seed: int,
     worlds = trajs.worlds
     per = np.full(len(worlds), n // len(worlds))
     per[: n % len(worlds)] += 1
-    manifest = {"format": FORMAT, "version": VERSION, "n": int(n), "seed": int(seed),
-                "config": asdict(cfg), "controller": controller, "worlds": worlds,
-                "trajectories": _trajectory_digest(trajs), "chunks": [],
-                "follower_states": {"reach": reach_identity, "drives_per_world": drives_per_world,
-                                    "next_share": next_share, "follower": asdict(follower)}}
-    if (out / "manifest.json").exists():
-        old = read_manifest(out)
-        for key in ("n", "seed", "config", "controller", "worlds", "trajectories",
-                    "follower_states"):
-            if old.get(key) != manifest[key]:
-                raise TopodrakeError(f"{out} holds follower-state labels of another {key}; "
-                                     "use a new folder")
-        manifest["chunks"] = old["chunks"]
-    else:
-        _write_trajectories(out / "trajectories.npz", trajs)
-        atomic_write_json(out / "manifest.json", manifest)
+    manifest = open_label_folder(
+        out, trajs, n, seed, cfg, controller, "follower-state labels",
+        follower_states={"reach": reach_identity, "drives_per_world": drives_per_world,
+                         "next_share": next_share, "follower": asdict(follower)})
     done = set(manifest["chunks"])
     world_seeds = trial_seeds(seed, len(worlds))
     on_policy = OnPolicyConfig(drives_per_world=drives_per_world, next_anchor=True)
@@ -132,11 +118,7 @@ def label_follower_states(trajs, policy, reach, out_dir, n: int, *, seed: int,
         chunk = {"src_traj": vs.traj.astype(np.int64), "src": src,
                  "src_pose": vs.state[:, :3].copy(), "traj": vs.traj.astype(np.int64),
                  "tgt": tgt, "same": np.ones(m, bool), **labels, "seed": seeds}
-        buf = io.BytesIO()
-        np.savez_compressed(buf, format=np.array(FORMAT), version=np.array(VERSION), **chunk)
-        atomic_write_bytes(out / chunk_name, buf.getvalue())
-        manifest["chunks"].append(chunk_name)
-        atomic_write_json(out / "manifest.json", manifest)
+        write_label_chunk(out, chunk_name, chunk, manifest)
         bar.update(1)
         bar.set_postfix(success=f"{np.mean(labels['label']):.2f}", states=m)
     bar.close()

@@ -247,19 +247,7 @@ def label_reachability(trajs: TrajectorySet, policy, out_dir, n: int, *, seed: i
     worlds = trajs.worlds
     per = np.full(len(worlds), n // len(worlds))
     per[: n % len(worlds)] += 1
-    manifest = {"format": FORMAT, "version": VERSION, "n": int(n), "seed": int(seed),
-                "config": asdict(cfg), "controller": controller or {}, "worlds": worlds,
-                "trajectories": _trajectory_digest(trajs), "chunks": []}
-    if (out / "manifest.json").exists():
-        old = read_manifest(out)
-        for key in ("n", "seed", "config", "controller", "worlds", "trajectories"):
-            if old.get(key) != manifest[key]:
-                raise TopodrakeError(f"{out} holds reachability labels of another {key}; "
-                                     "use a new folder")
-        manifest["chunks"] = old["chunks"]
-    else:
-        _write_trajectories(out / "trajectories.npz", trajs)
-        atomic_write_json(out / "manifest.json", manifest)
+    manifest = open_label_folder(out, trajs, n, seed, cfg, controller or {})
     done = set(manifest["chunks"])
     world_seeds = trial_seeds(seed, len(worlds))
     bar = tqdm(total=int(n), desc="reach labels", unit="pair", disable=not progress)
@@ -283,15 +271,42 @@ def label_reachability(trajs: TrajectorySet, policy, out_dir, n: int, *, seed: i
             sl = slice(c * cfg.chunk, c * cfg.chunk + size)
             chunk = rollout_pairs(world, policy_for(world), trajs, {k: v[sl] for k, v in pairs.items()},
                                  seeds[sl], cfg)
-            buf = io.BytesIO()
-            np.savez_compressed(buf, format=np.array(FORMAT), version=np.array(VERSION), **chunk)
-            atomic_write_bytes(out / nm, buf.getvalue())
-            manifest["chunks"].append(nm)
-            atomic_write_json(out / "manifest.json", manifest)
+            write_label_chunk(out, nm, chunk, manifest)
             bar.update(size)
             bar.set_postfix(success=f"{np.mean(chunk['label']):.2f}")
     bar.close()
     return out
+
+
+def open_label_folder(out: Path, trajs: TrajectorySet, n: int, seed: int,
+                      config: ReachLabelConfig, controller: dict, what: str = "reachability labels",
+                      **extra) -> dict:
+    """The manifest of the label folder ``out``: a new one (written with the
+    trajectories), or the one there when it was made with the same settings
+    (``extra``: more settings it records), with its finished chunks; a
+    folder made otherwise is refused (``what`` names its labels)."""
+    manifest = {"format": FORMAT, "version": VERSION, "n": int(n), "seed": int(seed),
+                "config": asdict(config), "controller": controller, "worlds": trajs.worlds,
+                "trajectories": _trajectory_digest(trajs), "chunks": [], **extra}
+    if (out / "manifest.json").exists():
+        old = read_manifest(out)
+        for key in ("n", "seed", "config", "controller", "worlds", "trajectories", *extra):
+            if old.get(key) != manifest[key]:
+                raise TopodrakeError(f"{out} holds {what} of another {key}; use a new folder")
+        manifest["chunks"] = old["chunks"]
+    else:
+        _write_trajectories(out / "trajectories.npz", trajs)
+        atomic_write_json(out / "manifest.json", manifest)
+    return manifest
+
+
+def write_label_chunk(out: Path, name: str, chunk: dict, manifest: dict) -> None:
+    """Write one finished chunk of pairs and record it in the manifest."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, format=np.array(FORMAT), version=np.array(VERSION), **chunk)
+    atomic_write_bytes(out / name, buf.getvalue())
+    manifest["chunks"].append(name)
+    atomic_write_json(out / "manifest.json", manifest)
 
 
 def _trajectory_digest(trajs: TrajectorySet) -> str:
