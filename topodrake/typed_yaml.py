@@ -37,13 +37,17 @@ def first_line(e: Exception) -> str:
 
 def load_typed(schema, path, what: str):
     """Load ``path`` into dataclass ``schema``; a missing or bad file raises a
-    one-line :class:`TopodrakeError` naming it (``what`` says what it is)."""
-    from pydrake.common.yaml import yaml_load_typed
-
+    one-line :class:`TopodrakeError` naming it (``what`` says what it is).
+    Without pydrake (a training machine) a plain loader of the same
+    dataclasses stands in."""
     resolve_field_types(schema)
     path = Path(path)
     if not path.is_file():
         raise TopodrakeError(f"{what} file {path} does not exist")
+    try:
+        from pydrake.common.yaml import yaml_load_typed
+    except ImportError:
+        return _plain_load(schema, path.read_text(), f"{what} {path}")
     try:
         return yaml_load_typed(schema=schema, filename=str(path))
     except Exception as e:  # pydrake raises RuntimeError with a multi-line message
@@ -59,3 +63,40 @@ def load_typed_data(schema, data: str, what: str):
         return yaml_load_typed(schema=schema, data=data)
     except Exception as e:
         raise TopodrakeError(f"{what}: {first_line(e)}") from None
+
+
+def _plain_load(schema, text: str, where: str):
+    """YAML text into dataclass ``schema`` without pydrake: unknown keys are
+    errors, missing keys keep their defaults, nested dataclasses (also in
+    lists, dicts and optionals) are built recursively."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(text) or {}
+    except yaml.YAMLError as e:
+        raise TopodrakeError(f"{where}: {first_line(e)}") from None
+    return _build(schema, data, where)
+
+
+def _build(t, value, where: str):
+    origin, args = typing.get_origin(t), typing.get_args(t)
+    if dataclasses.is_dataclass(t):
+        if not isinstance(value, dict):
+            raise TopodrakeError(f"{where}: expected a mapping for {t.__name__}")
+        names = {f.name: f for f in dataclasses.fields(t)}
+        unknown = sorted(set(value) - set(names))
+        if unknown:
+            raise TopodrakeError(f"{where}: unknown key {unknown[0]!r} in {t.__name__}")
+        return t(**{k: _build(names[k].type, v, f"{where}: {k}") for k, v in value.items()})
+    if value is None:
+        return None
+    if origin in (list, tuple):
+        return [_build(args[0], v, where) for v in value] if args else list(value)
+    if origin is dict:
+        return {k: _build(args[1], v, where) for k, v in value.items()} if args else dict(value)
+    if args and type(None) in args:           # X | None
+        inner = [a for a in args if a is not type(None)]
+        return _build(inner[0], value, where)
+    if t is float and isinstance(value, int):
+        return float(value)
+    return value

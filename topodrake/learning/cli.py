@@ -87,6 +87,22 @@ def add_train_parser(sub) -> None:
         tw.add_argument("--quiet", action="store_true", help="no progress bar")
         tw.add_argument("--json", action="store_true", help="print the result as one JSON object")
         tw.set_defaults(func=func)
+    tk = tsub.add_parser("pack-trajectories",
+                         help="pack the expert drives of houses into one small file (for train scale)")
+    tk.add_argument("--out", required=True, help="packed trajectories file (.npz)")
+    tk.add_argument("--worlds", default="train-00..train-95,test-0..test-4",
+                    help="houses, comma-separated; NAME-A..NAME-B for a numbered range")
+    tk.add_argument("--data", default="data", help="cache of demonstrations (collected when missing)")
+    tk.add_argument("--quiet", action="store_true", help="no progress bar")
+    tk.set_defaults(func=cmd_train_pack)
+    tg = tsub.add_parser("scale", help="train a lidar C_WP at scale on a GPU: worker processes make "
+                                       "samples while it trains")
+    tg.add_argument("--config", required=True, help="scale YAML (see configs/waypoint_lidar_k5_scale.yaml)")
+    tg.add_argument("--out", required=True, help="output folder (resumed when it holds a checkpoint)")
+    tg.add_argument("--minutes", type=at.positive, default=8.0, help="wall-time budget of this call")
+    tg.add_argument("--quiet", action="store_true", help="no progress bar")
+    tg.add_argument("--json", action="store_true", help="print the main network's card as JSON")
+    tg.set_defaults(func=cmd_train_scale)
     td = tsub.add_parser("dagger", help="on-policy rounds of C_WP: follow chains, label the "
                                         "visited states with the expert, fine-tune")
     td.add_argument("--config", required=True, help="DAgger YAML (see configs/dagger_*.yaml)")
@@ -125,6 +141,53 @@ def add_train_parser(sub) -> None:
     ts.add_argument("--data", default="data", help="cache of demonstrations")
     ts.add_argument("--quiet", action="store_true", help="no progress lines")
     ts.set_defaults(func=cmd_train_sptm)
+
+
+def expand_worlds(spec: str) -> list[str]:
+    """``train-00..train-03,test-0`` -> the named houses (ranges keep the digits' width)."""
+    import re
+
+    from topodrake.errors import TopodrakeError
+
+    out = []
+    for part in (p.strip() for p in spec.split(",") if p.strip()):
+        if ".." not in part:
+            out.append(part)
+            continue
+        a, b = part.split("..", 1)
+        ma, mb = re.fullmatch(r"(.*?)(\d+)", a), re.fullmatch(r"(.*?)(\d+)", b)
+        if not ma or not mb or ma.group(1) != mb.group(1) or int(mb.group(2)) < int(ma.group(2)):
+            raise TopodrakeError(f"--worlds: {part!r} is not a range like train-00..train-95")
+        width = len(ma.group(2))
+        out += [f"{ma.group(1)}{i:0{width}d}" for i in range(int(ma.group(2)), int(mb.group(2)) + 1)]
+    if not out:
+        raise TopodrakeError("--worlds names no house")
+    return out
+
+
+def cmd_train_pack(args) -> None:
+    from pathlib import Path
+
+    from topodrake.learning.samples import collect_trajectories
+    from topodrake.learning.trajpack import pack_trajectories
+
+    worlds = expand_worlds(args.worlds)
+    trajs = collect_trajectories(worlds, Path(args.data) / "demos" / "pairs-s0",
+                                 progress=not args.quiet)
+    path = pack_trajectories(trajs, args.out)
+    print(json.dumps({"file": str(path), "worlds": len(worlds), "drives": int(trajs.count),
+                      "frames": int(len(trajs.poses)), "bytes": path.stat().st_size}))
+
+
+def cmd_train_scale(args) -> None:
+    from topodrake.learning.scale import load_scale_config, train_at_scale
+
+    run = load_scale_config(args.config)
+    card = train_at_scale(run, args.out, minutes=args.minutes, progress=not args.quiet,
+                          command=f"topodrake train scale --config {args.config} --out {args.out} "
+                                  f"--minutes {args.minutes}")
+    if args.json:
+        print(json.dumps(card))
 
 
 def cmd_train_dagger(args) -> None:

@@ -383,12 +383,13 @@ def apply_jitter(world, base: np.ndarray, lat: np.ndarray, dth: np.ndarray
 
 def label_samples(world, trajs: TrajectorySet, traj: np.ndarray, src: np.ndarray,
                   tgt: np.ndarray, src_pose: np.ndarray, speed_steer: np.ndarray,
-                  distance: np.ndarray, cfg: SampleConfig, lidar=None) -> dict:
+                  distance: np.ndarray, cfg: SampleConfig, lidar=None, controls: bool = True) -> dict:
     """Label source poses toward target frames of one world: the sample
     fields of the rows whose both overlaps exceed ``cfg.min_overlap`` and
     whose A* label exists (rows dropped otherwise, order kept). ``src`` is
     the frame a source came from (bookkeeping), ``speed_steer`` (M, 2) the
-    car's speed and steering there (for the direct-control label)."""
+    car's speed and steering there (for the direct-control label;
+    ``controls=False`` leaves that label zero, for C_WP-only sets)."""
     from topodrake.control import controls_toward
     from topodrake.rmp import RmpConfig
     from topodrake.sensing.config import CameraConfig, LidarConfig
@@ -407,6 +408,11 @@ def label_samples(world, trajs: TrajectorySet, traj: np.ndarray, src: np.ndarray
                                        cfg.lookahead_m, cfg.target_snap_m)
     idx, wp = idx[valid], wp[valid]
     state = np.column_stack([src_pose[idx], np.asarray(speed_steer, np.float64)[idx]])
+    if not controls:
+        return {"traj": traj[idx], "src": src[idx], "tgt": tgt[idx], "src_pose": src_pose[idx],
+                "src_speed_steer": state[:, 3:5], "distance": np.asarray(distance)[idx],
+                "waypoint": wp, "heading_diff": wrap_angle(tgt_pose[idx, 2] - src_pose[idx, 2]),
+                "overlap": ov[idx], "control": np.zeros((len(idx), 2))}
     # direct-control label: the RMP toward the label waypoint at the source state
     ranges = lidar.scan(src_pose[idx])
     c, s = np.cos(state[:, 2]), np.sin(state[:, 2])
@@ -421,7 +427,7 @@ def label_samples(world, trajs: TrajectorySet, traj: np.ndarray, src: np.ndarray
 
 
 def _world_samples(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
-                   rng: np.random.Generator, cfg: SampleConfig) -> dict:
+                   rng: np.random.Generator, cfg: SampleConfig, controls: bool = True) -> dict:
     """Up to ``n`` samples from the trajectories ``traj_ids`` of one world."""
     from topodrake.sensing.config import LidarConfig
     from topodrake.sensing.lidar import Lidar
@@ -460,14 +466,15 @@ def _world_samples(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
         ok &= free
         idx = np.flatnonzero(ok)
         got = label_samples(world, trajs, traj_ids[pick[idx]], src[idx], tgt[idx], src_pose[idx],
-                            trajs.states[rows0[idx] + src[idx], 3:5], dist[idx], cfg, lidar)
+                            trajs.states[rows0[idx] + src[idx], 3:5], dist[idx], cfg, lidar,
+                            controls)
         take = min(len(got["traj"]), n - have)
         if take == 0:
             continue
         for name in _SAMPLE_FIELDS:
             out[name].append(got[name][:take])
         have += take
-    return {k: np.concatenate(v) if v else np.zeros((0,)) for k, v in out.items()}
+    return {k: np.concatenate(v) if v else np.zeros(_SHAPES.get(k, (0,))) for k, v in out.items()}
 
 
 _DTYPES = {"traj": np.int32, "src": np.int32, "tgt": np.int32, "src_pose": np.float64,

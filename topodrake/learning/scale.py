@@ -1,0 +1,534 @@
+"""Training C_WP at scale: samples made by worker processes while a GPU trains.
+
+The CPU loop of :mod:`topodrake.learning.train` renders every batch from
+poses and draws it from one fixed sample set; at tens of millions of samples
+seen the renderer and the labeller (A* per sample) are the limit, not the
+network. Here
+
+* the expert drives of every house come packed (:mod:`topodrake.learning.trajpack`);
+* the lidar scans of every trajectory frame are rendered once into one
+  tensor on the device (context frames are trajectory frames);
+* worker processes make *shards* (``shard_samples`` samples of one world,
+  seeded by ``(sample_seed, world, shard)``, shards taken round-robin over
+  the worlds) and render their source scans; each shard joins a pool on the
+  device as it arrives;
+* batches are drawn uniformly from the pool (a seeded generator on the
+  device) and gathered there; the loss, Adam and the step decay are those of
+  :func:`topodrake.learning.train.train_network`;
+* ``variants`` name more networks trained on the same batches (a width
+  study at no extra data cost), each in its own folder.
+
+A run resumes from the checkpoints in its folders (weights, optimizer,
+samples seen, the next shard to make); a resumed run makes new shards
+rather than the ones already used. Checkpoints are ordinary C_WP
+checkpoints (CPU tensors): everything that loads a C_WP loads them.
+Batch order depends on when shards arrive, so two runs agree in their data,
+not bit for bit in their weights.
+
+    python -m topodrake.learning.scale --config configs/waypoint_lidar_k5_scale.yaml \\
+        --out runs/lidar_k5_scale --minutes 8
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+from topodrake.learning.config import TrainConfig
+from topodrake.learning.networks import NetworkConfig
+
+LIDAR_ONLY = "training at scale renders lidar scans; camera C_WPs train with `topodrake train waypoint`"
+
+
+@dataclass
+class ScaleConfig:
+    """How samples are made and where the networks train."""
+
+    trajectories: str = "data/trajectories/pairs-s0.npz"   # packed drives of train and val worlds
+    shard_samples: int = 2000       # samples per shard (one world, one seed)
+    shards_per_world: int = 60      # made per world in each call (a resumed call makes new ones)
+    workers: int = 0                # sample-making processes (0: all cores but one)
+    min_pool: int = 100000          # samples made before the first step
+    device: str = "cuda"
+    compare: list[str] = field(default_factory=list)    # C_WP checkpoints scored on the same val sets
+    variants: dict[str, NetworkConfig] = field(default_factory=dict)
+
+
+@dataclass
+class ScaleRunConfig:
+    train: TrainConfig = field(default_factory=TrainConfig)
+    scale: ScaleConfig = field(default_factory=ScaleConfig)
+
+    def validate(self, where: str = "scale config") -> "ScaleRunConfig":
+        self.train.validate(where)
+        if self.train.network.modality != "lidar":
+            raise TopodrakeError(f"{where}: {LIDAR_ONLY}")
+        s = self.scale
+        for name in ("shard_samples", "shards_per_world", "min_pool"):
+            if getattr(s, name) < 1:
+                raise TopodrakeError(f"{where}: scale.{name} must be >= 1, got {getattr(s, name)}")
+        if s.workers < 0:
+            raise TopodrakeError(f"{where}: scale.workers must be >= 0, got {s.workers}")
+        for name, net in s.variants.items():
+            net.validate(f"{where}: scale.variants.{name}")
+            if (net.modality, net.k, net.frame_step, net.output) != \
+                    (self.train.network.modality, self.train.network.k,
+                     self.train.network.frame_step, self.train.network.output):
+                raise TopodrakeError(f"{where}: scale.variants.{name} must share the main network's "
+                                     "modality, k, frame_step and output (they share batches)")
+        return self
+
+
+def load_scale_config(path) -> ScaleRunConfig:
+    from topodrake.typed_yaml import load_typed
+
+    return load_typed(ScaleRunConfig, path, "config").validate(f"config {path}")
+
+
+# ---------------------------------------------------------------- shards (worker side)
+
+_W: dict = {}
+
+
+def _init_worker(traj_path: str, worlds: list[str], train: dict) -> None:
+    import numba
+    import torch
+
+    numba.set_num_threads(1)
+    torch.set_num_threads(1)
+    from topodrake.learning.trajpack import load_packed_trajectories
+
+    from topodrake.learning.samples import SampleConfig
+    from topodrake.sensing.config import LidarConfig
+
+    _W.update(trajs=load_packed_trajectories(traj_path).select_worlds(worlds), worlds=worlds,
+              samples=SampleConfig(**train["data"]["samples"]),
+              lidar=LidarConfig(**train["lidar"]), seed=train["data"]["sample_seed"],
+              n=train["shard_samples"], cache={})
+
+
+def _make_shard(j: int):
+    """Shard ``j``: (j, sample fields, source scans float16 in [0, 1])."""
+    from topodrake.learning.samples import _world_samples
+    from topodrake.sensing.lidar import Lidar
+    from topodrake.world import load_world
+
+    worlds, trajs = _W["worlds"], _W["trajs"]
+    w, s = j % len(worlds), j // len(worlds)
+    if w not in _W["cache"]:
+        world = load_world(worlds[w])
+        _W["cache"] = {w: (world, Lidar(world, _W["lidar"]))}   # one world per process at a time
+    world, lidar = _W["cache"][w]
+    ids = np.flatnonzero(trajs.traj_world == w)
+    part = _world_samples(world, trajs, ids, _W["n"], np.random.default_rng([_W["seed"], w, s]),
+                          _W["samples"], controls=False)
+    scans = _normalised(lidar.scan(part["src_pose"]), _W["lidar"].range_m)
+    keep = ("traj", "tgt", "waypoint", "heading_diff", "overlap")
+    return j, {k: np.asarray(part[k]) for k in keep}, scans
+
+
+def _warm_kernels(traj_path: str, world: str) -> None:
+    """Compile (or load) the labeller's and the renderer's kernels in a child
+    process, so the forked workers load them from the disk cache instead of
+    compiling them each (numba's thread pool must not exist before a fork)."""
+    import subprocess
+
+    code = ("import numpy as np; from topodrake.learning.scale import _init_worker, _make_shard, _W; "
+            f"from topodrake.learning.config import TrainConfig; t = TrainConfig().to_dict(); "
+            f"t['data']['sample_seed'] = 0; t['shard_samples'] = 20; "
+            f"_init_worker({traj_path!r}, [{world!r}], t); _make_shard(0)")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def _normalised(ranges: np.ndarray, range_m: float) -> np.ndarray:
+    r = np.asarray(ranges, np.float32)
+    return (np.where(np.isfinite(r), np.minimum(r, range_m), range_m) / range_m).astype(np.float16)
+
+
+# ---------------------------------------------------------------- the pool (device side)
+
+class Pool:
+    """Samples on the device, grown shard by shard."""
+
+    def __init__(self, capacity: int, beams: int, frames: int, device):
+        import torch
+
+        self.n = 0
+        self.cur = torch.empty((capacity, beams), dtype=torch.float16, device=device)
+        self.ctx_rows = torch.empty((capacity, frames), dtype=torch.int64, device=device)
+        self.waypoint = torch.empty((capacity, 2), device=device)
+        self.heading = torch.empty((capacity, 2), device=device)
+        self.overlap = torch.empty((capacity, 2), device=device)
+
+    def add(self, part: dict, scans: np.ndarray, ctx_rows: np.ndarray) -> None:
+        import torch
+
+        m = min(len(scans), len(self.cur) - self.n)
+        sl = slice(self.n, self.n + m)
+        dev = self.cur.device
+        self.cur[sl] = torch.from_numpy(scans[:m]).to(dev)
+        self.ctx_rows[sl] = torch.from_numpy(ctx_rows[:m].astype(np.int64)).to(dev)
+        self.waypoint[sl] = torch.from_numpy(part["waypoint"][:m].astype(np.float32)).to(dev)
+        hd = part["heading_diff"][:m].astype(np.float32)
+        self.heading[sl] = torch.from_numpy(np.column_stack([np.cos(hd), np.sin(hd)])).to(dev)
+        self.overlap[sl] = torch.from_numpy(part["overlap"][:m].astype(np.float32)).to(dev)
+        self.n += m
+
+
+class DeviceBatcher:
+    """A CPU batcher (validation) whose batches land on the device."""
+
+    def __init__(self, batcher, device):
+        self.batcher, self.device = batcher, device
+
+    def __len__(self) -> int:
+        return len(self.batcher)
+
+    def batch(self, idx):
+        from dataclasses import fields, replace
+
+        b = self.batcher.batch(idx)
+        return replace(b, **{f.name: getattr(b, f.name).to(self.device) for f in fields(b)})
+
+
+# ---------------------------------------------------------------- training
+
+@dataclass
+class _Net:
+    name: str
+    cfg: TrainConfig
+    out: Path
+    model: object
+    opt: object
+    history: list
+    metrics: dict
+
+
+def _networks(run: ScaleRunConfig, out_dir: Path, device, beams: int) -> tuple[list[_Net], dict]:
+    import torch
+
+    from topodrake.learning.checkpoint import RESUME, load_checkpoint, load_resume_state
+    from topodrake.learning.networks import WaypointNetwork, input_size
+    from topodrake.learning.train import CHECKPOINT, config_change
+
+    nets, state = [], {"samples_seen": 0, "wall_time_s": 0.0, "next_shard": 0, "shards_used": 0}
+    specs = [("main", run.train)] + [(name, _with_network(run.train, net))
+                                     for name, net in run.scale.variants.items()]
+    for name, cfg in specs:
+        out = out_dir if name == "main" else out_dir / name
+        torch.manual_seed(cfg.seed)
+        model = WaypointNetwork(cfg.network, input_size(cfg.network, beams)).to(device)
+        opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+        history, metrics = [], {}
+        path = out / CHECKPOINT
+        if path.exists():
+            ck = load_checkpoint(path, network=cfg.network)
+            diff = config_change(ck, cfg.to_dict())
+            if diff:
+                raise TopodrakeError(f"checkpoint {path} was trained with {diff[0]} = {diff[1]!r}, "
+                                     f"the config says {diff[2]!r}; use another output folder")
+            model.load_state_dict(ck.model.state_dict())
+            o = load_resume_state(out / RESUME, ck.meta.get("samples_seen"))
+            if o is not None:
+                opt.load_state_dict(o)
+            history = list(ck.meta.get("history", []))
+            metrics = history[-1]["metrics"] if history else {}
+            if name == "main":
+                state.update({k: v for k, v in (ck.train_state or {}).items() if k in state})
+        nets.append(_Net(name, cfg, out, model, opt, history, metrics))
+    return nets, state
+
+
+def _with_network(cfg: TrainConfig, net: NetworkConfig) -> TrainConfig:
+    c = copy.deepcopy(cfg)
+    c.network = copy.deepcopy(net)
+    return c
+
+
+def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bool = True,
+                   command: str | None = None) -> dict:
+    """Train (or resume) the networks of ``run`` for at most ``minutes`` of
+    wall time in this call; returns the card of the main network."""
+    import torch
+    from tqdm import tqdm
+
+    from topodrake.fileio import atomic_write_json
+    from topodrake.learning.checkpoint import RESUME, git_revision, save_checkpoint, save_resume_state
+    from topodrake.learning.data import Batch, SampleBatcher
+    from topodrake.learning.samples import SampleConfig, make_samples
+    from topodrake.learning.train import CARD, CHECKPOINT, evaluate, waypoint_loss
+    from topodrake.learning.trajpack import load_packed_trajectories
+
+    t_start = time.perf_counter()
+    deadline = t_start + minutes * 60.0
+    run.validate()
+    cfg, sc = run.train, run.scale
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    packed = load_packed_trajectories(sc.trajectories)
+    missing = [w for w in cfg.data.train_worlds + cfg.data.val_worlds if w not in packed.worlds]
+    if missing:
+        raise TopodrakeError(f"{sc.trajectories} has no drives of {', '.join(missing[:5])}")
+    train_trajs = packed.select_worlds(cfg.data.train_worlds)
+    device = torch.device(sc.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise TopodrakeError("scale.device is cuda but torch sees no GPU")
+    beams = cfg.lidar.beams
+    nets, state = _networks(run, out_dir, "cpu", beams)      # CUDA waits until the workers fork
+    n_worlds = len(cfg.data.train_worlds)
+    total = n_worlds * sc.shards_per_world
+    first = int(state["next_shard"])
+    workers = sc.workers or max(1, (os.cpu_count() or 2) - 1)
+    train_dict = {**cfg.to_dict(), "shard_samples": sc.shard_samples}
+    _warm_kernels(sc.trajectories, cfg.data.train_worlds[0])
+    ctx = mp.get_context("fork")
+    pool_proc = ctx.Pool(workers, initializer=_init_worker,
+                         initargs=(sc.trajectories, cfg.data.train_worlds, train_dict))
+    shards = pool_proc.imap_unordered(_make_shard, range(first, first + total), chunksize=1)
+    try:
+        # everything below may use CUDA: the workers exist already
+        for net in nets:
+            net.model.to(device)
+            _optimizer_to(net.opt, device)
+        torch.backends.cudnn.benchmark = True
+        frames_t = torch.from_numpy(_render_frames(train_trajs, cfg.lidar)).to(device)
+        val_sets = {"val": cfg.data.samples, "val_paper": SampleConfig()}
+        val_trajs = packed.select_worlds(cfg.data.val_worlds)
+        val = {key: DeviceBatcher(SampleBatcher(make_samples(val_trajs, cfg.data.val_samples,
+                                                             cfg.data.sample_seed + 1, scfg),
+                                                cfg.network, cfg.camera, cfg.lidar), device)
+               for key, scfg in val_sets.items()}
+        compared = _compare(sc.compare, val, device)
+        pool = Pool(total * sc.shard_samples, beams, cfg.network.frames, device)
+        step = cfg.network.frame_step
+        k = cfg.network.k
+        got = 0
+
+        def take(block: bool) -> bool:
+            nonlocal got
+            try:
+                j, part, scans = shards.next() if block else shards.next(timeout=0)
+            except (StopIteration, mp.TimeoutError):
+                return False
+            rows = train_trajs.context_rows(part["traj"].astype(np.int64),
+                                            part["tgt"].astype(np.int64), k, step)
+            pool.add(part, scans, rows)
+            got += 1
+            state["next_shard"] = max(state["next_shard"], j + 1)
+            return True
+
+        t_pool = time.perf_counter()
+        while pool.n < min(sc.min_pool, len(pool.cur)) and take(True):
+            pass
+        pool_wait_s = time.perf_counter() - t_pool
+        revision = git_revision()
+        gen = torch.Generator(device=device)
+        gen.manual_seed(cfg.seed * 1_000_003 + state["samples_seen"])
+        bs = cfg.batch_size
+        zero2 = torch.zeros((bs, 2), device=device)
+        next_val = (state["samples_seen"] // cfg.val_every_samples + 1) * cfg.val_every_samples
+        last_ckpt = time.perf_counter()
+        start_seen, start_wall = state["samples_seen"], state["wall_time_s"]
+        bar = tqdm(total=cfg.max_samples, initial=state["samples_seen"], unit="sample",
+                   desc=f"train lidar k={k} at scale", disable=not progress, smoothing=0.05,
+                   mininterval=5.0)
+        ema = None
+        t_seg = time.perf_counter()
+
+        def save_all(final: bool) -> None:
+            for net in nets:
+                net.out.mkdir(parents=True, exist_ok=True)
+                cpu = copy.deepcopy(net.model).cpu()
+                save_resume_state(net.out / RESUME, _state_to_cpu(net.opt.state_dict()),
+                                  state["samples_seen"])
+                save_checkpoint(net.out / CHECKPOINT, cpu, cfg.lidar, train_config=net.cfg.to_dict(),
+                                metrics=net.metrics, history=net.history,
+                                samples_seen=state["samples_seen"],
+                                wall_time_s=state["wall_time_s"], train_state=dict(state),
+                                revision=revision, extra={"scale": _scale_meta(sc, state, net.name)})
+
+        while (state["samples_seen"] < cfg.max_samples and state["wall_time_s"] < cfg.max_minutes * 60
+               and time.perf_counter() < deadline):
+            while take(False):
+                pass
+            idx = torch.randint(0, pool.n, (bs,), device=device, generator=gen)
+            cur = pool.cur[idx].float().unsqueeze(1)
+            ctxs = frames_t[pool.ctx_rows[idx]].float().unsqueeze(2)
+            batch = Batch(cur, ctxs, pool.waypoint[idx], pool.heading[idx], pool.overlap[idx], zero2)
+            lr = cfg.lr * cfg.lr_decay ** (state["samples_seen"] // cfg.epoch_samples)
+            losses = []
+            for net in nets:
+                net.model.train()
+                for g in net.opt.param_groups:
+                    g["lr"] = lr
+                loss, _ = _loss(waypoint_loss, net.model, batch)
+                net.opt.zero_grad(set_to_none=True)
+                loss.backward()
+                net.opt.step()
+                losses.append(loss)
+            state["samples_seen"] += bs
+            now = time.perf_counter()
+            state["wall_time_s"] += now - t_seg
+            t_seg = now
+            if state["samples_seen"] % (bs * 50) == 0 or state["samples_seen"] >= next_val:
+                value = float(losses[0].detach())
+                if not math.isfinite(value):
+                    raise TopodrakeError("training diverged (non-finite loss); lower lr")
+                ema = value if ema is None else 0.9 * ema + 0.1 * value
+                bar.update(state["samples_seen"] - bar.n)
+            if state["samples_seen"] >= next_val:
+                next_val += cfg.val_every_samples
+                for net in nets:
+                    net.metrics = _validate(evaluate, net.model, val)
+                    net.history.append({"samples_seen": state["samples_seen"],
+                                        "wall_time_s": round(state["wall_time_s"], 1),
+                                        "train_loss": round(ema, 5) if ema else None,
+                                        "pool": pool.n, "metrics": net.metrics})
+                bar.set_postfix(loss=f"{ema:.3f}", pool=pool.n,
+                                val=" ".join(f"{n.metrics['waypoint_error_m']:.3f}" for n in nets))
+                t_seg = time.perf_counter()
+            if time.perf_counter() - last_ckpt >= cfg.checkpoint_every_s:
+                save_all(False)
+                last_ckpt = t_seg = time.perf_counter()
+        bar.close()
+        for net in nets:
+            if not net.history or net.history[-1]["samples_seen"] != state["samples_seen"]:
+                net.metrics = _validate(evaluate, net.model, val)
+                net.history.append({"samples_seen": state["samples_seen"],
+                                    "wall_time_s": round(state["wall_time_s"], 1),
+                                    "train_loss": round(ema, 5) if ema else None,
+                                    "pool": pool.n, "metrics": net.metrics})
+        state["shards_used"] = int(state.get("shards_used", 0)) + got
+        save_all(True)
+    finally:
+        pool_proc.terminate()
+        pool_proc.join()
+    seen = state["samples_seen"] - start_seen
+    rate = seen / max(state["wall_time_s"] - start_wall, 1e-9)
+    cards = {}
+    for net in nets:
+        card = {"checkpoint": CHECKPOINT, "modality": "lidar", "k": k, "output": net.cfg.network.output,
+                "samples_seen": state["samples_seen"], "wall_time_s": round(state["wall_time_s"], 1),
+                "train_samples_per_s": round(rate, 1), "git_revision": revision,
+                "data": {"train_worlds": net.cfg.data.train_worlds,
+                         "val_worlds": net.cfg.data.val_worlds,
+                         "trajectories": sc.trajectories,
+                         "distinct_samples_made": state["next_shard"] * sc.shard_samples,
+                         "val_samples": net.cfg.data.val_samples},
+                "device": _device_name(device), "call": {
+                    "minutes": minutes, "pool": pool.n, "pool_wait_s": round(pool_wait_s, 1),
+                    "shards_this_call": got, "workers": workers,
+                    "samples_per_s": round(rate, 1)},
+                "metrics": net.metrics, "compared": compared, "command": command,
+                "config": net.cfg.to_dict(), "scale": _scale_meta(sc, state, net.name)}
+        atomic_write_json(net.out / CARD, card)
+        cards[net.name] = card
+    if progress:
+        for net in nets:
+            m = net.metrics
+            print(f"{net.name}: {state['samples_seen']} samples seen in "
+                  f"{state['wall_time_s'] / 60:.1f} min ({rate:.0f}/s), pool {pool.n}; "
+                  f"val {m['val']['waypoint_error_m']:.3f} m, val_paper "
+                  f"{m['val_paper']['waypoint_error_m']:.3f} m -> {net.out / CHECKPOINT}",
+                  file=sys.stderr)
+    return cards["main"]
+
+
+def _loss(waypoint_loss, model, batch):
+    return waypoint_loss(model.forward_split(batch.cur, batch.ctx), batch, "waypoint")
+
+
+def _validate(evaluate, model, val: dict) -> dict:
+    """Metrics on each validation set; the main set's figures also at the top level."""
+    per = {key: evaluate(model, b) for key, b in val.items()}
+    return {**per["val"], **per}
+
+
+def _compare(paths: list[str], val: dict, device) -> dict:
+    from topodrake.learning.checkpoint import load_checkpoint
+    from topodrake.learning.train import evaluate
+
+    out = {}
+    for p in paths:
+        ck = load_checkpoint(p)
+        model = ck.model.to(device)
+        out[p] = {key: evaluate(model, b) for key, b in val.items()
+                  if b.batcher.cfg.k == ck.network.k}
+    return out
+
+
+def _render_frames(trajs, lidar_cfg) -> np.ndarray:
+    """float16 scans in [0, 1] of every pose of ``trajs`` (P, beams)."""
+    from topodrake.sensing.lidar import Lidar
+    from topodrake.world import load_world
+
+    out = np.empty((len(trajs.poses), lidar_cfg.beams), np.float16)
+    for w, name in enumerate(trajs.worlds):
+        lidar = Lidar(load_world(name), lidar_cfg)
+        for t in np.flatnonzero(trajs.traj_world == w):
+            r = trajs.rows(int(t))
+            out[r] = _normalised(lidar.scan(trajs.poses[r]), lidar_cfg.range_m)
+    return out
+
+
+def _optimizer_to(opt, device) -> None:
+    for st in opt.state.values():
+        for key, v in st.items():
+            if hasattr(v, "to"):
+                st[key] = v.to(device)
+
+
+def _state_to_cpu(obj):
+    if hasattr(obj, "cpu"):
+        return obj.cpu()
+    if isinstance(obj, dict):
+        return {k: _state_to_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_state_to_cpu(v) for v in obj]
+    return obj
+
+
+def _device_name(device) -> str:
+    import torch
+
+    return torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
+
+
+def _scale_meta(sc: ScaleConfig, state: dict, name: str) -> dict:
+    return {"variant": name, **asdict(sc), "next_shard": int(state["next_shard"]),
+            "variants": {k: asdict(v) for k, v in sc.variants.items()}}
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    ap = argparse.ArgumentParser(description="Train C_WP at scale (lidar) on a GPU.")
+    ap.add_argument("--config", required=True, help="scale run YAML (train: ..., scale: ...)")
+    ap.add_argument("--out", required=True, help="output folder (resumed when it holds a checkpoint)")
+    ap.add_argument("--minutes", type=float, default=8.0, help="wall-time budget of this call")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        run = load_scale_config(args.config)
+        card = train_at_scale(run, args.out, minutes=args.minutes, progress=not args.quiet,
+                              command="python -m topodrake.learning.scale " + " ".join(
+                                  sys.argv[1:] if argv is None else argv))
+    except TopodrakeError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(json.dumps({"samples_seen": card["samples_seen"], "metrics": card["metrics"]}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
