@@ -17,6 +17,11 @@ that ``p`` the RE chains are also followed with perfect perception (the A*
 oracle C_WP and the geometric oracle RE: ``cover_oracle``), which separates
 the follower's design from the networks' errors.
 ``--follower`` changes the follower's thresholds (an ablation).
+``--cwp NAME=oracle:anchor=0.3`` follows NAME's chains with the A* oracle
+C_WP plus a controlled error and NAME's RE
+(:mod:`topodrake.learning.noisy_oracle`); ``--sensitivity anchor=0.1,0.3``
+follows the RE chains at the headline p with it at each error size (the
+``sensitivity`` table: cover against error).
 
 Each controller's chains and each engine batch of follows are kept in
 ``OUT/trajectory_following_runs/`` with the settings and checkpoint hashes
@@ -53,6 +58,7 @@ import numpy as np
 from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes, atomic_write_json
+from topodrake.learning.noisy_oracle import is_oracle_spec
 from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, follow_chains_once, path_length
 
 CONTROLLERS = {
@@ -213,12 +219,15 @@ def every_nth(n_frames: int, n: int) -> np.ndarray:
 
 def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, seed, batch,
                   noisy, follower=None, cache: RunCache | None = None, tag: str = "",
-                  oracle: bool = False) -> tuple[np.ndarray, list[str]]:
+                  oracle: bool = False, key: dict | None = None) -> tuple[np.ndarray, list[str]]:
     """Cover (M,) and outcomes of following chains[m] of trajs[m] (one
     engine batch per world and chunk of ``batch`` chains; finished batches
-    are kept in ``cache`` under ``tag``). ``oracle``: the same chains
-    followed by the A* oracle C_WP and the geometric oracle RE instead of
-    ``policy`` and ``reach`` (perfect perception)."""
+    are kept in ``cache`` under ``tag``). ``policy``: a C_WP, or a function
+    of the world that makes one (a world-specific C_WP, e.g. the noisy
+    oracle; made anew for each batch, so that its draws do not depend on
+    which batches were cached). ``oracle``: the same chains followed by the
+    A* oracle C_WP and the geometric oracle RE instead of ``policy`` and
+    ``reach`` (perfect perception). ``key``: more settings the cached batches depend on."""
     from topodrake.montecarlo import trial_seeds
     from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
     from topodrake.navigation.follower import FollowerConfig
@@ -231,25 +240,29 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
     by_world: dict[str, list[int]] = {}
     for m, t in enumerate(trajs):
         by_world.setdefault(t["world"], []).append(m)
+    per_world = callable(policy) and not hasattr(policy, "predict")
+    config = NavigationConfig(follower=follower or FollowerConfig(),
+                              rollout=RolloutConfig(noise_std=noise_std if noisy else 0.0))
     for name, idx in by_world.items():
         world = world_of(name)
+        cwp, re = policy, reach
         if oracle:
             from topodrake.learning.policy import AStarOracle
             from topodrake.navigation.evaluate import GeometricReachability
 
-            policy = AStarOracle(world, k=wide.k, frame_step=wide.frame_step)
-            reach = GeometricReachability(world, k=wide.k, frame_step=wide.frame_step)
-        engine = NavigationEngine(world, policy, reach, NavigationConfig(
-            follower=follower or FollowerConfig(),
-            rollout=RolloutConfig(noise_std=noise_std if noisy else 0.0)))
+            cwp = AStarOracle(world, k=wide.k, frame_step=wide.frame_step)
+            re = GeometricReachability(world, k=wide.k, frame_step=wide.frame_step)
         for lo in range(0, len(idx), batch):
             part = idx[lo:lo + batch]
-            key = {"noisy": noisy, "cars": part, "chains": _hash([chains[m] for m in part])}
-            got = cache.get(f"{tag}{name}-{lo}", key) if cache else None
+            block = {**(key or {}), "noisy": noisy, "cars": part,
+                     "chains": _hash([chains[m] for m in part])}
+            got = cache.get(f"{tag}{name}-{lo}", block) if cache else None
             if got is not None:
                 for j, m in enumerate(part):
                     cover[m], outcomes[m] = got["cover"][j], got["outcomes"][j]
                 continue
+            engine = NavigationEngine(world, policy(world) if per_world and not oracle else cwp,
+                                      re, config)
             res, watch = follow_chains_once(
                 engine, [trajs[m]["poses"] for m in part],
                 [trajs[m]["poses"] if oracle else obs[m] for m in part],
@@ -259,7 +272,7 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
                 cover[m] = watch.cover(j)
                 outcomes[m] = NAV_OUTCOMES[int(res.outcome[j])]
             if cache:
-                cache.put(f"{tag}{name}-{lo}", key, {"cover": [float(cover[m]) for m in part],
+                cache.put(f"{tag}{name}-{lo}", block, {"cover": [float(cover[m]) for m in part],
                                                      "outcomes": [outcomes[m] for m in part]})
     return cover, outcomes
 
@@ -281,9 +294,12 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
     from topodrake.learning.reachability import Reachability
 
     cwp_path, re_path, re_controller = spec
-    policy = controller_policy(cwp_path)
     reach = Reachability.from_checkpoint(re_path, re_controller)
-    wide = policy if policy.k >= reach.k else reach
+    if is_oracle_spec(cwp_path):                     # made per world: it reads the world's A*
+        policy, wide = (lambda world: controller_policy(cwp_path, world)), reach
+    else:
+        policy = controller_policy(cwp_path)
+        wide = policy if policy.k >= reach.k else reach
     torch.set_num_threads(1)
     cache = RunCache(Path(args.out) / "trajectory_following_runs", {
         "trajectories": args.trajectories_file, "controller": name,
@@ -332,16 +348,53 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         out["points"].append(point)
         bar.set_postfix_str(f"{name} p={p}: cover {point['cover']:.3f}, "
                             f"every-{n} {point['cover_subsampled']:.3f}")
+    if args.sensitivity:
+        out["sensitivity"] = sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache,
+                                         bar)
     return out
+
+
+def sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache, bar) -> dict:
+    """Cover of ``name``'s RE chains at the headline p followed by the noisy
+    oracle C_WP (and ``name``'s RE) at each value of ``args.sensitivity``
+    (KEY, values): the error of ``cwp_path`` if it is an oracle spec, else
+    none, with KEY set to each value."""
+    import re as regex
+
+    from topodrake.learning.noisy_oracle import parse_oracle_spec
+    from topodrake.learning.reach_train import controller_policy
+
+    key, values = args.sensitivity
+    p = args.headline_p
+    chains = chains_of(obs, reach, [p], cache, f"{name}-", args.slack)[p]
+    base = parse_oracle_spec(cwp_path if is_oracle_spec(cwp_path) else "oracle")
+    rows = []
+    for v in values:
+        error = base.with_value(key, v)
+        text = error.text
+        c, o = follow_chains(world_of, trajs, obs, chains,
+                             lambda world, text=text: controller_policy(text, world), reach, reach,
+                             args.noise, args.seed, args.batch, noisy=False,
+                             follower=args.follower_config, cache=cache,
+                             tag=f"{name}-p{p}-sens-{regex.sub(r'[^A-Za-z0-9_.=-]', '_', text)}-",
+                             key={"cwp": _fingerprint(text)})
+        bar.update()
+        rows.append({key: getattr(error, key), "spec": text, "cover": round(float(c.mean()), 4),
+                     "trajectories": len(c), "outcomes": _count(o)})
+    return {"key": key, "p_sparsify": p, "rows": rows}
 
 
 def _fingerprint(path: str) -> str:
     """A checkpoint's SHA-1 (with its follower calibration's, where it has
-    one), or the registration controller's runs key."""
+    one), the registration controller's runs key, or an oracle spec's text
+    (with a hash of the noisy oracle's source: a code change invalidates its runs)."""
     from topodrake.fileio import file_sha1
+    from topodrake.learning import noisy_oracle
     from topodrake.learning.follower_platt import SIDECAR
     from topodrake.learning.reach_train import REGISTRATION, registration_runs_key
 
+    if is_oracle_spec(path):
+        return f"{path}+{file_sha1(noisy_oracle.__file__)[:16]}"
     if path == REGISTRATION:
         return registration_runs_key()
     side = Path(path).parent / SIDECAR
@@ -391,7 +444,13 @@ def main(argv=None) -> int:
     ap.add_argument("--controllers", default=",".join(CONTROLLERS),
                     help="controllers to follow with")
     ap.add_argument("--cwp", action="append", metavar="NAME=CHECKPOINT",
-                    help="follow NAME's chains with another C_WP (NAME's RE stays; repeatable)")
+                    help="follow NAME's chains with another C_WP (NAME's RE stays; repeatable); "
+                         "oracle:KEY=VALUE[:...]: the A* oracle with a controlled error (keys "
+                         "anchor, fresh, tail, seed)")
+    ap.add_argument("--sensitivity", metavar="KEY=V1,V2,...",
+                    help="also follow each controller's RE chains at the headline p with the "
+                         "oracle C_WP (its --cwp oracle spec, else the exact one) with KEY set to "
+                         "each value: cover against error size")
     ap.add_argument("--re", action="append", metavar="NAME=CHECKPOINT",
                     help="with another RE under NAME, trained for NAME's C_WP (the --cwp one if "
                          "given): its chains and its answers; repeatable")
@@ -409,6 +468,22 @@ def main(argv=None) -> int:
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
     return study_main(_run, args)
+
+
+def parse_sensitivity(text: str | None) -> tuple[str, list[str]] | None:
+    """``--sensitivity KEY=V1,V2,...`` as (KEY, values), each checked as an oracle spec value."""
+    from topodrake.learning.noisy_oracle import OracleError
+
+    if not text:
+        return None
+    key, sep, values = text.partition("=")
+    items = [v for v in values.split(",") if v]
+    if not sep or not items:
+        raise TopodrakeError(f"--sensitivity {text!r} is not KEY=V1,V2,... (keys: anchor, fresh, "
+                             f"tail, seed)")
+    for v in items:
+        OracleError().with_value(key, v)
+    return key, items
 
 
 def _run(args) -> int:
@@ -441,6 +516,7 @@ def _run(args) -> int:
 
     specs = parse_controllers(args.controllers, args.cwp, args.re, table=CONTROLLERS,
                               must_exist=True)
+    args.sensitivity = parse_sensitivity(args.sensitivity)
     worlds = [w for w in args.worlds.split(",") if w]
     t0 = time.perf_counter()
     trajs = load_trajectories(Path(args.data), worlds, args.trajectories, args.seed)
@@ -448,7 +524,9 @@ def _run(args) -> int:
     cache: dict = {}
     world_of = lambda n: cache.setdefault(n, load_world(n))   # noqa: E731
     lengths = [path_length(t["poses"])[-1] for t in trajs]
-    steps = len(specs) * (2 * len(ps) + (2 if any(abs(p - args.headline_p) < 1e-9 for p in ps) else 0))
+    headline = any(abs(p - args.headline_p) < 1e-9 for p in ps)
+    steps = len(specs) * (2 * len(ps) + (2 if headline else 0)
+                          + (len(args.sensitivity[1]) if args.sensitivity else 0))
     results = {}
     with tqdm(total=steps, desc="trajectory following", disable=args.quiet, unit="sweep") as bar:
         for name in specs:
@@ -461,6 +539,7 @@ def _run(args) -> int:
                          "cover_subsampled": round(q["cover_subsampled"], 4),
                          "cover_oracle": round(q.get("cover_oracle", float("nan")), 4),
                          "anchors_per_m": q["anchors_per_m"]}
+    tables = {name: r["sensitivity"] for name, r in results.items() if "sensitivity" in r}
     out = Path(args.out)
     wall = time.perf_counter() - t0
     atomic_write_json(out / "trajectory_following.json", {
@@ -469,15 +548,20 @@ def _run(args) -> int:
         "worlds": worlds, "seed": args.seed, "noise": args.noise, "p_sparsify": ps,
         "tolerance_m": TOLERANCE_M, "diverge_m": DIVERGE_M, "wall_time_s": round(wall, 1),
         "follower": asdict(args.follower_config),
-        "summary": summary, "results": results})
+        "summary": summary, **({"sensitivity": tables} if tables else {}), "results": results})
     plot(results, out / "trajectory_following.png", len(trajs))
     if args.json:
-        print(json.dumps(summary))
+        print(json.dumps({**summary, **({"sensitivity": tables} if tables else {})}))
     else:
         for name, s in summary.items():
             print(f"{name:<10} cover {s['cover']:.3f}, oracle {s['cover_oracle']:.3f}, "
                   f"noisy {s['cover_noisy']:.3f}, every n-th "
                   f"{s['cover_subsampled']:.3f} at {s['anchors_per_m']:.2f} anchors/m")
+        for name, t in tables.items():
+            print(f"{name} RE chains at p = {t['p_sparsify']}, oracle C_WP with {t['key']}:")
+            for row in t["rows"]:
+                print(f"  {t['key']}={row[t['key']]:<6g} cover {row['cover']:.3f} "
+                      f"({row['trajectories']} trajectories, {row['spec']})")
     print(f"{len(trajs)} trajectories (mean {np.mean(lengths):.1f} m), {len(specs)} controllers, "
           f"{len(ps)} p values in {wall / 60:.1f} min", file=sys.stderr)
     return 0

@@ -66,3 +66,23 @@ def test_another_re_is_named_per_controller_and_must_fit_its_c_wp(tmp_path, load
     # the on-policy RE belongs to the on-policy C_WP: with the shipped one it is refused
     assert study.main(args + ["--re", "lidar_k5=checkpoints/reach_lidar_k5_dagger/checkpoint.pt"]) == 2
     assert "was trained for controller" in capsys.readouterr().err
+
+
+def test_the_oracle_with_a_controlled_error_follows_the_re_chains(tmp_path, load_study, capsys):
+    """``--cwp NAME=oracle:...`` beside NAME's learned RE, and the sensitivity
+    table: the same spec gives the same cover in both."""
+    study = load_study("trajectory_following")
+    args = ["--trajectories", "1", "--worlds", "test-0", "--p", "0.99", "--controllers",
+            "lidar_k5", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
+            "--quiet", "--json", "--cwp", "lidar_k5=oracle:anchor=0.3"]
+    assert study.main(args + ["--sensitivity", "anchor=0.3,1"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    table = printed["sensitivity"]["lidar_k5"]
+    assert [r["spec"] for r in table["rows"]] == ["oracle:anchor=0.3", "oracle:anchor=1"]
+    assert table["rows"][0]["cover"] == printed["lidar_k5"]["cover"]
+    assert table["rows"][0]["trajectories"] == 1
+    stored = json.loads((tmp_path / "out" / "trajectory_following.json").read_text())
+    assert stored["sensitivity"] == printed["sensitivity"]
+    assert stored["results"]["lidar_k5"]["controller"] == "oracle:anchor=0.3"
+    assert study.main(args + ["--sensitivity", "bias=0.3"]) == 2
+    assert "unknown key 'bias'" in capsys.readouterr().err

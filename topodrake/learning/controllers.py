@@ -63,12 +63,21 @@ def controller_identity(path) -> dict:
     return {"checkpoint": str(path), "sha1": file_sha1(path)}
 
 
-def controller_policy(path):
+def controller_policy(path, world=None):
     """The waypoint policy a controller name stands for: the registration
-    C_WP for ``"registration"``, else the C_WP checkpoint's network (a
-    direct-control network is refused: RE needs a C_WP)."""
+    C_WP for ``"registration"``, the A* oracle with a controlled error in
+    ``world`` for an ``oracle[:KEY=VALUE...]`` spec
+    (:mod:`topodrake.learning.noisy_oracle`: it needs the world), else the
+    C_WP checkpoint's network (a direct-control network is refused: RE
+    needs a C_WP)."""
+    from topodrake.learning.noisy_oracle import NoisyOracle, is_oracle_spec
     from topodrake.learning.policy import LearnedWaypointPolicy
 
+    if is_oracle_spec(path):
+        if world is None:
+            raise TopodrakeError(f"C_WP {path!r} is the A* oracle of a world; name a checkpoint "
+                                 f"here")
+        return NoisyOracle(world, path)
     if str(path) == REGISTRATION:
         from topodrake.registration.policy import RegistrationPolicy
 

@@ -96,9 +96,13 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
     from topodrake.learning.follower_calibration import (StateLabels, follower_probability,
                                                          label_visited_reach, platt_probability)
     from topodrake.learning.reachability import Reachability
+    from topodrake.learning.noisy_oracle import is_oracle_spec
     from topodrake.learning.samples import collect_trajectories
     from topodrake.world import load_world
 
+    if is_oracle_spec(cwp_path):
+        raise TopodrakeError(f"the follower bench measures a network C_WP, not {cwp_path!r} (the "
+                             f"oracle's error is set; studies/trajectory_following.py follows it)")
     for p in (cwp_path, re_path, re_controller):
         if not Path(p).is_file():
             raise TopodrakeError(f"checkpoint {p} does not exist")
@@ -185,9 +189,13 @@ def parse_controllers(names: str, overrides: list[str], reach: list[str] | None 
     """The controllers to bench: ``names`` (comma-separated keys of
     ``table``, default :data:`CONTROLLERS`: name -> (C_WP, RE, the C_WP
     that RE was trained for)), with ``NAME=C_WP.pt`` overrides of their C_WP
-    and ``NAME=RE.pt`` overrides of their RE (an RE trained for NAME's C_WP,
-    the overridden one if given); ``must_exist``: an override's file must
+    (or ``NAME=oracle:KEY=VALUE...``, the A* oracle with a controlled error:
+    :mod:`topodrake.learning.noisy_oracle`; NAME's RE stays) and
+    ``NAME=RE.pt`` overrides of their RE (an RE trained for NAME's C_WP, the
+    overridden checkpoint if given); ``must_exist``: an override's file must
     exist."""
+    from topodrake.learning.noisy_oracle import is_oracle_spec, parse_oracle_spec
+
     table = CONTROLLERS if table is None else table
     chosen = [n for n in names.split(",") if n]
     unknown = [n for n in chosen if n not in table]
@@ -199,8 +207,13 @@ def parse_controllers(names: str, overrides: list[str], reach: list[str] | None 
             name, sep, path = o.partition("=")
             if not sep or name not in out:
                 raise TopodrakeError(f"{flag} {o!r} is not NAME=CHECKPOINT with NAME one of {chosen}")
-            if must_exist and not Path(path).is_file():
+            if flag == "--cwp" and is_oracle_spec(path):
+                parse_oracle_spec(path)                  # a spec, not a file: check its keys
+            elif must_exist and not Path(path).is_file():
                 raise TopodrakeError(f"{flag}: checkpoint {path} does not exist")
-            cwp, re, _ = out[name]
-            out[name] = (path, re, out[name][2]) if flag == "--cwp" else (cwp, path, cwp)
+            cwp, re, re_for = out[name]
+            if flag == "--cwp":
+                out[name] = (path, re, re_for)
+            else:
+                out[name] = (cwp, path, table[name][0] if is_oracle_spec(cwp) else cwp)
     return out
