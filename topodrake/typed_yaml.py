@@ -71,6 +71,7 @@ def _plain_load(schema, text: str, where: str):
     lists, dicts and optionals) are built recursively."""
     import yaml
 
+    resolve_field_types(schema)
     try:
         data = yaml.safe_load(text) or {}
     except yaml.YAMLError as e:
