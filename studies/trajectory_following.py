@@ -71,6 +71,9 @@ CONTROLLERS = {
                   "checkpoints/camera_k5/checkpoint.pt"),
     "lidar_k5": ("checkpoints/lidar_k5/checkpoint.pt", "checkpoints/reach_lidar_k5/checkpoint.pt",
                  "checkpoints/lidar_k5/checkpoint.pt"),
+    # the C_WP trained at scale, with the RE of the C_WP its chains were made for
+    "lidar_k5_scale": ("checkpoints/lidar_k5_scale/checkpoint.pt",
+                       "checkpoints/reach_lidar_k5/checkpoint.pt", "checkpoints/lidar_k5/checkpoint.pt"),
     # the registration C_WP has no checkpoint: "registration" names it
     "lidar_reg": ("registration", "checkpoints/reach_lidar_reg/checkpoint.pt", "registration"),
 }

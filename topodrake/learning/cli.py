@@ -327,7 +327,8 @@ def add_bench_parser(bsub) -> None:
     br.set_defaults(func=cmd_bench_reachability)
     bf = bsub.add_parser("follower", help="C_WP error and RE calibration on the states the "
                                           "follower visits in the test houses")
-    bf.add_argument("--controllers", default="camera_k5,lidar_k5", help="controllers to bench")
+    bf.add_argument("--controllers", default="camera_k5,lidar_k5,lidar_k5_scale",
+                    help="controllers to bench")
     bf.add_argument("--cwp", action="append", metavar="NAME=CHECKPOINT",
                     help="bench another C_WP under NAME (with NAME's RE); repeatable")
     bf.add_argument("--re", action="append", metavar="NAME=CHECKPOINT",

@@ -45,6 +45,9 @@ CONTROLLERS = {
                   "checkpoints/camera_k5/checkpoint.pt"),
     "lidar_k5": ("checkpoints/lidar_k5/checkpoint.pt", "checkpoints/reach_lidar_k5/checkpoint.pt",
                  "checkpoints/lidar_k5/checkpoint.pt"),
+    # the C_WP trained at scale, with the RE of the C_WP its chains were made for
+    "lidar_k5_scale": ("checkpoints/lidar_k5_scale/checkpoint.pt",
+                       "checkpoints/reach_lidar_k5/checkpoint.pt", "checkpoints/lidar_k5/checkpoint.pt"),
 }
 TEST_WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
 BANDS_M = (0.0, 1.0, 2.0, 3.0, np.inf)
