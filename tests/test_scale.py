@@ -47,7 +47,7 @@ def test_packed_trajectories_refuse_other_files(tmp_path):
         load_packed_trajectories(tmp_path / "none.npz")
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a zip")
-    with pytest.raises(TopodrakeError, match="corrupt or not a trajectory pack"):
+    with pytest.raises(TopodrakeError, match="corrupt or not a trajectory pack file"):
         load_packed_trajectories(bad)
     np.savez(tmp_path / "other.npz", format=np.array("something-else"))
     with pytest.raises(TopodrakeError, match="is not a topodrake-trajpack file"):

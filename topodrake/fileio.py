@@ -65,3 +65,26 @@ def file_sha1(path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def read_tagged_npz(path, fmt: str, version: int, what: str) -> dict:
+    """Every array of a ``.npz`` written with ``format = fmt`` and ``version``
+    tags (no pickles); a missing, corrupt or other file raises a one-line
+    :class:`TopodrakeError` naming ``path`` (``what`` says what it should be)."""
+    import numpy as np
+
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "format" not in z.files or str(z["format"]) != fmt:
+                raise TopodrakeError(f"{path} is not a {fmt} file")
+            if int(z["version"]) != version:
+                raise TopodrakeError(f"{path} has {what} version {int(z['version'])}; "
+                                     f"this topodrake reads {version}")
+            return {k: z[k] for k in z.files}
+    except TopodrakeError:
+        raise
+    except FileNotFoundError:
+        raise TopodrakeError(f"{what} file {path} does not exist") from None
+    except Exception as e:
+        raise TopodrakeError(f"{path} is corrupt or not a {what} file ({type(e).__name__})") from None

@@ -331,24 +331,16 @@ class SampleSet:
 
     @classmethod
     def load(cls, path) -> "SampleSet":
-        path = Path(path)
+        from topodrake.fileio import read_tagged_npz
+
+        z = read_tagged_npz(path, FORMAT, VERSION, "sample")
         try:
-            with np.load(path, allow_pickle=False) as z:
-                if str(z["format"]) != FORMAT:
-                    raise TopodrakeError(f"{path} is not a {FORMAT} file")
-                if int(z["version"]) != VERSION:
-                    raise TopodrakeError(f"{path} has sample format version {int(z['version'])}; "
-                                         f"this topodrake reads {VERSION}")
-                meta = json.loads(str(z["meta"]))
-                trajs = TrajectorySet(list(meta["worlds"]), z["traj_world"], z["traj_offsets"],
-                                      z["poses"], z["states"])
-                f = {name: z[name] for name in _SAMPLE_FIELDS}
-        except TopodrakeError:
-            raise
-        except FileNotFoundError:
-            raise TopodrakeError(f"sample file {path} does not exist") from None
-        except Exception as e:
-            raise TopodrakeError(f"{path} is corrupt or not a sample file ({type(e).__name__})") from None
+            meta = json.loads(str(z["meta"]))
+            trajs = TrajectorySet(list(meta["worlds"]), z["traj_world"], z["traj_offsets"],
+                                  z["poses"], z["states"])
+            f = {name: z[name] for name in _SAMPLE_FIELDS}
+        except (KeyError, ValueError):
+            raise TopodrakeError(f"{path} is corrupt or not a sample file") from None
         return cls(trajs, meta=meta, **f)
 
 

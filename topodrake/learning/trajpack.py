@@ -17,12 +17,11 @@ from __future__ import annotations
 
 import io
 import json
-from pathlib import Path
 
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_bytes
+from topodrake.fileio import atomic_write_bytes, read_tagged_npz
 from topodrake.learning.samples import TrajectorySet
 
 FORMAT = "topodrake-trajpack"
@@ -30,7 +29,7 @@ VERSION = 1
 _SCALE = np.array([1000.0, 1000.0, 1e4])   # mm, 1e-4 rad
 
 
-def pack_trajectories(trajs: TrajectorySet, path) -> Path:
+def pack_trajectories(trajs: TrajectorySet, path):
     """Write ``trajs`` packed to ``path`` (atomically)."""
     q = np.round(trajs.poses * _SCALE).astype(np.int64)
     d = np.diff(q, axis=0, prepend=np.zeros((1, 3), np.int64))
@@ -48,23 +47,12 @@ def pack_trajectories(trajs: TrajectorySet, path) -> Path:
 
 def load_packed_trajectories(path) -> TrajectorySet:
     """The trajectories of a packed file (states: poses, speed and steering 0)."""
-    path = Path(path)
+    z = read_tagged_npz(path, FORMAT, VERSION, "trajectory pack")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if str(z["format"]) != FORMAT:
-                raise TopodrakeError(f"{path} is not a {FORMAT} file")
-            if int(z["version"]) != VERSION:
-                raise TopodrakeError(f"{path} has trajpack version {int(z['version'])}; "
-                                     f"this topodrake reads {VERSION}")
-            worlds = json.loads(str(z["worlds"]))
-            traj_world, offsets, d = z["traj_world"], z["traj_offsets"], z["deltas"]
-    except TopodrakeError:
-        raise
-    except FileNotFoundError:
-        raise TopodrakeError(f"trajectory file {path} does not exist") from None
-    except Exception as e:
-        raise TopodrakeError(f"{path} is corrupt or not a trajectory pack ({type(e).__name__})") \
-            from None
+        worlds = json.loads(str(z["worlds"]))
+        traj_world, offsets, d = z["traj_world"], z["traj_offsets"], z["deltas"]
+    except (KeyError, ValueError):
+        raise TopodrakeError(f"{path} is corrupt or not a trajectory pack file") from None
     d = d.astype(np.int64)
     starts = offsets[:-1]
     # cumulative sum restarted at each drive's first row
