@@ -124,3 +124,19 @@ def test_scale_trainer_trains_resumes_with_new_shards(test0_drives, tmp_path):
     changed.train.lr = 0.5
     with pytest.raises(TopodrakeError, match="was trained with lr"):
         train_at_scale(changed, out, minutes=5, progress=False)
+
+
+def test_shipped_scale_configs_load():
+    from pathlib import Path
+
+    from topodrake.learning.networks import WaypointNetwork, input_size
+    from topodrake.learning.scale import load_scale_config
+
+    root = Path(__file__).resolve().parents[1] / "configs"
+    names = sorted(root.glob("scale_*.yaml"))
+    assert {p.name for p in names} >= {"scale_lidar_k5.yaml", "scale_lidar_k5_wide.yaml"}
+    for path in names:
+        run = load_scale_config(path)
+        for net in [run.train.network, *run.scale.variants.values()]:
+            WaypointNetwork(net, input_size(net, run.train.lidar.beams))
+    assert len(load_scale_config(root / "scale_lidar_k5.yaml").train.data.train_worlds) == 96

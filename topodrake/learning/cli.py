@@ -97,7 +97,7 @@ def add_train_parser(sub) -> None:
     tk.set_defaults(func=cmd_train_pack)
     tg = tsub.add_parser("scale", help="train a lidar C_WP at scale on a GPU: worker processes make "
                                        "samples while it trains")
-    tg.add_argument("--config", required=True, help="scale YAML (see configs/waypoint_lidar_k5_scale.yaml)")
+    tg.add_argument("--config", required=True, help="scale YAML (see configs/scale_lidar_k5.yaml)")
     tg.add_argument("--out", required=True, help="output folder (resumed when it holds a checkpoint)")
     tg.add_argument("--minutes", type=at.positive, default=8.0, help="wall-time budget of this call")
     tg.add_argument("--quiet", action="store_true", help="no progress bar")

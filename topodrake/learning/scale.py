@@ -25,7 +25,7 @@ checkpoints (CPU tensors): everything that loads a C_WP loads them.
 Batch order depends on when shards arrive, so two runs agree in their data,
 not bit for bit in their weights.
 
-    python -m topodrake.learning.scale --config configs/waypoint_lidar_k5_scale.yaml \\
+    python -m topodrake.learning.scale --config configs/scale_lidar_k5.yaml \\
         --out runs/lidar_k5_scale --minutes 8
 """
 
