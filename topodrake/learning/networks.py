@@ -337,10 +337,15 @@ def camera_input(images: np.ndarray, size: int) -> torch.Tensor:
     return x.reshape(*lead, 3, size, size)
 
 
+def lidar_unit_ranges(ranges: np.ndarray, range_m: float) -> np.ndarray:
+    """Ranges (..., beams) (inf = no hit) -> float32 (..., beams) in [0, 1]."""
+    r = np.asarray(ranges, np.float32)
+    return np.where(np.isfinite(r), np.minimum(r, range_m), range_m) / np.float32(range_m)
+
+
 def lidar_input(ranges: np.ndarray, range_m: float) -> torch.Tensor:
     """Ranges (..., beams) (inf = no hit) -> float (..., 1, beams) in [0, 1]."""
-    r = np.asarray(ranges, np.float32)
-    r = np.where(np.isfinite(r), np.minimum(r, range_m), range_m) / range_m
+    r = lidar_unit_ranges(ranges, range_m)
     return torch.from_numpy(np.ascontiguousarray(r, np.float32)).unsqueeze(-2)
 
 

@@ -151,8 +151,10 @@ def _warm_kernels(traj_path: str, world: str) -> None:
 
 
 def _normalised(ranges: np.ndarray, range_m: float) -> np.ndarray:
-    r = np.asarray(ranges, np.float32)
-    return (np.where(np.isfinite(r), np.minimum(r, range_m), range_m) / range_m).astype(np.float16)
+    """The network's lidar input, float16 (the pool's storage)."""
+    from topodrake.learning.networks import lidar_unit_ranges
+
+    return lidar_unit_ranges(ranges, range_m).astype(np.float16)
 
 
 # ---------------------------------------------------------------- the pool (device side)
@@ -214,7 +216,7 @@ class _Net:
     metrics: dict
 
 
-def _networks(run: ScaleRunConfig, out_dir: Path, device, beams: int) -> tuple[list[_Net], dict]:
+def _networks(run: ScaleRunConfig, out_dir: Path, beams: int) -> tuple[list[_Net], dict]:
     import torch
 
     from topodrake.learning.checkpoint import RESUME, load_checkpoint, load_resume_state
@@ -227,7 +229,7 @@ def _networks(run: ScaleRunConfig, out_dir: Path, device, beams: int) -> tuple[l
     for name, cfg in specs:
         out = out_dir if name == "main" else out_dir / name
         torch.manual_seed(cfg.seed)
-        model = WaypointNetwork(cfg.network, input_size(cfg.network, beams)).to(device)
+        model = WaypointNetwork(cfg.network, input_size(cfg.network, beams))
         opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
         history, metrics = [], {}
         path = out / CHECKPOINT
@@ -266,7 +268,7 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
     from topodrake.learning.checkpoint import RESUME, git_revision, save_checkpoint, save_resume_state
     from topodrake.learning.data import Batch, SampleBatcher
     from topodrake.learning.samples import SampleConfig, make_samples
-    from topodrake.learning.train import CARD, CHECKPOINT, evaluate, waypoint_loss
+    from topodrake.learning.train import CARD, CHECKPOINT, waypoint_loss
     from topodrake.learning.trajpack import load_packed_trajectories
 
     t_start = time.perf_counter()
@@ -284,7 +286,7 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
     if device.type == "cuda" and not torch.cuda.is_available():
         raise TopodrakeError("scale.device is cuda but torch sees no GPU")
     beams = cfg.lidar.beams
-    nets, state = _networks(run, out_dir, "cpu", beams)      # CUDA waits until the workers fork
+    nets, state = _networks(run, out_dir, beams)      # on the CPU: CUDA waits until the workers fork
     n_worlds = len(cfg.data.train_worlds)
     total = n_worlds * sc.shards_per_world
     first = int(state["next_shard"])
@@ -345,7 +347,14 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
         ema = None
         t_seg = time.perf_counter()
 
-        def save_all(final: bool) -> None:
+        def record(net: _Net) -> None:
+            net.metrics = _validate(net.model, val)
+            net.history.append({"samples_seen": state["samples_seen"],
+                                "wall_time_s": round(state["wall_time_s"], 1),
+                                "train_loss": round(ema, 5) if ema else None,
+                                "pool": pool.n, "metrics": net.metrics})
+
+        def save_all() -> None:
             for net in nets:
                 net.out.mkdir(parents=True, exist_ok=True)
                 cpu = copy.deepcopy(net.model).cpu()
@@ -371,7 +380,7 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
                 net.model.train()
                 for g in net.opt.param_groups:
                     g["lr"] = lr
-                loss, _ = _loss(waypoint_loss, net.model, batch)
+                loss, _ = waypoint_loss(net.model.forward_split(batch.cur, batch.ctx), batch)
                 net.opt.zero_grad(set_to_none=True)
                 loss.backward()
                 net.opt.step()
@@ -389,27 +398,19 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
             if state["samples_seen"] >= next_val:
                 next_val += cfg.val_every_samples
                 for net in nets:
-                    net.metrics = _validate(evaluate, net.model, val)
-                    net.history.append({"samples_seen": state["samples_seen"],
-                                        "wall_time_s": round(state["wall_time_s"], 1),
-                                        "train_loss": round(ema, 5) if ema else None,
-                                        "pool": pool.n, "metrics": net.metrics})
+                    record(net)
                 bar.set_postfix(loss=f"{ema:.3f}", pool=pool.n,
                                 val=" ".join(f"{n.metrics['waypoint_error_m']:.3f}" for n in nets))
                 t_seg = time.perf_counter()
             if time.perf_counter() - last_ckpt >= cfg.checkpoint_every_s:
-                save_all(False)
+                save_all()
                 last_ckpt = t_seg = time.perf_counter()
         bar.close()
         for net in nets:
             if not net.history or net.history[-1]["samples_seen"] != state["samples_seen"]:
-                net.metrics = _validate(evaluate, net.model, val)
-                net.history.append({"samples_seen": state["samples_seen"],
-                                    "wall_time_s": round(state["wall_time_s"], 1),
-                                    "train_loss": round(ema, 5) if ema else None,
-                                    "pool": pool.n, "metrics": net.metrics})
+                record(net)
         state["shards_used"] = int(state.get("shards_used", 0)) + got
-        save_all(True)
+        save_all()
     finally:
         pool_proc.terminate()
         pool_proc.join()
@@ -444,12 +445,10 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
     return cards["main"]
 
 
-def _loss(waypoint_loss, model, batch):
-    return waypoint_loss(model.forward_split(batch.cur, batch.ctx), batch, "waypoint")
-
-
-def _validate(evaluate, model, val: dict) -> dict:
+def _validate(model, val: dict) -> dict:
     """Metrics on each validation set; the main set's figures also at the top level."""
+    from topodrake.learning.train import evaluate
+
     per = {key: evaluate(model, b) for key, b in val.items()}
     return {**per["val"], **per}
 
