@@ -222,7 +222,8 @@ def every_nth(n_frames: int, n: int) -> np.ndarray:
 
 def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, seed, batch,
                   noisy, follower=None, cache: RunCache | None = None, tag: str = "",
-                  oracle: bool = False, key: dict | None = None) -> tuple[np.ndarray, list[str]]:
+                  oracle: bool = False, key: dict | None = None, odometry=None
+                  ) -> tuple[np.ndarray, list[str]]:
     """Cover (M,) and outcomes of following chains[m] of trajs[m] (one
     engine batch per world and chunk of ``batch`` chains; finished batches
     are kept in ``cache`` under ``tag``). ``policy``: a C_WP, or a function
@@ -230,7 +231,8 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
     oracle; made anew for each batch, so that its draws do not depend on
     which batches were cached). ``oracle``: the same chains followed by the
     A* oracle C_WP and the geometric oracle RE instead of ``policy`` and
-    ``reach`` (perfect perception). ``key``: more settings the cached batches depend on."""
+    ``reach`` (perfect perception). ``key``: more settings the cached batches depend on.
+    ``odometry``: the cars' (and the drives') odometry model (default perfect)."""
     from topodrake.montecarlo import trial_seeds
     from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
     from topodrake.navigation.follower import FollowerConfig
@@ -246,6 +248,8 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
     per_world = callable(policy) and not hasattr(policy, "predict")
     config = NavigationConfig(follower=follower or FollowerConfig(),
                               rollout=RolloutConfig(noise_std=noise_std if noisy else 0.0))
+    if odometry is not None:
+        config.odometry = odometry
     for name, idx in by_world.items():
         world = world_of(name)
         cwp, re = policy, reach
@@ -308,6 +312,7 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         "trajectories": args.trajectories_file, "controller": name,
         "checkpoints": [_fingerprint(f) for f in spec], "seed": args.seed, "noise": args.noise,
         "follower": asdict(args.follower_config), "tolerance_m": TOLERANCE_M,
+        **({} if args.odometry_config.is_perfect else {"odometry": asdict(args.odometry_config)}),
         "diverge_m": DIVERGE_M, "slack": args.slack})
     obs = Observations(reach, trajs, world_of)
     lengths = np.array([path_length(t["poses"])[-1] for t in trajs])
@@ -321,11 +326,11 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         sub = [every_nth(f, n) for f in frames]
         sub_density = float(sum(len(a) for a in sub) / lengths.sum())
         c_re, o_re = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide, args.noise,
-                                   args.seed, args.batch, noisy=False, follower=args.follower_config,
+                                   args.seed, args.batch, noisy=False, follower=args.follower_config, odometry=args.odometry_config,
                                    cache=cache, tag=f"{name}-p{p}-re-")
         bar.update()
         c_sub, o_sub = follow_chains(world_of, trajs, obs, sub, policy, reach, wide, args.noise,
-                                     args.seed, args.batch, noisy=False, follower=args.follower_config,
+                                     args.seed, args.batch, noisy=False, follower=args.follower_config, odometry=args.odometry_config,
                                      cache=cache, tag=f"{name}-p{p}-every{n}-")
         bar.update()
         point = {"p_sparsify": p, "anchors_per_m": round(density, 4), "cover": float(c_re.mean()),
@@ -336,14 +341,14 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         if abs(p - args.headline_p) < 1e-9:
             c_n, o_n = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide,
                                      args.noise, args.seed, args.batch, noisy=True,
-                                     follower=args.follower_config, cache=cache,
+                                     follower=args.follower_config, odometry=args.odometry_config, cache=cache,
                                      tag=f"{name}-p{p}-noisy-")
             bar.update()
             point.update({"cover_noisy": float(c_n.mean()), "outcomes_noisy": _count(o_n),
                           "covers_noisy": c_n.round(4).tolist()})
             c_o, o_o = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide,
                                      args.noise, args.seed, args.batch, noisy=False,
-                                     follower=args.follower_config, cache=cache,
+                                     follower=args.follower_config, odometry=args.odometry_config, cache=cache,
                                      tag=f"{name}-p{p}-oracle-", oracle=True)
             bar.update()
             point.update({"cover_oracle": float(c_o.mean()), "outcomes_oracle": _count(o_o),
@@ -378,7 +383,7 @@ def sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache, bar) -
         c, o = follow_chains(world_of, trajs, obs, chains,
                              lambda world, text=text: controller_policy(text, world), reach, reach,
                              args.noise, args.seed, args.batch, noisy=False,
-                             follower=args.follower_config, cache=cache,
+                             follower=args.follower_config, odometry=args.odometry_config, cache=cache,
                              tag=f"{name}-p{p}-sens-{regex.sub(r'[^A-Za-z0-9_.=-]', '_', text)}-",
                              key={"cwp": _fingerprint(text)})
         bar.update()
@@ -464,6 +469,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="results", help="output folder")
     ap.add_argument("--follower", default="{}",
                     help="follower thresholds to change, as JSON (FollowerConfig fields)")
+    ap.add_argument("--odometry", choices=("perfect", "wheel"), default="perfect",
+                    help="the cars' and the drives' odometry: the true pose, or wheel odometry "
+                         "that drifts (topodrake.odometry.OdometryConfig.wheel)")
     ap.add_argument("--slack", type=at.fraction, default=0.0,
                     help="sparsify slack where RE passes not even the next frame above p (0: the "
                          "paper's rule; maps use MapConfig.sparsify_slack)")
@@ -516,7 +524,9 @@ def _run(args) -> int:
         raise TopodrakeError(f"--follower is not a JSON object of FollowerConfig fields ({e})") \
             from None
     from topodrake.learning.follower_bench import parse_controllers
+    from topodrake.odometry import OdometryConfig
 
+    args.odometry_config = getattr(OdometryConfig, args.odometry)()
     specs = parse_controllers(args.controllers, args.cwp, args.re, table=CONTROLLERS,
                               must_exist=True)
     args.sensitivity = parse_sensitivity(args.sensitivity)
@@ -550,7 +560,7 @@ def _run(args) -> int:
         "trajectories": len(trajs), "mean_length_m": round(float(np.mean(lengths)), 2),
         "worlds": worlds, "seed": args.seed, "noise": args.noise, "p_sparsify": ps,
         "tolerance_m": TOLERANCE_M, "diverge_m": DIVERGE_M, "wall_time_s": round(wall, 1),
-        "follower": asdict(args.follower_config),
+        "follower": asdict(args.follower_config), "odometry": asdict(args.odometry_config),
         "summary": summary, **({"sensitivity": tables} if tables else {}), "results": results})
     plot(results, out / "trajectory_following.png", len(trajs))
     if args.json:

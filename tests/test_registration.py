@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.registration.icp import IcpConfig, compose, invert, register, scan_points
+from topodrake.registration.icp import IcpConfig, register, scan_points
+from topodrake.se2 import compose, invert
 from topodrake.sensing.config import LidarConfig
 from topodrake.sensing.lidar import Lidar
 from topodrake.world import load_world

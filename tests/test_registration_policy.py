@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.registration.icp import compose, invert
+from topodrake.se2 import compose, invert
 from topodrake.registration.policy import RegistrationConfig, RegistrationPolicy
 
 K, STEP = 5, 3
@@ -221,7 +221,7 @@ def test_drake_waypoint_diagram_and_label_rollouts_drive_the_same_path(house, dr
     WaypointNet's state and commits it once a period: it drives the same
     path as the batched label rollouts, noise included."""
     from topodrake.learning.policy import make_target_context, target_input
-    from topodrake.registration.icp import compose
+    from topodrake.se2 import compose
     from topodrake.rollout import PolicyRollout, RolloutConfig
     from topodrake.systems.run import TargetRunner
     from topodrake.systems.scenario import Scenario

@@ -74,7 +74,9 @@ def follow_chains_once(engine, references: list[np.ndarray], observations: list,
     ``engine``, each car from a :func:`jittered_start` drawn from
     ``seeds[m]``, for at most 2 x frames + 100 periods, with actuation noise
     from ``seeds[m] + 1`` when ``noisy``; cars stop where they stray more
-    than ``DIVERGE_M`` from their drive. ``record(k, cars, states)``, if
+    than ``DIVERGE_M`` from their drive. Under the engine's odometry model the
+    routes' legs come from the drive's own drifting odometry (seeds[m] + 2)
+    and each car's from seeds[m] + 3. ``record(k, cars, states)``, if
     given, sees every car's state after each period. Returns the engine's
     :class:`~topodrake.navigation.engine.NavigationResult` and the
     :class:`PathWatch` (its ``cover(m)``)."""
@@ -82,8 +84,12 @@ def follow_chains_once(engine, references: list[np.ndarray], observations: list,
     from topodrake.rollout import standard_normal_noise
 
     modality = engine.kind         # a pose oracle beside a sensor network reads the anchors' poses
-    routes = [route_from_observations(obs, ref, chain, k, frame_step, modality)
-              for obs, ref, chain in zip(observations, references, chains)]
+    # the legs as the teach drive's odometry measured them (seed + 2), the repeat's own
+    # odometry errors from seed + 3
+    odometry = engine.config.odometry
+    routes = [route_from_observations(obs, ref, chain, k, frame_step, modality, odometry,
+                                      int(s) + 2)
+              for obs, ref, chain, s in zip(observations, references, chains, seeds)]
     starts = np.array([jittered_start(engine.world, ref[0], np.random.default_rng(s))
                        for ref, s in zip(references, seeds)])
     limits = np.array([(2 * len(ref) + 100) * 0.1 for ref in references])
@@ -96,5 +102,6 @@ def follow_chains_once(engine, references: list[np.ndarray], observations: list,
             record(step, cars, states)
         return watch(step, cars, states)
 
-    res = engine.run(starts, routes, noise=noise, t_max_s=limits, watch=watch_and_record)
+    res = engine.run(starts, routes, noise=noise, t_max_s=limits, watch=watch_and_record,
+                     odometry_seeds=[int(s) + 3 for s in seeds])
     return res, watch

@@ -5,8 +5,10 @@ Drake navigation diagram (``topodrake.systems.navigation``)::
 
     ranges_k, obs_k  = lidar(pose_k), camera(pose_k)      (the policy's observation)
     follower_k, out  = follower_step(follower_k-1, obs_k)  (C_WP and RE on cached anchors;
-                                                            a stateful C_WP also gets the
-                                                            car's odometry, state_k)
+                                                            the follower works in the
+                                                            odometry frame: odo_k, which
+                                                            drifts from state_k when
+                                                            config.odometry says so)
     u_k              = rmp(state_k, out.waypoint, ranges_k) * (1 + noise_std * w_k)
     state_k+1        = vehicle_step(state_k, u_k)
     stop: collision; the follower reached the last anchor or gave up (its
@@ -33,8 +35,9 @@ from topodrake.navigation.evaluate import (Evaluator, RouteFeatures, encode_rout
                                            initial_track, stack_features)
 from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, SEARCH_FAILED,
                                            FollowerConfig, FollowerState, follower_step)
+from topodrake.odometry import Odometry, OdometryConfig
 from topodrake.rollout import RolloutConfig, standard_normal_noise
-from topodrake.vehicle import in_collision, vehicle_step
+from topodrake.vehicle import car_to_world, in_collision, vehicle_step, world_to_car
 
 RUNNING, NAV_REACHED, NAV_COLLISION, NAV_TIMEOUT, NAV_SEARCH_FAILED, NAV_DR_GAVE_UP, NAV_DIVERGED = \
     range(7)
@@ -45,10 +48,11 @@ NAV_OUTCOMES = ("running", "reached", "collision", "timeout", "search_failed",
 @dataclass
 class NavigationConfig:
     """The follower's thresholds and the closed loop's settings (noise,
-    time limit, vehicle, sensors, RMP)."""
+    time limit, vehicle, sensors, RMP, odometry)."""
 
     follower: FollowerConfig = field(default_factory=FollowerConfig)
     rollout: RolloutConfig = field(default_factory=lambda: RolloutConfig(t_max_s=150.0))
+    odometry: OdometryConfig = field(default_factory=OdometryConfig.perfect)
 
 
 @dataclass
@@ -113,14 +117,16 @@ class NavigationEngine:
     def run(self, starts: np.ndarray, routes, *, features: RouteFeatures | None = None,
             seeds=None, noise: np.ndarray | None = None, t_max_s=None,
             watch: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
-            progress=None, replanner=None) -> NavigationResult:
+            progress=None, replanner=None, odometry_seeds=None) -> NavigationResult:
         """Drive cars from ``starts`` (N, 3) along ``routes`` (N routes;
         ``features``: their :func:`encode_routes`, computed if not given).
         Noise as in :meth:`topodrake.rollout.ExpertRollout.run`. ``t_max_s``:
         scalar or (N,). ``watch(k, cars, states)`` may stop cars (returns a
         bool mask over ``cars``; they end ``diverged``). ``replanner``: a
         :class:`~topodrake.navigation.replan.Replanner` over these N cars
-        and routes (its bookkeeping is the caller's to read afterwards)."""
+        and routes (its bookkeeping is the caller's to read afterwards).
+        ``odometry_seeds`` (N,) draw each car's odometry errors (default:
+        the car's index)."""
         cfg = self.config.rollout
         veh = cfg.vehicle
         starts = np.asarray(starts, np.float64).reshape(-1, 3)
@@ -146,6 +152,8 @@ class NavigationEngine:
         outcome = np.full(n, RUNNING)
         steps = np.zeros(n, np.int64)
         follower = FollowerState.initial(n, initial_track(self.policy, n))
+        odometry = Odometry(self.config.odometry,
+                            np.arange(n) if odometry_seeds is None else odometry_seeds, starts)
         clearance = self.world.grid.clearance_at
         for k in range(t_steps):
             outcome[(outcome == RUNNING) & (limit <= k)] = NAV_TIMEOUT
@@ -155,10 +163,15 @@ class NavigationEngine:
             st = state[cars]
             ranges = self.lidar.scan(st[:, :3])
             fs = follower.take(cars)
+            odo = st.copy()
+            odo[:, :3] = odometry.poses[cars]
             ev = Evaluator(self.policy, self.reach, features, route_of[cars],
                            self.observe(st, ranges), poses=st[:, :3], track=fs.track,
-                           odometry=st[:, :3])
-            fs, out = follower_step(fs, n_anchors[cars], st, ev, self.config.follower)
+                           odometry=odo[:, :3])
+            fs, out = follower_step(fs, n_anchors[cars], odo, ev, self.config.follower)
+            if not odometry.perfect:        # the waypoint, given in the odometry frame
+                out.waypoint = car_to_world(world_to_car(out.waypoint[:, None], odo),
+                                            st)[:, 0]
             fs.track = ev.track
             follower.put(cars, fs)
             if replanner is not None:
@@ -175,6 +188,7 @@ class NavigationEngine:
             if noise is not None and cfg.noise_std > 0:
                 u = u * (1.0 + cfg.noise_std * noise[cars, k])
             state[cars] = vehicle_step(st, u, veh)
+            odometry.update(cars, state[cars, :3])
             steps[cars] = k + 1
             modes[cars, k] = fs.mode
             active_log[cars, k] = fs.active

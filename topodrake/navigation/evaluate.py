@@ -47,11 +47,15 @@ def network_context(route_contexts: np.ndarray, route_k: int, route_step: int, n
 @dataclass
 class RouteFeatures:
     """Per-anchor target features of one route, or of many stacked (with
-    ``offsets``: route i's anchors are rows offsets[i]:offsets[i+1])."""
+    ``offsets``: route i's anchors are rows offsets[i]:offsets[i+1]), and
+    each anchor's pose in its segment of the routes' legs
+    (:func:`topodrake.navigation.tracker.route_frames`; none: no legs)."""
 
     cwp: object
     re: object
     offsets: np.ndarray
+    frames: np.ndarray | None = None
+    segments: np.ndarray | None = None
 
     @property
     def n_anchors(self) -> np.ndarray:
@@ -112,7 +116,10 @@ def encode_routes(routes, policy, reach, route_k: int | None = None,
             return _encode(network, np.repeat(poses[:, None], 2 * network.k + 1, axis=1))
         return _encode(network, network_context(ctx, route_k, route_step, network))
 
-    return RouteFeatures(features(policy), features(reach), offsets)
+    from topodrake.navigation.tracker import route_frames
+
+    frames, segments = route_frames([r.legs for r in routes])
+    return RouteFeatures(features(policy), features(reach), offsets, frames, segments)
 
 
 def _reads_poses(network, routes) -> bool:
@@ -122,8 +129,13 @@ def _reads_poses(network, routes) -> bool:
 
 def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:
     """The features of ``a``'s routes followed by ``b``'s."""
+    frames = segments = None
+    if a.frames is not None and b.frames is not None:
+        frames = np.concatenate([a.frames, b.frames])
+        segments = np.concatenate([a.segments, b.segments + (a.segments.max(initial=-1) + 1)])
     return RouteFeatures(_concat([a.cwp, b.cwp]), _concat([a.re, b.re]),
-                         np.concatenate([a.offsets, a.offsets[-1] + b.offsets[1:]]))
+                         np.concatenate([a.offsets, a.offsets[-1] + b.offsets[1:]]),
+                         frames, segments)
 
 
 def take_rows(feats, rows: np.ndarray):
@@ -173,6 +185,15 @@ class Evaluator:
         self.odometry = poses if odometry is None else np.asarray(odometry, np.float64)
         if self.stateful and (self.track is None or self.odometry is None):
             raise TopodrakeError("a stateful C_WP needs the cars' track state and odometry")
+
+    def anchor_frames(self, cars: np.ndarray, anchors: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """Anchors' poses (M, 3) in their segments' frames and their segments
+        (M,); every anchor its own segment when the routes have no legs."""
+        rows = self.start[np.asarray(cars, np.int64)] + np.asarray(anchors, np.int64)
+        if self.features.frames is None:
+            return np.zeros((len(rows), 3)), rows
+        return self.features.frames[rows], self.features.segments[rows]
 
     def _obs(self, network, cars: np.ndarray) -> np.ndarray:
         if network.observation == "pose":

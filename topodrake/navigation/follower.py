@@ -75,6 +75,7 @@ from typing import Callable
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.navigation import tracker
 from topodrake.vehicle import car_to_world
 
 SEARCH, FOLLOW, DEAD_RECKONING, REACHED, FAILED = 0, 1, 2, 3, 4
@@ -107,6 +108,10 @@ class FollowerConfig:
     dr_back_anchors: int = 1        # the Dead reckoning window reaches back this many anchors
                                     # at most (0: forward only; -1: as far as it widens, the paper)
     stall_periods: int = 50         # Follow periods on one active anchor before it is skipped
+    odometry_check: bool = False    # track the car along the route's legs with odometry, C_WP's
+                                    # answers as fixes, and drive toward the tracked anchor when
+                                    # C_WP's waypoint disagrees (routes without legs: no effect)
+    check_deg: float = 35.0         # ... by more than this angle
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
@@ -118,6 +123,8 @@ class FollowerConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise TopodrakeError(f"follower {name} must be in [0, 1], got {v}")
+        if not 0.0 < self.check_deg <= 180.0:
+            raise TopodrakeError(f"follower check_deg must be in (0, 180], got {self.check_deg}")
         if self.dr_back_anchors < -1:
             raise TopodrakeError(f"follower dr_back_anchors must be >= -1 (-1: unbounded), got "
                                  f"{self.dr_back_anchors}")
@@ -141,10 +148,26 @@ class FollowerState:
     best_p: np.ndarray               # (N,) float: RE of the last choice (for reports)
     stall: np.ndarray                # (N,) int: Follow periods on the same active anchor
     track: np.ndarray | None = None  # (N, S) float: a stateful C_WP's per-car state (S may be 0)
+    ref: np.ndarray | None = None    # (N,) int: the anchor the car is tracked from (-1: not tracked)
+    rel: np.ndarray | None = None    # (N, 3): the car's pose in that anchor's frame
+    var: np.ndarray | None = None    # (N, 2): its position and heading variance
+    odo: np.ndarray | None = None    # (N, 3): the odometry pose of the last period (NaN: none)
+    misses: np.ndarray | None = None  # (N,) int: answers outvoted in a row
 
     def __post_init__(self) -> None:
+        n = len(self.mode)
         if self.track is None:
-            self.track = np.zeros((len(self.mode), 0))
+            self.track = np.zeros((n, 0))
+        if self.ref is None:
+            self.ref = np.full(n, -1, np.int64)
+        if self.rel is None:
+            self.rel = np.zeros((n, 3))
+        if self.var is None:
+            self.var = np.zeros((n, 2))
+        if self.odo is None:
+            self.odo = np.full((n, 3), np.nan)
+        if self.misses is None:
+            self.misses = np.zeros(n, np.int64)
 
     @classmethod
     def initial(cls, n: int, track: np.ndarray | int = 0) -> "FollowerState":
@@ -171,11 +194,12 @@ class FollowerState:
         return self.take(slice(None))
 
     def to_vector(self) -> np.ndarray:
-        """One car's state as 9 floats (for a Drake discrete state; without ``track``)."""
+        """One car's state as STATE_SIZE floats (for a Drake discrete state; without ``track``)."""
         if len(self) != 1:
             raise ValueError("to_vector packs the state of one car")
         return np.array([self.mode[0], self.active[0], self.visited[0], *self.waypoint[0],
-                         self.dr_count[0], self.reason[0], self.best_p[0], self.stall[0]],
+                         self.dr_count[0], self.reason[0], self.best_p[0], self.stall[0],
+                         self.ref[0], *self.rel[0], *self.var[0], *self.odo[0], self.misses[0]],
                         np.float64)
 
     @classmethod
@@ -183,12 +207,13 @@ class FollowerState:
         v = np.asarray(v, np.float64)
         i = lambda x: np.array([int(round(x))], np.int64)   # noqa: E731
         return cls(i(v[0]), i(v[1]), i(v[2]), v[None, 3:5].copy(), i(v[5]), i(v[6]),
-                   np.array([v[7]]), i(v[8]))
+                   np.array([v[7]]), i(v[8]), None, i(v[9]), v[None, 10:13].copy(),
+                   v[None, 13:15].copy(), v[None, 15:18].copy(), i(v[18]))
 
 
 _FIELDS = ("mode", "active", "visited", "waypoint", "dr_count", "reason", "best_p", "stall",
-           "track")
-STATE_SIZE = 9
+           "track", "ref", "rel", "var", "odo", "misses")
+STATE_SIZE = 19
 
 
 @dataclass
@@ -264,6 +289,10 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     local_heading = np.full(n, np.nan)
     have_wp = np.zeros(n, bool)
     need = np.zeros(n, bool)                 # cars that still need C_WP toward their active anchor
+    # the car's pose along its route by odometry, checked by C_WP's answers
+    frames = getattr(evaluate, "anchor_frames", None) if cfg.odometry_check else None
+    if frames is not None:
+        tracker.advance(new, car_state[:, :3], TRACKER)
 
     # -- Search: RE toward every anchor ----------------------------------------------
     s = np.flatnonzero(state.mode == SEARCH)
@@ -295,6 +324,8 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         hi = np.minimum(start + cfg.lookahead, n_anchors[f] - 1)
         rows, anchors = _windows(lo, hi)
         ans = evaluate(f[rows], anchors, True, False)
+        if frames is not None:
+            tracker.apply_answers(new, f[rows], anchors, ans.waypoint, ans.heading, frames, TRACKER)
         prox = ans.overlap.mean(axis=1)
         # close (a short waypoint) or already passed (the waypoint points backwards)
         length = np.hypot(*ans.waypoint.T)
@@ -420,6 +451,10 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     if fresh.size:
         new.waypoint[fresh] = car_to_world(local[fresh, None], car_state[fresh])[:, 0]
     follow = np.flatnonzero(new.mode == FOLLOW)
+    if frames is not None:
+        advanced = _check_waypoints(new, follow, np.flatnonzero(new.mode == DEAD_RECKONING),
+                                    local, car_state, n_anchors, frames, cfg)
+        local[advanced], local_overlap[advanced], local_heading[advanced] = np.nan, np.nan, np.nan
     target[follow] = new.active[follow]
     drive = np.full((n, 2), np.nan)
     drive[follow] = new.waypoint[follow]
@@ -428,6 +463,45 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     off = target < 0
     local[off], local_overlap[off], local_heading[off] = np.nan, np.nan, np.nan
     return new, StepOutput(drive, target, local, local_overlap, local_heading)
+
+
+TRACKER = tracker.TrackerConfig()
+
+
+def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, local: np.ndarray,
+                     car_state: np.ndarray, n_anchors: np.ndarray, frames,
+                     cfg: FollowerConfig) -> np.ndarray:
+    """Returns the cars whose active anchor the tracker advanced. Tracked cars: an active anchor (but the goal) that the tracker puts
+    behind the car or within ``visit_m`` counts as visited and the next one
+    becomes active; in Follow, a C_WP waypoint more than ``check_deg`` off
+    the tracked active anchor is replaced by that anchor; in Dead reckoning
+    the car drives to the tracked anchor instead of the held waypoint."""
+    moving = np.concatenate([follow, dead])
+    tracker.follow_visits(new, moving, frames)
+    q, known = tracker.tracked_anchor(new, moving, new.active[moving], frames)
+    dist = np.hypot(q[:, 0], q[:, 1])
+    passed = known & ((dist < cfg.visit_m) | ((q[:, 0] < 0.0) & (dist < TRACKED_PASS_M))) \
+        & (new.active[moving] < n_anchors[moving] - 1)
+    if passed.any():
+        c = moving[passed]
+        new.visited[c] = new.active[c]
+        new.active[c] += 1
+        new.stall[c] = 0
+        tracker.follow_visits(new, c, frames)
+        q[passed], known[passed] = tracker.tracked_anchor(new, c, new.active[c], frames)
+        dist = np.hypot(q[:, 0], q[:, 1])
+    w = local[moving]
+    cos = (w * q[:, :2]).sum(axis=1) / np.maximum(np.hypot(*w.T) * dist, 1e-9)
+    off = ~(cos >= np.cos(np.radians(cfg.check_deg)))          # NaN answers count as off
+    in_follow = np.arange(len(moving)) < len(follow)
+    use = known & (dist > 0.3) & (off | ~in_follow | passed)
+    if use.any():
+        c = moving[use]
+        new.waypoint[c] = car_to_world(q[use, None, :2], car_state[c])[:, 0]
+    return moving[passed]
+
+
+TRACKED_PASS_M = 1.0    # an anchor the tracker puts behind the car and this close is passed
 
 
 def outcome_of(state: FollowerState) -> list[str]:

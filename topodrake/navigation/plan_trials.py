@@ -76,6 +76,13 @@ def pruned_subset(n_trajectories: int, fraction: float, seed: int) -> np.ndarray
 
 # ---------------------------------------------------------------- following
 
+def judge_outcome(outcome: str, distance_to_goal_m: float, radius: float = SUCCESS_M) -> str:
+    """A follower's outcome under the success rule: ``reached`` farther than
+    ``radius`` from the goal is ``false_reached`` (the follower ended its
+    plan away from the goal)."""
+    return "false_reached" if outcome == "reached" and distance_to_goal_m > radius else outcome
+
+
 class GoalWatch:
     """The engine's ``watch``: stops a car within ``radius`` of its goal
     place (an episode ends at its goal) and remembers that it arrived."""
@@ -147,9 +154,8 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
             dist[i] = final
             steps[i] = int(res.steps[j])
             success[i] = code != NAV_COLLISION and (watch.arrived[j] or final <= radius)
-            outcome[i] = "goal" if watch.arrived[j] else NAV_OUTCOMES[code]
-            if outcome[i] == "reached" and final > radius:
-                outcome[i] = "false_reached"    # the follower ended its plan away from the goal
+            outcome[i] = "goal" if watch.arrived[j] else judge_outcome(NAV_OUTCOMES[code], final,
+                                                                        radius)
         if progress is not None:
             progress(len(part))
     return out
@@ -213,7 +219,7 @@ def render_pose_route(world, route, sensor=None):
     return Route(images.reshape(*ctx.shape[:2], *images.shape[1:]), route.poses,
                  vertices=route.vertices, edge_probability=route.edge_probability,
                  probability=route.probability, modality="camera",
-                 start_probability=route.start_probability)
+                 start_probability=route.start_probability, legs=route.legs)
 
 
 # ---------------------------------------------------------------- analysis

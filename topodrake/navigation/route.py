@@ -38,6 +38,7 @@ class Route:
     probability: float = 1.0
     modality: str = "camera"
     start_probability: float = 1.0
+    legs: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.contexts = np.asarray(self.contexts)
@@ -53,6 +54,11 @@ class Route:
             self.edge_probability = np.ones(n - 1)
         self.vertices = np.asarray(self.vertices, np.int64)
         self.edge_probability = np.asarray(self.edge_probability, np.float64)
+        self.legs = np.full((n - 1, 3), np.nan) if self.legs is None else \
+            np.asarray(self.legs, np.float64)
+        if self.legs.shape != (n - 1, 3):
+            raise TopodrakeError(f"a route of {n} anchors needs ({n - 1}, 3) legs, got "
+                                 f"{self.legs.shape}")
         if len(self.vertices) != n or len(self.edge_probability) != n - 1:
             raise TopodrakeError(f"a route of {n} anchors needs {n} vertices and {n - 1} edge "
                                  f"probabilities, got {len(self.vertices)} and "
@@ -66,10 +72,27 @@ class Route:
         return self.poses[-1]
 
 
-def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network) -> Route:
+def teach_legs(poses: np.ndarray, anchors: np.ndarray, odometry=None, seed: int = 0) -> np.ndarray:
+    """(A - 1, 3) relative poses between consecutive ``anchors`` (frames of a
+    drive along ``poses`` (T, 3)) as the drive's odometry (``odometry``, an
+    :class:`~topodrake.odometry.OdometryConfig` with the errors of ``seed``;
+    default perfect) measured them."""
+    from topodrake.odometry import OdometryConfig, odometry_along
+    from topodrake.se2 import relative
+
+    cfg = odometry or OdometryConfig.perfect()
+    poses = np.asarray(poses, np.float64).reshape(-1, 3)
+    odo = poses if cfg.is_perfect else odometry_along(poses, cfg, seed)
+    a = np.asarray(anchors, np.int64)
+    return relative(odo[a[:-1]], odo[a[1:]])
+
+
+def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network,
+                          odometry=None, seed: int = 0) -> Route:
     """The route along frames ``anchors`` of one trajectory (``poses`` (T, 3)),
     with each anchor's context rendered for ``network`` (its ``observation``,
-    ``k``, ``frame_step`` and ``sensor``; a pose oracle gets the poses)."""
+    ``k``, ``frame_step`` and ``sensor``; a pose oracle gets the poses) and
+    its legs from the drive's odometry (:func:`teach_legs`)."""
     from topodrake.learning.policy import context_frames
 
     poses = np.asarray(poses, np.float64)
@@ -86,14 +109,17 @@ def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network
         obs = observe(world, network.observation, ctx_poses.reshape(-1, 3),
                       getattr(network, "sensor", None))
         contexts = obs.reshape(*rows.shape, *obs.shape[1:])
-    return Route(contexts, poses[anchors], modality=network.observation)
+    return Route(contexts, poses[anchors], modality=network.observation,
+                 legs=teach_legs(poses, anchors, odometry, seed))
 
 
 def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors: np.ndarray,
-                            k: int, frame_step: int, modality: str) -> Route:
+                            k: int, frame_step: int, modality: str, odometry=None,
+                            seed: int = 0) -> Route:
     """The route along frames ``anchors`` of one trajectory whose
     observations (T, ...) are already rendered (no rendering again):
-    each anchor's 2k + 1 context frames, clamped to the trajectory."""
+    each anchor's 2k + 1 context frames, clamped to the trajectory; legs as
+    in :func:`route_from_trajectory`."""
     from topodrake.learning.policy import context_frames
 
     poses = np.asarray(poses, np.float64)
@@ -103,4 +129,5 @@ def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors
     if len(anchors) == 0 or anchors.min() < 0 or anchors.max() >= len(poses):
         raise TopodrakeError(f"anchors must be frames 0..{len(poses) - 1} of the trajectory")
     rows = context_frames(len(poses), anchors, k, frame_step)
-    return Route(np.asarray(observations)[rows], poses[anchors], modality=modality)
+    return Route(np.asarray(observations)[rows], poses[anchors], modality=modality,
+                 legs=teach_legs(poses, anchors, odometry, seed))

@@ -13,7 +13,8 @@ import time
 
 import numpy as np
 
-from topodrake.registration.icp import compose, invert, register
+from topodrake.registration.icp import register
+from topodrake.se2 import compose, invert
 
 
 def registration_rate(world, drive_poses: np.ndarray, batch: int = 256, min_seconds: float = 2.0,

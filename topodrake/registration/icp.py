@@ -41,8 +41,9 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.sensing.config import LidarConfig
+from topodrake.se2 import wrap as _wrap
 
-__all__ = ["IcpConfig", "Registration", "compose", "invert", "register", "scan_points"]
+__all__ = ["IcpConfig", "Registration", "register", "scan_points"]
 
 
 @dataclass(frozen=True)
@@ -107,26 +108,6 @@ def scan_points(ranges, lidar: LidarConfig | None = None) -> tuple[np.ndarray, n
     rr = np.where(valid, r, 0.0)
     pts = np.stack([lidar.forward_m + rr * np.cos(ang), rr * np.sin(ang)], axis=-1)
     return pts, valid
-
-
-def compose(a, b) -> np.ndarray:
-    """Poses ``a ∘ b`` (N, 3): ``b`` given in the frame of ``a``."""
-    a = np.asarray(a, np.float64).reshape(-1, 3)
-    b = np.asarray(b, np.float64).reshape(-1, 3)
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.column_stack([a[:, 0] + c * b[:, 0] - s * b[:, 1], a[:, 1] + s * b[:, 0] + c * b[:, 1],
-                            _wrap(a[:, 2] + b[:, 2])])
-
-
-def invert(a) -> np.ndarray:
-    """Inverse poses (N, 3)."""
-    a = np.asarray(a, np.float64).reshape(-1, 3)
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.column_stack([-c * a[:, 0] - s * a[:, 1], s * a[:, 0] - c * a[:, 1], -a[:, 2]])
-
-
-def _wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 def register(source, target, initial=None, config: IcpConfig | None = None,

@@ -61,8 +61,8 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.learning.policy import WaypointPrediction
-from topodrake.registration.icp import (IcpConfig, Registration, compose, invert,
-                                        register_points, scan_points)
+from topodrake.registration.icp import IcpConfig, Registration, register_points, scan_points
+from topodrake.se2 import compose, invert
 from topodrake.sensing.config import LidarConfig
 
 __all__ = ["RegistrationConfig", "RegistrationPolicy"]

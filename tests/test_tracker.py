@@ -1,0 +1,138 @@
+"""The route tracker: odometry along the taught legs, C_WP's answers as gated fixes."""
+
+import numpy as np
+
+from topodrake.navigation.follower import (DEAD_RECKONING, FOLLOW, Answers, FollowerConfig,
+                                           FollowerState, follower_step)
+from topodrake.navigation.tracker import (TrackerConfig, anchor_in_car, fix, propagate,
+                                          reanchor, route_frames, start_from_answer)
+from topodrake.se2 import compose, relative
+
+CFG = TrackerConfig()
+
+
+def test_route_frames_compose_legs_and_split_at_unknown_ones():
+    legs = np.array([[1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0], [np.nan] * 3, [2.0, 0.0, 0.0]])
+    frames, seg = route_frames([legs, np.zeros((0, 3))])
+    np.testing.assert_allclose(frames[:3], [[0, 0, 0], [1, 0, np.pi / 2], [1, 1, np.pi / 2]],
+                               atol=1e-12)
+    np.testing.assert_allclose(frames[3:5], [[0, 0, 0], [2, 0, 0]])
+    assert seg.tolist() == [0, 0, 0, 1, 1, 2]
+
+
+def test_propagate_moves_the_pose_by_odometry_and_grows_the_variance():
+    rel, var = np.array([[0.5, 0.0, 0.0]]), np.full((1, 2), 0.01)
+    before, after = np.array([[3.0, 1.0, np.pi / 2]]), np.array([[3.0, 2.0, np.pi / 2]])
+    rel2, var2 = propagate(rel, var, before, after, CFG)
+    np.testing.assert_allclose(rel2, [[1.5, 0.0, 0.0]], atol=1e-12)
+    assert (var2 > var).all()
+
+
+def exact_answer(car, anchor):
+    seen = relative(car, anchor)
+    return seen[:, :2], seen[:, 2]
+
+
+def test_an_exact_answer_pulls_a_wrong_prior_to_the_truth():
+    anchor = np.array([[2.0, 0.0, 0.3]])
+    truth = np.array([[0.2, 0.1, 0.05]])
+    rel, var = truth + [[0.3, -0.2, 0.1]], np.array([[0.3 ** 2, 0.2 ** 2]])
+    for _ in range(10):
+        rel, var, ok = fix(rel, var, anchor, *exact_answer(truth, anchor), CFG)
+        assert ok[0]
+    before, after = np.hypot(0.3, -0.2), np.hypot(*(rel - truth)[0, :2])
+    assert after < 0.3 * before                  # a Kalman average of the prior and the answers
+    assert abs(rel[0, 2] - truth[0, 2]) < 0.02
+
+
+def test_an_answer_far_off_the_prior_is_outvoted():
+    anchor = np.array([[1.5, 0.0, 0.0]])
+    truth = np.zeros((1, 3))
+    var = np.array([[0.05 ** 2, 0.05 ** 2]])
+    wrong = np.array([[0.0, 1.5]])                       # 90 deg off
+    rel, var2, ok = fix(truth, var, anchor, wrong, np.zeros(1), CFG)
+    assert not ok[0]
+    np.testing.assert_array_equal(rel, truth)
+    np.testing.assert_array_equal(var2, var)
+
+
+def test_a_start_from_one_answer_and_reanchoring_keep_the_cars_pose():
+    car = np.array([[0.3, -0.2, 0.4]])
+    anchor = np.array([[1.0, 0.5, -0.2]])             # both in some common frame
+    rel, _ = start_from_answer(*exact_answer(car, anchor), CFG)   # the car in the anchor's frame
+    np.testing.assert_allclose(compose(anchor, rel), car, atol=1e-12)
+    other = np.array([[2.0, 2.0, 1.0]])
+    np.testing.assert_allclose(compose(other, reanchor(rel, anchor, other)), car, atol=1e-12)
+    np.testing.assert_allclose(anchor_in_car(rel, np.zeros((1, 3))),
+                               relative(car, anchor), atol=1e-12)
+
+
+class Straight:
+    """A route of anchors 1 m apart along x from the origin; C_WP's answers
+    are exact but toward ``bad`` anchors, where they point 90 deg left; RE
+    always 0.95, overlaps 0.7."""
+
+    def __init__(self, n, bad=()):
+        self.frames = np.column_stack([np.arange(n, dtype=float), np.zeros(n), np.zeros(n)])
+        self.bad = set(bad)
+        self.car = np.zeros((1, 3))
+
+    def anchor_frames(self, cars, anchors):
+        return self.frames[anchors], np.zeros(len(anchors), np.int64)
+
+    def __call__(self, cars, anchors, cwp, re):
+        m = len(anchors)
+        wp, h = exact_answer(np.repeat(self.car, m, 0), self.frames[anchors])
+        for i, a in enumerate(anchors):
+            if a in self.bad:
+                wp[i] = [0.0, np.hypot(*wp[i])]
+        return Answers(wp, np.full((m, 2), 0.7), np.full(m, 0.95), h)
+
+
+def drive(ev, state, car, **cfg):
+    ev.car = car[None, :3]
+    return follower_step(state, np.array([len(ev.frames)]), car[None], ev,
+                         FollowerConfig(**cfg))
+
+
+def test_the_follower_replaces_a_waypoint_that_disagrees_with_the_tracked_anchor():
+    ev = Straight(6, bad={3})
+    car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+    s = FollowerState.initial(1)
+    for x in (0.0, 0.6, 1.2):                     # the tracker starts and follows anchors 1, 2
+        car[0] = x
+        s, out = drive(ev, s, car, odometry_check=True)
+    assert s.mode[0] == FOLLOW and s.ref[0] >= 0
+    car[0] = 2.2                                  # past anchor 2: anchor 3 is active, C_WP wrong
+    before = s.copy()
+    s, out = drive(ev, s, car, odometry_check=True)
+    assert s.active[0] == 3
+    np.testing.assert_allclose(out.waypoint[0], [3.0, 0.0], atol=0.05)   # the tracked anchor
+    assert out.local[0, 1] > 0.5                                            # C_WP's answer kept
+    plain, out_plain = drive(ev, before, car)
+    assert plain.active[0] == 3
+    assert out_plain.waypoint[0, 1] > 0.5          # without the check the car turns left
+
+
+def test_dead_reckoning_drives_to_the_tracked_anchor():
+    ev = Straight(6)
+    car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+    s = FollowerState.initial(1)
+    for x in (0.0, 0.6):
+        car[0] = x
+        s, _ = drive(ev, s, car, odometry_check=True)
+    s.mode[:] = DEAD_RECKONING
+    s.waypoint[:] = [[0.0, 5.0]]
+    car[0] = 0.4
+
+    class LowRe(Straight):
+        def __call__(self, cars, anchors, cwp, re):
+            a = super().__call__(cars, anchors, cwp, re)
+            a.probability[:] = 0.1
+            return a
+
+    low = LowRe(6)
+    low.car = car[None, :3]
+    s, out = follower_step(s, np.array([6]), car[None], low, FollowerConfig(odometry_check=True))
+    assert s.mode[0] == DEAD_RECKONING
+    np.testing.assert_allclose(out.waypoint[0], low.frames[s.active[0], :2], atol=0.05)

@@ -1,0 +1,223 @@
+"""Where the car is along its taught route: odometry between anchors, C_WP's answers as fixes.
+
+The teach-and-repeat idea (VT&R: relative transforms between taught
+vertices from the teach drive's odometry, the repeat's odometry as a prior,
+a measurement accepted only where it agrees with that prior) applied to the
+follower: each car keeps its pose ``rel`` in the frame of one anchor of its
+route (``ref``) with a position and a heading variance. Each period:
+
+* :func:`propagate`: odometry moves ``rel`` by the car's measured motion and
+  grows the variances with the distance driven;
+* :func:`fix`: each C_WP answer toward an anchor within ``fix_range_m``
+  whose pose relative to ``ref`` the route's legs give is a measurement:
+  toward a target in sight the waypoint is the target's position in the car
+  frame and the heading head its heading difference. An answer within the
+  gate (3 sigma of prior plus measurement) moves ``rel`` by the Kalman
+  gain; one outside is outvoted; ``reset_after`` outvoted answers in a row
+  mean the prior is wrong, and the next answer starts it again;
+* :func:`reanchor`: ``ref`` follows the car's last visited anchor.
+
+:func:`anchor_in_car` is what the follower checks C_WP's waypoint with.
+Anchors joined by unknown legs (hops between drives) lie in different
+segments; across them the car is localized again from its answers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from topodrake.se2 import compose, relative, rotate, wrap
+
+
+@dataclass
+class TrackerConfig:
+    """Noise of the prior and of C_WP's answers; gates."""
+
+    fix_range_m: float = 2.5          # answers toward anchors predicted farther are not fixes
+    drift_m_per_m: float = 0.06       # position sigma grown per metre driven
+    drift_rad_per_m: float = 0.04     # heading sigma grown per metre driven
+    answer_m: float = 0.1             # an answer's position sigma at the target ...
+    answer_m_per_m: float = 0.15      # ... plus this per metre of target distance
+    answer_rad: float = 0.15          # the heading head's sigma
+    gate_sigma: float = 3.0           # answers beyond this many sigma are outvoted
+    reset_after: int = 4              # outvoted answers in a row that restart the prior
+    initial_m: float = 0.3            # position sigma of a start from one answer
+    initial_rad: float = 0.3          # heading sigma of a start from one answer
+
+
+def route_frames(legs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Each anchor's pose (R, 3) in its segment's frame and its segment id
+    (R,) for routes with ``legs`` (A_i - 1, 3) each, stacked in order. A NaN
+    leg starts a new segment (no known transform across it)."""
+    frames, segments, seg = [], [], 0
+    for lg in legs:
+        lg = np.asarray(lg, np.float64).reshape(-1, 3)
+        pose = np.zeros((1, 3))
+        frames.append(pose[0])
+        segments.append(seg)
+        for leg in lg:
+            if np.all(np.isfinite(leg)):
+                pose = compose(pose, leg)
+            else:
+                seg += 1
+                pose = np.zeros((1, 3))
+            frames.append(pose[0])
+            segments.append(seg)
+        seg += 1
+    if not frames:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    return np.array(frames), np.array(segments, np.int64)
+
+
+def propagate(rel: np.ndarray, var: np.ndarray, odo_before: np.ndarray, odo_now: np.ndarray,
+              cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``rel`` (N, 3) and ``var`` (N, 2) moved by the odometry increment."""
+    step = relative(odo_before, odo_now)
+    dist = np.hypot(step[:, 0], step[:, 1]) + 0.3 * np.abs(step[:, 2])
+    var = var + np.column_stack([(cfg.drift_m_per_m * dist) ** 2,
+                                 (cfg.drift_rad_per_m * dist) ** 2])
+    return compose(rel, step), var
+
+
+def anchor_in_car(rel: np.ndarray, anchor: np.ndarray) -> np.ndarray:
+    """The anchor poses (N, 3), given in the ``ref`` frame, seen from cars at ``rel``."""
+    return relative(rel, anchor)
+
+
+def fix(rel: np.ndarray, var: np.ndarray, anchor: np.ndarray, waypoint: np.ndarray,
+        heading: np.ndarray, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One answer per car: C_WP's ``waypoint`` (N, 2) and ``heading`` (N,)
+    toward an anchor at ``anchor`` (N, 3) in the ``ref`` frame. Returns the
+    corrected ``rel``, ``var`` and whether each answer was accepted (N,);
+    rows with a non-finite answer are left alone (not accepted)."""
+    rel = rel.copy()
+    var = var.copy()
+    seen = anchor_in_car(rel, anchor)
+    dist = np.hypot(seen[:, 0], seen[:, 1])
+    r_pos = (cfg.answer_m + cfg.answer_m_per_m * dist) ** 2
+    err = waypoint - seen[:, :2]
+    ok = np.isfinite(err).all(axis=1) & (dist < cfg.fix_range_m)
+    ok &= (err ** 2).sum(axis=1) < cfg.gate_sigma ** 2 * (var[:, 0] + r_pos)
+    if not ok.any():
+        return rel, var, ok
+    # the car's position that the answer implies, in the ref frame
+    implied = anchor[ok, :2] - rotate(waypoint[ok], rel[ok, 2])
+    gain = var[ok, 0] / (var[ok, 0] + r_pos[ok])
+    rel[ok, :2] += gain[:, None] * (implied - rel[ok, :2])
+    var[ok, 0] *= 1.0 - gain
+    h = np.asarray(heading, np.float64)[ok]
+    implied_h = anchor[ok, 2] - h
+    dh = wrap(implied_h - rel[ok, 2])
+    use = np.isfinite(dh) & (dh ** 2 < cfg.gate_sigma ** 2 * (var[ok, 1] + cfg.answer_rad ** 2))
+    k_h = var[ok, 1] / (var[ok, 1] + cfg.answer_rad ** 2)
+    idx = np.flatnonzero(ok)[use]
+    rel[idx, 2] = wrap(rel[idx, 2] + k_h[use] * dh[use])
+    var[idx, 1] *= 1.0 - k_h[use]
+    return rel, var, ok
+
+
+def start_from_answer(waypoint: np.ndarray, heading: np.ndarray, cfg: TrackerConfig
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The car's pose (N, 3) in the frame of the anchor C_WP answered about
+    (as if the answer were exact), with the variances of such a start."""
+    h = np.where(np.isfinite(heading), heading, 0.0)
+    anchor_seen = np.column_stack([waypoint, h])
+    rel = relative(anchor_seen, np.zeros_like(anchor_seen))
+    n = len(rel)
+    dist = np.hypot(*np.asarray(waypoint).T)
+    var = np.column_stack([np.full(n, cfg.initial_m ** 2) + (cfg.answer_m_per_m * dist) ** 2,
+                           np.full(n, cfg.initial_rad ** 2)])
+    return rel, var
+
+
+def reanchor(rel: np.ndarray, old_anchor: np.ndarray, new_anchor: np.ndarray) -> np.ndarray:
+    """``rel`` re-expressed from one anchor's frame to another's (both
+    given in a common frame, (N, 3))."""
+    return compose(relative(new_anchor, old_anchor), rel)
+
+
+# -- the follower's use: functions over a FollowerState's tracking fields (ref, rel, var,
+#    odo, misses), for the cars ``cars`` of the batch ------------------------------------------
+
+def advance(state, odometry: np.ndarray, cfg: TrackerConfig) -> None:
+    """Moves every tracked car by its odometry since the last period."""
+    live = np.flatnonzero((state.ref >= 0) & np.isfinite(state.odo).all(axis=1))
+    if live.size:
+        state.rel[live], state.var[live] = propagate(state.rel[live], state.var[live],
+                                                     state.odo[live], odometry[live], cfg)
+    state.odo[:] = odometry
+
+
+def apply_answers(state, cars: np.ndarray, anchors: np.ndarray, waypoint: np.ndarray,
+                  heading: np.ndarray | None, frames, cfg: TrackerConfig) -> None:
+    """C_WP's answers (rows ``cars`` ascending, their ``anchors``) as fixes;
+    ``frames(cars, anchors)`` gives anchors' (poses (M, 3), segments (M,)).
+    A car not tracked starts from its answer toward the first anchor asked."""
+    m = len(cars)
+    if m == 0:
+        return
+    heading = np.full(m, np.nan) if heading is None else np.asarray(heading, np.float64)
+    first = np.r_[True, cars[1:] != cars[:-1]]
+    order = np.arange(m) - np.maximum.accumulate(np.where(first, np.arange(m), 0))
+    pose, seg = frames(cars, anchors)
+    # untracked cars: start from the first in-range answer
+    start = first & (state.ref[cars] < 0) & np.isfinite(waypoint).all(axis=1) \
+        & (np.hypot(*waypoint.T) < cfg.fix_range_m)
+    if start.any():
+        c = cars[start]
+        state.rel[c], state.var[c] = start_from_answer(waypoint[start], heading[start], cfg)
+        state.ref[c] = anchors[start]
+        state.misses[c] = 0
+    for k in range(int(order.max()) + 1):
+        idx = np.flatnonzero((order == k) & ~start)
+        c = cars[idx]
+        tracked = state.ref[c] >= 0
+        idx, c = idx[tracked], c[tracked]
+        if idx.size == 0:
+            continue
+        ref_pose, ref_seg = frames(c, state.ref[c])
+        same = ref_seg == seg[idx]
+        idx, c, ref_pose = idx[same], c[same], ref_pose[same]
+        if idx.size == 0:
+            continue
+        anchor = relative(ref_pose, pose[idx])
+        rel, var, ok = fix(state.rel[c], state.var[c], anchor, waypoint[idx], heading[idx], cfg)
+        state.rel[c], state.var[c] = rel, var
+        seen = anchor_in_car(rel, anchor)
+        asked = np.hypot(seen[:, 0], seen[:, 1]) < cfg.fix_range_m
+        state.misses[c] = np.where(ok, 0, state.misses[c] + asked)
+        lost = c[state.misses[c] >= cfg.reset_after]
+        state.ref[lost] = -1
+
+
+def follow_visits(state, cars: np.ndarray, frames) -> None:
+    """Tracked cars re-express their pose from their last visited anchor."""
+    c = cars[(state.ref[cars] >= 0) & (state.visited[cars] >= 0)
+             & (state.visited[cars] != state.ref[cars])]
+    if c.size == 0:
+        return
+    old, old_seg = frames(c, state.ref[c])
+    new, new_seg = frames(c, state.visited[c])
+    same = old_seg == new_seg
+    state.rel[c[same]] = reanchor(state.rel[c[same]], old[same], new[same])
+    state.ref[c[same]] = state.visited[c[same]]
+    state.ref[c[~same]] = -1
+
+
+def tracked_anchor(state, cars: np.ndarray, anchors: np.ndarray, frames
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Where anchors ``anchors`` of cars ``cars`` are in each car's frame
+    (M, 3) by the tracker, and whether it knows (M,)."""
+    out = np.full((len(cars), 3), np.nan)
+    known = state.ref[cars] >= 0
+    if known.any():
+        c = cars[known]
+        ref_pose, ref_seg = frames(c, state.ref[c])
+        pose, seg = frames(c, anchors[known])
+        same = ref_seg == seg
+        rows = np.flatnonzero(known)[same]
+        out[rows] = anchor_in_car(state.rel[c[same]], relative(ref_pose[same], pose[same]))
+        known[np.flatnonzero(known)[~same]] = False
+    return out, known
