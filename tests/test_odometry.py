@@ -67,9 +67,11 @@ def test_odometry_config_refuses_a_negative_error():
 
 def test_teach_legs_are_relative_poses_of_consecutive_anchors():
     poses = arc()
-    legs = teach_legs(poses, [0, 50, 120, 199])
+    legs, paths = teach_legs(poses, [0, 50, 120, 199], points=4)
+    np.testing.assert_allclose(paths[:, -1], legs, atol=1e-12)       # each path ends at the anchor
+    np.testing.assert_allclose(compose(poses[50:51], paths[1, 1]), poses[85:86], atol=1e-9)
     np.testing.assert_allclose(compose(compose(compose(poses[:1], legs[0]), legs[1]), legs[2]),
                                poses[199:200], atol=1e-9)
-    drifted = teach_legs(poses, [0, 50, 120, 199], OdometryConfig.wheel(), seed=3)
+    drifted, _ = teach_legs(poses, [0, 50, 120, 199], OdometryConfig.wheel(), seed=3)
     assert not np.allclose(drifted, legs)
     assert np.abs(drifted - legs).max() < 0.2      # a few per cent over a 2 m leg

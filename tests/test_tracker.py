@@ -4,7 +4,7 @@ import numpy as np
 
 from topodrake.navigation.follower import (DEAD_RECKONING, FOLLOW, Answers, FollowerConfig,
                                            FollowerState, follower_step)
-from topodrake.navigation.tracker import (TrackerConfig, anchor_in_car, fix, propagate,
+from topodrake.navigation.tracker import (TrackerConfig, anchor_in_car, fix, propagate, pursuit_point,
                                           reanchor, route_frames, start_from_answer)
 from topodrake.se2 import compose, relative
 
@@ -13,7 +13,9 @@ CFG = TrackerConfig()
 
 def test_route_frames_compose_legs_and_split_at_unknown_ones():
     legs = np.array([[1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0], [np.nan] * 3, [2.0, 0.0, 0.0]])
-    frames, seg = route_frames([legs, np.zeros((0, 3))])
+    frames, seg, approach = route_frames([legs, np.zeros((0, 3))])
+    assert np.isnan(approach[[0, 3, 5]]).all()
+    np.testing.assert_allclose(approach[2, -1], frames[2], atol=1e-12)
     np.testing.assert_allclose(frames[:3], [[0, 0, 0], [1, 0, np.pi / 2], [1, 1, np.pi / 2]],
                                atol=1e-12)
     np.testing.assert_allclose(frames[3:5], [[0, 0, 0], [2, 0, 0]])
@@ -78,7 +80,8 @@ class Straight:
         self.car = np.zeros((1, 3))
 
     def anchor_frames(self, cars, anchors):
-        return self.frames[anchors], np.zeros(len(anchors), np.int64)
+        return self.frames[anchors], np.zeros(len(anchors), np.int64), \
+            np.full((len(anchors), 1, 3), np.nan)
 
     def __call__(self, cars, anchors, cwp, re):
         m = len(anchors)
@@ -136,3 +139,18 @@ def test_dead_reckoning_drives_to_the_tracked_anchor():
     s, out = follower_step(s, np.array([6]), car[None], low, FollowerConfig(odometry_check=True))
     assert s.mode[0] == DEAD_RECKONING
     np.testing.assert_allclose(out.waypoint[0], low.frames[s.active[0], :2], atol=0.05)
+
+
+def test_the_pursuit_point_follows_the_taught_path_round_a_corner():
+    # taught poses into an anchor 2 m ahead and 2 m left: first straight on, then left
+    path = np.array([[0.5, 0, 0], [1.0, 0, 0], [1.5, 0, 0], [2.0, 0, np.pi / 2],
+                     [2.0, 0.5, np.pi / 2], [2.0, 1.0, np.pi / 2], [2.0, 1.5, np.pi / 2]])
+    anchor = np.array([[2.0, 2.0, np.pi / 2]])
+    car = np.zeros((1, 3))
+    aim = pursuit_point(car, path[None], anchor, 1.0)
+    np.testing.assert_allclose(aim, [[1.0, 0.0]])              # along the path, not the chord
+    car_on = np.array([[2.0, 0.4, np.pi / 2]])
+    np.testing.assert_allclose(pursuit_point(car_on, path[None], anchor, 1.0), [[1.1, 0.0]],
+                               atol=1e-12)
+    unknown = np.full((1, 7, 3), np.nan)
+    np.testing.assert_allclose(pursuit_point(car, unknown, anchor, 1.0), [[2.0, 2.0]])

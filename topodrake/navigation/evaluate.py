@@ -56,6 +56,7 @@ class RouteFeatures:
     offsets: np.ndarray
     frames: np.ndarray | None = None
     segments: np.ndarray | None = None
+    approach: np.ndarray | None = None
 
     @property
     def n_anchors(self) -> np.ndarray:
@@ -118,8 +119,9 @@ def encode_routes(routes, policy, reach, route_k: int | None = None,
 
     from topodrake.navigation.tracker import route_frames
 
-    frames, segments = route_frames([r.legs for r in routes])
-    return RouteFeatures(features(policy), features(reach), offsets, frames, segments)
+    frames, segments, approach = route_frames([r.legs for r in routes],
+                                              [r.leg_paths for r in routes])
+    return RouteFeatures(features(policy), features(reach), offsets, frames, segments, approach)
 
 
 def _reads_poses(network, routes) -> bool:
@@ -129,13 +131,21 @@ def _reads_poses(network, routes) -> bool:
 
 def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:
     """The features of ``a``'s routes followed by ``b``'s."""
-    frames = segments = None
+    frames = segments = approach = None
     if a.frames is not None and b.frames is not None:
         frames = np.concatenate([a.frames, b.frames])
         segments = np.concatenate([a.segments, b.segments + (a.segments.max(initial=-1) + 1)])
+        k = max(a.approach.shape[1], b.approach.shape[1])
+        approach = np.concatenate([_pad_points(a.approach, k), _pad_points(b.approach, k)])
     return RouteFeatures(_concat([a.cwp, b.cwp]), _concat([a.re, b.re]),
                          np.concatenate([a.offsets, a.offsets[-1] + b.offsets[1:]]),
-                         frames, segments)
+                         frames, segments, approach)
+
+
+def _pad_points(paths: np.ndarray, k: int) -> np.ndarray:
+    """(R, K', 3) paths padded to K points with their last."""
+    return paths if paths.shape[1] >= k else \
+        np.concatenate([paths, np.repeat(paths[:, -1:], k - paths.shape[1], 1)], 1)
 
 
 def take_rows(feats, rows: np.ndarray):
@@ -187,13 +197,15 @@ class Evaluator:
             raise TopodrakeError("a stateful C_WP needs the cars' track state and odometry")
 
     def anchor_frames(self, cars: np.ndarray, anchors: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray]:
-        """Anchors' poses (M, 3) in their segments' frames and their segments
-        (M,); every anchor its own segment when the routes have no legs."""
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Anchors' poses (M, 3) in their segments' frames, their segments
+        (M,) and the taught poses of the hops into them (M, K, 3); every
+        anchor its own segment when the routes have no legs."""
         rows = self.start[np.asarray(cars, np.int64)] + np.asarray(anchors, np.int64)
-        if self.features.frames is None:
-            return np.zeros((len(rows), 3)), rows
-        return self.features.frames[rows], self.features.segments[rows]
+        f = self.features
+        if f.frames is None:
+            return np.zeros((len(rows), 3)), rows, np.full((len(rows), 1, 3), np.nan)
+        return f.frames[rows], f.segments[rows], f.approach[rows]
 
     def _obs(self, network, cars: np.ndarray) -> np.ndarray:
         if network.observation == "pose":

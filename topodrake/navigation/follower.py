@@ -474,11 +474,12 @@ def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, l
     """Returns the cars whose active anchor the tracker advanced. Tracked cars: an active anchor (but the goal) that the tracker puts
     behind the car or within ``visit_m`` counts as visited and the next one
     becomes active; in Follow, a C_WP waypoint more than ``check_deg`` off
-    the tracked active anchor is replaced by that anchor; in Dead reckoning
-    the car drives to the tracked anchor instead of the held waypoint."""
+    the tracked pursuit point (on the taught poses into the active anchor)
+    is replaced by that point; in Dead reckoning the car drives to the
+    pursuit point instead of the held waypoint."""
     moving = np.concatenate([follow, dead])
     tracker.follow_visits(new, moving, frames)
-    q, known = tracker.tracked_anchor(new, moving, new.active[moving], frames)
+    q, known, aim = tracker.tracked_anchor(new, moving, new.active[moving], frames)
     dist = np.hypot(q[:, 0], q[:, 1])
     passed = known & ((dist < cfg.visit_m) | ((q[:, 0] < 0.0) & (dist < TRACKED_PASS_M))) \
         & (new.active[moving] < n_anchors[moving] - 1)
@@ -488,16 +489,17 @@ def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, l
         new.active[c] += 1
         new.stall[c] = 0
         tracker.follow_visits(new, c, frames)
-        q[passed], known[passed] = tracker.tracked_anchor(new, c, new.active[c], frames)
+        q[passed], known[passed], aim[passed] = tracker.tracked_anchor(new, c, new.active[c],
+                                                                       frames)
         dist = np.hypot(q[:, 0], q[:, 1])
     w = local[moving]
-    cos = (w * q[:, :2]).sum(axis=1) / np.maximum(np.hypot(*w.T) * dist, 1e-9)
+    cos = (w * aim).sum(axis=1) / np.maximum(np.hypot(*w.T) * np.hypot(*aim.T), 1e-9)
     off = ~(cos >= np.cos(np.radians(cfg.check_deg)))          # NaN answers count as off
     in_follow = np.arange(len(moving)) < len(follow)
     use = known & (dist > 0.3) & (off | ~in_follow | passed)
     if use.any():
         c = moving[use]
-        new.waypoint[c] = car_to_world(q[use, None, :2], car_state[c])[:, 0]
+        new.waypoint[c] = car_to_world(aim[use, None], car_state[c])[:, 0]
     return moving[passed]
 
 

@@ -219,7 +219,8 @@ def render_pose_route(world, route, sensor=None):
     return Route(images.reshape(*ctx.shape[:2], *images.shape[1:]), route.poses,
                  vertices=route.vertices, edge_probability=route.edge_probability,
                  probability=route.probability, modality="camera",
-                 start_probability=route.start_probability, legs=route.legs)
+                 start_probability=route.start_probability, legs=route.legs,
+                 leg_paths=route.leg_paths)
 
 
 # ---------------------------------------------------------------- analysis

@@ -39,6 +39,7 @@ class Route:
     modality: str = "camera"
     start_probability: float = 1.0
     legs: np.ndarray | None = None
+    leg_paths: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.contexts = np.asarray(self.contexts)
@@ -59,6 +60,13 @@ class Route:
         if self.legs.shape != (n - 1, 3):
             raise TopodrakeError(f"a route of {n} anchors needs ({n - 1}, 3) legs, got "
                                  f"{self.legs.shape}")
+        if self.leg_paths is None:
+            self.leg_paths = np.repeat(self.legs[:, None], 1, axis=1)
+        self.leg_paths = np.asarray(self.leg_paths, np.float64)
+        if self.leg_paths.ndim != 3 or self.leg_paths.shape[0] != n - 1 or \
+                self.leg_paths.shape[2] != 3:
+            raise TopodrakeError(f"a route of {n} anchors needs ({n - 1}, K, 3) leg paths, got "
+                                 f"{self.leg_paths.shape}")
         if len(self.vertices) != n or len(self.edge_probability) != n - 1:
             raise TopodrakeError(f"a route of {n} anchors needs {n} vertices and {n - 1} edge "
                                  f"probabilities, got {len(self.vertices)} and "
@@ -72,11 +80,16 @@ class Route:
         return self.poses[-1]
 
 
-def teach_legs(poses: np.ndarray, anchors: np.ndarray, odometry=None, seed: int = 0) -> np.ndarray:
-    """(A - 1, 3) relative poses between consecutive ``anchors`` (frames of a
-    drive along ``poses`` (T, 3)) as the drive's odometry (``odometry``, an
+LEG_POINTS = 8     # teach poses kept along each hop
+
+
+def teach_legs(poses: np.ndarray, anchors: np.ndarray, odometry=None, seed: int = 0,
+               points: int = LEG_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """The hops between consecutive ``anchors`` (frames of a drive along
+    ``poses`` (T, 3)) as the drive's odometry (``odometry``, an
     :class:`~topodrake.odometry.OdometryConfig` with the errors of ``seed``;
-    default perfect) measured them."""
+    default perfect) measured them: relative poses (A - 1, 3) and ``points``
+    poses along each (A - 1, points, 3) (the route's ``legs`` and ``leg_paths``)."""
     from topodrake.odometry import OdometryConfig, odometry_along
     from topodrake.se2 import relative
 
@@ -84,7 +97,10 @@ def teach_legs(poses: np.ndarray, anchors: np.ndarray, odometry=None, seed: int 
     poses = np.asarray(poses, np.float64).reshape(-1, 3)
     odo = poses if cfg.is_perfect else odometry_along(poses, cfg, seed)
     a = np.asarray(anchors, np.int64)
-    return relative(odo[a[:-1]], odo[a[1:]])
+    frac = np.arange(1, points + 1) / points
+    idx = np.rint(a[:-1, None] + frac[None] * (a[1:] - a[:-1])[:, None]).astype(np.int64)
+    paths = relative(np.repeat(odo[a[:-1]], points, axis=0), odo[idx.ravel()])
+    return relative(odo[a[:-1]], odo[a[1:]]), paths.reshape(len(idx), points, 3)
 
 
 def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network,
@@ -109,8 +125,9 @@ def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network
         obs = observe(world, network.observation, ctx_poses.reshape(-1, 3),
                       getattr(network, "sensor", None))
         contexts = obs.reshape(*rows.shape, *obs.shape[1:])
-    return Route(contexts, poses[anchors], modality=network.observation,
-                 legs=teach_legs(poses, anchors, odometry, seed))
+    legs, paths = teach_legs(poses, anchors, odometry, seed)
+    return Route(contexts, poses[anchors], modality=network.observation, legs=legs,
+                 leg_paths=paths)
 
 
 def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors: np.ndarray,
@@ -129,5 +146,6 @@ def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors
     if len(anchors) == 0 or anchors.min() < 0 or anchors.max() >= len(poses):
         raise TopodrakeError(f"anchors must be frames 0..{len(poses) - 1} of the trajectory")
     rows = context_frames(len(poses), anchors, k, frame_step)
-    return Route(np.asarray(observations)[rows], poses[anchors], modality=modality,
-                 legs=teach_legs(poses, anchors, odometry, seed))
+    legs, paths = teach_legs(poses, anchors, odometry, seed)
+    return Route(np.asarray(observations)[rows], poses[anchors], modality=modality, legs=legs,
+                 leg_paths=paths)

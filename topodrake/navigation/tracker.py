@@ -47,28 +47,40 @@ class TrackerConfig:
     initial_rad: float = 0.3          # heading sigma of a start from one answer
 
 
-def route_frames(legs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Each anchor's pose (R, 3) in its segment's frame and its segment id
-    (R,) for routes with ``legs`` (A_i - 1, 3) each, stacked in order. A NaN
-    leg starts a new segment (no known transform across it)."""
-    frames, segments, seg = [], [], 0
-    for lg in legs:
+def route_frames(legs: list[np.ndarray], leg_paths: list[np.ndarray] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For routes with ``legs`` (A_i - 1, 3) (and ``leg_paths`` (A_i - 1, K_i,
+    3)), stacked in order: each anchor's pose (R, 3) in its segment's frame,
+    its segment id (R,), and the taught poses of the hop into it (R, K, 3)
+    in that frame (K the largest K_i, shorter paths padded with their end;
+    NaN where a segment starts). A NaN leg starts a new segment."""
+    if leg_paths is None:
+        leg_paths = [np.asarray(lg, np.float64).reshape(-1, 1, 3) for lg in legs]
+    k = max([p.shape[1] for p in leg_paths] + [1])
+    frames, segments, approach, seg = [], [], [], 0
+    for lg, paths in zip(legs, leg_paths):
         lg = np.asarray(lg, np.float64).reshape(-1, 3)
+        paths = np.asarray(paths, np.float64)
+        if paths.shape[1] < k:
+            paths = np.concatenate([paths, np.repeat(paths[:, -1:], k - paths.shape[1], 1)], 1)
         pose = np.zeros((1, 3))
         frames.append(pose[0])
         segments.append(seg)
-        for leg in lg:
-            if np.all(np.isfinite(leg)):
+        approach.append(np.full((k, 3), np.nan))
+        for leg, path in zip(lg, paths):
+            if np.all(np.isfinite(leg)) and np.all(np.isfinite(path)):
+                approach.append(compose(np.repeat(pose, k, 0), path))
                 pose = compose(pose, leg)
             else:
                 seg += 1
                 pose = np.zeros((1, 3))
+                approach.append(np.full((k, 3), np.nan))
             frames.append(pose[0])
             segments.append(seg)
         seg += 1
     if not frames:
-        return np.zeros((0, 3)), np.zeros(0, np.int64)
-    return np.array(frames), np.array(segments, np.int64)
+        return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, k, 3))
+    return np.array(frames), np.array(segments, np.int64), np.array(approach)
 
 
 def propagate(rel: np.ndarray, var: np.ndarray, odo_before: np.ndarray, odo_now: np.ndarray,
@@ -153,7 +165,8 @@ def advance(state, odometry: np.ndarray, cfg: TrackerConfig) -> None:
 def apply_answers(state, cars: np.ndarray, anchors: np.ndarray, waypoint: np.ndarray,
                   heading: np.ndarray | None, frames, cfg: TrackerConfig) -> None:
     """C_WP's answers (rows ``cars`` ascending, their ``anchors``) as fixes;
-    ``frames(cars, anchors)`` gives anchors' (poses (M, 3), segments (M,)).
+    ``frames(cars, anchors)`` gives anchors' (poses (M, 3), segments (M,),
+    approach paths (M, K, 3)).
     A car not tracked starts from its answer toward the first anchor asked."""
     m = len(cars)
     if m == 0:
@@ -161,7 +174,7 @@ def apply_answers(state, cars: np.ndarray, anchors: np.ndarray, waypoint: np.nda
     heading = np.full(m, np.nan) if heading is None else np.asarray(heading, np.float64)
     first = np.r_[True, cars[1:] != cars[:-1]]
     order = np.arange(m) - np.maximum.accumulate(np.where(first, np.arange(m), 0))
-    pose, seg = frames(cars, anchors)
+    pose, seg, _ = frames(cars, anchors)
     # untracked cars: start from the first in-range answer
     start = first & (state.ref[cars] < 0) & np.isfinite(waypoint).all(axis=1) \
         & (np.hypot(*waypoint.T) < cfg.fix_range_m)
@@ -177,7 +190,7 @@ def apply_answers(state, cars: np.ndarray, anchors: np.ndarray, waypoint: np.nda
         idx, c = idx[tracked], c[tracked]
         if idx.size == 0:
             continue
-        ref_pose, ref_seg = frames(c, state.ref[c])
+        ref_pose, ref_seg, _ = frames(c, state.ref[c])
         same = ref_seg == seg[idx]
         idx, c, ref_pose = idx[same], c[same], ref_pose[same]
         if idx.size == 0:
@@ -198,26 +211,56 @@ def follow_visits(state, cars: np.ndarray, frames) -> None:
              & (state.visited[cars] != state.ref[cars])]
     if c.size == 0:
         return
-    old, old_seg = frames(c, state.ref[c])
-    new, new_seg = frames(c, state.visited[c])
+    old, old_seg, _ = frames(c, state.ref[c])
+    new, new_seg, _ = frames(c, state.visited[c])
     same = old_seg == new_seg
     state.rel[c[same]] = reanchor(state.rel[c[same]], old[same], new[same])
     state.ref[c[same]] = state.visited[c[same]]
     state.ref[c[~same]] = -1
 
 
+def pursuit_point(rel: np.ndarray, approach: np.ndarray, anchor: np.ndarray,
+                  lookahead_m: float) -> np.ndarray:
+    """Car-frame points (N, 2) to drive at: along the taught poses of the hop
+    into the active anchor (``approach`` (N, K, 3), ``anchor`` (N, 3), both
+    in the ``ref`` frame), the first after the one nearest the car that lies
+    ``lookahead_m`` or farther from it; the anchor itself where none does
+    (or the hop's poses are unknown)."""
+    n, k = approach.shape[:2]
+    pts = np.concatenate([approach, anchor[:, None]], axis=1)            # (N, K + 1, 3)
+    seen = relative(np.repeat(rel, k + 1, 0), pts.reshape(-1, 3))[:, :2].reshape(n, k + 1, 2)
+    d = np.hypot(seen[..., 0], seen[..., 1])
+    d = np.where(np.isfinite(d), d, np.inf)
+    d[:, -1] = np.where(np.isfinite(d[:, -1]), d[:, -1], 0.0)
+    nearest = np.argmin(d, axis=1)
+    after = np.arange(k + 1)[None] >= nearest[:, None]
+    far = after & (d >= lookahead_m) & np.isfinite(d)
+    pick = np.where(far.any(axis=1), np.argmax(far, axis=1), k)
+    return seen[np.arange(n), pick]
+
+
 def tracked_anchor(state, cars: np.ndarray, anchors: np.ndarray, frames
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Where anchors ``anchors`` of cars ``cars`` are in each car's frame
-    (M, 3) by the tracker, and whether it knows (M,)."""
+    (M, 3) by the tracker, whether it knows (M,), and the car-frame point
+    (M, 2) to drive at toward each (:func:`pursuit_point`)."""
     out = np.full((len(cars), 3), np.nan)
+    aim = np.full((len(cars), 2), np.nan)
     known = state.ref[cars] >= 0
     if known.any():
         c = cars[known]
-        ref_pose, ref_seg = frames(c, state.ref[c])
-        pose, seg = frames(c, anchors[known])
+        ref_pose, ref_seg, _ = frames(c, state.ref[c])
+        pose, seg, approach = frames(c, anchors[known])
         same = ref_seg == seg
         rows = np.flatnonzero(known)[same]
-        out[rows] = anchor_in_car(state.rel[c[same]], relative(ref_pose[same], pose[same]))
+        into_ref = relative(ref_pose[same], pose[same])
+        out[rows] = anchor_in_car(state.rel[c[same]], into_ref)
+        k = approach.shape[1]
+        path = relative(np.repeat(ref_pose[same], k, 0),
+                        approach[same].reshape(-1, 3)).reshape(-1, k, 3)
+        aim[rows] = pursuit_point(state.rel[c[same]], path, into_ref, PURSUIT_M)
         known[np.flatnonzero(known)[~same]] = False
-    return out, known
+    return out, known, aim
+
+
+PURSUIT_M = 1.0     # the pursuit point's distance ahead of the car
