@@ -46,9 +46,11 @@ def test_navigate_json_prints_the_outcome_keys(capsys, tmp_path):
     code = main(["navigate", "test-0", "--start", "16.42,14.88,2.95", "--goal", "8.22,14.08,-0.2",
                  "--t-max", "2", "--json", "--plot", str(plot)])
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert code == 0
-    assert set(out) == {"outcome", "time_s", "probability", "distance_m"}
+    assert code == 3                        # a drive that did not reach its goal
+    assert set(out) == {"outcome", "time_s", "probability", "anchors", "distance_m",
+                        "distance_to_goal_m"}
     assert out["outcome"] == "timeout" and out["time_s"] == pytest.approx(2.0)
+    assert out["distance_to_goal_m"] > 1.0 and out["anchors"] >= 2
     assert 0.0 < out["probability"] <= 1.0 and out["distance_m"] > 0.1
     assert plot.stat().st_size > 10_000
 
@@ -73,7 +75,7 @@ def test_navigate_drives_the_registration_controller_with_its_re(capsys):
     code = main(["navigate", "test-0", "--start", "16.42,14.88,2.95", "--goal", "8.22,14.08,-0.2",
                  "--controller", "registration", "--t-max", "2", "--json"])
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert code == 0
+    assert code == 3
     assert out["outcome"] == "timeout" and out["time_s"] == pytest.approx(2.0)
     assert 0.0 < out["probability"] <= 1.0 and out["distance_m"] > 0.1
     code = main(["navigate", "test-0", "--start", "16.42,14.88,2.95", "--goal", "8.22,14.08,-0.2",
@@ -107,16 +109,21 @@ def test_a_lidar_reg_map_records_and_drives_the_registration_controller(capsys, 
     start, goal = (",".join(f"{v:.4f}" for v in p[i]) for i in (4, 9))
     code = main(["navigate", str(path), "--start", start, "--goal", goal, "--t-max", "2", "--json"])
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert code == 0 and out["outcome"] == "timeout" and out["distance_m"] > 0.1
+    assert code == 3 and out["outcome"] == "timeout" and out["distance_m"] > 0.1
+    assert main(["map", "plan", str(path), "--start", start, "--goal", goal, "--json"]) == 0
+    plan = json.loads(capsys.readouterr().out)
+    assert plan["anchors"] == out["anchors"] == len(plan["path"]) + 1   # one count of anchors
 
 
 def test_demo_drives_the_registration_controller(capsys, tmp_path):
     """The learned demo with ``--controller registration``: the chain of one
     expert drive, sparsified by the registration C_WP's RE, followed in the
     Drake navigation diagram by that controller."""
-    assert main(["demo", "--controller", "registration", "--out", str(tmp_path)]) == 0
+    code = main(["demo", "--controller", "registration", "--out", str(tmp_path)])
     lines = capsys.readouterr().out.strip().splitlines()
     summary = json.loads(next(line for line in lines if line.startswith("{")))
+    assert code == (0 if summary["outcome"] == "reached" else 3)
+    assert summary["distance_to_goal_m"] <= 0.54 or summary["outcome"] != "reached"
     assert summary["controller"] == "registration" and summary["anchors"] >= 2
     assert summary["distance_m"] > 1.0 and 0.0 < summary["probability"] <= 1.0
     assert (tmp_path / "plan.png").stat().st_size > 10_000

@@ -5,7 +5,8 @@
   ``--noise -1`` ends in ``argument --noise: must be a finite number >= 0,
   got -1``;
 - :class:`Parser`, an ``ArgumentParser`` whose errors are one line (no usage
-  block) with exit status 2, and whose help shows every option's default;
+  block) with exit status 2, whose help shows every option's default, and
+  which takes negative numbers as option values;
 - :func:`plain`, which turns a reST docstring line into plain help text.
 """
 
@@ -72,12 +73,43 @@ class HelpFormatter(argparse.HelpFormatter):
         return f"{text} (default: %(default)s)"
 
 
+#: what reads as a value, never as an option: a number or a list of numbers
+#: (``-1``, ``-0.5``, ``-1e-3``, ``-1,-1,0``)
+NEGATIVE_VALUE = re.compile(r"^-(\d|\.\d)[\d.eE+\-]*(,[-+]?[\d.eE+\-]+)*$")
+
+
 class Parser(argparse.ArgumentParser):
-    """``ArgumentParser`` with one-line errors (exit 2) and defaults in help."""
+    """``ArgumentParser`` with one-line errors (exit 2), defaults in help,
+    and negative numbers accepted as option values (``--start -1,-1,0``)."""
 
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_VALUE
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+class RawEpilogFormatter(HelpFormatter):
+    """:class:`HelpFormatter` that keeps the epilog's lines as written."""
+
+    def _fill_text(self, text, width, indent):
+        if "\n" in text:
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
+def subcommands(parser: argparse.ArgumentParser, **kwargs):
+    """``parser.add_subparsers(**kwargs)``; the parser without a command
+    names its commands in one line (exit 2) instead of argparse's
+    ``the following arguments are required``."""
+    sub = parser.add_subparsers(**kwargs)
+
+    def missing(args):
+        names = ", ".join(sub.choices)
+        raise TopodrakeError(f"{parser.prog} needs a command: {names} "
+                             f"(see '{parser.prog} --help')")
+
+    parser.set_defaults(func=missing)
+    return sub

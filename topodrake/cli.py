@@ -13,9 +13,25 @@ import sys
 
 from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
+from topodrake.outputs import add_force_option, check_output, check_output_folder
 
 DESCRIPTION = ("topodrake: visual topological navigation on Drake. Drive, collect "
                "demonstrations, train, sparsify, inspect worlds and benchmark.")
+
+WORKFLOW = """\
+Start with:  topodrake demo     (the learned follower drives test-0; writes out/demo/)
+
+The workflow, in order:
+  topodrake world list                       the houses (or a ROS map YAML)
+  topodrake collect WORLD --out DIR          expert drives between its places
+  topodrake map build WORLD --out M.tdmap    sparsify them by RE into a map
+  topodrake map plan M.tdmap --start X,Y,YAW --goal X,Y,YAW
+  topodrake navigate M.tdmap --start X,Y,YAW --goal X,Y,YAW --plot run.png
+  topodrake train waypoint|reachability ...  your own C_WP and RE
+
+Exit status: 0 done (a drive reached its goal), 1 no plan, 2 bad input or an
+output that cannot be written, 3 a drive that did not reach its goal.
+topodrake COMMAND --help for a command; docs/cli.md for the whole picture."""
 
 
 def _print_result(result: dict, as_json: bool) -> None:
@@ -29,12 +45,15 @@ def _print_result(result: dict, as_json: bool) -> None:
         print(f"{k:<{width}}  {v}")
 
 
-def cmd_drive(args) -> None:
+def cmd_drive(args) -> int:
+    from topodrake.navigation.outcomes import drive_outcome, exit_status
     from topodrake.systems.run import run_scenario
     from topodrake.systems.scenario import load_scenario
 
-    result = run_scenario(load_scenario(args.scenario))
-    print(json.dumps(result.summary()))
+    summary = run_scenario(load_scenario(args.scenario)).summary()
+    summary["outcome"] = drive_outcome(summary["outcome"], summary["distance_to_goal_m"])
+    print(json.dumps(summary))
+    return exit_status(summary["outcome"])
 
 
 def cmd_trials(args) -> None:
@@ -45,15 +64,21 @@ def cmd_trials(args) -> None:
     results = run_trials(expert_trial, seeds, workers=args.workers, ray_address=args.ray,
                          desc="expert trials", world=args.world, start_place=args.start_place,
                          goal_place=args.goal_place, noise_std=args.noise, camera=args.camera)
-    outcomes = [r["outcome"] for r in results]
-    summary = {"world": args.world, "trials": len(results), "seed": args.seed,
-               "success_rate": outcomes.count("success") / len(results),
-               "collision_rate": outcomes.count("collision") / len(results),
-               "mean_time_s": sum(r["time_s"] for r in results) / len(results)}
+    from topodrake.navigation.outcomes import drive_outcome
+
+    outcomes = [drive_outcome(r["outcome"], r["distance_to_goal_m"]) for r in results]
+    n = len(results)
+    summary = {"world": args.world, "trials": n, "seed": args.seed,
+               "reached_rate": outcomes.count("reached") / n,
+               "collision_rate": outcomes.count("collision") / n,
+               "mean_time_s": sum(r["time_s"] for r in results) / n,
+               "mean_distance_to_goal_m": sum(r["distance_to_goal_m"] for r in results) / n}
     _print_result(summary, args.json)
 
 
 def cmd_collect(args) -> None:
+    check_output_folder(args.out, marker="manifest.json", what="demonstrations (manifest.json)",
+                        force=args.force)
     from topodrake.demonstrations import CollectConfig, collect, load_demos
 
     config = CollectConfig(protocol=args.protocol, count=args.count, seed=args.seed,
@@ -87,6 +112,7 @@ def cmd_world_info(args) -> None:
 
 
 def cmd_world_plot(args) -> None:
+    check_output(args.out, "image", force=args.force)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -124,10 +150,12 @@ def cmd_bench_sensors(args) -> None:
 def build_parser() -> argparse.ArgumentParser:
     from topodrake import __version__
 
-    p = at.Parser(prog="topodrake", description=DESCRIPTION)
+    p = at.Parser(prog="topodrake", description=DESCRIPTION, epilog=WORKFLOW,
+                  formatter_class=at.RawEpilogFormatter)
     p.add_argument("--version", action="version", version=f"topodrake {__version__}",
                    help="print the version and exit")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = at.subcommands(p, dest="command", metavar="COMMAND")
+    p.set_defaults(func=lambda args: _welcome(p))
 
     from topodrake.demo import add_demo_parser
     from topodrake.navigation.cli import add_navigate_parser
@@ -136,7 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_navigate_parser(sub)
 
     drive = sub.add_parser("drive", help="run one expert scenario from a YAML file")
-    drive.add_argument("scenario", help="Scenario YAML (see topodrake.systems.scenario)")
+    drive.add_argument("scenario", help="Scenario YAML (its keys: docs/cli.md)")
     drive.set_defaults(func=cmd_drive)
 
     tr = sub.add_parser("trials", help="seeded Monte Carlo expert drives in the Drake diagram")
@@ -166,10 +194,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="actuation noise std (0 = off)")
     col.add_argument("--chunk-size", type=at.count, default=32, help="drives per file")
     col.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_force_option(col)
     col.set_defaults(func=cmd_collect)
 
     world = sub.add_parser("world", help="list, inspect and plot worlds")
-    wsub = world.add_subparsers(dest="world_command", required=True)
+    wsub = at.subcommands(world, dest="world_command")
     wl = wsub.add_parser("list", help="the catalogue of procedural houses")
     wl.add_argument("--json", action="store_true", help="print the names as one JSON list")
     wl.set_defaults(func=cmd_world_list)
@@ -182,6 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
     wp.add_argument("--out", required=True, help="output image (PNG, PDF or SVG)")
     wp.add_argument("--astar", nargs=2, type=at.count0, metavar=("I", "J"),
                     help="also draw the A* path from place I to place J")
+    add_force_option(wp)
     wp.set_defaults(func=cmd_world_plot)
 
     from topodrake.learning.cli import add_bench_parser, add_train_parser
@@ -194,7 +224,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_map_parser(sub)
 
     bench = sub.add_parser("bench", help="speed and accuracy benchmarks of the components")
-    bsub = bench.add_subparsers(dest="bench_command", required=True, metavar="BENCHMARK")
+    bsub = at.subcommands(bench, dest="bench_command", metavar="BENCHMARK")
     bs = bsub.add_parser("sensors", help="camera/lidar throughput, VTK, depth parity")
     bs.add_argument("--world", default="test-0", help="catalogue name or map YAML/JSON")
     bs.add_argument("--batch", type=at.count, default=4096, help="poses per rendering batch")
@@ -217,10 +247,17 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _welcome(parser) -> int:
+    """Bare ``topodrake``: what it is, where to start and the workflow."""
+    print(f"{parser.format_usage()}\n{DESCRIPTION}\n\n{WORKFLOW}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; returns its exit status (see :data:`WORKFLOW`)."""
     args = build_parser().parse_args(argv)
     try:
-        args.func(args)
+        return args.func(args) or 0
     except TopodrakeError as e:
         print(f"topodrake: error: {e}", file=sys.stderr)
         return e.exit_code
@@ -233,8 +270,11 @@ def main(argv: list[str] | None = None) -> int:
 
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
-    return 0
-
+    except OSError as e:
+        # a file that could not be read or written after the checks
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"topodrake: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
 
 if __name__ == "__main__":
     sys.exit(main())

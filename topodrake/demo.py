@@ -35,6 +35,8 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
     import matplotlib.pyplot as plt
 
     from topodrake.fileio import atomic_write_bytes
+    from topodrake.navigation.outcomes import drive_outcome
+    from topodrake.outputs import write_kept
     from topodrake.sensing.camera import Camera
     from topodrake.sensing.lidar import Lidar
     from topodrake.systems.diagram import build_expert_diagram
@@ -49,10 +51,9 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
                         noise_std=noise_std, seed=seed, t_max_s=150.0)
     viewer = None
     if meshcat:
-        from pydrake.geometry import Meshcat
+        from topodrake.navigation.drive import make_recorder
 
-        viewer = Meshcat()
-        viewer.StartRecording(frames_per_second=10.0, set_visualizations_while_recording=False)
+        viewer = make_recorder()
     built = build_expert_diagram(scenario, world=world, meshcat=viewer)
     result = ExpertRunner(built).run()
     out = Path(out_dir)
@@ -72,11 +73,12 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
     for n, k in enumerate(frames_at):
         ax.annotate(chr(ord("a") + n), result.poses[k, :2], color="tab:orange", fontsize=9,
                     xytext=(4, -10), textcoords="offset points", zorder=8)
-    ax.set_title(f"{world.name}: place {start_place} -> {goal_place}, {result.outcome} "
+    summary = result.summary()
+    summary["outcome"] = drive_outcome(summary["outcome"], summary["distance_to_goal_m"])
+    ax.set_title(f"{world.name}: place {start_place} -> {goal_place}, {summary['outcome']} "
                  f"in {result.time_s:.1f} s (noise {noise_std})")
-    ax.legend(loc="upper right", fontsize=8)
-    files["plan"] = out / "plan.png"
-    save_figure(fig, files["plan"])
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    files["plan"] = write_kept(out / "plan.png", lambda p: save_figure(fig, p), "the plot")
 
     images = Camera(world, scenario.camera).render(result.poses[frames_at])
     fig, axes = plt.subplots(1, n_frames, figsize=(2 * n_frames, 2.4))
@@ -84,15 +86,14 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
         axi.imshow(images[n])
         axi.set_title(f"{chr(ord('a') + n)}: t={k * scenario.vehicle.dt:.1f} s", fontsize=8)
         axi.axis("off")
-    files["camera"] = out / "camera.png"
-    save_figure(fig, files["camera"])
+    files["camera"] = write_kept(out / "camera.png", lambda p: save_figure(fig, p), "the frames")
 
     if viewer is not None:
         viewer.StopRecording()
         viewer.PublishRecording()
-        files["meshcat"] = out / "meshcat.html"
-        atomic_write_bytes(files["meshcat"], viewer.StaticHtml().encode())
-    summary = result.summary()
+        html = viewer.StaticHtml().encode()
+        files["meshcat"] = write_kept(out / "meshcat.html", lambda p: atomic_write_bytes(p, html),
+                                      "the recording")
     summary.update({"world": world.name, "start_place": start_place, "goal_place": goal_place,
                     "seed": seed, "realtime_factor": round(result.time_s / max(result.wall_time_s, 1e-9), 1),
                     "demo_wall_s": round(time.perf_counter() - wall, 2)})
@@ -110,8 +111,11 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
     RE, or the registration C_WP's shipped RE); returns the written files
     and a summary (outcome, times, real-time factor warm and cold)."""
     from topodrake.errors import TopodrakeError
+    from topodrake.fileio import atomic_write_bytes
     from topodrake.navigation.cli import chain_from_expert, plan_on_map
     from topodrake.navigation.drive import drive_route, plot_drive
+    from topodrake.navigation.outcomes import drive_outcome, goal_distance
+    from topodrake.outputs import write_kept
     from topodrake.systems.navigation import NavigationScenario, load_networks
     from topodrake.topomap.mapfile import read_map_meta
     from topodrake.world import load_world
@@ -153,18 +157,21 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
                                   camera_enabled=policy.observation == "camera")
     out = Path(out_dir)
     files: dict[str, Path] = {}
-    html = out / "meshcat.html" if meshcat else None
     result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach_net,
-                         meshcat_html=html, seed=seed)
-    if html is not None:
-        files["meshcat"] = html
-    files["plan"] = plot_drive(
-        world, route, result, out / "plan.png", start=start, goal=goal, map_layers=layers,
-        title=f"{world.name}: place {start_place} -> {goal_place}, {result.outcome} in "
-              f"{result.time_s:.1f} s ({len(route)} anchors, plan probability "
-              f"{route.probability:.3f}, noise {noise_std})")
-    goal_m = float(np.hypot(*(result.poses[-1, :2] - goal[:2])))
-    summary = {"outcome": result.outcome, "time_s": round(result.time_s, 2),
+                         record=meshcat, seed=seed)
+    goal_m = goal_distance(result.poses, goal)
+    outcome = drive_outcome(result.outcome, goal_m)
+    if meshcat:
+        html = result.recording.encode()
+        files["meshcat"] = write_kept(out / "meshcat.html", lambda p: atomic_write_bytes(p, html),
+                                      "the recording")
+    title = (f"{world.name}: place {start_place} -> {goal_place}, {outcome} in "
+             f"{result.time_s:.1f} s ({len(route)} anchors, plan probability "
+             f"{route.probability:.3f}, noise {noise_std})")
+    files["plan"] = write_kept(out / "plan.png", lambda p: plot_drive(
+        world, route, result, p, start=start, goal=goal, map_layers=layers, title=title),
+        "the plot")
+    summary = {"outcome": outcome, "time_s": round(result.time_s, 2),
                "probability": round(float(route.probability), 4),
                "distance_m": round(result.distance_m, 2), "distance_to_goal_m": round(goal_m, 3),
                "anchors": len(route), "map": str(map_path) if map_path else "one expert drive",
@@ -180,16 +187,29 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
     return {"files": files, "summary": summary}
 
 
-def cmd_demo(args) -> None:
+def check_outputs(args) -> None:
+    """The demo's folder and the files it writes there, checked before the drive."""
+    from topodrake.outputs import check_output, check_output_folder
+
+    out = check_output_folder(args.out)
+    files = ["plan.png"] + (["camera.png"] if args.expert else []) \
+        + (["meshcat.html"] if args.meshcat or not args.expert else [])
+    for name in files:
+        check_output(out / name, "image" if name.endswith(".png") else "html", force=args.force)
+
+
+def cmd_demo(args) -> int:
     import json
     import math
 
     from topodrake.errors import TopodrakeError
+    from topodrake.navigation.outcomes import exit_status
 
     if args.noise is not None and not (math.isfinite(args.noise) and args.noise >= 0):
         raise TopodrakeError(f"--noise must be finite and >= 0, got {args.noise}")
     if args.seed < 0:
         raise TopodrakeError(f"--seed must be >= 0, got {args.seed}")
+    check_outputs(args)
     print(f"topodrake demo: {'the A* expert' if args.expert else 'the learned follower'} drives "
           f"{args.world} from place {args.start_place} to place {args.goal_place}", flush=True)
     if args.expert:
@@ -209,14 +229,19 @@ def cmd_demo(args) -> None:
     print(json.dumps(result["summary"]))
     s = result["summary"]
     if not args.expert:
-        print(f"outcome {s['outcome']} in {s['time_s']} s over {s['distance_m']} m "
-              f"(plan probability {s['probability']}); real-time factor {s['realtime_factor']} "
+        print(f"outcome {s['outcome']} in {s['time_s']} s over {s['distance_m']} m, "
+              f"{s['distance_to_goal_m']} m from the goal (plan of {s['anchors']} anchors, "
+              f"probability {s['probability']}); real-time factor {s['realtime_factor']} "
               f"after start-up, {s['realtime_factor_cold']} with it; demo took {s['demo_wall_s']} s")
+    return exit_status(s["outcome"])
 
 
 def add_demo_parser(sub) -> None:
+    from topodrake.navigation.cli import EXIT_HELP
+
     demo = sub.add_parser("demo", help="the learned camera follower drives a plan between two "
-                                       "places in the Drake diagram (--expert: the expert drives)")
+                                       "places in the Drake diagram (--expert: the expert drives)",
+                          epilog=EXIT_HELP)
     demo.add_argument("--world", default="test-0",
                       help="catalogue name or map YAML/JSON (default: test-0)")
     demo.add_argument("--map", help="plan on this map file (.tdmap; its world replaces --world) "
@@ -239,4 +264,7 @@ def add_demo_parser(sub) -> None:
     demo.add_argument("--reach", help="RE checkpoint trained for --controller (default: the "
                                       "controller's shipped RE)")
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    from topodrake.outputs import add_force_option
+
+    add_force_option(demo)
     demo.set_defaults(func=cmd_demo)

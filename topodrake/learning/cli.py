@@ -14,8 +14,18 @@ Both commands raise :class:`~topodrake.errors.TopodrakeError` for bad input
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from topodrake import argtypes as at
+from topodrake.outputs import add_force_option, check_folder, check_output, check_output_folder
+
+
+def _check_folders(args, out=None) -> None:
+    """The output folder (``out``, default ``--out``) and the data cache can
+    be made and written, before any work."""
+    check_output_folder(out or args.out)
+    if getattr(args, "data", None):
+        check_output_folder(args.data, option="--data")
 
 
 def _command(args, verb: str) -> str:
@@ -49,6 +59,7 @@ def _print_result(args, result) -> None:
 def cmd_train_reachability(args) -> None:
     from topodrake.learning.reach_train import load_reach_config, train_reachability
 
+    _check_folders(args)
     cfg = _apply_overrides(load_reach_config(args.config), args)
     result = train_reachability(cfg, args.out, args.data, resume=not args.no_resume,
                                 progress=not args.quiet, command=_command(args, "reachability"))
@@ -59,6 +70,7 @@ def cmd_train_waypoint(args) -> None:
     from topodrake.learning.config import load_train_config
     from topodrake.learning.train import train_waypoint
 
+    _check_folders(args)
     cfg = _apply_overrides(load_train_config(args.config), args)
     result = train_waypoint(cfg, args.out, args.data, resume=not args.no_resume,
                             progress=not args.quiet, command=_command(args, "waypoint"))
@@ -68,7 +80,7 @@ def cmd_train_waypoint(args) -> None:
 def add_train_parser(sub) -> None:
     """``train waypoint`` under the top-level subparsers ``sub``."""
     train = sub.add_parser("train", help="train the learned components")
-    tsub = train.add_subparsers(dest="train_command", required=True)
+    tsub = at.subcommands(train, dest="train_command")
     for verb, helptext, configs, func in (
             ("waypoint", "train C_WP (or the direct-control baseline) from a YAML config",
              "configs/waypoint_*.yaml", cmd_train_waypoint),
@@ -94,6 +106,7 @@ def add_train_parser(sub) -> None:
                     help="houses, comma-separated; NAME-A..NAME-B for a numbered range")
     tk.add_argument("--data", default="data", help="cache of demonstrations (collected when missing)")
     tk.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_force_option(tk)
     tk.set_defaults(func=cmd_train_pack)
     tg = tsub.add_parser("scale", help="train a lidar C_WP at scale on a GPU: worker processes make "
                                        "samples while it trains")
@@ -114,11 +127,12 @@ def add_train_parser(sub) -> None:
     td.set_defaults(func=cmd_train_dagger)
     tf = tsub.add_parser("follower-calibration",
                          help="calibrate RE on rollouts from the states the follower visits")
-    tf.add_argument("--cwp", required=True,
+    tf.add_argument("--controller", "--cwp", dest="cwp", required=True,
                     help="the C_WP followed, the one RE was trained for (checkpoint or "
                          "'registration')")
-    tf.add_argument("--re", required=True, help="RE checkpoint; the calibration is written beside "
-                                                "it (follower_calibration.json)")
+    tf.add_argument("--reach", "--re", dest="re", required=True,
+                    help="RE checkpoint; the calibration is written beside it "
+                         "(follower_calibration.json)")
     tf.add_argument("--worlds", help="comma-separated training houses to follow chains in "
                                      "(default: train-84..train-91)")
     tf.add_argument("--drives", type=at.count, default=8, help="chains followed per house")
@@ -166,11 +180,11 @@ def expand_worlds(spec: str) -> list[str]:
 
 
 def cmd_train_pack(args) -> None:
-    from pathlib import Path
-
     from topodrake.learning.samples import collect_trajectories
     from topodrake.learning.trajpack import pack_trajectories
 
+    check_output(args.out, "npz", force=args.force)
+    check_output_folder(args.data, option="--data")
     worlds = expand_worlds(args.worlds)
     trajs = collect_trajectories(worlds, Path(args.data) / "demos" / "pairs-s0",
                                  progress=not args.quiet)
@@ -182,6 +196,7 @@ def cmd_train_pack(args) -> None:
 def cmd_train_scale(args) -> None:
     from topodrake.learning.scale import load_scale_config, train_at_scale
 
+    _check_folders(args)
     run = load_scale_config(args.config)
     card = train_at_scale(run, args.out, minutes=args.minutes, progress=not args.quiet,
                           command=f"topodrake train scale --config {args.config} --out {args.out} "
@@ -196,6 +211,7 @@ def cmd_train_dagger(args) -> None:
 
     from topodrake.learning.dagger import load_dagger_config, run_dagger
 
+    _check_folders(args)
     cfg = load_dagger_config(args.config)
     if args.rounds:
         cfg.rounds = args.rounds
@@ -212,6 +228,8 @@ def cmd_train_dagger(args) -> None:
 
 
 def cmd_train_follower_calibration(args) -> None:
+    check_folder(Path(args.re).parent, "--reach")
+    check_output_folder(args.data, option="--data")
     import sys
 
     import torch
@@ -235,11 +253,10 @@ def cmd_train_follower_calibration(args) -> None:
 
 
 def cmd_train_place(args) -> None:
-    from pathlib import Path
-
     from topodrake.topomap.embedding_train import load_place_config, train_place
 
     out = args.out or str(Path("checkpoints") / Path(args.config).stem)
+    _check_folders(args, out)
     command = f"topodrake train place {args.config}" + (f" --out {args.out}" if args.out else "")
     if args.data != "data":
         command += f" --data {args.data}"
@@ -250,11 +267,10 @@ def cmd_train_place(args) -> None:
 
 
 def cmd_train_sptm(args) -> None:
-    from pathlib import Path
-
     from topodrake.baselines.train_retrieval import load_retrieval_config, train_retrieval
 
     out = args.out or str(Path("checkpoints") / Path(args.config).stem)
+    _check_folders(args, out)
     command = f"topodrake train sptm {args.config}" + (f" --out {args.out}" if args.out else "")
     if args.data != "data":
         command += f" --data {args.data}"
@@ -292,11 +308,9 @@ def cmd_bench_reachability(args) -> None:
         from topodrake.learning.reach_train import load_reach_config
         cfg = load_reach_config(args.config)
     if args.controller:
-        from pathlib import Path
+        from topodrake.topomap.sources import check_controller
 
-        from topodrake.errors import TopodrakeError
-        if not Path(args.controller).is_file():
-            raise TopodrakeError(f"controller checkpoint {args.controller} does not exist")
+        check_controller(args.controller)
     _print_figures(args, bench_reachability(cfg, args.controller, args.world, args.pairs,
                                             args.label_pairs, args.seconds, args.threads, args.seed))
 
@@ -329,10 +343,12 @@ def add_bench_parser(bsub) -> None:
                                           "follower visits in the test houses")
     bf.add_argument("--controllers", default="camera_k5,lidar_k5,lidar_k5_scale",
                     help="controllers to bench")
-    bf.add_argument("--cwp", action="append", metavar="NAME=CHECKPOINT",
+    bf.add_argument("--controller", "--cwp", dest="cwp", action="append",
+                    metavar="NAME=CHECKPOINT",
                     help="bench another C_WP under NAME (with NAME's RE); repeatable")
-    bf.add_argument("--re", action="append", metavar="NAME=CHECKPOINT",
-                    help="with another RE under NAME, trained for NAME's (--cwp) C_WP; repeatable")
+    bf.add_argument("--reach", "--re", dest="re", action="append", metavar="NAME=CHECKPOINT",
+                    help="with another RE under NAME, trained for NAME's (--controller) C_WP; "
+                         "repeatable")
     bf.add_argument("--drives", type=at.count, default=8, help="chains followed per test house")
     bf.add_argument("--re-states", type=at.count, default=300,
                     help="visited states rolled out to score RE")

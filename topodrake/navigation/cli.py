@@ -10,8 +10,10 @@ for), a demonstration folder (``topodrake collect``; the drive nearest to
 the start and goal, or ``--drive``, becomes a chain of anchors under RE),
 or a world (catalogue name or map YAML/JSON; the expert drives once from
 the start to the goal and that drive becomes the chain). Prints the outcome
-(reached, or failed and why), the time, the path probability and the
-distance driven; ``--json`` prints them as one object.
+(:mod:`topodrake.navigation.outcomes`), the time, the plan's probability and
+anchors, the distance driven and the distance left to the goal; ``--json``
+prints them as one object. Exit status: 0 reached, 3 any other outcome, 1
+no plan, 2 bad input or an output that cannot be written.
 """
 
 from __future__ import annotations
@@ -23,9 +25,14 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.navigation.plan_trials import SUCCESS_M
 
 DEFAULT_CONTROLLER = "checkpoints/camera_k5/checkpoint.pt"
 DEFAULT_REACH = "checkpoints/reach_camera_k5/checkpoint.pt"
+EXIT_HELP = (f"Exit status: 0 when the car reached the goal (within {SUCCESS_M} m), 3 for any "
+             "other outcome (false_reached, collision, timeout, search_failed, "
+             "dead_reckoning_gave_up), 1 when there is no plan, 2 for bad input or an output "
+             "that cannot be written.")
 
 
 def _pose(text: str, what: str) -> np.ndarray:
@@ -103,10 +110,8 @@ def plan_on_map(path: Path, start, goal, reach_path=None, controller_path=None):
     planner = MapPlanner(path, reach_path, controller_path)
     planner.world.check_pose(start, "start")
     planner.world.check_pose(goal, "goal")
-    plan = planner.plan(start, goal)
-    if not plan.reachable:
-        raise TopodrakeError(f"no plan from the start to the goal on {path}: {plan.reason}")
-    return planner.world, plan.route, planner.policy, planner.reach, planner.layers
+    route = _plan_or_refuse(planner.plan(start, goal), path)
+    return planner.world, route, planner.policy, planner.reach, planner.layers
 
 
 def chain_from_demos(folder: Path, start, goal, drive, policy, reach, p):
@@ -145,32 +150,41 @@ def chain_from_expert(world_spec: str, start, goal, policy, reach, p):
     return world, chain_route(world, res.trajectory(0)["poses"], policy, reach, p)
 
 
-def cmd_navigate(args) -> None:
-    from topodrake.navigation.drive import drive_route, plot_drive
+def check_outputs(args) -> None:
+    """Every file navigate writes, checked before the drive."""
+    from topodrake.outputs import check_folder, check_output
+
+    check_output(args.plot, "image", force=args.force, option="--plot")
+    check_output(args.meshcat, "html", force=args.force, option="--meshcat")
+    if args.update_map:
+        check_folder(Path(args.map).parent, "--update-map")
+
+
+def cmd_navigate(args) -> int:
+    from topodrake.navigation.drive import drive_route
+    from topodrake.navigation.outcomes import drive_outcome, exit_status, goal_distance
     from topodrake.systems.navigation import NavigationScenario
+    from topodrake.topomap.sources import check_controller
 
     check_args(args)
+    check_outputs(args)
+    start, goal = _pose(args.start, "start"), _pose(args.goal, "goal")
+    check_controller(args.controller, args.reach)
     import torch
 
     # one car: batch-1 inference runs faster on one thread than on two here
     # (and far faster when other processes share the cores)
     torch.set_num_threads(1)
-    start, goal = _pose(args.start, "start"), _pose(args.goal, "goal")
     source = Path(args.map)
     layers = None
     planner = None
     extra = {}
     if source.suffix == ".tdmap":
-        if not source.is_file():
-            raise TopodrakeError(f"map file {source} does not exist")
         planner = MapPlanner(source, args.reach, args.controller)
         world, policy, reach, layers = planner.world, planner.policy, planner.reach, planner.layers
         world.check_pose(start, "start")
         world.check_pose(goal, "goal")
-        plan = planner.plan(start, goal)
-        if not plan.reachable:
-            raise TopodrakeError(f"no plan from the start to the goal on {source}: {plan.reason}")
-        route = plan.route
+        route = _plan_or_refuse(planner.plan(start, goal), source)
     else:
         if args.replan:
             raise TopodrakeError("--replan needs a map file (.tdmap) as MAP")
@@ -196,35 +210,65 @@ def cmd_navigate(args) -> None:
         replanner = Replanner(lambda _, pose, excluded: _route_or_none(planner.plan(
             pose, goal, excluded)), [route], ReplanSchedule(max_replans=args.replan))
     result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
-                         meshcat_html=args.meshcat, seed=args.seed, replanner=replanner)
-    first_p = float(route.probability)
+                         record=bool(args.meshcat), seed=args.seed, replanner=replanner)
+    first_p, anchors = float(route.probability), len(route)
     if replanner is not None:
         extra["replans"] = int(replanner.plans[0]) - 1
         route = result.route
     if planner is not None and args.update_map:
         failed = [] if replanner is None else replanner.excluded[0]
         extra["lowered_edges"] = _update_map(planner, route, result, failed)
-    goal_dist = float(np.hypot(*(result.poses[-1, :2] - goal[:2])))
-    out = {"outcome": result.outcome, "time_s": round(result.time_s, 2),
-           "probability": round(first_p, 4),
-           "distance_m": round(result.distance_m, 2), **extra}
-    if args.plot:
-        plot_drive(world, route, result, args.plot, start=start, goal=goal, map_layers=layers,
-                   title=f"{world.name}: {result.outcome} in {result.time_s:.1f} s, "
-                         + (f"last of {extra['replans'] + 1} plans: " if extra.get("replans")
-                            else "plan of ")
-                         + f"{len(route)} anchors (p = {route.probability:.3f})")
+    goal_m = goal_distance(result.poses, goal)
+    outcome = drive_outcome(result.outcome, goal_m)
+    out = {"outcome": outcome, "time_s": round(result.time_s, 2),
+           "probability": round(first_p, 4), "anchors": anchors,
+           "distance_m": round(result.distance_m, 2), "distance_to_goal_m": round(goal_m, 3),
+           **extra}
     if args.json:
-        print(json.dumps(out))
-        return
-    rtf = result.time_s / max(result.wall_time_s, 1e-9)
-    print(f"{result.outcome} in {result.time_s:.1f} s over {result.distance_m:.1f} m; plan of "
-          f"{len(route)} anchors, probability {first_p:.3f}"
-          + (f", {extra['replans']} replans" if "replans" in extra else "") + f"; {goal_dist:.2f} m from "
-          f"the goal; real-time factor {rtf:.1f} (start-up {result.startup_s:.1f} s)"
-          + "".join(f"; wrote {p}" for p in (args.plot, args.meshcat) if p)
-          + (f"; lowered {len(extra['lowered_edges'])} failed edges in {source}"
-             if "lowered_edges" in extra else ""))
+        print(json.dumps(out), flush=True)
+    else:
+        rtf = result.time_s / max(result.wall_time_s, 1e-9)
+        print(f"{outcome} in {result.time_s:.1f} s over {result.distance_m:.1f} m, {goal_m:.2f} m "
+              f"from the goal; plan of {anchors} anchors, probability {first_p:.3f}"
+              + (f", {extra['replans']} replans" if "replans" in extra else "")
+              + f"; real-time factor {rtf:.1f} (start-up {result.startup_s:.1f} s)"
+              + (f"; lowered {len(extra['lowered_edges'])} failed edges in {source}"
+                 if "lowered_edges" in extra else ""), flush=True)
+    _write_drive_files(args, world, route, result, start, goal, layers, outcome, extra)
+    return exit_status(outcome)
+
+
+def _write_drive_files(args, world, route, result, start, goal, layers, outcome, extra) -> None:
+    """The plot and the Meshcat recording of a drive (each kept elsewhere when
+    its file cannot be written)."""
+    from topodrake.fileio import atomic_write_bytes
+    from topodrake.navigation.drive import plot_drive
+    from topodrake.outputs import write_kept
+
+    if args.meshcat:
+        write_kept(args.meshcat, lambda p: atomic_write_bytes(p, result.recording.encode()),
+                   "the recording")
+        if not args.json:
+            print(f"wrote {args.meshcat}")
+    if args.plot:
+        title = (f"{world.name}: {outcome} in {result.time_s:.1f} s, "
+                 + (f"last of {extra['replans'] + 1} plans: " if extra.get("replans")
+                    else "plan of ")
+                 + f"{len(route)} anchors (p = {route.probability:.3f})")
+        write_kept(args.plot, lambda p: plot_drive(world, route, result, p, start=start,
+                                                   goal=goal, map_layers=layers, title=title),
+                   "the plot")
+        if not args.json:
+            print(f"wrote {args.plot}")
+
+
+def _plan_or_refuse(plan, source):
+    """The route of a plan; no plan ends the command with exit status 1."""
+    from topodrake.topomap.map_cli import Unreachable
+
+    if not plan.reachable:
+        raise Unreachable(f"no plan from the start to the goal on {source}: {plan.reason}")
+    return plan.route
 
 
 def _update_map(planner, route, result, failed: list) -> list[dict]:
@@ -251,7 +295,7 @@ def _route_or_none(plan):
 
 def add_navigate_parser(sub) -> None:
     nv = sub.add_parser("navigate", help="plan on a map (or one demonstration) and follow the plan "
-                                         "in the Drake diagram")
+                                         "in the Drake diagram", epilog=EXIT_HELP)
     nv.add_argument("map", metavar="MAP", help="map file (.tdmap), demonstration folder, or world "
                                                "(one expert drive becomes the chain)")
     nv.add_argument("--start", required=True, help="start pose X,Y,YAW (m, m, rad)")
@@ -284,4 +328,7 @@ def add_navigate_parser(sub) -> None:
                     help="save a Meshcat recording of the drive (default: none)")
     nv.add_argument("--json", action="store_true",
                     help="print the outcome as one JSON object (default: off)")
+    from topodrake.outputs import add_force_option
+
+    add_force_option(nv)
     nv.set_defaults(func=cmd_navigate)

@@ -39,25 +39,34 @@ def chain_route(world, poses: np.ndarray, policy, reach, p: float = 0.99) -> Rou
 
 
 def make_recorder():
-    """A Meshcat that records (headless), or None when Meshcat cannot start."""
+    """A headless Meshcat that records. Its server's "listening" line is not
+    logged: nobody connects, the recording is saved as an HTML file."""
+    import logging
+
     from pydrake.geometry import Meshcat
 
-    viewer = Meshcat()
+    log = logging.getLogger("drake")
+    level = log.level
+    log.setLevel(logging.WARNING)
+    try:
+        viewer = Meshcat()
+    finally:
+        log.setLevel(level)
     viewer.StartRecording(frames_per_second=10.0, set_visualizations_while_recording=False)
     return viewer
 
 
 def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach=None,
-                meshcat_html=None, seed: int = 0, replanner=None):
+                record: bool = False, seed: int = 0, replanner=None):
     """Follow ``route`` from ``start`` in the Drake navigation diagram
     (replanning while dead reckoning with ``replanner``, a
     :class:`~topodrake.navigation.replan.Replanner` over ``[route]``);
     returns the :class:`~topodrake.systems.navigation.NavigationRunResult`
-    with ``build_s`` (diagram construction, including the route's features)."""
-    from topodrake.fileio import atomic_write_bytes
+    with ``build_s`` (diagram construction, including the route's features)
+    and ``recording`` (with ``record``, the drive as Meshcat HTML; else None)."""
     from topodrake.systems.navigation import NavigationRunner, make_navigation_diagram
 
-    viewer = make_recorder() if meshcat_html else None
+    viewer = make_recorder() if record else None
     t0 = time.perf_counter()
     built = make_navigation_diagram(scenario, route, viewer, world=world, policy=policy,
                                     reach=reach, replanner=replanner)
@@ -65,10 +74,11 @@ def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach
     build_s = time.perf_counter() - t0
     result = runner.run(start, seed=seed)
     result.build_s = build_s
+    result.recording = None
     if viewer is not None:
         viewer.StopRecording()
         viewer.PublishRecording()
-        atomic_write_bytes(meshcat_html, viewer.StaticHtml().encode())
+        result.recording = viewer.StaticHtml()
     return result
 
 

@@ -1,12 +1,12 @@
 """``topodrake sparsify``: anchors of one expert drive under a trained RE.
 
     topodrake sparsify test-0 --reach checkpoints/reach_camera_k5/checkpoint.pt \\
-        --controller checkpoints/camera_k5/checkpoint.pt --drive 3 --out anchors.png --json
+        --controller checkpoints/camera_k5/checkpoint.pt --drive 3 --plot anchors.png --json
 
 Reads the world's demonstrations (``topodrake collect``; default folder
 ``data/demos/pairs-s0/WORLD``), renders the drive's observations, keeps
 anchors greedily while RE > ``--p`` and prints the anchor count and keep
-ratio (and plots them on the floor plan with ``--out``). ``--hop-runs N``
+ratio (and plots them on the floor plan with ``--plot``). ``--hop-runs N``
 also drives every anchor hop N times with the controller and actuation
 noise (:mod:`topodrake.topomap.hops`) and prints the share it made.
 """
@@ -14,19 +14,24 @@ noise (:mod:`topodrake.topomap.hops`) and prints the share it made.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
+from topodrake.outputs import add_force_option
 
 
 def cmd_sparsify(args) -> None:
+    from topodrake.outputs import check_output
+    from topodrake.topomap.sources import check_controller, demo_folder
+
+    check_output(args.plot, "image", force=args.force, option="--plot")
+    check_controller(args.controller, args.reach)
     from topodrake.demonstrations import load_demos
     from topodrake.learning.reachability import Reachability
     from topodrake.world import load_world
 
     world = load_world(args.world)
-    folder = Path(args.demos) if args.demos else Path("data/demos/pairs-s0") / args.world
+    folder = demo_folder(args.world, args.demos)
     if not (folder / "manifest.json").is_file():
         raise TopodrakeError(f"no demonstrations in {folder}; make them with "
                              f"'topodrake collect {args.world} --out {folder}'")
@@ -47,18 +52,22 @@ def cmd_sparsify(args) -> None:
         ok = anchor_hop_success(world, LearnedWaypointPolicy.from_checkpoint(args.controller),
                                 poses, anchors, runs=args.hop_runs, seed=args.seed)
         result["hop_success"] = share_made(ok)
-    if args.out:
-        from topodrake.topomap.plot import plot_anchors
-        plot_anchors(world, poses, anchors, args.out, title=f"{re.name or 'RE'}: "
-                     f"{len(anchors)} anchors of {len(poses)} frames (p = {args.p})")
     if args.json:
-        print(json.dumps(result))
+        print(json.dumps(result), flush=True)
     else:
         hops = (f", hops made {result['hop_success']:.3f}"
                 if result.get("hop_success") is not None else "")
         print(f"{len(anchors)} anchors of {len(poses)} frames "
-              f"(keep ratio {result['keep_ratio']:.3f}{hops})"
-              + (f"; wrote {args.out}" if args.out else ""))
+              f"(keep ratio {result['keep_ratio']:.3f}{hops})", flush=True)
+    if args.plot:
+        from topodrake.outputs import write_kept
+        from topodrake.topomap.plot import plot_anchors
+
+        title = f"{re.name or 'RE'}: {len(anchors)} anchors of {len(poses)} frames (p = {args.p})"
+        write_kept(args.plot, lambda p: plot_anchors(world, poses, anchors, p, title=title),
+                   "the plot")
+        if not args.json:
+            print(f"wrote {args.plot}")
 
 
 def add_sparsify_parser(sub) -> None:
@@ -73,6 +82,8 @@ def add_sparsify_parser(sub) -> None:
     sp.add_argument("--hop-runs", type=at.count0, default=0,
                     help="check each anchor hop with N noisy closed-loop rollouts")
     sp.add_argument("--seed", type=at.seed, default=0, help="noise seeds of the hop rollouts")
-    sp.add_argument("--out", help="PNG of the anchors on the floor plan")
+    sp.add_argument("--plot", "--out", dest="plot", metavar="PNG",
+                    help="draw the anchors on the floor plan into this image")
     sp.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    add_force_option(sp)
     sp.set_defaults(func=cmd_sparsify)

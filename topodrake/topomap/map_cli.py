@@ -13,13 +13,16 @@ file, pose or option exits with status 2.
 from __future__ import annotations
 
 import json
+import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
 from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
+from topodrake.outputs import add_force_option, check_output, check_output_folder, write_kept
 
 
 class Unreachable(TopodrakeError):
@@ -49,34 +52,75 @@ def load_map_config(path):
 
 
 def cmd_map_build(args) -> None:
-    from topodrake.topomap.build import build_map
-    from topodrake.topomap.graph import TopoMap
-    from topodrake.topomap.mapfile import load_map, save_map
-    from topodrake.topomap.retrieval import default_embedding
-    from topodrake.topomap.sources import (demo_drives, drive_observations, drives_between,
-                                           make_scorer, scorer_for_map)
-    from topodrake.world import load_world
+    from topodrake.topomap.sources import demo_folder
 
     wall = time.perf_counter()
+    out = check_output(args.out, "map", force=args.force)
+    if args.add and not out.is_file():
+        raise TopodrakeError(f"--add grows an existing map, and {out} does not exist")
+    folder = demo_folder(args.world, args.demos)
+    collect_into = None
+    if not (folder / "manifest.json").is_file():
+        if args.demos:
+            raise TopodrakeError(f"no demonstrations in {folder}")
+        collect_into = check_output_folder(folder, option="demonstrations")
+    build = _start_build(args, out, collect_into)
+    stats = build.run(progress=not args.quiet)
+    write_kept(out, build.save, "the map")
+    build.resume.unlink(missing_ok=True)
+    info = build.topomap.info()
+    times = build.drive_s
+    summary = {"out": str(out), "demos": str(build.folder), "vertices": info["vertices"],
+               "edges": info["edges"], "trajectories": info["trajectories"],
+               "raw_frames": info["raw_frames"], "keep_ratio": info["keep_ratio"],
+               "added": stats.trajectories + build.resumed, "resumed": build.resumed,
+               "reused": stats.reused, "re_pairs": stats.re_pairs,
+               "drive_s_first10": round(float(np.mean(times[:10])), 2) if times else None,
+               "drive_s_last10": round(float(np.mean(times[-10:])), 2) if times else None,
+               "drive_s": [round(t, 2) for t in times],
+               "wall_s": round(time.perf_counter() - wall, 1)}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"wrote {out}: {summary['vertices']} vertices, {summary['edges']} edges from "
+              f"{summary['trajectories']} trajectories ({summary['raw_frames']} frames, keep "
+              f"ratio {summary['keep_ratio']:.4f}) in {summary['wall_s']} s"
+              + (f"; s per drive: first 10 {summary['drive_s_first10']}, last 10 "
+                 f"{summary['drive_s_last10']}" if times else ""))
+
+
+def _start_build(args, out: Path, collect_into: Path | None) -> "MapBuild":
+    """The map to grow (new, ``--add``'s, or an interrupted build's) and the
+    drives to add (collected first into ``collect_into`` when given)."""
+    from topodrake.topomap.graph import TopoMap
+    from topodrake.topomap.mapfile import load_map, read_map_meta
+    from topodrake.topomap.retrieval import default_embedding
+    from topodrake.topomap.sources import (demo_drives, drives_between, make_scorer,
+                                           scorer_for_map)
+    from topodrake.world import load_world
+
     world = load_world(args.world)
-    out = Path(args.out)
+    config = load_map_config(args.config)
+    base = set()
     if args.add:
-        if not out.is_file():
-            raise TopodrakeError(f"--add grows an existing map, and {out} does not exist")
         scorer = scorer_for_map(out, args.reach, args.controller)
         topomap = load_map(out, scorer)
         if topomap.world != args.world:
             raise TopodrakeError(f"{out} is a map of {topomap.world!r}, not of {args.world!r}")
+        base = {t.name for t in topomap.trajectories}
     else:
         scorer = make_scorer(args.modality, world, args.reach, args.controller)
-        topomap = TopoMap(scorer, default_embedding(scorer.observation), load_map_config(args.config),
-                          world=args.world)
+        topomap = TopoMap(scorer, default_embedding(scorer.observation), config, world=args.world)
     if args.places is not None:
         drives_between(world, [], args.places)          # checks the place indices first
+    resume = out.with_name(f".{out.name}.partial")
+    resumed = _resumable(resume, scorer, topomap, load_map, read_map_meta)
+    if collect_into is not None:
+        print(f"topodrake: no demonstrations of {args.world} yet: collecting them into "
+              f"{collect_into} first (--demos DIR reads others)", file=sys.stderr, flush=True)
     folder, drives = demo_drives(args.world, args.demos, progress=not args.quiet)
-    have = {t.name for t in topomap.trajectories}
     names = [f"{folder.name}/{i}" for i in range(len(drives))]
-    todo = [i for i, n in enumerate(names) if n not in have]
+    todo = [i for i, n in enumerate(names) if n not in base]
     if args.places is not None:
         between = set(drives_between(world, drives, args.places))
         if not between:
@@ -87,23 +131,79 @@ def cmd_map_build(args) -> None:
         todo = todo[:args.trajectories]
     if not todo:
         raise TopodrakeError(f"every drive of {folder} is in the map already")
-    items = ((drive_observations(world, scorer, drives[i].poses), drives[i].poses, names[i])
-             for i in todo)
-    stats = build_map(topomap, _Sized(items, len(todo)), progress=not args.quiet,
-                      desc=f"map {world.name}")
-    save_map(topomap, out)
-    info = topomap.info()
-    summary = {"out": str(out), "vertices": info["vertices"], "edges": info["edges"],
-               "trajectories": info["trajectories"], "raw_frames": info["raw_frames"],
-               "keep_ratio": info["keep_ratio"], "added": stats.trajectories,
-               "reused": stats.reused, "re_pairs": stats.re_pairs,
-               "wall_s": round(time.perf_counter() - wall, 1)}
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        print(f"wrote {out}: {summary['vertices']} vertices, {summary['edges']} edges from "
-              f"{summary['trajectories']} trajectories ({summary['raw_frames']} frames, keep "
-              f"ratio {summary['keep_ratio']:.4f}) in {summary['wall_s']} s")
+    if resumed is not None and not {t.name for t in resumed.trajectories} <= \
+            base | {names[i] for i in todo}:
+        resumed = None                  # an interrupted build of other drives: start anew
+    if resumed is not None:
+        have = {t.name for t in resumed.trajectories}
+        n_before = len(todo)
+        todo = [i for i in todo if names[i] not in have]
+        topomap = resumed
+        if not args.quiet:
+            print(f"topodrake: resuming the interrupted build in {resume}: "
+                  f"{n_before - len(todo)} of {n_before} drives done", file=sys.stderr, flush=True)
+    return MapBuild(topomap, world, folder, drives, names, todo, resume,
+                    0 if resumed is None else n_before - len(todo))
+
+
+def _resumable(resume: Path, scorer, fresh, load_map, read_map_meta):
+    """The interrupted build in ``resume`` when it is one of the same world,
+    config and estimators as ``fresh``; else None."""
+    if not resume.is_file():
+        return None
+    try:
+        meta = read_map_meta(resume)
+        if meta.get("world") != fresh.world or meta.get("config") != asdict(fresh.config):
+            return None
+        partial = load_map(resume, scorer)
+    except TopodrakeError:
+        return None
+    have = {t.name for t in partial.trajectories}
+    return partial if {t.name for t in fresh.trajectories} <= have else None
+
+
+class MapBuild:
+    """Drives added to a map one by one; each drive's time (rendering and
+    adding) is kept, and the map so far is saved beside the output at most
+    every :attr:`save_every_s` seconds, so that an interrupted build resumes."""
+
+    save_every_s = 30.0
+
+    def __init__(self, topomap, world, folder, drives, names, todo, resume: Path, resumed: int):
+        self.topomap, self.world, self.folder = topomap, world, folder
+        self.drives, self.names, self.todo = drives, names, todo
+        self.resume, self.resumed = resume, resumed
+        self.drive_s: list[float] = []
+
+    def save(self, path) -> None:
+        from topodrake.topomap.mapfile import save_map
+
+        save_map(self.topomap, path)
+
+    def _items(self):
+        from topodrake.topomap.sources import drive_observations
+
+        saved = time.perf_counter()
+        for i in self.todo:
+            t = time.perf_counter()
+            poses = self.drives[i].poses
+            yield drive_observations(self.world, self.topomap.scorer, poses), poses, self.names[i]
+            self.drive_s.append(time.perf_counter() - t)    # resumed once the drive is added
+            if time.perf_counter() - saved >= self.save_every_s and i != self.todo[-1]:
+                try:
+                    self.save(self.resume)
+                except OSError:
+                    pass                                    # the final write says what failed
+                saved = time.perf_counter()
+
+    def run(self, progress: bool = True):
+        """Add the drives; returns the build's stats."""
+        from topodrake.topomap.build import BuildStats, build_map
+
+        if not self.todo:
+            return BuildStats()
+        return build_map(self.topomap, _Sized(self._items(), len(self.todo)), progress=progress,
+                         desc=f"map {self.world.name}")
 
 
 def _place_list(text: str) -> list[int]:
@@ -156,6 +256,7 @@ def cmd_map_info(args) -> None:
 
 
 def cmd_map_plot(args) -> None:
+    check_output(args.out, "image", force=args.force)
     from topodrake.topomap.plot import plot_map_file
 
     plot_map_file(args.file, args.out)
@@ -168,6 +269,7 @@ def cmd_map_plan(args) -> None:
     from topodrake.topomap.sources import drive_observations, scorer_for_map
     from topodrake.world import load_world
 
+    check_output(args.plot, "image", force=args.force, option="--plot")
     start, goal = parse_pose(args.start, "start"), parse_pose(args.goal, "goal")
     meta = read_map_meta(args.file)
     world = load_world(meta["world"])
@@ -178,21 +280,27 @@ def cmd_map_plan(args) -> None:
     wall = time.perf_counter()
     result = plan_path(topomap, obs[0], obs[1], start_pose=start, goal_pose=goal)
     query_s = time.perf_counter() - wall
-    if args.plot:
-        from topodrake.topomap.plot import plot_plan
-
-        plot_plan(topomap, result, start, goal, args.plot)
-    out = {"path": [int(v) for v in result.vertices], "probability": round(result.probability, 6),
-           "reachable": result.reachable, "query_s": round(query_s, 3)}
+    out = {"path": [int(v) for v in result.vertices], "anchors": anchor_count(result),
+           "probability": round(result.probability, 6), "reachable": result.reachable,
+           "query_s": round(query_s, 3)}
     if not result.reachable:
         out["reason"] = result.reason
     if args.json:
         print(json.dumps(out))
     elif result.reachable:
-        print(f"path of {len(result.vertices)} anchors, probability {result.probability:.4f}: "
-              f"{' '.join(map(str, result.vertices))}")
+        print(f"plan of {out['anchors']} anchors ({len(result.vertices)} map vertices and the "
+              f"goal), probability {result.probability:.4f}: {' '.join(map(str, result.vertices))}")
+    if args.plot:
+        from topodrake.topomap.plot import plot_plan
+
+        write_kept(args.plot, lambda p: plot_plan(topomap, result, start, goal, p), "the plot")
     if not result.reachable:
         raise Unreachable(f"no plan: {result.reason}")
+
+
+def anchor_count(plan) -> int:
+    """The anchors a car follows on a plan: its map vertices and the goal."""
+    return len(plan.route) if plan.route is not None else 0
 
 
 def _checkpoint_options(p) -> None:
@@ -204,7 +312,7 @@ def _checkpoint_options(p) -> None:
 
 def add_map_parser(sub) -> None:
     mp = sub.add_parser("map", help="build, inspect, plot and plan on topological maps")
-    msub = mp.add_subparsers(dest="map_command", required=True)
+    msub = at.subcommands(mp, dest="map_command")
 
     b = msub.add_parser("build", help="build a map from a world's demonstrations (or grow one)")
     b.add_argument("world", help="catalogue name or ROS map YAML")
@@ -225,8 +333,10 @@ def add_map_parser(sub) -> None:
     b.add_argument("--config", help="MapConfig YAML (default: p_sparsify = p_reuse = p_edge = "
                                     "0.99, retrieval_k 64)")
     _checkpoint_options(b)
-    b.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    b.add_argument("--json", action="store_true", help="print the summary (with each drive's "
+                                                      "time) as one JSON object")
     b.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_force_option(b)
     b.set_defaults(func=cmd_map_build)
 
     i = msub.add_parser("info", help="vertices, edges, keep ratio, checkpoints and config of a map")
@@ -236,15 +346,17 @@ def add_map_parser(sub) -> None:
 
     pl = msub.add_parser("plot", help="the map over the floor plan, edges coloured by probability")
     pl.add_argument("file", help="map file")
-    pl.add_argument("--out", required=True, help="PNG to write")
+    pl.add_argument("--out", required=True, help="image to write (PNG, PDF or SVG)")
+    add_force_option(pl)
     pl.set_defaults(func=cmd_map_plot)
 
     pn = msub.add_parser("plan", help="plan between two poses (their observations) on a map")
     pn.add_argument("file", help="map file")
     pn.add_argument("--start", required=True, help="start pose X,Y,YAW (m, m, rad)")
     pn.add_argument("--goal", required=True, help="goal pose X,Y,YAW (m, m, rad)")
-    pn.add_argument("--plot", help="also draw the plan over the map into this PNG")
+    pn.add_argument("--plot", metavar="PNG", help="also draw the plan over the map into this image")
     _checkpoint_options(pn)
+    add_force_option(pn)
     pn.add_argument("--json", action="store_true",
                     help='print {"path": [...], "probability": p, ...}')
     pn.set_defaults(func=cmd_map_plan)
@@ -252,6 +364,10 @@ def add_map_parser(sub) -> None:
 
 def cmd_bench_map(args) -> None:
     """Plan queries between every ordered pair of a world's places on a map."""
+    from collections import Counter
+
+    from tqdm import tqdm
+
     from topodrake.topomap.mapfile import load_map, read_map_meta
     from topodrake.topomap.plan import plan_path
     from topodrake.topomap.sources import drive_observations, scorer_for_map
@@ -260,22 +376,30 @@ def cmd_bench_map(args) -> None:
     path = Path(args.map)
     meta = read_map_meta(path)
     world = load_world(meta["world"])
+    say = (lambda text: None) if args.quiet else \
+        (lambda text: print(f"bench map: {text}", file=sys.stderr, flush=True))
+    say(f"loading {path} and its estimators")
     wall = time.perf_counter()
     topomap = load_map(path, scorer_for_map(path))
     load_s = time.perf_counter() - wall
     places = world.places
+    say(f"rendering the observations at {len(places)} places")
     obs = drive_observations(world, topomap.scorer, places)
     pairs = [(i, j) for i in range(len(places)) for j in range(len(places)) if i != j]
-    times, reached, probs = [], 0, []
-    for i, j in pairs[:args.queries]:
+    times, reached, probs, why = [], 0, [], Counter()
+    for i, j in tqdm(pairs[:args.queries], desc="plan queries", unit="query",
+                     disable=args.quiet):
         t = time.perf_counter()
         r = plan_path(topomap, obs[i], obs[j])
         times.append(time.perf_counter() - t)
         reached += r.reachable
         probs.append(r.probability)
+        if not r.reachable:
+            why[r.reason.split(" (")[0]] += 1
     times = np.array(times)
     out = {"map": str(path), "vertices": len(topomap), "edges": topomap.n_edges,
-           "queries": len(times), "reachable": reached, "load_s": round(load_s, 2),
+           "queries": len(times), "reachable": reached, "unreachable_why": dict(why),
+           "load_s": round(load_s, 2),
            "query_mean_s": round(float(times.mean()), 4),
            "query_p95_s": round(float(np.percentile(times, 95)), 4),
            "query_max_s": round(float(times.max()), 4),
@@ -289,4 +413,5 @@ def add_map_bench_parser(bsub) -> None:
     b.add_argument("map", help="map file, e.g. one 'topodrake map build' wrote")
     b.add_argument("--queries", type=at.count, default=90, help="plan queries")
     b.add_argument("--json", action="store_true", help="print one JSON object")
+    b.add_argument("--quiet", action="store_true", help="no progress lines")
     b.set_defaults(func=cmd_bench_map)

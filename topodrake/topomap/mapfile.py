@@ -109,6 +109,8 @@ def read_map_arrays(path) -> tuple[dict, dict]:
 
 def _read(path, arrays: bool = True) -> tuple[dict, dict]:
     path = Path(path)
+    if path.is_dir():
+        raise TopodrakeError(f"{path} is a folder, not a map file")
     if not path.is_file():
         raise TopodrakeError(f"map file {path} does not exist")
     try:

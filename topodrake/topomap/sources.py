@@ -59,6 +59,45 @@ def shipped_controller(kind: str):
     return REGISTRATION if name == REGISTRATION else shipped_checkpoint(name)
 
 
+def shipped_controllers() -> list[str]:
+    """``"registration"`` and the shipped C_WP checkpoints (their cards say ``waypoint``)."""
+    import json
+
+    names = [REGISTRATION]
+    for card in sorted((ROOT / "checkpoints").glob("*/card.json")):
+        try:
+            if json.loads(card.read_text()).get("output") == "waypoint":
+                names.append(f"checkpoints/{card.parent.name}/checkpoint.pt")
+        except (OSError, ValueError):
+            continue
+    return names
+
+
+def check_controller(controller, reach=None) -> None:
+    """A given C_WP is ``"registration"`` or a checkpoint file, and a given
+    RE checkpoint exists; anything else is refused in one line (an unknown
+    controller with the known ones)."""
+    if controller is not None and str(controller) != REGISTRATION \
+            and not resolve_checkpoint(controller).is_file():
+        raise TopodrakeError(f"controller {controller} is unknown: give a C_WP checkpoint file or "
+                             f"one of {', '.join(shipped_controllers())}")
+    if reach is not None and not resolve_checkpoint(reach).is_file():
+        raise TopodrakeError(f"RE checkpoint {reach} does not exist")
+
+
+def reach_controller(reach):
+    """The C_WP an RE checkpoint was trained for, as it records it (a
+    checkpoint path resolved here, or ``"registration"``)."""
+    from topodrake.learning.checkpoint import load_checkpoint
+
+    recorded = ((load_checkpoint(reach, output="reach").meta.get("extra") or {})
+                .get("controller") or {}).get("checkpoint")
+    if not recorded:
+        raise TopodrakeError(f"RE checkpoint {reach} does not record its controller; "
+                             f"give it with --controller")
+    return controller_checkpoint(recorded)
+
+
 def load_networks(controller, reach=None):
     """(C_WP, RE) a follower drives with: ``controller`` a C_WP checkpoint or
     ``"registration"``; ``reach`` the RE checkpoint trained for it (default
@@ -109,10 +148,14 @@ def make_scorer(modality: str, world=None, reach=None, controller=None):
         return OracleScorer(world)
     if modality not in SHIPPED:
         raise TopodrakeError(f"modality must be one of {MODALITIES}, got {modality!r}")
-    if (reach is None) != (controller is None):
-        raise TopodrakeError("give both --reach and --controller, or neither")
-    reach = resolve_checkpoint(reach) if reach else shipped_checkpoint(SHIPPED[modality][0])
-    controller = controller_checkpoint(controller) if controller else shipped_controller(modality)
+    check_controller(controller, reach)
+    if reach is None:
+        if controller is not None:
+            raise TopodrakeError("--controller needs --reach, the RE trained for it")
+        reach, controller = shipped_checkpoint(SHIPPED[modality][0]), shipped_controller(modality)
+    else:
+        reach = resolve_checkpoint(reach)
+        controller = controller_checkpoint(controller) if controller else reach_controller(reach)
     for p in (reach, controller):
         if p != REGISTRATION and not p.is_file():
             raise TopodrakeError(f"checkpoint {p} does not exist")
@@ -134,6 +177,7 @@ def scorer_for_map(path, reach=None, controller=None):
     ident = meta.get("identity", {})
     if meta.get("modality") == "pose":
         return make_scorer("oracle", load_world(meta["world"]))
+    check_controller(controller, reach)
     reach = reach or _resolve(ident.get("reach", ""))
     controller = controller or _resolve(ident.get("controller", ""))
     for p, what in ((reach, "reachability estimator"), (controller, "controller")):

@@ -1,0 +1,147 @@
+"""The files and folders a command writes, checked before its work starts.
+
+:func:`check_output` refuses, in one :class:`~topodrake.errors.TopodrakeError`
+line, a target whose format is unknown, a folder where a file is expected,
+a parent that is a file or cannot be made or written, and (unless
+``force``) an existing file of another kind. :func:`check_output_folder`
+does the same for a folder a command fills. :func:`write_kept` writes a
+finished result and, when that fails, keeps it elsewhere and says where.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from topodrake.errors import TopodrakeError
+
+#: kind -> {suffix: what such a file holds (as :func:`sniff` names it)}
+KINDS = {
+    "image": {".png": "png", ".pdf": "pdf", ".svg": "svg", ".jpg": "jpeg", ".jpeg": "jpeg"},
+    "map": {".tdmap": "zip"},
+    "html": {".html": "html", ".htm": "html"},
+    "npz": {".npz": "zip"},
+    "json": {".json": "json"},
+}
+_DESCRIBE = {"png": "a PNG image", "pdf": "a PDF", "svg": "an SVG image", "jpeg": "a JPEG image",
+             "zip": "a zip archive (a map or NumPy file)", "html": "an HTML page",
+             "json": "JSON", None: "data of an unknown kind"}
+
+
+def sniff(path) -> str | None:
+    """What an existing file holds, from its first bytes (None: unknown)."""
+    with open(path, "rb") as f:
+        head = f.read(64)
+    text = head.lstrip().lower()
+    for magic, kind in ((b"\x89PNG", "png"), (b"%PDF", "pdf"), (b"\xff\xd8\xff", "jpeg"),
+                        (b"PK\x03\x04", "zip"), (b"PK\x05\x06", "zip")):
+        if head.startswith(magic):
+            return kind
+    if text.startswith((b"<!doctype html", b"<html")):
+        return "html"
+    if text.startswith((b"<?xml", b"<svg")):
+        return "svg"
+    if text.startswith((b"{", b"[")):
+        return "json"
+    return None
+
+
+def _reason(e: OSError) -> str:
+    import errno
+
+    if e.errno == errno.ENOENT:
+        return "it accepts no new files"
+    return e.strerror or type(e).__name__
+
+
+def check_folder(folder, option: str = "--out") -> Path:
+    """``folder`` can be written, or made and then written: its nearest
+    existing ancestor is a folder where this process may create entries."""
+    folder = Path(folder)
+    probe = folder
+    try:
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        if not probe.is_dir():
+            raise TopodrakeError(f"{option}: {probe} is a file, not a folder")
+        if probe == folder:
+            fd, tmp = tempfile.mkstemp(prefix=".topodrake-probe-", dir=probe)
+            os.close(fd)
+            os.unlink(tmp)
+        else:
+            os.rmdir(tempfile.mkdtemp(prefix=".topodrake-probe-", dir=probe))
+    except OSError as e:
+        raise TopodrakeError(f"{option}: cannot write in {probe} ({_reason(e)})") from None
+    return folder
+
+
+def check_output(path, kind: str, *, force: bool = False, option: str = "--out") -> Path | None:
+    """``path`` (None passes) is a file of ``kind`` (a key of :data:`KINDS`)
+    that can be written; an existing non-empty file of another kind is
+    refused unless ``force``."""
+    if path is None:
+        return None
+    path = Path(path)
+    formats = KINDS[kind]
+    if path.is_dir():
+        raise TopodrakeError(f"{option} {path} is a folder; give a file name")
+    if path.suffix.lower() not in formats:
+        fmt = f"unknown format {path.suffix!r}" if path.suffix else "no file extension"
+        names = list(formats)
+        ends = ", ".join(names[:-1]) + " or " + names[-1] if len(names) > 1 else names[0]
+        raise TopodrakeError(f"{option} {path}: {fmt}; {'an' if kind[0] in 'aeiou' else 'a'} "
+                             f"{kind} ends in {ends}")
+    check_folder(path.parent, option)
+    if path.is_file() and not force and path.stat().st_size:
+        try:
+            have = sniff(path)
+        except OSError as e:
+            raise TopodrakeError(f"{option} {path} exists and is unreadable ({_reason(e)})") from None
+        if have != formats[path.suffix.lower()]:
+            raise TopodrakeError(f"{option} {path} exists and holds {_DESCRIBE[have]}; pass "
+                                 f"--force to overwrite it")
+    return path
+
+
+def check_output_folder(path, *, marker: str | None = None, what: str = "",
+                        force: bool = False, option: str = "--out") -> Path:
+    """``path`` is a folder that can be made or written; with ``marker``, a
+    non-empty folder must hold that file (it is ``what``, resumed or
+    grown) unless ``force``."""
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise TopodrakeError(f"{option} {folder} is a file, not a folder")
+    check_folder(folder, option)
+    if marker and not force and folder.is_dir() and not (folder / marker).is_file() \
+            and any(folder.iterdir()):
+        raise TopodrakeError(f"{option} {folder} holds other files and no {what or marker}; give "
+                             f"a new or empty folder, or pass --force")
+    return folder
+
+
+def write_kept(path, write, what: str = "the result") -> Path:
+    """``write(path)``; when that fails, ``write`` to a file of the same name
+    in the working folder or the temporary folder, and raise one line that
+    names the failure and where ``what`` was kept."""
+    path = Path(path)
+    try:
+        write(path)
+        return path
+    except OSError as e:
+        failure = f"could not write {path} ({_reason(e)})"
+    name = f"{path.stem}-kept-{os.getpid()}{path.suffix}"
+    for folder in (Path.cwd(), Path(tempfile.gettempdir())):
+        try:
+            write(folder / name)
+        except OSError:
+            continue
+        raise TopodrakeError(f"{failure}; kept {what} in {folder / name}")
+    raise TopodrakeError(f"{failure}, nor anywhere else; {what} is lost")
+
+
+def add_force_option(parser) -> None:
+    """``--force``: overwrite existing files of another kind."""
+    parser.add_argument("--force", action="store_true",
+                        help="overwrite an output file that holds something else, or fill a "
+                             "folder that holds other files")
