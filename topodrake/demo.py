@@ -43,7 +43,7 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
     from topodrake.systems.run import ExpertRunner
     from topodrake.systems.scenario import Scenario
     from topodrake.world import load_world
-    from topodrake.world.plot import plot_world, save_figure
+    from topodrake.world.plot import legend_below, plot_world, save_figure
 
     wall = time.perf_counter()
     world = load_world(world_name)
@@ -77,7 +77,7 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
     summary["outcome"] = drive_outcome(summary["outcome"], summary["distance_to_goal_m"])
     ax.set_title(f"{world.name}: place {start_place} -> {goal_place}, {summary['outcome']} "
                  f"in {result.time_s:.1f} s (noise {noise_std})")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    legend_below(ax)
     files["plan"] = write_kept(out / "plan.png", lambda p: save_figure(fig, p), "the plot")
 
     images = Camera(world, scenario.camera).render(result.poses[frames_at])

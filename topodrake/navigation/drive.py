@@ -18,8 +18,9 @@ import numpy as np
 from topodrake.navigation.follower import MODES
 from topodrake.navigation.route import Route, route_from_observations
 
-MODE_COLORS = {"search": "tab:gray", "follow": "tab:green", "dead_reckoning": "tab:orange",
-               "reached": "tab:blue", "failed": "tab:red"}
+#: the driven path by follower mode, in colours the map (blues) and the plan (purple) do not use
+MODE_COLORS = {"search": "tab:olive", "follow": "tab:green", "dead_reckoning": "tab:orange",
+               "reached": "tab:cyan", "failed": "tab:brown"}
 
 
 def chain_route(world, poses: np.ndarray, policy, reach, p: float = 0.99) -> Route:
@@ -91,7 +92,7 @@ def plot_drive(world, route: Route, result, out, *, start=None, goal=None, map_l
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from topodrake.world.plot import plot_world, save_figure
+    from topodrake.world.plot import legend_below, plot_world, save_figure
 
     fig, ax = plt.subplots(figsize=(10, 9))
     if map_layers is not None:
@@ -100,7 +101,9 @@ def plot_drive(world, route: Route, result, out, *, start=None, goal=None, map_l
         draw_map(ax, world, *map_layers)
     else:
         plot_world(world, ax)
-    a = route.poses
+    a = np.asarray(route.poses)
+    if start is not None:          # the start's link to the first anchor
+        a = np.vstack([np.asarray(start)[None, :3], a])
     ax.plot(a[:, 0], a[:, 1], "-o", color="tab:purple", lw=1.2, ms=4, zorder=5, alpha=0.8)
     poses = np.asarray(result.poses)
     modes = np.asarray(result.modes)
@@ -108,15 +111,18 @@ def plot_drive(world, route: Route, result, out, *, start=None, goal=None, map_l
         name = MODES[int(modes[k])] if 0 <= modes[k] < len(MODES) else "failed"
         ax.plot(poses[k:k + 2, 0], poses[k:k + 2, 1], color=MODE_COLORS[name], lw=2.2, zorder=6)
     if start is not None:
-        ax.plot(*np.asarray(start)[:2], "s", color="tab:green", ms=9, zorder=7)
+        ax.plot(*np.asarray(start)[:2], "s", color="white", mec="k", ms=9, zorder=7)
     goal = route.goal_pose if goal is None else np.asarray(goal)
-    ax.plot(*goal[:2], "*", color="tab:red", ms=15, zorder=7)
-    handles = [Line2D([], [], color="tab:purple", marker="o", lw=1.2, label="plan (anchors)")]
+    ax.plot(*goal[:2], "*", color="tab:red", mec="k", ms=15, zorder=7)
+    handles = [Line2D([], [], color="tab:purple", marker="o", lw=1.2,
+                      label="plan: start, anchors, goal")]
     handles += [Line2D([], [], color=MODE_COLORS[m], lw=2.2, label=f"driven: {m.replace('_', ' ')}")
                 for m in ("search", "follow", "dead_reckoning")]
-    handles += [Line2D([], [], color="tab:green", marker="s", lw=0, label="start"),
-                Line2D([], [], color="tab:red", marker="*", ms=12, lw=0, label="goal")]
-    ax.legend(handles=handles, loc="upper right", fontsize=8)
+    handles += [Line2D([], [], color="white", mec="k", marker="s", lw=0, label="start"),
+                Line2D([], [], color="tab:red", mec="k", marker="*", ms=12, lw=0, label="goal")]
+    if map_layers is not None:
+        handles.append(Line2D([], [], color="navy", marker="o", ms=3.5, lw=0, label="map vertex"))
+    legend_below(ax, handles)
     ax.set_title(title or f"{result.outcome} in {result.time_s:.1f} s")
     save_figure(fig, out)
     return Path(out)

@@ -31,26 +31,38 @@ def plot_anchors(world, poses, anchors, out, title: str = "") -> None:
     save_figure(fig, out)
 
 
+#: the map's colours: vertices and certain edges dark blue, less certain edges lighter
+VERTEX_COLOR = "navy"
+EDGE_CMAP = "Blues"
+
+
 def draw_map(ax, world, vertex_poses: np.ndarray, edges: np.ndarray, edge_p: np.ndarray,
              title: str = "") -> None:
-    """A map over its floor plan: edges as lines coloured by their
-    probability (dark = certain), vertices as dots; poses are metadata."""
+    """A map over its floor plan: each edge an arrow from its source to its
+    target coloured by its probability (dark = certain), each vertex a dot
+    with a tick along its heading; poses are metadata."""
     from matplotlib import colormaps
-    from matplotlib.collections import LineCollection
-    from matplotlib.colors import Normalize
+    from matplotlib.colors import ListedColormap, Normalize
 
     from topodrake.world.plot import plot_world
 
     plot_world(world, ax, places=True)
+    cmap = ListedColormap(colormaps[EDGE_CMAP](np.linspace(0.35, 1.0, 256)))   # no white
+    v = np.asarray(vertex_poses)
     if len(edges):
-        segs = np.stack([vertex_poses[edges[:, 0], :2], vertex_poses[edges[:, 1], :2]], axis=1)
-        norm = Normalize(0.9, 1.0)
-        lc = LineCollection(segs, cmap=colormaps["viridis_r"], norm=norm, linewidths=0.6,
-                            zorder=3)
-        lc.set_array(np.clip(edge_p, 0.9, 1.0))
-        ax.add_collection(lc)
-        ax.figure.colorbar(lc, ax=ax, shrink=0.6, label="edge probability")
-    ax.plot(vertex_poses[:, 0], vertex_poses[:, 1], ".", color="tab:orange", ms=2.5, zorder=4)
+        a, b = v[edges[:, 0], :2], v[edges[:, 1], :2]
+        d = b - a
+        arrows = ax.quiver(a[:, 0], a[:, 1], d[:, 0], d[:, 1], np.clip(edge_p, 0.9, 1.0),
+                           cmap=cmap, norm=Normalize(0.9, 1.0), angles="xy",
+                           scale_units="xy", scale=1, width=0.002, headwidth=5, headlength=6,
+                           headaxislength=5, zorder=3)
+        ax.figure.colorbar(arrows, ax=ax, fraction=0.025, pad=0.01, shrink=0.5,
+                           label="edge probability")
+    if len(v):
+        ax.quiver(v[:, 0], v[:, 1], np.cos(v[:, 2]), np.sin(v[:, 2]), color=VERTEX_COLOR,
+                  scale=45, width=0.002, headwidth=0, headlength=0, headaxislength=0, zorder=4)
+        ax.plot(v[:, 0], v[:, 1], "o", color=VERTEX_COLOR, ms=3.5, mec="white", mew=0.4,
+                zorder=4)
     if title:
         ax.set_title(title)
 
@@ -88,24 +100,28 @@ def plot_map_file(path, out) -> None:
 
 
 def plot_plan(topomap, result, start, goal, out) -> None:
-    """A plan over its map: the anchor path in red from the start to the goal."""
+    """A plan over its map: the links from the start through the anchors to
+    the goal."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from topodrake.world import load_world
-    from topodrake.world.plot import save_figure
+    from topodrake.world.plot import legend_below, save_figure
 
     world = load_world(topomap.world)
     fig, ax = plt.subplots(figsize=(10, 9))
     poses, edges, p = _map_layers(topomap)
-    state = f"probability {result.probability:.3f}" if result.reachable else "no path"
-    draw_map(ax, world, poses, edges, p, f"plan of {len(result.vertices)} anchors, {state}")
+    state = (f"plan of {len(result.route)} anchors, probability {result.probability:.3f}"
+             if result.reachable else f"no plan: {result.reason}")
+    draw_map(ax, world, poses, edges, p, state)
     path = np.vstack([np.asarray(start)[None, :2], topomap.pose(result.vertices)[:, :2].reshape(-1, 2),
                       np.asarray(goal)[None, :2]])
     if result.reachable:
-        ax.plot(path[:, 0], path[:, 1], "-o", color="tab:red", lw=2, ms=4, zorder=6, label="plan")
-    ax.plot(*np.asarray(start)[:2], "s", color="tab:green", ms=9, zorder=7, label="start")
-    ax.plot(*np.asarray(goal)[:2], "*", color="tab:red", ms=14, zorder=7, label="goal")
-    ax.legend(loc="upper right", fontsize=8)
+        ax.plot(path[:, 0], path[:, 1], "-o", color="tab:purple", lw=2, ms=4, zorder=6,
+                label="plan: start, anchors, goal")
+    ax.plot(*np.asarray(start)[:2], "s", color="white", mec="k", ms=9, zorder=7, label="start")
+    ax.plot(*np.asarray(goal)[:2], "*", color="tab:red", mec="k", ms=14, zorder=7, label="goal")
+    ax.plot([], [], "o", color=VERTEX_COLOR, ms=3.5, label="map vertex")
+    legend_below(ax)
     save_figure(fig, out)

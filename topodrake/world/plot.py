@@ -26,6 +26,9 @@ def plot_world(world, ax=None, *, places: bool = True, show_free: bool = True):
                   vmin=0, vmax=1, interpolation="nearest")
     bank = texture_bank()
     colours = bank.mean(axis=(1, 2))
+    if world.faces_override is not None:
+        # a map read from an image: its walls are the occupied cells, drawn as such
+        colours = np.full_like(colours, 0.3)
     if len(world.walls) <= 5000:
         polys = world.walls.corners()
         ax.add_collection(PolyCollection(polys, facecolors=colours[world.walls.texture],
@@ -61,6 +64,16 @@ def save_figure(fig, path) -> None:
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}{path.suffix}")
     import matplotlib.pyplot as plt
 
-    fig.savefig(tmp, dpi=120, bbox_inches="tight")
-    os.replace(tmp, path)
-    plt.close(fig)
+    try:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+        plt.close(fig)
+
+
+def legend_below(ax, handles=None, ncol: int = 4) -> None:
+    """The legend under the axes, where it covers nothing of the floor plan."""
+    kwargs = {"handles": handles} if handles is not None else {}
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=ncol, fontsize=8,
+              frameon=False, **kwargs)
