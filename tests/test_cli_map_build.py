@@ -10,7 +10,7 @@ BUILD = ["map", "build", "test-0", "--modality", "oracle", "--places", "4,5,9", 
 
 def test_an_interrupted_build_resumes_to_the_same_file(capsys, tmp_path, monkeypatch):
     import topodrake.topomap.build as build
-    from topodrake.topomap.map_cli import MapBuild
+    from topodrake.topomap.resumable import MapBuild
 
     assert main([*BUILD, "--out", str(tmp_path / "ref.tdmap")]) == 0
     whole = json.loads(capsys.readouterr().out)
@@ -42,7 +42,7 @@ def test_an_interrupted_build_resumes_to_the_same_file(capsys, tmp_path, monkeyp
 
 def test_an_interrupted_build_of_other_drives_is_not_resumed(capsys, tmp_path, monkeypatch):
     import topodrake.topomap.build as build
-    from topodrake.topomap.map_cli import MapBuild
+    from topodrake.topomap.resumable import MapBuild
 
     add, calls = build.add_trajectory, []
 

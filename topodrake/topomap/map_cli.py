@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -89,11 +88,12 @@ def cmd_map_build(args) -> None:
                  f"{summary['drive_s_last10']}" if times else ""))
 
 
-def _start_build(args, out: Path, collect_into: Path | None) -> "MapBuild":
+def _start_build(args, out: Path, collect_into: Path | None):
     """The map to grow (new, ``--add``'s, or an interrupted build's) and the
     drives to add (collected first into ``collect_into`` when given)."""
     from topodrake.topomap.graph import TopoMap
-    from topodrake.topomap.mapfile import load_map, read_map_meta
+    from topodrake.topomap.mapfile import load_map
+    from topodrake.topomap.resumable import MapBuild, interrupted_build, resume_file
     from topodrake.topomap.retrieval import default_embedding
     from topodrake.topomap.sources import (demo_drives, drives_between, make_scorer,
                                            scorer_for_map)
@@ -113,8 +113,8 @@ def _start_build(args, out: Path, collect_into: Path | None) -> "MapBuild":
         topomap = TopoMap(scorer, default_embedding(scorer.observation), config, world=args.world)
     if args.places is not None:
         drives_between(world, [], args.places)          # checks the place indices first
-    resume = out.with_name(f".{out.name}.partial")
-    resumed = _resumable(resume, scorer, topomap, load_map, read_map_meta)
+    resume = resume_file(out)
+    resumed = interrupted_build(resume, scorer, topomap)
     if collect_into is not None:
         print(f"topodrake: no demonstrations of {args.world} yet: collecting them into "
               f"{collect_into} first (--demos DIR reads others)", file=sys.stderr, flush=True)
@@ -146,66 +146,6 @@ def _start_build(args, out: Path, collect_into: Path | None) -> "MapBuild":
                     0 if resumed is None else n_before - len(todo))
 
 
-def _resumable(resume: Path, scorer, fresh, load_map, read_map_meta):
-    """The interrupted build in ``resume`` when it is one of the same world,
-    config and estimators as ``fresh``; else None."""
-    if not resume.is_file():
-        return None
-    try:
-        meta = read_map_meta(resume)
-        if meta.get("world") != fresh.world or meta.get("config") != asdict(fresh.config):
-            return None
-        partial = load_map(resume, scorer)
-    except TopodrakeError:
-        return None
-    have = {t.name for t in partial.trajectories}
-    return partial if {t.name for t in fresh.trajectories} <= have else None
-
-
-class MapBuild:
-    """Drives added to a map one by one; each drive's time (rendering and
-    adding) is kept, and the map so far is saved beside the output at most
-    every :attr:`save_every_s` seconds, so that an interrupted build resumes."""
-
-    save_every_s = 30.0
-
-    def __init__(self, topomap, world, folder, drives, names, todo, resume: Path, resumed: int):
-        self.topomap, self.world, self.folder = topomap, world, folder
-        self.drives, self.names, self.todo = drives, names, todo
-        self.resume, self.resumed = resume, resumed
-        self.drive_s: list[float] = []
-
-    def save(self, path) -> None:
-        from topodrake.topomap.mapfile import save_map
-
-        save_map(self.topomap, path)
-
-    def _items(self):
-        from topodrake.topomap.sources import drive_observations
-
-        saved = time.perf_counter()
-        for i in self.todo:
-            t = time.perf_counter()
-            poses = self.drives[i].poses
-            yield drive_observations(self.world, self.topomap.scorer, poses), poses, self.names[i]
-            self.drive_s.append(time.perf_counter() - t)    # resumed once the drive is added
-            if time.perf_counter() - saved >= self.save_every_s and i != self.todo[-1]:
-                try:
-                    self.save(self.resume)
-                except OSError:
-                    pass                                    # the final write says what failed
-                saved = time.perf_counter()
-
-    def run(self, progress: bool = True):
-        """Add the drives; returns the build's stats."""
-        from topodrake.topomap.build import BuildStats, build_map
-
-        if not self.todo:
-            return BuildStats()
-        return build_map(self.topomap, _Sized(self._items(), len(self.todo)), progress=progress,
-                         desc=f"map {self.world.name}")
-
-
 def _place_list(text: str) -> list[int]:
     import argparse
 
@@ -216,19 +156,6 @@ def _place_list(text: str) -> list[int]:
     if len(places) < 2:
         raise argparse.ArgumentTypeError(f"expected at least two places, got {text!r}")
     return places
-
-
-class _Sized:
-    """An iterator with a length (for the progress bar)."""
-
-    def __init__(self, items, n):
-        self.items, self.n = items, n
-
-    def __iter__(self):
-        return iter(self.items)
-
-    def __len__(self):
-        return self.n
 
 
 def map_info(path) -> dict:

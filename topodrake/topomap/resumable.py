@@ -1,0 +1,97 @@
+"""A map build that times each drive and keeps its progress.
+
+:class:`MapBuild` adds drives to a map one by one, times each (rendering
+and adding), and saves the map so far beside the output (:func:`resume_file`)
+at most every :attr:`MapBuild.save_every_s` seconds;
+:func:`interrupted_build` reads such a file back when a build of the same
+map starts again, so that it resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+from topodrake.errors import TopodrakeError
+
+
+def resume_file(out) -> Path:
+    """Where the build of map file ``out`` keeps its progress."""
+    out = Path(out)
+    return out.with_name(f".{out.name}.partial")
+
+
+def interrupted_build(resume: Path, scorer, fresh):
+    """The interrupted build in ``resume`` when it is one of the same world,
+    config and estimators as ``fresh`` and holds its drives; else None."""
+    from topodrake.topomap.mapfile import load_map, read_map_meta
+
+    if not resume.is_file():
+        return None
+    try:
+        meta = read_map_meta(resume)
+        if meta.get("world") != fresh.world or meta.get("config") != asdict(fresh.config):
+            return None
+        partial = load_map(resume, scorer)
+    except TopodrakeError:
+        return None
+    have = {t.name for t in partial.trajectories}
+    return partial if {t.name for t in fresh.trajectories} <= have else None
+
+
+class MapBuild:
+    """Drives added to a map one by one; each drive's time (rendering and
+    adding) is kept, and the map so far is saved beside the output at most
+    every :attr:`save_every_s` seconds, so that an interrupted build resumes."""
+
+    save_every_s = 30.0
+
+    def __init__(self, topomap, world, folder, drives, names, todo, resume: Path, resumed: int):
+        self.topomap, self.world, self.folder = topomap, world, folder
+        self.drives, self.names, self.todo = drives, names, todo
+        self.resume, self.resumed = resume, resumed
+        self.drive_s: list[float] = []
+
+    def save(self, path) -> None:
+        from topodrake.topomap.mapfile import save_map
+
+        save_map(self.topomap, path)
+
+    def _items(self):
+        from topodrake.topomap.sources import drive_observations
+
+        saved = time.perf_counter()
+        for i in self.todo:
+            t = time.perf_counter()
+            poses = self.drives[i].poses
+            yield drive_observations(self.world, self.topomap.scorer, poses), poses, self.names[i]
+            self.drive_s.append(time.perf_counter() - t)    # resumed once the drive is added
+            if time.perf_counter() - saved >= self.save_every_s and i != self.todo[-1]:
+                try:
+                    self.save(self.resume)
+                except OSError:
+                    pass                                    # the final write says what failed
+                saved = time.perf_counter()
+
+    def run(self, progress: bool = True):
+        """Add the drives; returns the build's stats."""
+        from topodrake.topomap.build import BuildStats, build_map
+
+        if not self.todo:
+            return BuildStats()
+        return build_map(self.topomap, _Sized(self._items(), len(self.todo)), progress=progress,
+                         desc=f"map {self.world.name}")
+
+
+class _Sized:
+    """An iterator with a length (for the progress bar)."""
+
+    def __init__(self, items, n):
+        self.items, self.n = items, n
+
+    def __iter__(self):
+        return iter(self.items)
+
+    def __len__(self):
+        return self.n
