@@ -469,7 +469,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="results", help="output folder")
     ap.add_argument("--follower", default="{}",
                     help="follower thresholds to change, as JSON (FollowerConfig fields)")
-    ap.add_argument("--odometry", choices=("perfect", "wheel"), default="perfect",
+    ap.add_argument("--odometry", choices=("perfect", "wheel"), default="wheel",
                     help="the cars' and the drives' odometry: the true pose, or wheel odometry "
                          "that drifts (topodrake.odometry.OdometryConfig.wheel)")
     ap.add_argument("--slack", type=at.fraction, default=0.0,

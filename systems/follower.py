@@ -44,7 +44,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 from topodrake.learning.policy import TargetContext, WaypointPrediction
 from topodrake.navigation.evaluate import (Evaluator, encode_routes, initial_track,
                                            network_context, take_rows)
-from topodrake.navigation.follower import (DEAD_RECKONING, FAILED, MODES, REACHED, REASONS,
+from topodrake.navigation.follower import (FAILED, MODES, REACHED, REASONS,
                                            FollowerConfig, FollowerState, follower_step)
 
 
@@ -165,7 +165,7 @@ class FollowerFsm(LeafSystem):
 
     def _out_held(self, context, output):
         fs, out = self.decision(context)
-        wp = out.waypoint[0] if fs.mode[0] == DEAD_RECKONING else np.full(2, np.nan)
+        wp = out.waypoint[0] if out.held[0] else np.full(2, np.nan)
         output.SetFromVector(wp)
 
     def _commit(self, context, state):
@@ -198,8 +198,9 @@ class _EncodedRoute:
 
 
 class WaypointSelect(LeafSystem):
-    """The waypoint the RMP drives to: ``held`` (FollowerFsm's Dead reckoning
-    waypoint) when it is finite, else ``net`` (WaypointNet's)."""
+    """The waypoint the RMP drives to: ``held`` (FollowerFsm's own waypoint:
+    Dead reckoning's, or the route tracker's) when it is finite, else
+    ``net`` (WaypointNet's)."""
 
     def __init__(self):
         super().__init__()

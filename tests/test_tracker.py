@@ -13,13 +13,13 @@ CFG = TrackerConfig()
 
 def test_route_frames_compose_legs_and_split_at_unknown_ones():
     legs = np.array([[1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0], [np.nan] * 3, [2.0, 0.0, 0.0]])
-    frames, seg, approach = route_frames([legs, np.zeros((0, 3))])
+    frames, seg, approach = route_frames([legs, np.zeros((0, 3))])   # the second: one anchor
     assert np.isnan(approach[[0, 3, 5]]).all()
     np.testing.assert_allclose(approach[2, -1], frames[2], atol=1e-12)
     np.testing.assert_allclose(frames[:3], [[0, 0, 0], [1, 0, np.pi / 2], [1, 1, np.pi / 2]],
                                atol=1e-12)
     np.testing.assert_allclose(frames[3:5], [[0, 0, 0], [2, 0, 0]])
-    assert seg.tolist() == [0, 0, 0, 1, 1, 2]
+    assert seg.tolist() == [0, 0, 0, 1, 1, -1]
 
 
 def test_propagate_moves_the_pose_by_odometry_and_grows_the_variance():
@@ -111,10 +111,11 @@ def test_the_follower_replaces_a_waypoint_that_disagrees_with_the_tracked_anchor
     s, out = drive(ev, s, car, odometry_check=True)
     assert s.active[0] == 3
     np.testing.assert_allclose(out.waypoint[0], [3.0, 0.0], atol=0.05)   # the tracked anchor
-    assert out.local[0, 1] > 0.5                                            # C_WP's answer kept
-    plain, out_plain = drive(ev, before, car)
+    assert out.held[0] and out.target[0] == -1      # the follower's own waypoint: C_WP's not driven
+    plain, out_plain = drive(ev, before, car, odometry_check=False)
     assert plain.active[0] == 3
     assert out_plain.waypoint[0, 1] > 0.5          # without the check the car turns left
+    assert not out_plain.held[0] and out_plain.target[0] == 3
 
 
 def test_dead_reckoning_drives_to_the_tracked_anchor():
@@ -154,3 +155,17 @@ def test_the_pursuit_point_follows_the_taught_path_round_a_corner():
                                atol=1e-12)
     unknown = np.full((1, 7, 3), np.nan)
     np.testing.assert_allclose(pursuit_point(car, unknown, anchor, 1.0), [[2.0, 2.0]])
+
+
+def test_the_papers_follower_turns_our_rules_off():
+    paper = FollowerConfig.paper().check()
+    assert not paper.odometry_check and FollowerConfig().odometry_check
+    assert paper.lookahead == 5 and paper.p_search == 0.92 and paper.dr_back_anchors == -1
+    # no distance condition: an anchor 2 m off with high proximity counts as visited
+    ev = Straight(6)
+    ev.car = np.zeros((1, 3))
+    s = FollowerState.initial(1)
+    s.mode[:], s.active[:], s.visited[:] = FOLLOW, 1, 0
+    ours, _ = follower_step(s, np.array([6]), np.zeros((1, 5)), ev, FollowerConfig())
+    theirs, _ = follower_step(s, np.array([6]), np.zeros((1, 5)), ev, paper)
+    assert ours.visited[0] == 0 and theirs.visited[0] >= 2

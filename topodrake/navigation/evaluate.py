@@ -134,7 +134,8 @@ def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:
     frames = segments = approach = None
     if a.frames is not None and b.frames is not None:
         frames = np.concatenate([a.frames, b.frames])
-        segments = np.concatenate([a.segments, b.segments + (a.segments.max(initial=-1) + 1)])
+        shift = a.segments.max(initial=-1) + 1
+        segments = np.concatenate([a.segments, np.where(b.segments >= 0, b.segments + shift, -1)])
         k = max(a.approach.shape[1], b.approach.shape[1])
         approach = np.concatenate([_pad_points(a.approach, k), _pad_points(b.approach, k)])
     return RouteFeatures(_concat([a.cwp, b.cwp]), _concat([a.re, b.re]),
@@ -199,12 +200,13 @@ class Evaluator:
     def anchor_frames(self, cars: np.ndarray, anchors: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Anchors' poses (M, 3) in their segments' frames, their segments
-        (M,) and the taught poses of the hops into them (M, K, 3); every
-        anchor its own segment when the routes have no legs."""
+        (M,; -1: no known legs) and the taught poses of the hops into them
+        (M, K, 3)."""
         rows = self.start[np.asarray(cars, np.int64)] + np.asarray(anchors, np.int64)
         f = self.features
         if f.frames is None:
-            return np.zeros((len(rows), 3)), rows, np.full((len(rows), 1, 3), np.nan)
+            return np.zeros((len(rows), 3)), np.full(len(rows), -1), np.full((len(rows), 1, 3),
+                                                                          np.nan)
         return f.frames[rows], f.segments[rows], f.approach[rows]
 
     def _obs(self, network, cars: np.ndarray) -> np.ndarray:

@@ -108,10 +108,22 @@ class FollowerConfig:
     dr_back_anchors: int = 1        # the Dead reckoning window reaches back this many anchors
                                     # at most (0: forward only; -1: as far as it widens, the paper)
     stall_periods: int = 50         # Follow periods on one active anchor before it is skipped
-    odometry_check: bool = False    # track the car along the route's legs with odometry, C_WP's
+    odometry_check: bool = True     # track the car along the route's legs with odometry, C_WP's
                                     # answers as fixes, and drive toward the tracked anchor when
                                     # C_WP's waypoint disagrees (routes without legs: no effect)
     check_deg: float = 35.0         # ... by more than this angle
+
+    @classmethod
+    def paper(cls) -> "FollowerConfig":
+        """The paper's follower: its thresholds, its look-ahead of 5 anchors
+        and its unbounded Dead reckoning window, with every rule of ours off
+        (no distance condition on visits, no looser proximity close by, no
+        separate goal test, no skipping of stalled anchors, no odometry
+        check; the rule for a car that arrives at its held waypoint cannot
+        be turned off and stays)."""
+        return cls(p_search=0.92, visit_m=1e9, p_visited_close=1.0, p_goal=0.65, lookahead=5,
+                   dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
+                   odometry_check=False)
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
@@ -243,6 +255,8 @@ class StepOutput:
     local: np.ndarray | None = None
     overlap: np.ndarray | None = None
     heading: np.ndarray | None = None
+    held: np.ndarray | None = None      # (N,) bool: the waypoint is the follower's own (Dead
+                                        # reckoning, or the tracker's in Follow), not C_WP's
 
 
 def _windows(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -452,17 +466,18 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         new.waypoint[fresh] = car_to_world(local[fresh, None], car_state[fresh])[:, 0]
     follow = np.flatnonzero(new.mode == FOLLOW)
     if frames is not None:
-        advanced = _check_waypoints(new, follow, np.flatnonzero(new.mode == DEAD_RECKONING),
-                                    local, car_state, n_anchors, frames, cfg)
-        local[advanced], local_overlap[advanced], local_heading[advanced] = np.nan, np.nan, np.nan
+        tracked = _check_waypoints(new, follow, np.flatnonzero(new.mode == DEAD_RECKONING),
+                                   local, car_state, n_anchors, frames, cfg)
+        follow = np.setdiff1d(follow, tracked)
     target[follow] = new.active[follow]
     drive = np.full((n, 2), np.nan)
-    drive[follow] = new.waypoint[follow]
+    drive[new.mode == FOLLOW] = new.waypoint[new.mode == FOLLOW]
     dr = np.flatnonzero(new.mode == DEAD_RECKONING)
     drive[dr] = new.waypoint[dr]           # held (C_WP is not asked: target stays -1)
     off = target < 0
     local[off], local_overlap[off], local_heading[off] = np.nan, np.nan, np.nan
-    return new, StepOutput(drive, target, local, local_overlap, local_heading)
+    held = off & ((new.mode == FOLLOW) | (new.mode == DEAD_RECKONING))
+    return new, StepOutput(drive, target, local, local_overlap, local_heading, held)
 
 
 TRACKER = tracker.TrackerConfig()
@@ -471,7 +486,7 @@ TRACKER = tracker.TrackerConfig()
 def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, local: np.ndarray,
                      car_state: np.ndarray, n_anchors: np.ndarray, frames,
                      cfg: FollowerConfig) -> np.ndarray:
-    """Returns the cars whose active anchor the tracker advanced. Tracked cars: an active anchor (but the goal) that the tracker puts
+    """Returns the Follow cars that drive the tracker's waypoint. Tracked cars: an active anchor (but the goal) that the tracker puts
     behind the car or within ``visit_m`` counts as visited and the next one
     becomes active; in Follow, a C_WP waypoint more than ``check_deg`` off
     the tracked pursuit point (on the taught poses into the active anchor)
@@ -500,7 +515,7 @@ def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, l
     if use.any():
         c = moving[use]
         new.waypoint[c] = car_to_world(aim[use, None], car_state[c])[:, 0]
-    return moving[passed]
+    return moving[(use | passed) & in_follow]
 
 
 TRACKED_PASS_M = 1.0    # an anchor the tracker puts behind the car and this close is passed

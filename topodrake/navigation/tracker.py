@@ -53,7 +53,8 @@ def route_frames(legs: list[np.ndarray], leg_paths: list[np.ndarray] | None = No
     3)), stacked in order: each anchor's pose (R, 3) in its segment's frame,
     its segment id (R,), and the taught poses of the hop into it (R, K, 3)
     in that frame (K the largest K_i, shorter paths padded with their end;
-    NaN where a segment starts). A NaN leg starts a new segment."""
+    NaN where a segment starts). A NaN leg starts a new segment; an anchor
+    alone in its segment gets -1 (the tracker leaves it alone)."""
     if leg_paths is None:
         leg_paths = [np.asarray(lg, np.float64).reshape(-1, 1, 3) for lg in legs]
     k = max([p.shape[1] for p in leg_paths] + [1])
@@ -80,7 +81,10 @@ def route_frames(legs: list[np.ndarray], leg_paths: list[np.ndarray] | None = No
         seg += 1
     if not frames:
         return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, k, 3))
-    return np.array(frames), np.array(segments, np.int64), np.array(approach)
+    segments = np.array(segments, np.int64)
+    alone = np.bincount(segments)[segments] == 1
+    segments[alone] = -1            # an anchor without known legs: nothing to track along
+    return np.array(frames), segments, np.array(approach)
 
 
 def propagate(rel: np.ndarray, var: np.ndarray, odo_before: np.ndarray, odo_now: np.ndarray,
@@ -177,7 +181,7 @@ def apply_answers(state, cars: np.ndarray, anchors: np.ndarray, waypoint: np.nda
     pose, seg, _ = frames(cars, anchors)
     # untracked cars: start from the first in-range answer
     start = first & (state.ref[cars] < 0) & np.isfinite(waypoint).all(axis=1) \
-        & (np.hypot(*waypoint.T) < cfg.fix_range_m)
+        & (np.hypot(*waypoint.T) < cfg.fix_range_m) & (seg >= 0)
     if start.any():
         c = cars[start]
         state.rel[c], state.var[c] = start_from_answer(waypoint[start], heading[start], cfg)
@@ -191,7 +195,7 @@ def apply_answers(state, cars: np.ndarray, anchors: np.ndarray, waypoint: np.nda
         if idx.size == 0:
             continue
         ref_pose, ref_seg, _ = frames(c, state.ref[c])
-        same = ref_seg == seg[idx]
+        same = (ref_seg == seg[idx]) & (ref_seg >= 0)
         idx, c, ref_pose = idx[same], c[same], ref_pose[same]
         if idx.size == 0:
             continue
@@ -213,7 +217,7 @@ def follow_visits(state, cars: np.ndarray, frames) -> None:
         return
     old, old_seg, _ = frames(c, state.ref[c])
     new, new_seg, _ = frames(c, state.visited[c])
-    same = old_seg == new_seg
+    same = (old_seg == new_seg) & (old_seg >= 0)
     state.rel[c[same]] = reanchor(state.rel[c[same]], old[same], new[same])
     state.ref[c[same]] = state.visited[c[same]]
     state.ref[c[~same]] = -1
@@ -251,7 +255,7 @@ def tracked_anchor(state, cars: np.ndarray, anchors: np.ndarray, frames
         c = cars[known]
         ref_pose, ref_seg, _ = frames(c, state.ref[c])
         pose, seg, approach = frames(c, anchors[known])
-        same = ref_seg == seg
+        same = (ref_seg == seg) & (seg >= 0)
         rows = np.flatnonzero(known)[same]
         into_ref = relative(ref_pose[same], pose[same])
         out[rows] = anchor_in_car(state.rel[c[same]], into_ref)
