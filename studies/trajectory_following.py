@@ -319,43 +319,40 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
     frames = np.array([len(t["poses"]) for t in trajs])
     chains = chains_of(obs, reach, ps, cache, f"{name}-", args.slack)
     out: dict = {"controller": cwp_path, "reach": re_path, "points": []}
+    runs = args.runs
+
+    def follow(kind, tag, p, chain_list, noisy=False, oracle=False):
+        """One kind of run of ``chain_list``: (covers, outcomes); None when not asked for."""
+        if kind not in runs:
+            return None
+        got = follow_chains(world_of, trajs, obs, chain_list, policy, reach, wide, args.noise,
+                            args.seed, args.batch, noisy=noisy, follower=args.follower_config,
+                            odometry=args.odometry_config, cache=cache,
+                            tag=f"{name}-p{p}-{tag}-", oracle=oracle)
+        bar.update()
+        return got
+
     for p in ps:
         anchors = np.array([len(a) for a in chains[p]])
         density = float(anchors.sum() / lengths.sum())
         n = max(1, int(round(frames.sum() / anchors.sum())))
         sub = [every_nth(f, n) for f in frames]
         sub_density = float(sum(len(a) for a in sub) / lengths.sum())
-        c_re, o_re = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide, args.noise,
-                                   args.seed, args.batch, noisy=False, follower=args.follower_config, odometry=args.odometry_config,
-                                   cache=cache, tag=f"{name}-p{p}-re-")
-        bar.update()
-        c_sub, o_sub = follow_chains(world_of, trajs, obs, sub, policy, reach, wide, args.noise,
-                                     args.seed, args.batch, noisy=False, follower=args.follower_config, odometry=args.odometry_config,
-                                     cache=cache, tag=f"{name}-p{p}-every{n}-")
-        bar.update()
-        point = {"p_sparsify": p, "anchors_per_m": round(density, 4), "cover": float(c_re.mean()),
-                 "every_n": n, "subsampled_anchors_per_m": round(sub_density, 4),
-                 "cover_subsampled": float(c_sub.mean()),
-                 "outcomes": _count(o_re), "outcomes_subsampled": _count(o_sub),
-                 "covers": c_re.round(4).tolist(), "covers_subsampled": c_sub.round(4).tolist()}
-        if abs(p - args.headline_p) < 1e-9:
-            c_n, o_n = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide,
-                                     args.noise, args.seed, args.batch, noisy=True,
-                                     follower=args.follower_config, odometry=args.odometry_config, cache=cache,
-                                     tag=f"{name}-p{p}-noisy-")
-            bar.update()
-            point.update({"cover_noisy": float(c_n.mean()), "outcomes_noisy": _count(o_n),
-                          "covers_noisy": c_n.round(4).tolist()})
-            c_o, o_o = follow_chains(world_of, trajs, obs, chains[p], policy, reach, wide,
-                                     args.noise, args.seed, args.batch, noisy=False,
-                                     follower=args.follower_config, odometry=args.odometry_config, cache=cache,
-                                     tag=f"{name}-p{p}-oracle-", oracle=True)
-            bar.update()
-            point.update({"cover_oracle": float(c_o.mean()), "outcomes_oracle": _count(o_o),
-                          "covers_oracle": c_o.round(4).tolist()})
+        point = {"p_sparsify": p, "anchors_per_m": round(density, 4), "every_n": n,
+                 "subsampled_anchors_per_m": round(sub_density, 4)}
+        headline = abs(p - args.headline_p) < 1e-9
+        for kind, tag, suffix, chain_list, noisy, oracle, asked in (
+                ("re", "re", "", chains[p], False, False, True),
+                ("subsampled", f"every{n}", "_subsampled", sub, False, False, True),
+                ("noisy", "noisy", "_noisy", chains[p], True, False, headline),
+                ("oracle", "oracle", "_oracle", chains[p], False, True, headline)):
+            got = follow(kind, tag, p, chain_list, noisy, oracle) if asked else None
+            if got is not None:
+                c, o = got
+                point.update({f"cover{suffix}": float(c.mean()), f"outcomes{suffix}": _count(o),
+                              f"covers{suffix}": c.round(4).tolist()})
         out["points"].append(point)
-        bar.set_postfix_str(f"{name} p={p}: cover {point['cover']:.3f}, "
-                            f"every-{n} {point['cover_subsampled']:.3f}")
+        bar.set_postfix_str(f"{name} p={p}: cover {point.get('cover', float('nan')):.3f}")
     if args.sensitivity:
         out["sensitivity"] = sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache,
                                          bar)
@@ -424,12 +421,15 @@ def plot(results: dict, path: Path, n_traj: int) -> None:
     for i, (name, r) in enumerate(results.items()):
         color = f"C{i}"
         pts = r["points"]
-        ax.plot([q["anchors_per_m"] for q in pts], [q["cover"] for q in pts], "o-", color=color,
+        nan = float("nan")
+        ax.plot([q["anchors_per_m"] for q in pts], [q.get("cover", nan) for q in pts], "o-",
+                color=color,
                 label=f"{name}, RE anchors")
         for q in pts:
-            ax.annotate(f"{q['p_sparsify']}", (q["anchors_per_m"], q["cover"]), fontsize=7,
+            ax.annotate(f"{q['p_sparsify']}", (q["anchors_per_m"], q.get("cover", nan)), fontsize=7,
                         xytext=(3, 3), textcoords="offset points", color=color)
-        ax.plot([q["subsampled_anchors_per_m"] for q in pts], [q["cover_subsampled"] for q in pts],
+        ax.plot([q["subsampled_anchors_per_m"] for q in pts],
+                [q.get("cover_subsampled", nan) for q in pts],
                 "s--", color=color, alpha=0.7, label=f"{name}, every n-th frame")
     ax.set_xlabel("anchors per metre")
     ax.set_ylabel("cover rate")
@@ -469,6 +469,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="results", help="output folder")
     ap.add_argument("--follower", default="{}",
                     help="follower thresholds to change, as JSON (FollowerConfig fields)")
+    ap.add_argument("--runs", default="re,subsampled,noisy,oracle",
+                    help="which runs to make (comma-separated of re, subsampled, noisy, oracle; "
+                         "noisy and oracle at the headline p only); figures of runs left out "
+                         "are NaN")
     ap.add_argument("--odometry", choices=("perfect", "wheel"), default="wheel",
                     help="the cars' and the drives' odometry: the true pose, or wheel odometry "
                          "that drifts (topodrake.odometry.OdometryConfig.wheel)")
@@ -527,6 +531,10 @@ def _run(args) -> int:
     from topodrake.odometry import OdometryConfig
 
     args.odometry_config = getattr(OdometryConfig, args.odometry)()
+    args.runs = {r for r in args.runs.split(",") if r}
+    if not args.runs or args.runs - {"re", "subsampled", "noisy", "oracle"}:
+        raise TopodrakeError(f"--runs takes re, subsampled, noisy, oracle, got "
+                             f"{','.join(sorted(args.runs)) or 'none'}")
     specs = parse_controllers(args.controllers, args.cwp, args.re, table=CONTROLLERS,
                               must_exist=True)
     args.sensitivity = parse_sensitivity(args.sensitivity)
@@ -538,7 +546,9 @@ def _run(args) -> int:
     world_of = lambda n: cache.setdefault(n, load_world(n))   # noqa: E731
     lengths = [path_length(t["poses"])[-1] for t in trajs]
     headline = any(abs(p - args.headline_p) < 1e-9 for p in ps)
-    steps = len(specs) * (2 * len(ps) + (2 if headline else 0)
+    per_p = ("re" in args.runs) + ("subsampled" in args.runs)
+    at_headline = ("noisy" in args.runs) + ("oracle" in args.runs) if headline else 0
+    steps = len(specs) * (per_p * len(ps) + at_headline
                           + (len(args.sensitivity[1]) if args.sensitivity else 0))
     results = {}
     with tqdm(total=steps, desc="trajectory following", disable=args.quiet, unit="sweep") as bar:
@@ -547,9 +557,9 @@ def _run(args) -> int:
     summary = {}
     for name, r in results.items():
         q = min(r["points"], key=lambda q: abs(q["p_sparsify"] - args.headline_p))
-        summary[name] = {"cover": round(q["cover"], 4),
+        summary[name] = {"cover": round(q.get("cover", float("nan")), 4),
                          "cover_noisy": round(q.get("cover_noisy", float("nan")), 4),
-                         "cover_subsampled": round(q["cover_subsampled"], 4),
+                         "cover_subsampled": round(q.get("cover_subsampled", float("nan")), 4),
                          "cover_oracle": round(q.get("cover_oracle", float("nan")), 4),
                          "anchors_per_m": q["anchors_per_m"]}
     tables = {name: r["sensitivity"] for name, r in results.items() if "sensitivity" in r}
