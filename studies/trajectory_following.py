@@ -472,7 +472,7 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", default="re,subsampled,noisy,oracle",
                     help="which runs to make (comma-separated of re, subsampled, noisy, oracle; "
                          "noisy and oracle at the headline p only); figures of runs left out "
-                         "are NaN")
+                         "are null")
     ap.add_argument("--odometry", choices=("perfect", "wheel"), default="wheel",
                     help="the cars' and the drives' odometry: the true pose, or wheel odometry "
                          "that drifts (topodrake.odometry.OdometryConfig.wheel)")
@@ -557,11 +557,9 @@ def _run(args) -> int:
     summary = {}
     for name, r in results.items():
         q = min(r["points"], key=lambda q: abs(q["p_sparsify"] - args.headline_p))
-        summary[name] = {"cover": round(q.get("cover", float("nan")), 4),
-                         "cover_noisy": round(q.get("cover_noisy", float("nan")), 4),
-                         "cover_subsampled": round(q.get("cover_subsampled", float("nan")), 4),
-                         "cover_oracle": round(q.get("cover_oracle", float("nan")), 4),
-                         "anchors_per_m": q["anchors_per_m"]}
+        summary[name] = {k: (round(q[k], 4) if k in q else None)
+                         for k in ("cover", "cover_noisy", "cover_subsampled", "cover_oracle")}
+        summary[name]["anchors_per_m"] = q["anchors_per_m"]
     tables = {name: r["sensitivity"] for name, r in results.items() if "sensitivity" in r}
     out = Path(args.out)
     wall = time.perf_counter() - t0
@@ -577,9 +575,10 @@ def _run(args) -> int:
         print(json.dumps({**summary, **({"sensitivity": tables} if tables else {})}))
     else:
         for name, s in summary.items():
-            print(f"{name:<10} cover {s['cover']:.3f}, oracle {s['cover_oracle']:.3f}, "
-                  f"noisy {s['cover_noisy']:.3f}, every n-th "
-                  f"{s['cover_subsampled']:.3f} at {s['anchors_per_m']:.2f} anchors/m")
+            f = {k: "-" if v is None else f"{v:.3f}" for k, v in s.items()}
+            print(f"{name:<10} cover {f['cover']}, oracle {f['cover_oracle']}, "
+                  f"noisy {f['cover_noisy']}, every n-th "
+                  f"{f['cover_subsampled']} at {s['anchors_per_m']:.2f} anchors/m")
         for name, t in tables.items():
             print(f"{name} RE chains at p = {t['p_sparsify']}, oracle C_WP with {t['key']}:")
             for row in t["rows"]:

@@ -86,3 +86,19 @@ def test_the_oracle_with_a_controlled_error_follows_the_re_chains(tmp_path, load
     assert stored["results"]["lidar_k5"]["controller"] == "oracle:anchor=0.3"
     assert study.main(args + ["--sensitivity", "bias=0.3"]) == 2
     assert "unknown key 'bias'" in capsys.readouterr().err
+
+
+def test_runs_picks_what_is_followed_and_refuses_unknown_runs(tmp_path, load_study, capsys):
+    study = load_study("trajectory_following")
+    args = ["--trajectories", "1", "--worlds", "test-0", "--p", "0.99", "--controllers",
+            "lidar_k5", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
+            "--quiet", "--json"]
+    assert study.main(args + ["--runs", "re,bogus"]) == 2
+    assert "--runs" in capsys.readouterr().err
+    assert study.main(args + ["--runs", "re,oracle", "--odometry", "perfect"]) == 0
+    runs = sorted(p.name for p in (tmp_path / "out" / "trajectory_following_runs").iterdir())
+    assert runs == ["lidar_k5-chains-p0.99.json", "lidar_k5-p0.99-oracle-test-0-0.json",
+                    "lidar_k5-p0.99-re-test-0-0.json"]
+    summary = json.loads((tmp_path / "out" / "trajectory_following.json").read_text())["summary"]
+    assert summary["lidar_k5"]["cover_noisy"] is None                   # not run
+    assert 0.0 <= summary["lidar_k5"]["cover_oracle"] <= 1.0
