@@ -79,6 +79,11 @@ def check_controller(controller, reach=None) -> None:
     controller with the known ones)."""
     if controller is not None and str(controller) != REGISTRATION \
             and not resolve_checkpoint(controller).is_file():
+        from pathlib import Path
+
+        if Path(str(controller)).suffix or "/" in str(controller):
+            raise TopodrakeError(f"C_WP checkpoint {controller} does not exist (shipped: "
+                                 f"{', '.join(shipped_controllers())})")
         raise TopodrakeError(f"controller {controller} is unknown: give a C_WP checkpoint file or "
                              f"one of {', '.join(shipped_controllers())}")
     if reach is not None and not resolve_checkpoint(reach).is_file():
