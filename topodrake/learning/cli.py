@@ -127,10 +127,10 @@ def add_train_parser(sub) -> None:
     td.set_defaults(func=cmd_train_dagger)
     tf = tsub.add_parser("follower-calibration",
                          help="calibrate RE on rollouts from the states the follower visits")
-    tf.add_argument("--controller", "--cwp", dest="cwp", required=True,
+    tf.add_argument("--controller", "--cwp", dest="cwp", required=True, metavar="CHECKPOINT",
                     help="the C_WP followed, the one RE was trained for (checkpoint or "
                          "'registration')")
-    tf.add_argument("--reach", "--re", dest="re", required=True,
+    tf.add_argument("--reach", "--re", dest="re", required=True, metavar="CHECKPOINT",
                     help="RE checkpoint; the calibration is written beside it "
                          "(follower_calibration.json)")
     tf.add_argument("--worlds", help="comma-separated training houses to follow chains in "
