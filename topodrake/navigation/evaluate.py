@@ -196,6 +196,9 @@ class Evaluator:
         self.odometry = poses if odometry is None else np.asarray(odometry, np.float64)
         if self.stateful and (self.track is None or self.odometry is None):
             raise TopodrakeError("a stateful C_WP needs the cars' track state and odometry")
+        if self.stateful:
+            # a stateful C_WP (registration) localizes itself: the route tracker stays out
+            self.anchor_frames = None
 
     def anchor_frames(self, cars: np.ndarray, anchors: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
