@@ -9,22 +9,10 @@ from pathlib import Path
 import pytest
 
 from topodrake.argtypes import Parser
+from cli_run import one_line, run
 from topodrake.cli import build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_line(code, err, *words):
-    lines = err.strip().splitlines()
-    assert code == 2 and len(lines) == 1 and lines[0].startswith("topodrake: error:"), err
-    for w in words:
-        assert w in lines[0], lines[0]
 
 
 def test_bare_topodrake_shows_the_workflow(capsys):

@@ -6,27 +6,13 @@ import json
 
 import pytest
 
+from cli_run import one_line, run
 from topodrake.cli import main
 from topodrake.errors import TopodrakeError
 from topodrake.outputs import check_output, sniff, write_kept
 
 POSE = ["--start", "16.42,14.88,2.95", "--goal", "8.22,14.08,-0.2"]
 PNG = b"\x89PNG\r\n\x1a\n" + b"\0" * 32
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_line(code, err, *words):
-    lines = err.strip().splitlines()
-    assert code == 2, err
-    assert len(lines) == 1 and lines[0].startswith("topodrake: error:"), err
-    for w in words:
-        assert w in lines[0], lines[0]
-    return lines[0]
 
 
 #: (command line with {OUT} where the target goes, the target's kind)

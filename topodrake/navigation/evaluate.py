@@ -131,22 +131,19 @@ def _reads_poses(network, routes) -> bool:
 
 def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:
     """The features of ``a``'s routes followed by ``b``'s."""
+    from topodrake.navigation.tracker import pad_points
+
     frames = segments = approach = None
     if a.frames is not None and b.frames is not None:
         frames = np.concatenate([a.frames, b.frames])
         shift = a.segments.max(initial=-1) + 1
         segments = np.concatenate([a.segments, np.where(b.segments >= 0, b.segments + shift, -1)])
         k = max(a.approach.shape[1], b.approach.shape[1])
-        approach = np.concatenate([_pad_points(a.approach, k), _pad_points(b.approach, k)])
+        approach = np.concatenate([pad_points(a.approach, k), pad_points(b.approach, k)])
     return RouteFeatures(_concat([a.cwp, b.cwp]), _concat([a.re, b.re]),
                          np.concatenate([a.offsets, a.offsets[-1] + b.offsets[1:]]),
                          frames, segments, approach)
 
-
-def _pad_points(paths: np.ndarray, k: int) -> np.ndarray:
-    """(R, K', 3) paths padded to K points with their last."""
-    return paths if paths.shape[1] >= k else \
-        np.concatenate([paths, np.repeat(paths[:, -1:], k - paths.shape[1], 1)], 1)
 
 
 def take_rows(feats, rows: np.ndarray):

@@ -47,6 +47,12 @@ class TrackerConfig:
     initial_rad: float = 0.3          # heading sigma of a start from one answer
 
 
+def pad_points(paths: np.ndarray, k: int) -> np.ndarray:
+    """(R, K', 3) paths padded to K points with their last."""
+    return paths if paths.shape[1] >= k else \
+        np.concatenate([paths, np.repeat(paths[:, -1:], k - paths.shape[1], 1)], 1)
+
+
 def route_frames(legs: list[np.ndarray], leg_paths: list[np.ndarray] | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For routes with ``legs`` (A_i - 1, 3) (and ``leg_paths`` (A_i - 1, K_i,
@@ -62,8 +68,7 @@ def route_frames(legs: list[np.ndarray], leg_paths: list[np.ndarray] | None = No
     for lg, paths in zip(legs, leg_paths):
         lg = np.asarray(lg, np.float64).reshape(-1, 3)
         paths = np.asarray(paths, np.float64)
-        if paths.shape[1] < k:
-            paths = np.concatenate([paths, np.repeat(paths[:, -1:], k - paths.shape[1], 1)], 1)
+        paths = pad_points(paths, k)
         pose = np.zeros((1, 3))
         frames.append(pose[0])
         segments.append(seg)
