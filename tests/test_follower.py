@@ -254,3 +254,29 @@ def test_dead_reckoning_may_search_backwards_as_the_paper_does():
     assert ev.calls[-1][1].tolist() == [3, 4, 5, 6, 7, 8, 9]
     with pytest.raises(TopodrakeError, match="dr_back_anchors"):
         FollowerConfig(dr_back_anchors=-2).check()
+
+
+def test_the_goal_in_sight_ends_the_route_in_dead_reckoning_too():
+    """RE often doubts the last metre: a car in Dead reckoning whose C_WP
+    sees the goal close and alike has arrived; a far or unlike goal does not end it."""
+    def dead_reckoning_near_the_goal():
+        s = following(active=3, visited=2)
+        s.mode[:] = DEAD_RECKONING
+        s.waypoint[:] = [[50.0, 2.0]]
+        return s
+
+    ev = Scripted(p=[0.3] * 4, prox=[0.1, 0.1, 0.1, 0.8], dist=[3.0, 2.0, 1.0, 0.2])
+    s, _ = step(dead_reckoning_near_the_goal(), ev, 4)
+    assert s.mode[0] == REACHED and s.visited[0] == 3 and outcome_of(s) == ["reached"]
+    for prox, dist in ((0.8, 0.5), (0.6, 0.2)):
+        ev.prox[0, 3], ev.dist[0, 3] = prox, dist
+        s, _ = step(dead_reckoning_near_the_goal(), ev, 4)
+        assert s.mode[0] == DEAD_RECKONING
+
+
+def test_the_goal_distance_is_its_own_setting():
+    ev = Scripted(p=[0.99] * 3, prox=[0.9, 0.9, 0.9], dist=[0.0, 0.0, 0.4])
+    s, _ = step(following(active=2, visited=1), ev, 3)
+    assert s.mode[0] == FOLLOW
+    s, _ = step(following(active=2, visited=1), ev, 3, goal_m=0.45)
+    assert s.mode[0] == REACHED

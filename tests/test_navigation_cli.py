@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from topodrake.cli import main
@@ -128,3 +129,31 @@ def test_demo_drives_the_registration_controller(capsys, tmp_path):
     assert summary["distance_m"] > 1.0 and 0.0 < summary["probability"] <= 1.0
     assert (tmp_path / "plan.png").stat().st_size > 10_000
     assert (tmp_path / "meshcat.html").is_file()
+
+
+def test_each_shipped_controller_finds_its_shipped_re():
+    """Without --reach, a shipped C_WP gets the RE trained for it (the demo's
+    ``--controller checkpoints/lidar_k5/checkpoint.pt`` must not pair it
+    with the camera RE); a C_WP without a shipped RE is named."""
+    from topodrake.errors import TopodrakeError
+    from topodrake.topomap.sources import default_reach
+
+    assert default_reach("checkpoints/lidar_k5/checkpoint.pt").parent.name == "reach_lidar_k5"
+    assert default_reach("checkpoints/camera_k5/checkpoint.pt").parent.name == "reach_camera_k5"
+    assert default_reach("registration").parent.name == "reach_lidar_reg"
+    with pytest.raises(TopodrakeError, match="no RE ships for the controller"):
+        default_reach("checkpoints/lidar_k5_scale/checkpoint.pt")
+
+
+def test_a_teach_drive_ends_at_its_first_closest_pass_of_the_goal():
+    """An expert told to come within 0.1 m of the goal circles it; the teach
+    drive ends where it first passed closest within the expert's own 0.27 m."""
+    from topodrake.navigation.cli import TEACH_STOP_M, teach_end
+
+    goal = np.array([0.0, 0.0])
+    x = np.array([2.0, 1.0, 0.5, 0.26, 0.15, 0.12, 0.2, 0.3, 0.25, 0.1])
+    poses = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    assert teach_end(poses, goal) == 5
+    assert teach_end(poses[:4], goal) == 3                 # still closing in at the end
+    assert teach_end(poses[:3], goal) == 2                 # never within TEACH_STOP_M: the end
+    assert x[teach_end(poses, goal)] < TEACH_STOP_M

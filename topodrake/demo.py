@@ -100,15 +100,19 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
     return {"files": files, "summary": summary}
 
 
+#: the demo's C_WP: the shipped controller that holds routes best (docs/figures.md)
+DEMO_CONTROLLER = "checkpoints/lidar_k5/checkpoint.pt"
+
+
 def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_place: int = 9,
                      out_dir: str = "out/demo", seed: int = 0, noise_std: float = 0.0,
-                     p: float = 0.99, controller: str = "checkpoints/camera_k5/checkpoint.pt",
+                     p: float = 0.99, controller: str = DEMO_CONTROLLER,
                      reach: str | None = None, meshcat: bool = True, map_path=None) -> dict:
     """The learned follower between two places: a plan on ``map_path``
     (followed by the controller it was built for), or without a map a chain
     of anchors from one expert drive, followed by ``controller`` (a C_WP
-    checkpoint or ``"registration"``) and ``reach`` (default: the camera k=5
-    RE, or the registration C_WP's shipped RE); returns the written files
+    checkpoint or ``"registration"``) and ``reach`` (default: the RE
+    shipped for it); returns the written files
     and a summary (outcome, times, real-time factor warm and cold)."""
     from topodrake.errors import TopodrakeError
     from topodrake.fileio import atomic_write_bytes
@@ -123,9 +127,10 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 4, goal_plac
     wall = time.perf_counter()
     import torch
 
-    if reach is None:
-        reach = ("checkpoints/reach_lidar_reg/checkpoint.pt" if controller == "registration"
-                 else "checkpoints/reach_camera_k5/checkpoint.pt")
+    if reach is None and map_path is None:
+        from topodrake.topomap.sources import default_reach
+
+        reach = str(default_reach(controller))
 
     # one car: batch-1 inference runs faster on one thread than on two here
     # (and far faster when other processes share the cores)
@@ -260,7 +265,7 @@ def add_demo_parser(sub) -> None:
                            "always saves one (default: off)")
     demo.add_argument("--controller", help="C_WP checkpoint, or 'registration' for the lidar "
                                            "teach-and-repeat C_WP, without --map (default: "
-                                           "checkpoints/camera_k5/checkpoint.pt)")
+                                           f"{DEMO_CONTROLLER}, the best shipped one)")
     demo.add_argument("--reach", help="RE checkpoint trained for --controller (default: the "
                                       "controller's shipped RE)")
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")

@@ -134,8 +134,28 @@ def chain_from_demos(folder: Path, start, goal, drive, policy, reach, p):
     return world, chain_route(world, demos[drive].poses, policy, reach, p), drive
 
 
+TEACH_GOAL_M = 0.1     # a teach drive drives on toward its goal until this close ...
+TEACH_STOP_M = 0.27    # ... and ends at its closest pass once within the expert's own stop
+
+
+def teach_end(poses: np.ndarray, goal) -> int:
+    """The frame a teach drive ends at: its first closest pass of ``goal``
+    within ``TEACH_STOP_M`` (a car-like expert told to come closer circles
+    the goal; the circle would put a cluster of anchors on it)."""
+    d = np.hypot(*(np.asarray(poses)[:, :2] - np.asarray(goal)[:2]).T)
+    inside = np.flatnonzero(d <= TEACH_STOP_M)
+    if inside.size == 0:
+        return len(d) - 1
+    k = int(inside[0])
+    while k + 1 < len(d) and d[k + 1] < d[k]:
+        k += 1
+    return k
+
+
 def chain_from_expert(world_spec: str, start, goal, policy, reach, p):
-    """(world, route) of one noise-free expert drive from ``start`` to ``goal``."""
+    """(world, route) of one noise-free expert drive from ``start`` to
+    ``goal``, ended at its closest pass of the goal (:func:`teach_end`: the
+    route's last anchor is the goal's view)."""
     from topodrake.navigation.drive import chain_route
     from topodrake.rollout import ExpertRollout, RolloutConfig
     from topodrake.world import load_world
@@ -143,11 +163,14 @@ def chain_from_expert(world_spec: str, start, goal, policy, reach, p):
     world = load_world(world_spec)
     world.check_pose(start, "start")
     world.check_pose(goal, "goal")
-    res = ExpertRollout(world, RolloutConfig(t_max_s=150.0)).run(start[None], goal[None, :2])
-    if not res.success[0]:
+    res = ExpertRollout(world, RolloutConfig(t_max_s=150.0, goal_tolerance_m=TEACH_GOAL_M)).run(
+        start[None], goal[None, :2])
+    poses = res.trajectory(0)["poses"]
+    end = teach_end(poses, goal)
+    if not res.success[0] and np.hypot(*(poses[end, :2] - goal[:2])) > TEACH_STOP_M:
         raise TopodrakeError(f"the expert could not drive from the start to the goal in "
                              f"{world.name!r} ({res.trajectory(0)['outcome']}): no demonstration")
-    return world, chain_route(world, res.trajectory(0)["poses"], policy, reach, p)
+    return world, chain_route(world, poses[:end + 1], policy, reach, p)
 
 
 def check_outputs(args) -> None:

@@ -99,6 +99,7 @@ class FollowerConfig:
     p_visited_close: float = 0.3    # proximity enough within visit_m (the car stands on the
                                     # anchor at another heading: a turn or a junction)
     p_goal: float = 0.75            # proximity that the route's last anchor (the goal) needs
+    goal_m: float = 0.35            # ... and C_WP's waypoint toward it is this short
     lookahead: int = 2              # anchors after the last visited one checked in Follow (<= 5)
     advance: str = "next"           # "next": the paper's advance rule; "proximity": the authors' code
     dr_max_iterations: int = 200    # Dead reckoning gives up after this many periods
@@ -112,6 +113,7 @@ class FollowerConfig:
                                     # answers as fixes, and drive toward the tracked anchor when
                                     # C_WP's waypoint disagrees (routes without legs: no effect)
     check_deg: float = 35.0         # ... by more than this angle
+    dr_fixes: bool = False          # tracked cars take C_WP's answers as fixes in Dead reckoning
 
     @classmethod
     def paper(cls) -> "FollowerConfig":
@@ -121,7 +123,7 @@ class FollowerConfig:
         separate goal test, no skipping of stalled anchors, no odometry
         check; the rule for a car that arrives at its held waypoint cannot
         be turned off and stays)."""
-        return cls(p_search=0.92, visit_m=1e9, p_visited_close=1.0, p_goal=0.65, lookahead=5,
+        return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65, lookahead=5,
                    dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
                    odometry_check=False)
 
@@ -353,7 +355,7 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         nearest = prox >= np.maximum.accumulate(prox + 2.0 * rows) - 2.0 * rows
         there = (((prox > cfg.p_visited) & ((length < cfg.visit_m) | passed))
                  | ((prox > cfg.p_visited_close) & (length < cfg.visit_m) & nearest))
-        there &= ~last | ((prox > cfg.p_goal) & (length < cfg.visit_m))
+        there = np.where(last, (prox > cfg.p_goal) & (length < cfg.goal_m), there)
         visited = start.copy()
         for m in np.flatnonzero(there):
             visited[rows[m]] = max(visited[rows[m]], anchors[m])
@@ -431,6 +433,27 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         new.dr_count[db] = 0
         need[db] = True
         stay = d[~back]
+        # the goal in sight ends the route in Dead reckoning too (RE often doubts the
+        # last metre: the car stands on the goal in Dead reckoning)
+        near = stay[new.visited[stay] + cfg.lookahead >= n_anchors[stay] - 1]
+        if near.size:
+            ans = evaluate(near, n_anchors[near] - 1, True, False)
+            home = near[(ans.overlap.mean(axis=1) > cfg.p_goal)
+                        & (np.hypot(*ans.waypoint.T) < cfg.goal_m)]
+            new.visited[home] = n_anchors[home] - 1
+            new.mode[home] = REACHED
+            stay = stay[new.mode[stay] == DEAD_RECKONING]
+        if frames is not None and cfg.dr_fixes:
+            # tracked cars keep checking odometry against C_WP's answers
+            t = stay[new.ref[stay] >= 0]
+            if t.size:
+                lo_t = new.visited[t] + 1
+                hi_t = np.minimum(new.visited[t] + cfg.lookahead, n_anchors[t] - 1)
+                rows_t, anchors_t = _windows(lo_t, hi_t)
+                if rows_t.size:
+                    ans_t = evaluate(t[rows_t], anchors_t, True, False)
+                    tracker.apply_answers(new, t[rows_t], anchors_t, ans_t.waypoint,
+                                          ans_t.heading, frames, TRACKER)
         new.dr_count[stay] = state.dr_count[stay] + 1
         gave_up = stay[new.dr_count[stay] >= cfg.dr_max_iterations]
         new.mode[gave_up] = FAILED

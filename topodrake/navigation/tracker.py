@@ -45,6 +45,9 @@ class TrackerConfig:
     reset_after: int = 4              # outvoted answers in a row that restart the prior
     initial_m: float = 0.3            # position sigma of a start from one answer
     initial_rad: float = 0.3          # heading sigma of a start from one answer
+    floor_m: float = 0.15             # fixes never take the position sigma below this ...
+    floor_rad: float = 0.07           # ... nor the heading sigma below this (C_WP's errors
+                                      # repeat from one period to the next: they do not average out)
 
 
 def pad_points(paths: np.ndarray, k: int) -> np.ndarray:
@@ -136,6 +139,8 @@ def fix(rel: np.ndarray, var: np.ndarray, anchor: np.ndarray, waypoint: np.ndarr
     idx = np.flatnonzero(ok)[use]
     rel[idx, 2] = wrap(rel[idx, 2] + k_h[use] * dh[use])
     var[idx, 1] *= 1.0 - k_h[use]
+    var[:, 0] = np.maximum(var[:, 0], np.where(ok, cfg.floor_m ** 2, 0.0))
+    var[:, 1] = np.maximum(var[:, 1], np.where(ok, cfg.floor_rad ** 2, 0.0))
     return rel, var, ok
 
 

@@ -103,20 +103,31 @@ def reach_controller(reach):
     return controller_checkpoint(recorded)
 
 
+def default_reach(controller) -> Path:
+    """The shipped RE trained for ``controller`` (a shipped C_WP
+    ``checkpoints/<name>/checkpoint.pt``: ``checkpoints/reach_<name>/``; the
+    registration C_WP: its shipped RE); a controller without one is refused."""
+    controller = controller_checkpoint(controller)
+    if controller == REGISTRATION:
+        return shipped_checkpoint(SHIPPED["lidar_reg"][0])
+    folder = Path(controller).resolve().parent
+    if folder.parent == (ROOT / "checkpoints").resolve():
+        reach = ROOT / "checkpoints" / f"reach_{folder.name}" / "checkpoint.pt"
+        if reach.is_file():
+            return reach
+    raise TopodrakeError(f"no RE ships for the controller {controller}: give the RE checkpoint "
+                         f"trained for it")
+
+
 def load_networks(controller, reach=None):
     """(C_WP, RE) a follower drives with: ``controller`` a C_WP checkpoint or
-    ``"registration"``; ``reach`` the RE checkpoint trained for it (default
-    for the registration C_WP: its shipped RE). An RE of another controller
-    is refused."""
+    ``"registration"``; ``reach`` the RE checkpoint trained for it (default:
+    :func:`default_reach`). An RE of another controller is refused."""
     from topodrake.learning.reach_train import controller_policy
     from topodrake.learning.reachability import Reachability
 
     controller = controller_checkpoint(controller)
-    if reach is None:
-        if controller != REGISTRATION:
-            raise TopodrakeError("give the RE checkpoint trained for the controller")
-        reach = shipped_checkpoint(SHIPPED["lidar_reg"][0])
-    reach = resolve_checkpoint(reach)
+    reach = default_reach(controller) if reach is None else resolve_checkpoint(reach)
     for what, path in (("controller", controller), ("reach", reach)):
         if path != REGISTRATION and not Path(path).is_file():
             raise TopodrakeError(f"{what} checkpoint {path} does not exist")
