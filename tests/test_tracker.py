@@ -1,5 +1,7 @@
 """The route tracker: odometry along the taught legs, C_WP's answers as gated fixes."""
 
+from dataclasses import replace
+
 import numpy as np
 
 from topodrake.navigation.follower import (DEAD_RECKONING, FOLLOW, Answers, FollowerConfig,
@@ -39,8 +41,9 @@ def test_an_exact_answer_pulls_a_wrong_prior_to_the_truth():
     anchor = np.array([[2.0, 0.0, 0.3]])
     truth = np.array([[0.2, 0.1, 0.05]])
     rel, var = truth + [[0.3, -0.2, 0.1]], np.array([[0.3 ** 2, 0.2 ** 2]])
+    independent = replace(CFG, repeats=1.0)          # answers whose errors do not repeat
     for _ in range(10):
-        rel, var, ok = fix(rel, var, anchor, *exact_answer(truth, anchor), CFG)
+        rel, var, ok = fix(rel, var, anchor, *exact_answer(truth, anchor), independent)
         assert ok[0]
     before, after = np.hypot(0.3, -0.2), np.hypot(*(rel - truth)[0, :2])
     assert after < 0.3 * before                  # a Kalman average of the prior and the answers
@@ -169,3 +172,23 @@ def test_the_papers_follower_turns_our_rules_off():
     ours, _ = follower_step(s, np.array([6]), np.zeros((1, 5)), ev, FollowerConfig())
     theirs, _ = follower_step(s, np.array([6]), np.zeros((1, 5)), ev, paper)
     assert ours.visited[0] == 0 and theirs.visited[0] >= 2
+
+
+def test_repeated_answers_do_not_make_the_tracker_overconfident():
+    """C_WP's error toward one anchor repeats from one period to the next: a
+    run of identical biased answers moves the estimate only part of the way
+    to the bias, and the sigmas stay above their floors."""
+    anchor = np.array([[1.5, 0.0, 0.0]])
+    truth = np.zeros((1, 3))
+    biased = exact_answer(truth + [[0.0, 0.25, 0.0]], anchor)       # 0.25 m off, every period
+    moved = {}
+    for repeats in (1.0, 10.0):
+        cfg = replace(CFG, repeats=repeats)
+        rel, var = truth.copy(), np.array([[0.2 ** 2, 0.1 ** 2]])
+        for _ in range(10):
+            rel, var, ok = fix(rel, var, anchor, *biased, cfg)
+            assert ok[0]
+        moved[repeats] = abs(rel[0, 1])
+        assert var[0, 0] >= cfg.floor_m ** 2 - 1e-12 and var[0, 1] >= cfg.floor_rad ** 2 - 1e-12
+    assert moved[10.0] < 0.6 * moved[1.0]
+    assert moved[1.0] > 0.15                     # one-shot answers: most of the way to the bias

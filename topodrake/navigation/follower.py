@@ -113,7 +113,6 @@ class FollowerConfig:
                                     # answers as fixes, and drive toward the tracked anchor when
                                     # C_WP's waypoint disagrees (routes without legs: no effect)
     check_deg: float = 35.0         # ... by more than this angle
-    dr_fixes: bool = False          # tracked cars take C_WP's answers as fixes in Dead reckoning
 
     @classmethod
     def paper(cls) -> "FollowerConfig":
@@ -443,17 +442,6 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
             new.visited[home] = n_anchors[home] - 1
             new.mode[home] = REACHED
             stay = stay[new.mode[stay] == DEAD_RECKONING]
-        if frames is not None and cfg.dr_fixes:
-            # tracked cars keep checking odometry against C_WP's answers
-            t = stay[new.ref[stay] >= 0]
-            if t.size:
-                lo_t = new.visited[t] + 1
-                hi_t = np.minimum(new.visited[t] + cfg.lookahead, n_anchors[t] - 1)
-                rows_t, anchors_t = _windows(lo_t, hi_t)
-                if rows_t.size:
-                    ans_t = evaluate(t[rows_t], anchors_t, True, False)
-                    tracker.apply_answers(new, t[rows_t], anchors_t, ans_t.waypoint,
-                                          ans_t.heading, frames, TRACKER)
         new.dr_count[stay] = state.dr_count[stay] + 1
         gave_up = stay[new.dr_count[stay] >= cfg.dr_max_iterations]
         new.mode[gave_up] = FAILED

@@ -13,7 +13,9 @@ route (``ref``) with a position and a heading variance. Each period:
   toward a target in sight the waypoint is the target's position in the car
   frame and the heading head its heading difference. An answer within the
   gate (3 sigma of prior plus measurement) moves ``rel`` by the Kalman
-  gain; one outside is outvoted; ``reset_after`` outvoted answers in a row
+  gain, with the answer's variance counted ``repeats`` times (C_WP's error
+  toward one anchor repeats from period to period, so a run of answers
+  weighs like one) and the variances held above a floor; one outside is outvoted; ``reset_after`` outvoted answers in a row
   mean the prior is wrong, and the next answer starts it again;
 * :func:`reanchor`: ``ref`` follows the car's last visited anchor.
 
@@ -45,6 +47,8 @@ class TrackerConfig:
     reset_after: int = 4              # outvoted answers in a row that restart the prior
     initial_m: float = 0.3            # position sigma of a start from one answer
     initial_rad: float = 0.3          # heading sigma of a start from one answer
+    repeats: float = 10.0             # periods over which one anchor's answer error repeats: a
+                                      # run of answers toward one anchor weighs like one answer
     floor_m: float = 0.15             # fixes never take the position sigma below this ...
     floor_rad: float = 0.07           # ... nor the heading sigma below this (C_WP's errors
                                       # repeat from one period to the next: they do not average out)
@@ -128,14 +132,14 @@ def fix(rel: np.ndarray, var: np.ndarray, anchor: np.ndarray, waypoint: np.ndarr
         return rel, var, ok
     # the car's position that the answer implies, in the ref frame
     implied = anchor[ok, :2] - rotate(waypoint[ok], rel[ok, 2])
-    gain = var[ok, 0] / (var[ok, 0] + r_pos[ok])
+    gain = var[ok, 0] / (var[ok, 0] + cfg.repeats * r_pos[ok])
     rel[ok, :2] += gain[:, None] * (implied - rel[ok, :2])
     var[ok, 0] *= 1.0 - gain
     h = np.asarray(heading, np.float64)[ok]
     implied_h = anchor[ok, 2] - h
     dh = wrap(implied_h - rel[ok, 2])
     use = np.isfinite(dh) & (dh ** 2 < cfg.gate_sigma ** 2 * (var[ok, 1] + cfg.answer_rad ** 2))
-    k_h = var[ok, 1] / (var[ok, 1] + cfg.answer_rad ** 2)
+    k_h = var[ok, 1] / (var[ok, 1] + cfg.repeats * cfg.answer_rad ** 2)
     idx = np.flatnonzero(ok)[use]
     rel[idx, 2] = wrap(rel[idx, 2] + k_h[use] * dh[use])
     var[idx, 1] *= 1.0 - k_h[use]
