@@ -6,8 +6,9 @@ import numpy as np
 
 from topodrake.navigation.follower import (DEAD_RECKONING, FOLLOW, Answers, FollowerConfig,
                                            FollowerState, follower_step)
-from topodrake.navigation.tracker import (TrackerConfig, anchor_in_car, fix, propagate, pursuit_point,
-                                          reanchor, route_frames, start_from_answer)
+from topodrake.navigation.tracker import (TrackerConfig, anchor_in_car, diagonal_cov, fix, propagate,
+                                          pursuit_point, reanchor, reanchor_cov, route_frames,
+                                          start_from_answer)
 from topodrake.se2 import compose, relative
 
 CFG = TrackerConfig()
@@ -25,11 +26,15 @@ def test_route_frames_compose_legs_and_split_at_unknown_ones():
 
 
 def test_propagate_moves_the_pose_by_odometry_and_grows_the_variance():
-    rel, var = np.array([[0.5, 0.0, 0.0]]), np.full((1, 2), 0.01)
+    rel, var = np.array([[0.5, 0.0, 0.0]]), diagonal_cov(0.01, 0.01)
     before, after = np.array([[3.0, 1.0, np.pi / 2]]), np.array([[3.0, 2.0, np.pi / 2]])
     rel2, var2 = propagate(rel, var, before, after, CFG)
     np.testing.assert_allclose(rel2, [[1.5, 0.0, 0.0]], atol=1e-12)
-    assert (var2 > var).all()
+    cov, cov2 = var.reshape(3, 3), var2.reshape(3, 3)
+    assert (np.diag(cov2) > np.diag(cov)).all()
+    # driving 1 m ahead, a heading error becomes a sideways error: y and heading correlate
+    assert cov2[1, 1] > cov[1, 1] + cov[2, 2] * 0.9 and cov2[1, 2] > 0.9 * cov[2, 2]
+    np.testing.assert_allclose(cov2, cov2.T)
 
 
 def exact_answer(car, anchor):
@@ -40,7 +45,7 @@ def exact_answer(car, anchor):
 def test_an_exact_answer_pulls_a_wrong_prior_to_the_truth():
     anchor = np.array([[2.0, 0.0, 0.3]])
     truth = np.array([[0.2, 0.1, 0.05]])
-    rel, var = truth + [[0.3, -0.2, 0.1]], np.array([[0.3 ** 2, 0.2 ** 2]])
+    rel, var = truth + [[0.3, -0.2, 0.1]], diagonal_cov(0.3 ** 2, 0.2 ** 2)
     independent = replace(CFG, repeats=1.0)          # answers whose errors do not repeat
     for _ in range(10):
         rel, var, ok = fix(rel, var, anchor, *exact_answer(truth, anchor), independent)
@@ -53,7 +58,7 @@ def test_an_exact_answer_pulls_a_wrong_prior_to_the_truth():
 def test_an_answer_far_off_the_prior_is_outvoted():
     anchor = np.array([[1.5, 0.0, 0.0]])
     truth = np.zeros((1, 3))
-    var = np.array([[0.05 ** 2, 0.05 ** 2]])
+    var = diagonal_cov(0.05 ** 2, 0.05 ** 2)
     wrong = np.array([[0.0, 1.5]])                       # 90 deg off
     rel, var2, ok = fix(truth, var, anchor, wrong, np.zeros(1), CFG)
     assert not ok[0]
@@ -184,11 +189,36 @@ def test_repeated_answers_do_not_make_the_tracker_overconfident():
     moved = {}
     for repeats in (1.0, 10.0):
         cfg = replace(CFG, repeats=repeats)
-        rel, var = truth.copy(), np.array([[0.2 ** 2, 0.1 ** 2]])
+        rel, var = truth.copy(), diagonal_cov(0.2 ** 2, 0.1 ** 2)
         for _ in range(10):
             rel, var, ok = fix(rel, var, anchor, *biased, cfg)
             assert ok[0]
         moved[repeats] = abs(rel[0, 1])
-        assert var[0, 0] >= cfg.floor_m ** 2 - 1e-12 and var[0, 1] >= cfg.floor_rad ** 2 - 1e-12
+        d = np.diag(var.reshape(3, 3))
+        assert d[0] >= cfg.floor_m ** 2 - 1e-12 and d[2] >= cfg.floor_rad ** 2 - 1e-12
     assert moved[10.0] < 0.6 * moved[1.0]
     assert moved[1.0] > 0.15                     # one-shot answers: most of the way to the bias
+
+
+def test_the_waypoint_alone_corrects_a_wrong_heading():
+    """An anchor's bearing depends on the car's heading: exact waypoints
+    (no heading head) pull a wrong heading to the truth once odometry has
+    correlated heading and position."""
+    truth = np.zeros((1, 3))
+    rel = np.array([[0.0, 0.0, 0.15]])                       # 8.6 deg off
+    var = diagonal_cov(0.05 ** 2, 0.2 ** 2)
+    independent = replace(CFG, repeats=1.0)
+    anchors = np.array([[1.5, 0.8, 0.0], [1.5, -0.8, 0.0]])  # one on each side
+    for k in range(20):
+        a = anchors[[k % 2]]
+        rel, var, ok = fix(rel, var, a, exact_answer(truth, a)[0], np.full(1, np.nan), independent)
+        assert ok[0]
+    assert abs(rel[0, 2]) < 0.03 and np.hypot(*rel[0, :2]) < 0.05
+
+
+def test_reanchoring_turns_the_covariance_with_the_frame():
+    var = diagonal_cov(0.0, 0.0)
+    var.reshape(3, 3)[0, 0] = 0.04                           # uncertain along x of the old frame
+    old, new = np.zeros((1, 3)), np.array([[1.0, 2.0, np.pi / 2]])
+    cov = reanchor_cov(var, old, new).reshape(3, 3)
+    np.testing.assert_allclose(np.diag(cov), [0.0, 0.04, 0.0], atol=1e-12)  # now along y

@@ -163,7 +163,7 @@ class FollowerState:
     track: np.ndarray | None = None  # (N, S) float: a stateful C_WP's per-car state (S may be 0)
     ref: np.ndarray | None = None    # (N,) int: the anchor the car is tracked from (-1: not tracked)
     rel: np.ndarray | None = None    # (N, 3): the car's pose in that anchor's frame
-    var: np.ndarray | None = None    # (N, 2): its position and heading variance
+    var: np.ndarray | None = None    # (N, 9): its covariance (3 x 3 over x, y, heading)
     odo: np.ndarray | None = None    # (N, 3): the odometry pose of the last period (NaN: none)
     misses: np.ndarray | None = None  # (N,) int: answers outvoted in a row
 
@@ -176,7 +176,7 @@ class FollowerState:
         if self.rel is None:
             self.rel = np.zeros((n, 3))
         if self.var is None:
-            self.var = np.zeros((n, 2))
+            self.var = np.zeros((n, 9))
         if self.odo is None:
             self.odo = np.full((n, 3), np.nan)
         if self.misses is None:
@@ -221,12 +221,12 @@ class FollowerState:
         i = lambda x: np.array([int(round(x))], np.int64)   # noqa: E731
         return cls(i(v[0]), i(v[1]), i(v[2]), v[None, 3:5].copy(), i(v[5]), i(v[6]),
                    np.array([v[7]]), i(v[8]), None, i(v[9]), v[None, 10:13].copy(),
-                   v[None, 13:15].copy(), v[None, 15:18].copy(), i(v[18]))
+                   v[None, 13:22].copy(), v[None, 22:25].copy(), i(v[25]))
 
 
 _FIELDS = ("mode", "active", "visited", "waypoint", "dr_count", "reason", "best_p", "stall",
            "track", "ref", "rel", "var", "odo", "misses")
-STATE_SIZE = 19
+STATE_SIZE = 26
 
 
 @dataclass

@@ -4,18 +4,20 @@ The teach-and-repeat idea (VT&R: relative transforms between taught
 vertices from the teach drive's odometry, the repeat's odometry as a prior,
 a measurement accepted only where it agrees with that prior) applied to the
 follower: each car keeps its pose ``rel`` in the frame of one anchor of its
-route (``ref``) with a position and a heading variance. Each period:
+route (``ref``) with its covariance (x, y, heading). Each period:
 
 * :func:`propagate`: odometry moves ``rel`` by the car's measured motion and
-  grows the variances with the distance driven;
+  grows the covariance with the distance driven (a heading error swings
+  the position);
 * :func:`fix`: each C_WP answer toward an anchor within ``fix_range_m``
   whose pose relative to ``ref`` the route's legs give is a measurement:
   toward a target in sight the waypoint is the target's position in the car
   frame and the heading head its heading difference. An answer within the
-  gate (3 sigma of prior plus measurement) moves ``rel`` by the Kalman
-  gain, with the answer's variance counted ``repeats`` times (C_WP's error
-  toward one anchor repeats from period to period, so a run of answers
-  weighs like one) and the variances held above a floor; one outside is outvoted; ``reset_after`` outvoted answers in a row
+  gate (3 sigma of prior plus measurement) moves ``rel`` by the extended
+  Kalman gain (the waypoint corrects the heading too), with the answer's
+  variance counted ``repeats`` times (C_WP's error toward one anchor
+  repeats from period to period, so a run of answers weighs like one) and
+  the variances held above a floor; one outside is outvoted; ``reset_after`` outvoted answers in a row
   mean the prior is wrong, and the next answer starts it again;
 * :func:`reanchor`: ``ref`` follows the car's last visited anchor.
 
@@ -30,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from topodrake.se2 import compose, relative, rotate, wrap
+from topodrake.se2 import compose, relative, wrap
 
 
 @dataclass
@@ -99,14 +101,38 @@ def route_frames(legs: list[np.ndarray], leg_paths: list[np.ndarray] | None = No
     return np.array(frames), segments, np.array(approach)
 
 
+def diagonal_cov(pos_var, head_var) -> np.ndarray:
+    """Covariances (N, 9) (3 x 3 over x, y, heading, flattened) with these
+    position and heading variances and no correlation."""
+    pos_var, head_var = np.broadcast_arrays(np.asarray(pos_var, np.float64),
+                                            np.asarray(head_var, np.float64))
+    cov = np.zeros((pos_var.size, 3, 3))
+    cov[:, 0, 0] = cov[:, 1, 1] = pos_var.ravel()
+    cov[:, 2, 2] = head_var.ravel()
+    return cov.reshape(-1, 9)
+
+
+def _cov(var: np.ndarray) -> np.ndarray:
+    return np.asarray(var, np.float64).reshape(-1, 3, 3).copy()
+
+
+def _flat(cov: np.ndarray) -> np.ndarray:
+    return (0.5 * (cov + cov.transpose(0, 2, 1))).reshape(-1, 9)
+
+
 def propagate(rel: np.ndarray, var: np.ndarray, odo_before: np.ndarray, odo_now: np.ndarray,
               cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
-    """``rel`` (N, 3) and ``var`` (N, 2) moved by the odometry increment."""
+    """``rel`` (N, 3) and its covariance ``var`` (N, 9) moved by the odometry
+    increment (a heading error swings the position by the distance driven)."""
     step = relative(odo_before, odo_now)
+    new = compose(rel, step)
     dist = np.hypot(step[:, 0], step[:, 1]) + 0.3 * np.abs(step[:, 2])
-    var = var + np.column_stack([(cfg.drift_m_per_m * dist) ** 2,
-                                 (cfg.drift_rad_per_m * dist) ** 2])
-    return compose(rel, step), var
+    jac = np.repeat(np.eye(3)[None], len(rel), axis=0)
+    jac[:, 0, 2] = -(new[:, 1] - rel[:, 1])
+    jac[:, 1, 2] = new[:, 0] - rel[:, 0]
+    cov = jac @ _cov(var) @ jac.transpose(0, 2, 1)
+    cov += _cov(diagonal_cov((cfg.drift_m_per_m * dist) ** 2, (cfg.drift_rad_per_m * dist) ** 2))
+    return new, _flat(cov)
 
 
 def anchor_in_car(rel: np.ndarray, anchor: np.ndarray) -> np.ndarray:
@@ -117,55 +143,78 @@ def anchor_in_car(rel: np.ndarray, anchor: np.ndarray) -> np.ndarray:
 def fix(rel: np.ndarray, var: np.ndarray, anchor: np.ndarray, waypoint: np.ndarray,
         heading: np.ndarray, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One answer per car: C_WP's ``waypoint`` (N, 2) and ``heading`` (N,)
-    toward an anchor at ``anchor`` (N, 3) in the ``ref`` frame. Returns the
-    corrected ``rel``, ``var`` and whether each answer was accepted (N,);
-    rows with a non-finite answer are left alone (not accepted)."""
+    toward an anchor at ``anchor`` (N, 3) in the ``ref`` frame, as an
+    extended Kalman update of ``rel`` and its covariance ``var`` (N, 9)
+    (the waypoint also corrects the heading: the anchor's bearing depends on
+    it). Returns the corrected ``rel``, ``var`` and whether each answer was
+    accepted (N,); rows with a non-finite answer are left alone."""
     rel = rel.copy()
-    var = var.copy()
+    cov = _cov(var)
     seen = anchor_in_car(rel, anchor)
     dist = np.hypot(seen[:, 0], seen[:, 1])
     r_pos = (cfg.answer_m + cfg.answer_m_per_m * dist) ** 2
     err = waypoint - seen[:, :2]
+    c, s = np.cos(rel[:, 2]), np.sin(rel[:, 2])
+    jac = np.zeros((len(rel), 2, 3))                 # d(seen position) / d(x, y, heading)
+    jac[:, 0, 0], jac[:, 0, 1], jac[:, 0, 2] = -c, -s, seen[:, 1]
+    jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2] = s, -c, -seen[:, 0]
     ok = np.isfinite(err).all(axis=1) & (dist < cfg.fix_range_m)
-    ok &= (err ** 2).sum(axis=1) < cfg.gate_sigma ** 2 * (var[:, 0] + r_pos)
+    if ok.any():
+        spread = jac[ok] @ cov[ok] @ jac[ok].transpose(0, 2, 1)
+        gate = spread + r_pos[ok, None, None] * np.eye(2)
+        e = err[ok]
+        m2 = np.einsum("ni,nij,nj->n", e, np.linalg.inv(gate), e)
+        ok[np.flatnonzero(ok)] = m2 < cfg.gate_sigma ** 2
     if not ok.any():
-        return rel, var, ok
-    # the car's position that the answer implies, in the ref frame
-    implied = anchor[ok, :2] - rotate(waypoint[ok], rel[ok, 2])
-    gain = var[ok, 0] / (var[ok, 0] + cfg.repeats * r_pos[ok])
-    rel[ok, :2] += gain[:, None] * (implied - rel[ok, :2])
-    var[ok, 0] *= 1.0 - gain
-    h = np.asarray(heading, np.float64)[ok]
-    implied_h = anchor[ok, 2] - h
-    dh = wrap(implied_h - rel[ok, 2])
-    use = np.isfinite(dh) & (dh ** 2 < cfg.gate_sigma ** 2 * (var[ok, 1] + cfg.answer_rad ** 2))
-    k_h = var[ok, 1] / (var[ok, 1] + cfg.repeats * cfg.answer_rad ** 2)
-    idx = np.flatnonzero(ok)[use]
-    rel[idx, 2] = wrap(rel[idx, 2] + k_h[use] * dh[use])
-    var[idx, 1] *= 1.0 - k_h[use]
-    var[:, 0] = np.maximum(var[:, 0], np.where(ok, cfg.floor_m ** 2, 0.0))
-    var[:, 1] = np.maximum(var[:, 1], np.where(ok, cfg.floor_rad ** 2, 0.0))
-    return rel, var, ok
+        return rel, _flat(cov), ok
+    j, p = jac[ok], cov[ok]
+    innov = j @ p @ j.transpose(0, 2, 1) + cfg.repeats * r_pos[ok, None, None] * np.eye(2)
+    gain = p @ j.transpose(0, 2, 1) @ np.linalg.inv(innov)             # (M, 3, 2)
+    rel[ok] += np.einsum("nij,nj->ni", gain, err[ok])
+    rel[ok, 2] = wrap(rel[ok, 2])
+    cov[ok] = (np.eye(3) - gain @ j) @ p
+    # the heading head measures the heading directly
+    idx = np.flatnonzero(ok)
+    dh = wrap(anchor[idx, 2] - np.asarray(heading, np.float64)[idx] - rel[idx, 2])
+    p_hh = cov[idx, 2, 2]
+    use = np.isfinite(dh) & (dh ** 2 < cfg.gate_sigma ** 2 * (p_hh + cfg.answer_rad ** 2))
+    idx, dh = idx[use], dh[use]
+    if idx.size:
+        k = cov[idx, :, 2] / (cov[idx, 2, 2] + cfg.repeats * cfg.answer_rad ** 2)[:, None]
+        rel[idx] += k * dh[:, None]
+        rel[idx, 2] = wrap(rel[idx, 2])
+        cov[idx] -= k[:, :, None] * cov[idx, 2, None, :]
+    floor = np.array([cfg.floor_m ** 2, cfg.floor_m ** 2, cfg.floor_rad ** 2])
+    d = np.diagonal(cov, axis1=1, axis2=2)
+    cov[ok] += np.eye(3) * np.maximum(floor - d[ok], 0.0)[:, None, :]
+    return rel, _flat(cov), ok
 
 
 def start_from_answer(waypoint: np.ndarray, heading: np.ndarray, cfg: TrackerConfig
                       ) -> tuple[np.ndarray, np.ndarray]:
     """The car's pose (N, 3) in the frame of the anchor C_WP answered about
-    (as if the answer were exact), with the variances of such a start."""
+    (as if the answer were exact), with the covariance (N, 9) of such a start."""
     h = np.where(np.isfinite(heading), heading, 0.0)
     anchor_seen = np.column_stack([waypoint, h])
     rel = relative(anchor_seen, np.zeros_like(anchor_seen))
-    n = len(rel)
     dist = np.hypot(*np.asarray(waypoint).T)
-    var = np.column_stack([np.full(n, cfg.initial_m ** 2) + (cfg.answer_m_per_m * dist) ** 2,
-                           np.full(n, cfg.initial_rad ** 2)])
-    return rel, var
+    return rel, diagonal_cov(cfg.initial_m ** 2 + (cfg.answer_m_per_m * dist) ** 2,
+                             np.full(len(rel), cfg.initial_rad ** 2))
 
 
 def reanchor(rel: np.ndarray, old_anchor: np.ndarray, new_anchor: np.ndarray) -> np.ndarray:
     """``rel`` re-expressed from one anchor's frame to another's (both
     given in a common frame, (N, 3))."""
     return compose(relative(new_anchor, old_anchor), rel)
+
+
+def reanchor_cov(var: np.ndarray, old_anchor: np.ndarray, new_anchor: np.ndarray) -> np.ndarray:
+    """Covariances (N, 9) re-expressed as :func:`reanchor` moves their poses."""
+    turn = relative(new_anchor, old_anchor)[:, 2]
+    c, s = np.cos(turn), np.sin(turn)
+    rot = np.repeat(np.eye(3)[None], len(turn), axis=0)
+    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1] = c, -s, s, c
+    return _flat(rot @ _cov(var) @ rot.transpose(0, 2, 1))
 
 
 # -- the follower's use: functions over a FollowerState's tracking fields (ref, rel, var,
@@ -233,6 +282,7 @@ def follow_visits(state, cars: np.ndarray, frames) -> None:
     new, new_seg, _ = frames(c, state.visited[c])
     same = (old_seg == new_seg) & (old_seg >= 0)
     state.rel[c[same]] = reanchor(state.rel[c[same]], old[same], new[same])
+    state.var[c[same]] = reanchor_cov(state.var[c[same]], old[same], new[same])
     state.ref[c[same]] = state.visited[c[same]]
     state.ref[c[~same]] = -1
 
