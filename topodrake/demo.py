@@ -104,7 +104,7 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
 DEMO_CONTROLLER = "checkpoints/lidar_k5/checkpoint.pt"
 
 
-def run_learned_demo(world_name: str = "test-0", start_place: int = 1, goal_place: int = 7,
+def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_place: int = 6,
                      out_dir: str = "out/demo", seed: int = 0, noise_std: float = 0.0,
                      p: float = 0.99, controller: str = DEMO_CONTROLLER,
                      reach: str | None = None, meshcat: bool = True, map_path=None) -> dict:
@@ -251,10 +251,10 @@ def add_demo_parser(sub) -> None:
                       help="catalogue name or map YAML/JSON (default: test-0)")
     demo.add_argument("--map", help="plan on this map file (.tdmap; its world replaces --world) "
                                     "instead of following one expert drive (default: none)")
-    demo.add_argument("--start-place", type=int, default=1,
-                      help="index of the start place (default: 1)")
-    demo.add_argument("--goal-place", type=int, default=7,
-                      help="index of the goal place (default: 7)")
+    demo.add_argument("--start-place", type=int, default=3,
+                      help="index of the start place (default: 3)")
+    demo.add_argument("--goal-place", type=int, default=6,
+                      help="index of the goal place (default: 6)")
     demo.add_argument("--seed", type=int, default=0, help="seed of the actuation noise (default: 0)")
     demo.add_argument("--noise", type=float, default=None,
                       help="actuation noise std, 0 = off (default: 0; with --expert 0.33)")
