@@ -100,7 +100,7 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
     return {"files": files, "summary": summary}
 
 
-#: the demo's C_WP: the shipped controller that holds routes best (docs/figures.md)
+#: the demo's C_WP: of the shipped controllers with their own RE, the one that holds routes best
 DEMO_CONTROLLER = "checkpoints/lidar_k5/checkpoint.pt"
 
 
@@ -265,7 +265,7 @@ def add_demo_parser(sub) -> None:
                            "always saves one (default: off)")
     demo.add_argument("--controller", help="C_WP checkpoint, or 'registration' for the lidar "
                                            "teach-and-repeat C_WP, without --map (default: "
-                                           f"{DEMO_CONTROLLER}, the best shipped one)")
+                                           f"{DEMO_CONTROLLER}, the best shipped one with its own RE)")
     demo.add_argument("--reach", help="RE checkpoint trained for --controller (default: the "
                                       "controller's shipped RE)")
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
