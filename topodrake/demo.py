@@ -265,7 +265,8 @@ def add_demo_parser(sub) -> None:
                            "always saves one (default: off)")
     demo.add_argument("--controller", help="C_WP checkpoint, or 'registration' for the lidar "
                                            "teach-and-repeat C_WP, without --map (default: "
-                                           f"{DEMO_CONTROLLER}, the best shipped one with its own RE)")
+                                           f"{DEMO_CONTROLLER}, the best shipped one with "
+                                           "its own RE)")
     demo.add_argument("--reach", help="RE checkpoint trained for --controller (default: the "
                                       "controller's shipped RE)")
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")

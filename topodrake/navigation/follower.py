@@ -122,8 +122,8 @@ class FollowerConfig:
         separate goal test, no skipping of stalled anchors, no odometry
         check; the rule for a car that arrives at its held waypoint cannot
         be turned off and stays)."""
-        return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65, lookahead=5,
-                   dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
+        return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65,
+                   lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
                    odometry_check=False)
 
     def check(self) -> "FollowerConfig":

@@ -17,8 +17,9 @@ route (``ref``) with its covariance (x, y, heading). Each period:
   Kalman gain (the waypoint corrects the heading too), with the answer's
   variance counted ``repeats`` times (C_WP's error toward one anchor
   repeats from period to period, so a run of answers weighs like one) and
-  the variances held above a floor; one outside is outvoted; ``reset_after`` outvoted answers in a row
-  mean the prior is wrong, and the next answer starts it again;
+  the variances held above a floor; one outside is outvoted;
+  ``reset_after`` outvoted answers in a row mean the prior is wrong, and
+  the next answer starts it again;
 * :func:`reanchor`: ``ref`` follows the car's last visited anchor.
 
 :func:`anchor_in_car` is what the follower checks C_WP's waypoint with.
