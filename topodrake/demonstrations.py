@@ -35,11 +35,13 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_bytes, atomic_write_json
+from topodrake.fileio import atomic_write_bytes, atomic_write_json, read_tagged_npz
 from topodrake.fileio import read_manifest as _read_manifest
 
 FORMAT = "topodrake-demos"
 VERSION = 2
+#: the arrays every chunk holds
+CHUNK_ARRAYS = ("poses", "controls", "waypoints", "offsets", "starts", "goals", "outcome", "seeds")
 
 
 @dataclass
@@ -181,18 +183,13 @@ def load_demos(folder, successful_only: bool = False) -> tuple[dict, list[Demons
     drives: list[Demonstration] = []
     for name in m["chunks"]:
         path = folder / name
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                if str(z["format"]) != FORMAT or int(z["version"]) != VERSION:
-                    raise TopodrakeError(f"{path} is not a {FORMAT} v{VERSION} chunk")
-                d = {k: z[k] for k in ("poses", "controls", "waypoints", "offsets", "starts",
-                                       "goals", "outcome", "seeds")}
-        except TopodrakeError:
-            raise
-        except FileNotFoundError:
-            raise TopodrakeError(f"{path} is listed in the manifest but missing") from None
-        except Exception as e:
-            raise TopodrakeError(f"{path} is corrupt or not a demonstration chunk ({type(e).__name__})") from None
+        if not path.is_file():
+            raise TopodrakeError(f"{path} is listed in the manifest but missing")
+        d = read_tagged_npz(path, FORMAT, VERSION, "demonstration chunk")
+        lacking = set(CHUNK_ARRAYS) - set(d)
+        if lacking:
+            raise TopodrakeError(f"{path} is corrupt or not a demonstration chunk (no "
+                                 f"{', '.join(sorted(lacking))})")
         off = d["offsets"]
         for i in range(len(off) - 1):
             a, b = off[i], off[i + 1]

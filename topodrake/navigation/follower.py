@@ -260,6 +260,11 @@ class StepOutput:
                                         # reckoning, or the tracker's in Follow), not C_WP's
 
 
+def _at_goal(proximity: np.ndarray, length: np.ndarray, cfg: FollowerConfig) -> np.ndarray:
+    """C_WP's answers toward the route's last anchor that say the car is there."""
+    return (proximity > cfg.p_goal) & (length < cfg.goal_m)
+
+
 def _windows(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(row, anchor) pairs of the inclusive ranges lo[i]..hi[i] (empty when hi < lo)."""
     counts = np.maximum(hi - lo + 1, 0)
@@ -354,7 +359,7 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         nearest = prox >= np.maximum.accumulate(prox + 2.0 * rows) - 2.0 * rows
         there = (((prox > cfg.p_visited) & ((length < cfg.visit_m) | passed))
                  | ((prox > cfg.p_visited_close) & (length < cfg.visit_m) & nearest))
-        there = np.where(last, (prox > cfg.p_goal) & (length < cfg.goal_m), there)
+        there = np.where(last, _at_goal(prox, length, cfg), there)
         visited = start.copy()
         for m in np.flatnonzero(there):
             visited[rows[m]] = max(visited[rows[m]], anchors[m])
@@ -437,8 +442,7 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
         near = stay[new.visited[stay] + cfg.lookahead >= n_anchors[stay] - 1]
         if near.size:
             ans = evaluate(near, n_anchors[near] - 1, True, False)
-            home = near[(ans.overlap.mean(axis=1) > cfg.p_goal)
-                        & (np.hypot(*ans.waypoint.T) < cfg.goal_m)]
+            home = near[_at_goal(ans.overlap.mean(axis=1), np.hypot(*ans.waypoint.T), cfg)]
             new.visited[home] = n_anchors[home] - 1
             new.mode[home] = REACHED
             stay = stay[new.mode[stay] == DEAD_RECKONING]
