@@ -253,3 +253,52 @@ def test_drake_waypoint_diagram_and_label_rollouts_drive_the_same_path(house, dr
     # a second run on the same runner starts from a fresh track again
     again = runner.run(start, goal, target, seed=4, t_max_s=20.0)
     np.testing.assert_array_equal(again.poses, drake.poses)
+
+
+def test_a_fresh_anchor_takes_its_prediction_from_the_legs(house, drives, policy):
+    """Handing over from a tracked anchor to the next one uses the route's
+    legs (the teach drive's odometry between the two), not a registration of
+    their taught frames: with a scan that registers to nothing, the new
+    anchor's estimate is exactly the tracked one carried by the legs, and its
+    confirmation carries over."""
+    from topodrake.sensing.lidar import Lidar
+    from topodrake.se2 import relative
+
+    poses = drives[0]
+    a, b = 60, 75
+    ctx, _ = _contexts(house, poses, [a, b])
+    feats = policy.encode_target(ctx)
+    lidar = Lidar(house)
+    cars = np.zeros(1, np.int64)
+    legs_pose = np.array([[0.0, 0.0, 0.0], relative(poses[a][None], poses[b][None])[0]])
+    legs_pose[1, :2] += [0.06, -0.03]          # the teach drive's odometry, a little off
+    legs_seg = np.zeros(2)
+
+    def query(track, p, key, scan=None):
+        row = key - 7
+        return policy.predict_tracked(lidar.scan(p[None]) if scan is None else scan,
+                                      feats[row:row + 1], track, cars, np.array([key]), p[None],
+                                      legs=(legs_pose[row:row + 1], legs_seg[row:row + 1]))
+
+    track = policy.initial_track(1)
+    path = [poses[i] for i in range(a - 9, a + 1, 3)]
+    for p in path:
+        query(track, p, 7)
+    row = track[0].reshape(policy.config.slots, -1)
+    assert row[0, 13] >= policy.config.confirm          # anchor a confirmed
+    est_a = row[0, 1:4].copy()
+    confirmed = track.copy()
+    query(track, path[-1], 8, scan=np.full((1, 64), np.inf))
+    row = track[0].reshape(policy.config.slots, -1)
+    expected = relative(legs_pose[1][None], est_a[None])[0]
+    np.testing.assert_allclose(row[1, 1:4], expected, atol=1e-9)
+    # the confirmation carries over: the new anchor's first fit reports its overlaps
+    assert query(confirmed, path[-1], 8).overlap[0].min() > 0.3
+    # without legs the same query has no estimate to start from but a registration's
+    plain = policy.initial_track(1)
+    for p in path:
+        policy.predict_tracked(lidar.scan(p[None]), feats[:1], plain, cars, np.array([7]), p[None])
+    policy.predict_tracked(np.full((1, 64), np.inf), feats[1:], plain, cars, np.array([8]),
+                           path[-1][None])
+    other = plain[0].reshape(policy.config.slots, -1)[1, 1:4]
+    assert not np.allclose(other, expected, atol=1e-3)

@@ -193,11 +193,11 @@ class Evaluator:
         self.odometry = poses if odometry is None else np.asarray(odometry, np.float64)
         if self.stateful and (self.track is None or self.odometry is None):
             raise TopodrakeError("a stateful C_WP needs the cars' track state and odometry")
-        if self.stateful:
-            # a stateful C_WP (registration) localizes itself: the route tracker stays out
-            self.anchor_frames = None
+        # a stateful C_WP (registration) localizes itself along the legs: the route
+        # tracker stays out
+        self.anchor_frames = None if self.stateful else self.leg_frames
 
-    def anchor_frames(self, cars: np.ndarray, anchors: np.ndarray
+    def leg_frames(self, cars: np.ndarray, anchors: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Anchors' poses (M, 3) in their segments' frames, their segments
         (M,; -1: no known legs) and the taught poses of the hops into them
@@ -225,7 +225,8 @@ class Evaluator:
         if cwp and self.stateful:
             pred = self.policy.predict_tracked(self.observations[cars],
                                                take_rows(self.features.cwp, rows), self.track,
-                                               cars, rows, self.odometry[cars])
+                                               cars, rows, self.odometry[cars],
+                                               legs=self.leg_frames(cars, anchors)[:2])
         elif cwp:
             pred = self.policy.predict(self._obs(self.policy, cars),
                                        take_rows(self.features.cwp, rows))

@@ -62,7 +62,7 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.learning.policy import WaypointPrediction
 from topodrake.registration.icp import IcpConfig, Registration, register_points, scan_points
-from topodrake.se2 import compose, invert
+from topodrake.se2 import compose, invert, relative
 from topodrake.sensing.config import LidarConfig
 
 __all__ = ["RegistrationConfig", "RegistrationPolicy"]
@@ -70,10 +70,11 @@ __all__ = ["RegistrationConfig", "RegistrationPolicy"]
 # one tracking slot: anchor key, estimate (x, y, th), odometry pose (x, y, th),
 # overlaps (current -> anchor, anchor -> current), failed registrations since the last fit,
 # the pose of the anchor's last usable taught frame (where its taught path leaves it),
-# consecutive fits that agreed with the odometry prediction
-_KEY, _EST, _ODO, _OVL, _MISS, _EXIT, _HITS = (0, slice(1, 4), slice(4, 7), slice(7, 9), 9,
-                                               slice(10, 13), 13)
-SLOT = 14
+# consecutive fits that agreed with the odometry prediction, the anchor's segment of the
+# route's legs and its pose in that segment's frame (the teach drive's odometry)
+_KEY, _EST, _ODO, _OVL, _MISS, _EXIT, _HITS, _SEG, _FRAME = (
+    0, slice(1, 4), slice(4, 7), slice(7, 9), 9, slice(10, 13), 13, 14, slice(15, 18))
+SLOT = 18
 
 
 @dataclass(frozen=True)
@@ -110,6 +111,11 @@ class RegistrationConfig:
     teach_icp: IcpConfig = field(default_factory=lambda: IcpConfig(min_inlier=0.4, max_shift_m=1.0,
                                                                    max_turn_rad=0.6))
     slide_constraint: float = 0.05   # fits pinned less than this slide (corridors)
+    handover: bool = True            # with the route's legs: a fresh or lost anchor's prediction
+                                     # comes from the anchor tracked best, moved by the legs
+    handover_m: float = 2.0          # ... when that anchor's estimate is this recent (m driven)
+    slide_along_prior: bool = False  # a fit that slides corrects the prediction across the
+                                     # car's heading and in heading only, not along it
 
     def check(self) -> "RegistrationConfig":
         if self.k < 0 or self.frame_step < 1:
@@ -221,9 +227,12 @@ class RegistrationPolicy:
         return self.predict_tracked(obs, feats, track, np.arange(m), np.arange(m), np.zeros((m, 3)))
 
     def predict_tracked(self, observation, target, track: np.ndarray, cars, keys,
-                        odometry) -> WaypointPrediction:
+                        odometry, legs=None) -> WaypointPrediction:
         """Answers for M queries (car ``cars[m]`` toward the anchor ``keys[m]``
-        with features ``target[m]``), updating ``track[cars]`` in place."""
+        with features ``target[m]``), updating ``track[cars]`` in place.
+        ``legs``: the anchors' poses (M, 3) in their segments of the route's
+        legs and the segments (M,; -1: no known legs), when the route has them
+        (:func:`topodrake.navigation.tracker.route_frames`)."""
         cfg = self.config
         obs = np.asarray(observation, np.float64).reshape(-1, self.sensor.beams)
         feats = np.asarray(target, np.float64)
@@ -239,6 +248,10 @@ class RegistrationPolicy:
                                  f"features {feats.shape} (need (M, {n_f}, "
                                  f"{4 + self.sensor.beams}))")
         frames, usable = feats[:, :, :3], feats[:, :, 3] > 0.5
+        if legs is not None:
+            frame_of = np.asarray(legs[0], np.float64).reshape(m, 3)
+            seg_of = np.asarray(legs[1], np.float64).reshape(m)
+            seg_of = np.where(np.all(np.isfinite(frame_of), axis=1), seg_of, -1.0)
         # 1. slots and predictions
         slot = np.zeros(m, np.int64)
         prior = np.full((m, 3), np.nan)
@@ -252,8 +265,12 @@ class RegistrationPolicy:
                 row[slot[q], _MISS] = cfg.relocalise_after
                 row[slot[q], _OVL] = 0.0
             s = row[slot[q]]
+            if legs is not None:
+                s[_SEG], s[_FRAME] = seg_of[q], frame_of[q]
             if np.all(np.isfinite(s[_EST])) and np.all(np.isfinite(s[_ODO])):
                 prior[q] = compose(s[_EST], self._motion(s[_ODO], odo[q]))[0]
+        if legs is not None and cfg.handover:
+            self._handover(prior, track, cars, slot, odo)
         # an anchor without a prediction, asked beside the one before it: the two
         # anchors' taught paths overlap (frames of one drive), which links their frames
         self._link(prior, feats, cars, keys)
@@ -299,14 +316,21 @@ class RegistrationPolicy:
         # 3. estimates: the best accepted fit, else the held prediction
         est = prior.copy()
         fitted = best >= 0
+        pinned = np.zeros(m, bool)
         if fitted.any():
             b = best[fitted]
             est[fitted] = compose(frames[fitted, jf[b]], res.pose[b])
+            pinned[fitted] = res.constraint[b] >= cfg.slide_constraint
+        slide = fitted & ~pinned & np.all(np.isfinite(prior), axis=1)
+        if cfg.slide_along_prior and slide.any():
+            # a corridor pins the car across it and its heading, not where along it
+            # the car is; the car drives along the corridor, so along its heading
+            # the odometry prediction stands
+            delta = relative(prior[slide], est[slide])
+            delta[:, 0] = 0.0
+            est[slide] = compose(prior[slide], delta)
         agree = fitted & (np.hypot(*(est[:, :2] - prior[:, :2]).T) < cfg.agree_m) \
             & (np.abs(_wrap(est[:, 2] - prior[:, 2])) < cfg.agree_rad)
-        pinned = np.zeros(m, bool)
-        if fitted.any():
-            pinned[fitted] = res.constraint[best[fitted]] >= cfg.slide_constraint
         hits = np.zeros(m)
         for q in range(m):
             s = track[cars[q]].reshape(cfg.slots, SLOT)[slot[q]]
@@ -351,6 +375,36 @@ class RegistrationPolicy:
             else:
                 waypoint[q], heading[q] = self._approach(track[cars[q]], keys[q], odo[q])
         return WaypointPrediction(waypoint, heading, overlap)
+
+    def _handover(self, prior: np.ndarray, track: np.ndarray, cars: np.ndarray,
+                  slot: np.ndarray, odo: np.ndarray) -> None:
+        """Predictions (in place) for queries whose anchor has none or is lost,
+        from the car's best-tracked anchor of the same segment of the route's
+        legs (fitted most recently, not lost): its estimate moved by odometry,
+        carried into this anchor's frame by the teach drive's odometry between
+        the two (VT&R's edge transforms). The confirmation carries over too:
+        the stored transform is what a registration between the two anchors'
+        taught frames would only approximate."""
+        cfg = self.config
+        for q in range(len(cars)):
+            row = track[cars[q]].reshape(cfg.slots, SLOT)
+            s = row[slot[q]]
+            if s[_SEG] < 0 or not np.isfinite(s[_SEG]):
+                continue
+            own = s[_MISS] if np.all(np.isfinite(prior[q])) else np.inf
+            if own == 0:
+                continue
+            cand = [i for i in range(cfg.slots) if i != slot[q] and row[i, _SEG] == s[_SEG]
+                    and row[i, _MISS] < min(own, cfg.relocalise_after)
+                    and np.all(np.isfinite(row[i, _EST])) and np.all(np.isfinite(row[i, _ODO]))
+                    and np.hypot(*(odo[q, :2] - row[i, _ODO][:2])) < cfg.handover_m]
+            if not cand:
+                continue
+            src = row[min(cand, key=lambda i: (row[i, _MISS], -row[i, _HITS]))]
+            moved = compose(src[_EST], self._motion(src[_ODO], odo[q]))
+            prior[q] = compose(relative(s[_FRAME][None], src[_FRAME][None]), moved)[0]
+            s[_EST], s[_ODO] = prior[q], odo[q]
+            s[_MISS], s[_HITS] = src[_MISS], src[_HITS]
 
     def _link(self, prior: np.ndarray, feats: np.ndarray, cars: np.ndarray, keys: np.ndarray
               ) -> None:
