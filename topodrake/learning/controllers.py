@@ -24,9 +24,6 @@ REGISTRATION = "registration"
 #: Registration settings that act only along a route's legs: RE's labels (rollouts toward one
 #: target) do not depend on them, so they stay out of the fingerprint.
 ROUTE_ONLY = ("handover", "handover_m")
-#: Settings added after REs were trained, at the value that acts as before they existed: left out
-#: of the fingerprint at that value, so those REs stay valid for the unchanged controller.
-NEUTRAL = {"slide_along_prior": False}
 
 
 def registration_identity(policy=None) -> dict:
@@ -37,7 +34,7 @@ def registration_identity(policy=None) -> dict:
 
     policy = policy or RegistrationPolicy()
     settings = {k: v for k, v in asdict(policy.config).items()
-                if k not in ROUTE_ONLY and (k not in NEUTRAL or NEUTRAL[k] != v)}
+                if k not in ROUTE_ONLY}
     blob = json.dumps({"registration": settings, "lidar": asdict(policy.sensor)}, sort_keys=True)
     return {"checkpoint": REGISTRATION, "sha1": hashlib.sha1(blob.encode()).hexdigest()}
 

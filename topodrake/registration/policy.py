@@ -114,8 +114,6 @@ class RegistrationConfig:
     handover: bool = True            # with the route's legs: a fresh or lost anchor's prediction
                                      # comes from the anchor tracked best, moved by the legs
     handover_m: float = 2.0          # ... when that anchor's estimate is this recent (m driven)
-    slide_along_prior: bool = False  # a fit that slides corrects the prediction across the
-                                     # car's heading and in heading only, not along it
 
     def check(self) -> "RegistrationConfig":
         if self.k < 0 or self.frame_step < 1:
@@ -321,14 +319,6 @@ class RegistrationPolicy:
             b = best[fitted]
             est[fitted] = compose(frames[fitted, jf[b]], res.pose[b])
             pinned[fitted] = res.constraint[b] >= cfg.slide_constraint
-        slide = fitted & ~pinned & np.all(np.isfinite(prior), axis=1)
-        if cfg.slide_along_prior and slide.any():
-            # a corridor pins the car across it and its heading, not where along it
-            # the car is; the car drives along the corridor, so along its heading
-            # the odometry prediction stands
-            delta = relative(prior[slide], est[slide])
-            delta[:, 0] = 0.0
-            est[slide] = compose(prior[slide], delta)
         agree = fitted & (np.hypot(*(est[:, :2] - prior[:, :2]).T) < cfg.agree_m) \
             & (np.abs(_wrap(est[:, 2] - prior[:, 2])) < cfg.agree_rad)
         hits = np.zeros(m)
