@@ -551,3 +551,61 @@ def test_retrieval_first_checks_the_rest_of_the_ranks_only_behind_edges_deep_in_
         staged, pairs_staged = edges_0_3(rule(with_drive_2), retrieval_k=19, retrieval_first=8)
         assert full and pairs_staged < pairs_full
         assert staged == (full if with_drive_2 else set())
+
+
+def test_trajectory_edges_carry_the_drive_s_odometry_and_plans_hand_it_on():
+    """A drive's trajectory edges carry its odometry between the anchors it
+    placed (a relative transform; with wheel odometry it drifts a little),
+    a drive that reuses the vertices leaves their legs, and a plan's route has the legs
+    of its hops (none into the goal view)."""
+    from topodrake.se2 import relative
+
+    t = np.arange(10) * 0.3
+    poses = np.column_stack([2.0 + t * np.cos(0.4), 1.0 + t * np.sin(0.4), np.full(10, 0.4)])
+    exact = table_map(parallel_drives, teach_odometry="perfect")
+    add_trajectory(exact, drive(0, 10), poses)
+    chain = exact.trajectories[0].chain
+    frames = [exact.graph.nodes[v]["frame"] for v in chain]
+    legs, paths = exact.legs(chain)
+    np.testing.assert_allclose(legs, relative(poses[frames[:-1]], poses[frames[1:]]), atol=1e-12)
+    np.testing.assert_allclose(paths[:, -1], legs, atol=1e-12)
+    wheel = table_map(same_drive_hops)
+    add_trajectory(wheel, drive(0, 10), poses)
+    drift = wheel.legs(wheel.trajectories[0].chain)[0]
+    assert 0 < np.abs(drift - legs).max() < 0.05
+    none = table_map(same_drive_hops, teach_odometry="none")
+    add_trajectory(none, drive(0, 10), poses)
+    assert not np.isfinite(none.legs(none.trajectories[0].chain)[0]).any()
+    # a second drive along the first reuses its vertices: the edges keep the first one's legs
+    add_trajectory(exact, drive(1, 10), poses + [0.0, 0.2, 0.1])
+    assert exact.trajectories[1].chain == chain
+    np.testing.assert_allclose(exact.legs(chain)[0], legs)
+    r = plan_path(exact, drive(0, 1)[0], drive(0, 10)[9])
+    assert r.reachable and len(r.route.legs) == len(r.route) - 1
+    hops = r.route.legs[:-1]
+    np.testing.assert_allclose(hops, exact.legs(r.vertices)[0])
+    assert np.isfinite(hops).all() and not np.isfinite(r.route.legs[-1]).any()
+    with pytest.raises(TopodrakeError, match="teach_odometry"):
+        MapConfig(teach_odometry="gps").validate()
+
+
+def test_map_files_keep_the_legs_and_read_version_1_without_them(oracle_map, tmp_path):
+    world, m, path = oracle_map
+    m2 = load_map(path, m.scorer)
+    for u, v, d in m.graph.edges(data=True):
+        if "leg" in d:
+            np.testing.assert_array_equal(m2.graph.edges[u, v]["leg"], d["leg"])
+            np.testing.assert_array_equal(m2.graph.edges[u, v]["leg_path"], d["leg_path"])
+        else:
+            assert "leg" not in m2.graph.edges[u, v]
+    assert sum("leg" in d for _, _, d in m.graph.edges(data=True)) > 0
+    with np.load(path) as z:
+        arrays = {name: z[name] for name in z.files if not name.startswith("edge_leg")}
+    meta = json.loads(bytes(arrays.pop("meta")).decode())
+    meta["version"] = 1
+    old = tmp_path / "v1.tdmap"
+    with open(old, "wb") as f:
+        np.savez_compressed(f, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **arrays)
+    m1 = load_map(old, m.scorer)
+    assert m1.n_edges == m.n_edges
+    assert not any("leg" in d for _, _, d in m1.graph.edges(data=True))

@@ -85,7 +85,9 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
                    name: str = "", stats: BuildStats | None = None,
                    audit: bool = False) -> BuildStats:
     """Add one drive (its observations (T, ...) in time order; ``poses``
-    (T, 3) only ride along as metadata) to ``topomap``."""
+    (T, 3) ride along as metadata, and the odometry the drive recorded,
+    simulated from them as :attr:`MapConfig.teach_odometry` says, goes on its
+    trajectory edges) to ``topomap``."""
     m, cfg = topomap, topomap.config
     stats = stats or BuildStats()
     obs = np.asarray(observations)
@@ -131,12 +133,14 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     stats.anchors += len(anchors)
     stats.new_vertices += len(new_vertices)
 
-    # -- trajectory edges between consecutive chain nodes
-    pairs = [(u, v) for u, v in zip(ids[:-1], ids[1:]) if u != v]
+    # -- trajectory edges between consecutive chain nodes, with the drive's odometry
+    #    between two anchors it placed itself
+    pairs = [(i, u, v) for i, (u, v) in enumerate(zip(ids[:-1], ids[1:])) if u != v]
     if pairs:
-        us, vs = np.array(pairs).T
-        for u, v, p in zip(us, vs, score(m.centers(us), m.contexts(vs))):
-            m.add_edge(int(u), int(v), float(p), "trajectory")
+        legs = _teach_legs(cfg.teach_odometry, poses, chain, anchors, [i for i, _, _ in pairs], t)
+        _, us, vs = np.array(pairs).T
+        for u, v, p, (leg, path) in zip(us, vs, score(m.centers(us), m.contexts(vs)), legs):
+            m.add_edge(int(u), int(v), float(p), "trajectory", leg, path)
 
     if new_vertices:
         new_pos = [ids.index(v) for v in new_vertices]
@@ -144,6 +148,29 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
         m.index.add(np.array(new_vertices), queries)
         _cross_edges(m, new_vertices, ids, new_pos, queries, score, stats, audit)
     return stats
+
+
+def _teach_legs(kind: str, poses, chain, anchors, positions, seed: int) -> list:
+    """(leg, leg path) of the hop from chain node ``i`` to ``i + 1`` for each
+    ``i`` in ``positions``: the drive's odometry (``kind``:
+    :attr:`MapConfig.teach_odometry`, its errors drawn from ``seed``) where
+    the drive placed both anchors itself, else (None, None)."""
+    from topodrake.navigation.route import teach_legs
+    from topodrake.odometry import OdometryConfig, odometry_along
+
+    none = [(None, None)] * len(positions)
+    if kind == "none" or poses is None or not np.all(np.isfinite(poses)):
+        return none
+    poses = np.asarray(poses, np.float64)
+    odo = poses if kind == "perfect" else odometry_along(poses, OdometryConfig.wheel(), seed)
+    out = []
+    for i in positions:
+        if chain[i][0] == "a" and chain[i + 1][0] == "a":
+            leg, path = teach_legs(odo, anchors[[chain[i][1], chain[i + 1][1]]])
+            out.append((leg[0], path[0]))
+        else:
+            out.append((None, None))
+    return out
 
 
 def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,

@@ -11,7 +11,11 @@ planning read observations (through RE) only; where a frame was taken
 An edge u -> v carries ``p``, the predicted probability that the controller
 drives from u to v, ``weight`` = -log p (what Dijkstra adds up) and
 ``kind``: ``"trajectory"`` (consecutive anchors of one drive) or
-``"cross"`` (found between drives).
+``"cross"`` (found between drives). A trajectory edge between two anchors
+that one drive placed also carries that drive's odometry from u to v
+(``leg``: v's pose in u's frame; ``leg_path``: ``LEG_POINTS`` poses along
+the hop), a relative transform as a real robot measures it, never an
+absolute pose; a planned route hands them to the follower.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import networkx as nx
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.navigation.route import LEG_POINTS
 from topodrake.topomap.bank import FrameBank
 from topodrake.topomap.retrieval import VertexIndex
 
@@ -30,6 +35,7 @@ EDGE_KINDS = ("trajectory", "cross")
 
 
 REUSE_RULES = ("paper", "resume")
+TEACH_ODOMETRY = ("wheel", "perfect", "none")
 
 
 @dataclass
@@ -57,6 +63,8 @@ class MapConfig:
     reuse: bool = True
     reuse_rule: str = "resume"   # "paper": a vertex replaces a sparsified anchor; "resume":
                                  # it stands in for an anchor frame and the scan resumes from it
+    teach_odometry: str = "wheel"  # the drives' odometry stored on trajectory edges: wheel
+                                   # odometry that drifts, the true motion, or none
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link"):
@@ -70,6 +78,9 @@ class MapConfig:
         if self.reuse_rule not in REUSE_RULES:
             raise TopodrakeError(f"{where}: reuse_rule must be one of {', '.join(REUSE_RULES)}, "
                                  f"got {self.reuse_rule!r}")
+        if self.teach_odometry not in TEACH_ODOMETRY:
+            raise TopodrakeError(f"{where}: teach_odometry must be one of "
+                                 f"{', '.join(TEACH_ODOMETRY)}, got {self.teach_odometry!r}")
         if self.reuse_slack > 0 and self.reuse_rule != "paper":
             raise TopodrakeError(f"{where}: reuse_slack applies to reuse_rule 'paper' only")
         for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1),
@@ -157,20 +168,41 @@ class TopoMap:
         return self.trajectories[node["traj"]].chain, node["pos"]
 
     # -- edges --------------------------------------------------------------------
-    def add_edge(self, u: int, v: int, p: float, kind: str) -> None:
-        """Add u -> v; an existing edge keeps the larger probability, and a
-        trajectory edge is never demoted to a cross edge."""
+    def add_edge(self, u: int, v: int, p: float, kind: str, leg: np.ndarray | None = None,
+                 leg_path: np.ndarray | None = None) -> None:
+        """Add u -> v; an existing edge keeps the larger probability and its
+        leg, and a trajectory edge is never demoted to a cross edge.
+        ``leg`` (3,) and ``leg_path`` (LEG_POINTS, 3): the drive's odometry
+        over the hop (trajectory edges only)."""
         if kind not in EDGE_KINDS:
             raise ValueError(f"edge kind must be one of {EDGE_KINDS}")
         if u == v:
             return
         p = float(min(max(p, 1e-12), 1.0))
         old = self.graph.get_edge_data(u, v)
+        extra = {}
+        if leg is not None and np.all(np.isfinite(leg)) and kind == "trajectory":
+            extra = {"leg": np.asarray(leg, np.float64).reshape(3),
+                     "leg_path": np.asarray(leg_path, np.float64).reshape(LEG_POINTS, 3)}
         if old is not None:
             p = max(p, old["p"])
             if old["kind"] == "trajectory":
                 kind = "trajectory"
-        self.graph.add_edge(u, v, p=p, weight=-math.log(p), kind=kind)
+            if "leg" in old:
+                extra = {"leg": old["leg"], "leg_path": old["leg_path"]}
+        self.graph.add_edge(u, v, p=p, weight=-math.log(p), kind=kind, **extra)
+
+    def legs(self, vertices) -> tuple[np.ndarray, np.ndarray]:
+        """The drives' odometry between consecutive ``vertices`` of a path:
+        legs (n - 1, 3) and leg paths (n - 1, LEG_POINTS, 3), NaN where the
+        edge carries none (a cross edge, or one to or from a reused vertex)."""
+        n = max(len(vertices) - 1, 0)
+        legs, paths = np.full((n, 3), np.nan), np.full((n, LEG_POINTS, 3), np.nan)
+        for i, (u, v) in enumerate(zip(vertices[:-1], vertices[1:])):
+            d = self.graph.get_edge_data(u, v) or {}
+            if "leg" in d:
+                legs[i], paths[i] = d["leg"], d["leg_path"]
+        return legs, paths
 
     def set_edge_probability(self, u: int, v: int, p: float) -> None:
         p = float(min(max(p, 1e-12), 1.0))

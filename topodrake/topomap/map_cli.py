@@ -159,12 +159,12 @@ def _place_list(text: str) -> list[int]:
 
 
 def map_info(path) -> dict:
-    from topodrake.topomap.mapfile import VERSION, read_map_arrays
+    from topodrake.topomap.mapfile import read_map_arrays
 
     meta, z = read_map_arrays(path)
     v, e = len(z["vertex_id"]), len(z["edge_src"])
     kinds = np.bincount(z["edge_kind"], minlength=2)
-    return {"file": str(path), "version": VERSION, "world": meta["world"],
+    return {"file": str(path), "version": meta["version"], "world": meta["world"],
             "modality": meta["modality"], "vertices": v, "edges": e,
             "trajectory_edges": int(kinds[0]), "cross_edges": int(kinds[1]),
             "trajectories": len(meta["trajectories"]), "raw_frames": meta["raw_frames"],

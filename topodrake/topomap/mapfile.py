@@ -14,7 +14,9 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
 ``poses``           (F, 3) where each frame was taken (metadata)
 ``vertex_*``        per vertex: ``id``, ``center`` row, ``context`` rows
                     (V, 2k+1), origin ``traj``, ``frame`` and chain ``pos``
-``edge_*``          per edge: ``src``, ``dst``, ``p``, ``kind`` (0 trajectory, 1 cross)
+``edge_*``          per edge: ``src``, ``dst``, ``p``, ``kind`` (0 trajectory, 1 cross),
+                    ``leg`` (E, 3) and ``leg_path`` (E, LEG_POINTS, 3): the drive's
+                    odometry over a trajectory edge (NaN where none; from version 2)
 ``chain_ids``       every trajectory's chain of vertices, concatenated;
 ``chain_offsets``   (trajectories + 1,) into it
 ``embeddings``      (V, D) the vertices' place embeddings
@@ -22,7 +24,8 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
 
 :func:`load_map` refuses a truncated or foreign file, an unknown version, and
 a map built for another RE or controller than the one given, each with one
-line naming the file and the problem.
+line naming the file and the problem. Version 1 files (without legs) are
+read as maps without odometry on their edges.
 """
 
 from __future__ import annotations
@@ -37,10 +40,12 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes
+from topodrake.navigation.route import LEG_POINTS
 from topodrake.topomap.graph import EDGE_KINDS, MapConfig, TopoMap, Trajectory
 
 FORMAT = "topodrake-map"
-VERSION = 1
+VERSION = 2
+READS = (1, 2)       # versions this topodrake reads
 _NO_HIT_MM = 65535
 
 
@@ -76,6 +81,7 @@ def save_map(topomap: TopoMap, path) -> Path:
             "embedding": {"name": m.embedding.name, "fingerprint": m.embedding.fingerprint()},
             "raw_frames": m.raw_frames,
             "trajectories": [{"name": t.name, "frames": t.frames} for t in m.trajectories]}
+    nan_leg, nan_path = np.full(3, np.nan), np.full((LEG_POINTS, 3), np.nan)
     buf = io.BytesIO()
     np.savez_compressed(
         buf, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8),
@@ -90,6 +96,10 @@ def save_map(topomap: TopoMap, path) -> Path:
         edge_dst=np.array([v for _, v, _ in edges], np.int64),
         edge_p=np.array([d["p"] for _, _, d in edges], np.float64),
         edge_kind=np.array([EDGE_KINDS.index(d["kind"]) for _, _, d in edges], np.uint8),
+        edge_leg=np.array([d.get("leg", nan_leg) for _, _, d in edges],
+                          np.float64).reshape(len(edges), 3),
+        edge_leg_path=np.array([d.get("leg_path", nan_path) for _, _, d in edges],
+                               np.float64).reshape(len(edges), LEG_POINTS, 3),
         chain_ids=np.array([v for c in chains for v in c], np.int64),
         chain_offsets=np.cumsum([0] + [len(c) for c in chains]).astype(np.int64),
         embeddings=emb)
@@ -118,9 +128,10 @@ def _read(path, arrays: bool = True) -> tuple[dict, dict]:
             meta = json.loads(bytes(z["meta"]).decode())
             if not isinstance(meta, dict) or meta.get("format") != FORMAT:
                 raise TopodrakeError(f"{path} is not a topodrake map file")
-            if meta.get("version") != VERSION:
+            if meta.get("version") not in READS:
                 raise TopodrakeError(f"{path} has map format version {meta.get('version')}; "
-                                     f"this topodrake reads version {VERSION}")
+                                     f"this topodrake reads versions "
+                                     f"{', '.join(map(str, READS))}")
             data = {name: z[name] for name in z.files if name != "meta"} if arrays else {}
     except TopodrakeError:
         raise
@@ -178,8 +189,12 @@ def load_map(path, scorer, embedding=None) -> TopoMap:
                 raise TopodrakeError(f"{path}: vertex {v} refers to frames outside the file")
             m.graph.add_node(int(v), traj=int(t), frame=int(f), pos=int(p), center=int(c),
                              context=np.asarray(ctx, np.int64))
-        for u, v, p, kind in zip(z["edge_src"], z["edge_dst"], z["edge_p"], z["edge_kind"]):
-            m.add_edge(int(u), int(v), float(p), EDGE_KINDS[int(kind)])
+        n_e = len(z["edge_src"])
+        legs = z.get("edge_leg", np.full((n_e, 3), np.nan))
+        paths = z.get("edge_leg_path", np.full((n_e, LEG_POINTS, 3), np.nan))
+        for u, v, p, kind, leg, path_ in zip(z["edge_src"], z["edge_dst"], z["edge_p"],
+                                             z["edge_kind"], legs, paths):
+            m.add_edge(int(u), int(v), float(p), EDGE_KINDS[int(kind)], leg, path_)
         off, ids = z["chain_offsets"], z["chain_ids"]
         for i, t in enumerate(meta["trajectories"]):
             m.trajectories.append(Trajectory(t["name"], int(t["frames"]),

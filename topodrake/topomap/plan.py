@@ -124,6 +124,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
             return result
         probs = [g.edges[u, v]["p"] for u, v in zip(path[:-1], path[1:])]
         vertices = [int(v) for v in path[1:-1]]
+        # the drives' odometry between the map's anchors; none into the goal view
+        legs, leg_paths = m.legs(vertices + [GOAL])
         route = Route(
             contexts=np.concatenate([m.bank.observations[m.contexts(vertices)],
                                      goal_context[None]]) if vertices else goal_context[None],
@@ -131,7 +133,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
                              (goal_pose if goal_pose is not None else nan_pose)[None]]),
             vertices=np.array(vertices + [-1], np.int64),
             edge_probability=np.array(probs[1:]),
-            probability=math.exp(-cost), modality=m.modality, start_probability=probs[0])
+            probability=math.exp(-cost), modality=m.modality, start_probability=probs[0],
+            legs=legs, leg_paths=leg_paths)
         result.reachable, result.probability = True, math.exp(-cost)
         result.vertices, result.route = vertices, route
         return result
