@@ -21,9 +21,12 @@ from topodrake.fileio import file_sha1
 REGISTRATION = "registration"
 
 
-#: Registration settings that act only along a route's legs: RE's labels (rollouts toward one
-#: target) do not depend on them, so they stay out of the fingerprint.
-ROUTE_ONLY = ("handover", "handover_m")
+#: Registration settings that shape only what the follower reads along a route (the handover
+#: along its legs, the confirmation behind the reported overlaps), never the waypoint that RE's
+#: label rollouts (toward one target, judged by geometry) drive by: they stay out of the
+#: fingerprint. (``confirm``, ``agree_m`` and ``agree_rad`` are of this kind too but stay in it:
+#: the shipped RE was stamped with them.)
+FOLLOWER_ONLY = ("handover", "handover_m")
 
 
 def registration_identity(policy=None) -> dict:
@@ -34,7 +37,7 @@ def registration_identity(policy=None) -> dict:
 
     policy = policy or RegistrationPolicy()
     settings = {k: v for k, v in asdict(policy.config).items()
-                if k not in ROUTE_ONLY}
+                if k not in FOLLOWER_ONLY}
     blob = json.dumps({"registration": settings, "lidar": asdict(policy.sensor)}, sort_keys=True)
     return {"checkpoint": REGISTRATION, "sha1": hashlib.sha1(blob.encode()).hexdigest()}
 

@@ -40,11 +40,19 @@ A query toward an anchor (``predict_tracked``):
    confirmed (a single fit may be wrong, and the follower marks anchors
    visited from the overlaps).
 
-An anchor without an estimate that the car asks about beside the anchor
-before it (the follower asks about the next two) is linked to that one: the
-earlier anchor's last taught frames and this one's first, frames of the same
-drive where the contexts overlap, are registered to each other, and the
-car's prediction in the earlier anchor's frame carries over. An anchor
+An anchor without an estimate, or one lost for ``relocalise_after``
+periods, takes its prediction from the car's best-tracked anchor of the
+same segment of the route's legs (VT&R's edge transforms: the teach
+drive's odometry between the two anchors, ``legs`` of
+``predict_tracked``; a route without legs has none): that anchor's estimate
+moved by odometry and carried through the stored transform, with its
+confirmation, so the handover needs no registration between taught frames
+and holds along a corridor that pins no fit. Without legs, an anchor the
+car asks about beside the anchor before it (the follower asks about the
+next two) is linked to that one instead: the earlier anchor's last taught
+frames and this one's first, frames of the same drive where the contexts
+overlap, are registered to each other, and the car's prediction in the
+earlier anchor's frame carries over. An anchor
 without any estimate is approached along the exit of the previous anchor's
 taught path (``exit_m`` on past its last frame) when the car tracks that
 one, else straight ahead. The policy reads the scans and the motion between odometry
