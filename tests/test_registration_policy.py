@@ -302,3 +302,16 @@ def test_a_fresh_anchor_takes_its_prediction_from_the_legs(house, drives, policy
                            path[-1][None])
     other = plain[0].reshape(policy.config.slots, -1)[1, 1:4]
     assert not np.allclose(other, expected, atol=1e-3)
+
+
+def test_the_handover_settings_leave_the_re_fingerprint_alone():
+    """RE's labels come from rollouts toward one target, where the handover
+    along a route's legs never acts: an RE stays valid whatever those
+    settings are, and any other setting changes the fingerprint."""
+    from topodrake.learning.controllers import registration_identity
+
+    base = registration_identity(RegistrationPolicy())["sha1"]
+    assert registration_identity(RegistrationPolicy(RegistrationConfig(
+        handover=False, handover_m=5.0)))["sha1"] == base
+    assert registration_identity(RegistrationPolicy(RegistrationConfig(confirm=2)))["sha1"] != base
+    assert registration_identity()["sha1"] == base

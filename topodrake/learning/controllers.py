@@ -21,11 +21,9 @@ from topodrake.fileio import file_sha1
 REGISTRATION = "registration"
 
 
-#: Registration settings that shape only what the follower reads along a route (the handover
-#: along its legs, the confirmation behind the reported overlaps), never the waypoint that RE's
-#: label rollouts (toward one target, judged by geometry) drive by: they stay out of the
-#: fingerprint. (``confirm``, ``agree_m`` and ``agree_rad`` are of this kind too but stay in it:
-#: the shipped RE was stamped with them.)
+#: Registration settings that act only along a route's legs (the handover between anchors),
+#: never in RE's label rollouts toward one target: they stay out of the fingerprint, so an RE
+#: stays valid whatever they are.
 FOLLOWER_ONLY = ("handover", "handover_m")
 
 
