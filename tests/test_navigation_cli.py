@@ -157,3 +157,35 @@ def test_a_teach_drive_ends_at_its_first_closest_pass_of_the_goal():
     assert teach_end(poses[:4], goal) == 3                 # still closing in at the end
     assert teach_end(poses[:3], goal) == 2                 # never within TEACH_STOP_M: the end
     assert x[teach_end(poses, goal)] < TEACH_STOP_M
+
+
+def test_the_default_demo_plans_on_the_shipped_map_and_reaches(capsys, tmp_path, monkeypatch):
+    """``topodrake demo --json`` from any folder: a plan on the shipped map of
+    test-0 (card beside it, for the registration C_WP and its RE), driven in
+    the Drake diagram to the goal place; one JSON object naming the map."""
+    from topodrake.topomap.mapfile import read_map_meta
+    from topodrake.topomap.sources import ROOT
+
+    shipped = ROOT / "checkpoints" / "demo_map"
+    card = json.loads((shipped / "card.json").read_text())
+    meta = read_map_meta(shipped / card["file"])
+    assert meta["world"] == card["world"] == "test-0" and meta["version"] == card["format_version"]
+    assert (shipped / card["file"]).stat().st_size == card["size_bytes"] <= 10 * 2 ** 20
+    monkeypatch.chdir(tmp_path)
+    code = main(["demo", "--json", "--out", str(tmp_path / "demo")])
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1
+    out = json.loads(lines[0])
+    assert code == 0 and out["outcome"] == "reached" and out["distance_to_goal_m"] <= 0.54
+    assert out["map"].endswith("checkpoints/demo_map/map.tdmap")
+    assert out["controller"] == "registration" and 0.0 < out["probability"] < 1.0
+    assert out["anchors"] > 10 and (tmp_path / "demo" / "plan.png").stat().st_size > 10_000
+    # with a controller named the demo follows one expert drive, as before
+    from topodrake.demo import add_demo_parser, demo_map
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_demo_parser(parser.add_subparsers())
+    assert demo_map(parser.parse_args(["demo", "--controller", "registration"])) is None
+    assert demo_map(parser.parse_args(["demo", "--world", "test-1"])) is None
+    assert demo_map(parser.parse_args(["demo", "--map", "m.tdmap"])) == "m.tdmap"

@@ -1,13 +1,13 @@
 """``topodrake demo``: the learned system end to end, or (``--expert``) the expert.
 
-The learned demo (:func:`run_learned_demo`): the expert's drive between two
-places of a test house is the experience; the camera RE sparsifies it into
-a chain of anchors, and the car follows the chain in the Drake navigation
-diagram with the learned camera C_WP and RE (``--controller registration``:
-the lidar teach-and-repeat C_WP and its RE, no C_WP network). With ``--map``
-the route is instead a plan on a map file (``topodrake map build``) from the
-start place's observation to the goal place's, followed by the controller
-the map was built for. It writes the drive over the
+The learned demo (:func:`run_learned_demo`) plans on a map file, by default
+the shipped map of ``test-0`` (``checkpoints/demo_map``, 90 drives, built
+for the registration C_WP and its learned RE), from the start place's
+observation to the goal place's, and the car drives the plan in the Drake
+navigation diagram with the controller the map was built for. With
+``--controller`` (or ``--reach``, or another world) the route is instead one
+expert drive between the places, sparsified by the controller's RE into a
+chain of anchors. It writes the drive over the
 floor plan (the anchors, the map, and the path coloured by the follower's
 mode) and a Meshcat HTML recording whose camera frames the whole house.
 
@@ -100,8 +100,11 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
     return {"files": files, "summary": summary}
 
 
-#: the demo's C_WP: of the shipped controllers with their own RE, the one that holds routes best
+#: the demo's C_WP without a map: of the shipped controllers with their own RE, the one that
+#: holds routes best
 DEMO_CONTROLLER = "checkpoints/lidar_k5/checkpoint.pt"
+#: the shipped map the demo plans on by default (card beside it)
+DEMO_MAP = "checkpoints/demo_map/map.tdmap"
 
 
 def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_place: int = 6,
@@ -215,8 +218,11 @@ def cmd_demo(args) -> int:
     if args.seed < 0:
         raise TopodrakeError(f"--seed must be >= 0, got {args.seed}")
     check_outputs(args)
-    print(f"topodrake demo: {'the A* expert' if args.expert else 'the learned follower'} drives "
-          f"{args.world} from place {args.start_place} to place {args.goal_place}", flush=True)
+    if not args.json:
+        where = "" if args.expert or not demo_map(args) else f" on {demo_map(args)}"
+        print(f"topodrake demo: {'the A* expert' if args.expert else 'the learned follower'} "
+              f"drives {args.world} from place {args.start_place} to place {args.goal_place}"
+              f"{where}", flush=True)
     if args.expert:
         noise = 0.33 if args.noise is None else args.noise
         result = run_demo(args.world, args.start_place, args.goal_place, args.out, args.seed,
@@ -227,8 +233,11 @@ def cmd_demo(args) -> int:
                                  "by the controller it was built for)")
         extra = {"controller": args.controller} if args.controller else {}
         result = run_learned_demo(args.world, args.start_place, args.goal_place, args.out,
-                                  args.seed, args.noise or 0.0, map_path=args.map,
+                                  args.seed, args.noise or 0.0, map_path=demo_map(args),
                                   reach=args.reach, **extra)
+    if args.json:
+        print(json.dumps(result["summary"]))
+        return exit_status(result["summary"]["outcome"])
     for what, path in result["files"].items():
         print(f"wrote {what}: {path}")
     print(json.dumps(result["summary"]))
@@ -241,16 +250,35 @@ def cmd_demo(args) -> int:
     return exit_status(s["outcome"])
 
 
+def demo_map(args):
+    """The map the learned demo plans on: ``--map``; none with ``--controller``
+    or ``--reach`` or ``--world`` (one expert drive's anchors); else the
+    shipped demo map."""
+    from topodrake.topomap.sources import resolve_checkpoint
+
+    if args.map:
+        return args.map
+    if args.controller or args.reach or args.world != DEMO_WORLD:
+        return None
+    return str(resolve_checkpoint(DEMO_MAP))
+
+
+DEMO_WORLD = "test-0"
+
+
 def add_demo_parser(sub) -> None:
     from topodrake.navigation.cli import EXIT_HELP
 
     demo = sub.add_parser("demo", help="the learned follower drives a plan between two "
                                        "places in the Drake diagram (--expert: the expert drives)",
                           epilog=EXIT_HELP)
-    demo.add_argument("--world", default="test-0",
-                      help="catalogue name or map YAML/JSON (default: test-0)")
+    demo.add_argument("--world", default=DEMO_WORLD,
+                      help="catalogue name or map YAML/JSON; another world than test-0 follows "
+                           "one expert drive (default: test-0)")
     demo.add_argument("--map", help="plan on this map file (.tdmap; its world replaces --world) "
-                                    "instead of following one expert drive (default: none)")
+                                    f"(default: the shipped {DEMO_MAP} of test-0, followed by the "
+                                    "controller it was built for; with --controller or --reach: "
+                                    "none, the anchors of one expert drive)")
     demo.add_argument("--start-place", type=int, default=3,
                       help="index of the start place (default: 3)")
     demo.add_argument("--goal-place", type=int, default=6,
@@ -264,12 +292,14 @@ def add_demo_parser(sub) -> None:
                       help="with --expert, also save a Meshcat HTML recording; the learned demo "
                            "always saves one (default: off)")
     demo.add_argument("--controller", help="C_WP checkpoint, or 'registration' for the lidar "
-                                           "teach-and-repeat C_WP, without --map (default: "
-                                           f"{DEMO_CONTROLLER}, the best shipped one with "
-                                           "its own RE)")
+                                           "teach-and-repeat C_WP, following one expert drive "
+                                           f"without a map (default there: {DEMO_CONTROLLER}, "
+                                           "the best shipped one with its own RE)")
     demo.add_argument("--reach", help="RE checkpoint trained for --controller (default: the "
                                       "controller's shipped RE)")
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    demo.add_argument("--json", action="store_true",
+                      help="print only the summary as one JSON object (default: off)")
     from topodrake.outputs import add_force_option
 
     add_force_option(demo)
