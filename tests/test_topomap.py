@@ -609,3 +609,44 @@ def test_map_files_keep_the_legs_and_read_version_1_without_them(oracle_map, tmp
     m1 = load_map(old, m.scorer)
     assert m1.n_edges == m.n_edges
     assert not any("leg" in d for _, _, d in m1.graph.edges(data=True))
+
+
+def test_legs_across_a_reused_vertex_carry_its_registered_offset():
+    """A hop into or out of a vertex another drive placed: the drive's
+    odometry between its frames there, with the vertex's pose in the drive's
+    frame (registered) at that end; without that pose the hop has no leg."""
+    from topodrake.se2 import compose, invert, relative
+    from topodrake.topomap.build import _teach_legs
+
+    t = np.arange(12) * 0.25
+    poses = np.column_stack([1.0 + t, np.full(12, 2.0), np.zeros(12)])
+    chain = [("a", 0), ("v", 40), ("v", 41), ("a", 3)]
+    anchors = np.array([0, 4, 8, 11])
+    off = {1: np.array([0.1, -0.05, 0.02]), 2: np.array([-0.2, 0.1, -0.03])}
+    legs = _teach_legs("perfect", poses, chain, anchors, [0, 1, 2], seed=0, offsets=off)
+    drive = relative(poses[anchors[:-1]], poses[anchors[1:]])
+    np.testing.assert_allclose(legs[0][0], compose(drive[:1], off[1][None])[0], atol=1e-12)
+    np.testing.assert_allclose(legs[1][0], compose(compose(invert(off[1][None]), drive[1:2]),
+                                                   off[2][None])[0], atol=1e-12)
+    np.testing.assert_allclose(legs[2][0], compose(invert(off[2][None]), drive[2:3])[0], atol=1e-12)
+    for leg, path in legs:
+        np.testing.assert_allclose(path[-1], leg)           # the taught poses end at the vertex
+    assert _teach_legs("perfect", poses, chain, anchors, [0, 2], seed=0, offsets={1: off[1]})[1] \
+        == (None, None)
+
+
+def test_the_shipped_lidar_map_s_legs_agree_with_where_its_anchors_were_taken():
+    """The shipped demo map (lidar): most trajectory edges, those across
+    reused vertices included, carry legs, and they agree with the anchors'
+    recorded poses (metadata) to centimetres."""
+    from topodrake.se2 import relative
+    from topodrake.topomap.sources import ROOT, scorer_for_map
+
+    path = ROOT / "checkpoints" / "demo_map" / "map.tdmap"
+    m = load_map(path, scorer_for_map(path))
+    edges = [(u, v, d) for u, v, d in m.graph.edges(data=True) if d["kind"] == "trajectory"]
+    with_legs = [(u, v, d["leg"]) for u, v, d in edges if "leg" in d]
+    assert len(with_legs) > 0.8 * len(edges)
+    err = np.array([np.hypot(*(leg[:2] - relative(m.pose([u]), m.pose([v]))[0, :2]))
+                    for u, v, leg in with_legs])
+    assert np.median(err) < 0.02 and np.quantile(err, 0.9) < 0.1

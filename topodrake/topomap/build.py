@@ -137,7 +137,9 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     #    between two anchors it placed itself
     pairs = [(i, u, v) for i, (u, v) in enumerate(zip(ids[:-1], ids[1:])) if u != v]
     if pairs:
-        legs = _teach_legs(cfg.teach_odometry, poses, chain, anchors, [i for i, _, _ in pairs], t)
+        offsets = _reuse_offsets(m, obs, chain, anchors) if cfg.reuse_legs else {}
+        legs = _teach_legs(cfg.teach_odometry, poses, chain, anchors, [i for i, _, _ in pairs], t,
+                           offsets)
         _, us, vs = np.array(pairs).T
         for u, v, p, (leg, path) in zip(us, vs, score(m.centers(us), m.contexts(vs)), legs):
             m.add_edge(int(u), int(v), float(p), "trajectory", leg, path)
@@ -150,14 +152,19 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     return stats
 
 
-def _teach_legs(kind: str, poses, chain, anchors, positions, seed: int) -> list:
+def _teach_legs(kind: str, poses, chain, anchors, positions, seed: int,
+                offsets: dict | None = None) -> list:
     """(leg, leg path) of the hop from chain node ``i`` to ``i + 1`` for each
     ``i`` in ``positions``: the drive's odometry (``kind``:
-    :attr:`MapConfig.teach_odometry`, its errors drawn from ``seed``) where
-    the drive placed both anchors itself, else (None, None)."""
+    :attr:`MapConfig.teach_odometry`, its errors drawn from ``seed``) between
+    its frames at the two nodes; a reused vertex at node ``j`` needs its pose
+    in the drive's frame there (``offsets[j]``, from :func:`_reuse_offsets`),
+    else (None, None)."""
     from topodrake.navigation.route import teach_legs
     from topodrake.odometry import OdometryConfig, odometry_along
+    from topodrake.se2 import compose, invert
 
+    offsets = offsets or {}
     none = [(None, None)] * len(positions)
     if kind == "none" or poses is None or not np.all(np.isfinite(poses)):
         return none
@@ -165,12 +172,42 @@ def _teach_legs(kind: str, poses, chain, anchors, positions, seed: int) -> list:
     odo = poses if kind == "perfect" else odometry_along(poses, OdometryConfig.wheel(), seed)
     out = []
     for i in positions:
-        if chain[i][0] == "a" and chain[i + 1][0] == "a":
-            leg, path = teach_legs(odo, anchors[[chain[i][1], chain[i + 1][1]]])
-            out.append((leg[0], path[0]))
-        else:
+        ends = []
+        for j in (i, i + 1):
+            ends.append(np.zeros(3) if chain[j][0] == "a" else offsets.get(j))
+        if any(e is None for e in ends):
             out.append((None, None))
+            continue
+        leg, path = teach_legs(odo, anchors[[i, i + 1]])
+        into_u = invert(ends[0][None])
+        path = compose(np.repeat(into_u, len(path[0]), 0), path[0])
+        leg = compose(compose(into_u, leg), ends[1][None])[0]
+        path[-1] = leg
+        out.append((leg, path))
     return out
+
+
+def _reuse_offsets(m: TopoMap, obs: np.ndarray, chain, anchors) -> dict:
+    """For a lidar map, each reused vertex's pose in the drive's frame where it
+    stood in (chain position -> (3,)): its anchor scan registered onto the
+    drive's scan there, kept when the fit pins the translation; none for
+    other modalities."""
+    if m.modality != "lidar":
+        return {}
+    from topodrake.registration.icp import register
+
+    pos = [i for i, node in enumerate(chain) if node[0] == "v"]
+    if not pos:
+        return {}
+    source = m.bank.observations[m.centers([chain[i][1] for i in pos])]
+    target = np.asarray(obs, np.float64)[anchors[pos]]
+    res = register(np.asarray(source, np.float64), target)
+    good = res.accepted & (res.constraint >= REUSE_PINNED)
+    return {i: res.pose[k] for k, i in enumerate(pos) if good[k]}
+
+
+#: a reused vertex's registration must pin the translation this well (corridors slide)
+REUSE_PINNED = 0.05
 
 
 def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,

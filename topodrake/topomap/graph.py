@@ -11,11 +11,13 @@ planning read observations (through RE) only; where a frame was taken
 An edge u -> v carries ``p``, the predicted probability that the controller
 drives from u to v, ``weight`` = -log p (what Dijkstra adds up) and
 ``kind``: ``"trajectory"`` (consecutive anchors of one drive) or
-``"cross"`` (found between drives). A trajectory edge between two anchors
-that one drive placed also carries that drive's odometry from u to v
-(``leg``: v's pose in u's frame; ``leg_path``: ``LEG_POINTS`` poses along
-the hop), a relative transform as a real robot measures it, never an
-absolute pose; a planned route hands them to the follower.
+``"cross"`` (found between drives). A trajectory edge also carries the
+odometry of the drive that made it from u to v (``leg``: v's pose in u's
+frame; ``leg_path``: ``LEG_POINTS`` poses along the hop), a relative
+transform as a real robot measures it, never an absolute pose; at a vertex
+another drive placed (reuse), a lidar map registers that vertex's scan onto
+the drive's to place it, and other maps leave the hop without. A planned
+route hands the legs to the follower.
 """
 
 from __future__ import annotations
@@ -65,6 +67,8 @@ class MapConfig:
                                  # it stands in for an anchor frame and the scan resumes from it
     teach_odometry: str = "wheel"  # the drives' odometry stored on trajectory edges: wheel
                                    # odometry that drifts, the true motion, or none
+    reuse_legs: bool = True      # lidar maps: edges into and out of a reused vertex carry the
+                                 # drive's odometry too, the vertex placed by registering its scan
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link"):
@@ -78,6 +82,9 @@ class MapConfig:
         if self.reuse_rule not in REUSE_RULES:
             raise TopodrakeError(f"{where}: reuse_rule must be one of {', '.join(REUSE_RULES)}, "
                                  f"got {self.reuse_rule!r}")
+        if not isinstance(self.reuse_legs, bool):
+            raise TopodrakeError(f"{where}: reuse_legs must be true or false, got "
+                                 f"{self.reuse_legs!r}")
         if self.teach_odometry not in TEACH_ODOMETRY:
             raise TopodrakeError(f"{where}: teach_odometry must be one of "
                                  f"{', '.join(TEACH_ODOMETRY)}, got {self.teach_odometry!r}")
