@@ -165,7 +165,7 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
     """The map of ``drives[indices]`` for ``modality`` (cached; built when missing)."""
     from topodrake.topomap.build import build_map
     from topodrake.topomap.graph import MapConfig, TopoMap
-    from topodrake.topomap.mapfile import load_map, save_map
+    from topodrake.topomap.mapfile import load_map, read_map_meta, save_map
     from topodrake.topomap.retrieval import default_embedding
     from topodrake.topomap.sources import drive_observations, make_scorer
 
@@ -185,7 +185,8 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
         if [t.name for t in m.trajectories] != names:
             raise TopodrakeError(f"{path} holds other drives than {len(names)} of "
                                  f"{key}; delete it to rebuild")
-        if asdict(m.config) == asdict(MapConfig()):
+        # the config as written (a map from before a setting existed reads it as the default)
+        if read_map_meta(path).get("config") == asdict(MapConfig()):
             return m, 0.0
         print(f"{path} was built with another map config; rebuilding it", file=sys.stderr)
     t0 = time.perf_counter()
