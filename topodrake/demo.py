@@ -103,8 +103,9 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
 #: the demo's C_WP without a map: of the shipped controllers with their own RE, the one that
 #: holds routes best
 DEMO_CONTROLLER = "checkpoints/lidar_k5/checkpoint.pt"
-#: the shipped map the demo plans on by default (card beside it)
+#: the shipped map the demo plans on by default (card beside it), and its world
 DEMO_MAP = "checkpoints/demo_map/map.tdmap"
+DEMO_WORLD = "test-0"
 
 
 def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_place: int = 6,
@@ -218,8 +219,9 @@ def cmd_demo(args) -> int:
     if args.seed < 0:
         raise TopodrakeError(f"--seed must be >= 0, got {args.seed}")
     check_outputs(args)
+    map_path = None if args.expert else demo_map(args)
     if not args.json:
-        where = "" if args.expert or not demo_map(args) else f" on {demo_map(args)}"
+        where = f" on {map_path}" if map_path else ""
         print(f"topodrake demo: {'the A* expert' if args.expert else 'the learned follower'} "
               f"drives {args.world} from place {args.start_place} to place {args.goal_place}"
               f"{where}", flush=True)
@@ -233,7 +235,7 @@ def cmd_demo(args) -> int:
                                  "by the controller it was built for)")
         extra = {"controller": args.controller} if args.controller else {}
         result = run_learned_demo(args.world, args.start_place, args.goal_place, args.out,
-                                  args.seed, args.noise or 0.0, map_path=demo_map(args),
+                                  args.seed, args.noise or 0.0, map_path=map_path,
                                   reach=args.reach, **extra)
     if args.json:
         print(json.dumps(result["summary"]))
@@ -261,9 +263,6 @@ def demo_map(args):
     if args.controller or args.reach or args.world != DEMO_WORLD:
         return None
     return str(resolve_checkpoint(DEMO_MAP))
-
-
-DEMO_WORLD = "test-0"
 
 
 def add_demo_parser(sub) -> None:

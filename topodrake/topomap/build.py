@@ -134,10 +134,10 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     stats.new_vertices += len(new_vertices)
 
     # -- trajectory edges between consecutive chain nodes, with the drive's odometry
-    #    between two anchors it placed itself
     pairs = [(i, u, v) for i, (u, v) in enumerate(zip(ids[:-1], ids[1:])) if u != v]
     if pairs:
-        offsets = _reuse_offsets(m, obs, chain, anchors) if cfg.reuse_legs else {}
+        offsets = _reuse_offsets(m, obs, chain, anchors) \
+            if cfg.reuse_legs and cfg.teach_odometry != "none" else {}
         legs = _teach_legs(cfg.teach_odometry, poses, chain, anchors, [i for i, _, _ in pairs], t,
                            offsets)
         _, us, vs = np.array(pairs).T
@@ -165,23 +165,20 @@ def _teach_legs(kind: str, poses, chain, anchors, positions, seed: int,
     from topodrake.se2 import compose, invert
 
     offsets = offsets or {}
-    none = [(None, None)] * len(positions)
     if kind == "none" or poses is None or not np.all(np.isfinite(poses)):
-        return none
+        return [(None, None)] * len(positions)
     poses = np.asarray(poses, np.float64)
     odo = poses if kind == "perfect" else odometry_along(poses, OdometryConfig.wheel(), seed)
+    legs, paths = teach_legs(odo, anchors)          # between the drive's frames at the nodes
     out = []
     for i in positions:
-        ends = []
-        for j in (i, i + 1):
-            ends.append(np.zeros(3) if chain[j][0] == "a" else offsets.get(j))
+        ends = [np.zeros(3) if chain[j][0] == "a" else offsets.get(j) for j in (i, i + 1)]
         if any(e is None for e in ends):
             out.append((None, None))
             continue
-        leg, path = teach_legs(odo, anchors[[i, i + 1]])
         into_u = invert(ends[0][None])
-        path = compose(np.repeat(into_u, len(path[0]), 0), path[0])
-        leg = compose(compose(into_u, leg), ends[1][None])[0]
+        path = compose(np.repeat(into_u, len(paths[i]), 0), paths[i])
+        leg = compose(compose(into_u, legs[i:i + 1]), ends[1][None])[0]
         path[-1] = leg
         out.append((leg, path))
     return out
