@@ -25,6 +25,14 @@ For each new drive, from its observations only:
    **sequence matched**: the minimum RE over the aligned chain neighbours up
    to ``sequence_window`` anchors either side (where both chains have them)
    must exceed ``p_edge`` too. An edge keeps the single pair's RE as its p.
+5. **Junction edges** where drives meet at their ends: a drive's last
+   vertex (an arrival) -> another's first (a departure from the same
+   place), when RE passes ``p_join`` both ways (the pair's views agree
+   from either side; one direction alone is overconfident, as for goal
+   links). Sequence matching cannot confirm such a pair: the arrival's
+   anchors before the place and the departure's after it diverge. The edge
+   keeps RE(arrival, departure) as its p; on a lidar map it carries the
+   departure's pose in the arrival's frame, registered scan to scan.
 
 With ``audit=True`` step 4 also scores every vertex of the map (not only
 the retrieved ones) and records which cross edges the exhaustive pass
@@ -53,6 +61,7 @@ class BuildStats:
     reused: int = 0
     new_vertices: int = 0
     cross_edges: int = 0
+    junctions: int = 0            # junction edges between drives' ends
     re_pairs: int = 0
     exhaustive_edges: int = 0     # audit: cross edges the exhaustive pass makes
     found_edges: int = 0          # audit: ... of which the retrieval pass made too
@@ -149,7 +158,52 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
         queries = emb[[chain[p][1] for p in new_pos]]
         m.index.add(np.array(new_vertices), queries)
         _cross_edges(m, new_vertices, ids, new_pos, queries, score, stats, audit)
+    if cfg.join_ends:
+        _junctions(m, t, score, stats)
     return stats
+
+
+def _junctions(m: TopoMap, t: int, score, stats: BuildStats) -> None:
+    """Junction edges between drive ``t``'s ends and the other drives':
+    every other drive's last vertex -> ``t``'s first, and ``t``'s last ->
+    every other drive's first, where RE passes ``p_join`` both ways."""
+    chain = m.trajectories[t].chain
+    others = [o.chain for i, o in enumerate(m.trajectories) if i != t and o.chain]
+    pairs = {(o[-1], chain[0]) for o in others} | {(chain[-1], o[0]) for o in others}
+    pairs = sorted((u, x) for u, x in pairs if u != x and not m.graph.has_edge(u, x))
+    if not pairs:
+        return
+    us, xs = np.array(pairs, np.int64).T
+    ahead = score(m.centers(us), m.contexts(xs))
+    back = score(m.centers(xs), m.contexts(us))
+    keep = np.flatnonzero(np.minimum(ahead, back) > m.config.p_join)
+    legs = _junction_legs(m, us[keep], xs[keep])
+    for i, (leg, path) in zip(keep, legs):
+        m.add_edge(int(us[i]), int(xs[i]), float(ahead[i]), "junction", leg, path)
+    stats.junctions += len(keep)
+
+
+def _junction_legs(m: TopoMap, us: np.ndarray, xs: np.ndarray) -> list:
+    """(leg, leg path) of each junction u -> x: on a lidar map, x's pose in
+    u's frame from registering x's scan onto u's (kept when the fit pins
+    the translation; the path a straight line), else (None, None)."""
+    if m.modality != "lidar" or not len(us) or m.config.teach_odometry == "none":
+        return [(None, None)] * len(us)
+    from topodrake.navigation.route import LEG_POINTS
+    from topodrake.registration.icp import register
+
+    obs = m.bank.observations
+    res = register(np.asarray(obs[m.centers(xs)], np.float64),
+                   np.asarray(obs[m.centers(us)], np.float64))
+    good = res.accepted & (res.constraint >= REUSE_PINNED)
+    out = []
+    for k in range(len(us)):
+        if not good[k]:
+            out.append((None, None))
+            continue
+        leg = res.pose[k]
+        out.append((leg, np.linspace(0.0, 1.0, LEG_POINTS)[:, None] * leg[None]))
+    return out
 
 
 def _teach_legs(kind: str, poses, chain, anchors, positions, seed: int,

@@ -11,7 +11,8 @@ planning read observations (through RE) only; where a frame was taken
 An edge u -> v carries ``p``, the predicted probability that the controller
 drives from u to v, ``weight`` = -log p (what Dijkstra adds up) and
 ``kind``: ``"trajectory"`` (consecutive anchors of one drive) or
-``"cross"`` (found between drives). A trajectory edge also carries the
+``"cross"`` (found between drives) or ``"junction"`` (a drive's arrival to
+another's departure at the place where both end). A trajectory edge also carries the
 odometry of the drive that made it from u to v (``leg``: v's pose in u's
 frame; ``leg_path``: ``LEG_POINTS`` poses along the hop), a relative
 transform as a real robot measures it, never an absolute pose; at a vertex
@@ -33,7 +34,7 @@ from topodrake.navigation.route import LEG_POINTS
 from topodrake.topomap.bank import FrameBank
 from topodrake.topomap.retrieval import VertexIndex
 
-EDGE_KINDS = ("trajectory", "cross")
+EDGE_KINDS = ("trajectory", "cross", "junction")
 
 
 REUSE_RULES = ("paper", "resume")
@@ -52,6 +53,8 @@ class MapConfig:
                                  # hop's RE less this (0: the paper's rule; reuse_rule "paper" only)
     p_edge: float = 0.99         # cross edges: sequence-matched RE above this
     sequence_window: int = 2     # aligned anchors on each side for sequence matching
+    join_ends: bool = True       # junction edges: a drive's last vertex -> another's first ...
+    p_join: float = 0.8          # ... where RE passes this both ways
     retrieval_k: int = 64        # building: vertices ranked by the embedding that RE checks
     retrieval_first: int = 0     # cross edges: RE checks this many first, the rest of the top
                                  # retrieval_k only for a vertex with edges in the second half
@@ -60,6 +63,8 @@ class MapConfig:
     p_link: float = 0.5          # planning: start and goal links above this
     link_k: int = 32             # planning: vertices ranked by the embedding that RE checks
                                  # for the start and goal links
+    link_consensus: bool = True  # planning: keep the start's (goal's) links of one place only:
+    link_hops: int = 3           # ... links within this many edges of each other are one place
     goal_mutual: bool = True     # planning: a goal link's p is min(RE(v, goal), RE(goal, v))
     sparsify_window: int = 4     # first window of candidates in the greedy scan
     reuse: bool = True
@@ -71,7 +76,7 @@ class MapConfig:
                                  # drive's odometry too, the vertex placed by registering its scan
 
     def validate(self, where: str = "map config") -> "MapConfig":
-        for name in ("p_sparsify", "p_reuse", "p_edge", "p_link"):
+        for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
                 raise TopodrakeError(f"{where}: {name} must be in (0, 1), got {v}")
@@ -82,6 +87,12 @@ class MapConfig:
         if self.reuse_rule not in REUSE_RULES:
             raise TopodrakeError(f"{where}: reuse_rule must be one of {', '.join(REUSE_RULES)}, "
                                  f"got {self.reuse_rule!r}")
+        if not isinstance(self.link_consensus, bool):
+            raise TopodrakeError(f"{where}: link_consensus must be true or false, got "
+                                 f"{self.link_consensus!r}")
+        if not isinstance(self.join_ends, bool):
+            raise TopodrakeError(f"{where}: join_ends must be true or false, got "
+                                 f"{self.join_ends!r}")
         if not isinstance(self.reuse_legs, bool):
             raise TopodrakeError(f"{where}: reuse_legs must be true or false, got "
                                  f"{self.reuse_legs!r}")
@@ -91,7 +102,7 @@ class MapConfig:
         if self.reuse_slack > 0 and self.reuse_rule != "paper":
             raise TopodrakeError(f"{where}: reuse_slack applies to reuse_rule 'paper' only")
         for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1),
-                          ("retrieval_first", 0), ("link_k", 1)):
+                          ("retrieval_first", 0), ("link_k", 1), ("link_hops", 0)):
             v = getattr(self, name)
             if not isinstance(v, int) or v < low:
                 raise TopodrakeError(f"{where}: {name} must be an integer >= {low}, got {v}")
@@ -188,7 +199,7 @@ class TopoMap:
         p = float(min(max(p, 1e-12), 1.0))
         old = self.graph.get_edge_data(u, v)
         extra = {}
-        if leg is not None and np.all(np.isfinite(leg)) and kind == "trajectory":
+        if leg is not None and np.all(np.isfinite(leg)) and kind in ("trajectory", "junction"):
             extra = {"leg": np.asarray(leg, np.float64).reshape(3),
                      "leg_path": np.asarray(leg_path, np.float64).reshape(LEG_POINTS, 3)}
         if old is not None:

@@ -14,7 +14,7 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
 ``poses``           (F, 3) where each frame was taken (metadata)
 ``vertex_*``        per vertex: ``id``, ``center`` row, ``context`` rows
                     (V, 2k+1), origin ``traj``, ``frame`` and chain ``pos``
-``edge_*``          per edge: ``src``, ``dst``, ``p``, ``kind`` (0 trajectory, 1 cross),
+``edge_*``          per edge: ``src``, ``dst``, ``p``, ``kind`` (0 trajectory, 1 cross, 2 junction),
                     ``leg`` (E, 3) and ``leg_path`` (E, LEG_POINTS, 3): the drive's
                     odometry over a trajectory edge (NaN where none; from version 2)
 ``chain_ids``       every trajectory's chain of vertices, concatenated;
@@ -44,8 +44,8 @@ from topodrake.navigation.route import LEG_POINTS
 from topodrake.topomap.graph import EDGE_KINDS, MapConfig, TopoMap, Trajectory
 
 FORMAT = "topodrake-map"
-VERSION = 2
-READS = (1, 2)       # versions this topodrake reads
+VERSION = 3
+READS = (1, 2, 3)      # versions this topodrake reads
 _NO_HIT_MM = 65535
 
 
@@ -192,6 +192,9 @@ def load_map(path, scorer, embedding=None) -> TopoMap:
         n_e = len(z["edge_src"])
         legs = z.get("edge_leg", np.full((n_e, 3), np.nan))
         paths = z.get("edge_leg_path", np.full((n_e, LEG_POINTS, 3), np.nan))
+        if n_e and int(np.max(z["edge_kind"])) >= len(EDGE_KINDS):
+            raise TopodrakeError(f"{path}: edge kind {int(np.max(z['edge_kind']))} is unknown "
+                                 f"(known: {', '.join(EDGE_KINDS)})")
         for u, v, p, kind, leg, path_ in zip(z["edge_src"], z["edge_dst"], z["edge_p"],
                                              z["edge_kind"], legs, paths):
             m.add_edge(int(u), int(v), float(p), EDGE_KINDS[int(kind)], leg, path_)

@@ -8,7 +8,14 @@ the goal (whose context is the goal observation repeated, or a full context
 when one is given), with the smaller of RE(v, goal) and RE(goal, v) as the
 link's probability (``goal_mutual``: RE toward a repeated image is
 overconfident); the candidates come from the same retrieval as map
-building. Dijkstra on the edge weights -log p gives the most probable path;
+building. With ``link_consensus`` the links of each end must agree on one
+place: they are grouped by the map itself (links within ``link_hops``
+edges of each other, either way, are one group) and the plan starts from
+one group and ends at one group, the most trusted pair that the map joins
+(a group ranks by its most probable link, then by its summed p). A view
+that also matches a look-alike room links there too, but to fewer or less
+certain anchors than at the place the car is at, and no longer lets the
+plan jump there. Dijkstra on the edge weights -log p gives the most probable path;
 its probability is exp(-cost). An unreachable goal is a result
 (:attr:`PlanResult.reachable` False with a reason), never an exception.
 """
@@ -51,6 +58,36 @@ def _check_observation(topomap: TopoMap, obs: np.ndarray, what: str) -> np.ndarr
         raise TopodrakeError(f"the {what} observation has shape {obs.shape}; this "
                              f"{topomap.modality} map needs {want}")
     return obs
+
+
+def link_groups(topomap: TopoMap, links: list[tuple[int, float]],
+                hops: int) -> list[list[tuple[int, float]]]:
+    """``links`` ((vertex, p)) in groups, the most trusted first: a group
+    is the links joined through chains of links within ``hops`` edges of
+    each other (edges taken either way), ranked by its most probable link
+    (to two decimals), then by its summed p."""
+    if len(links) < 2:
+        return [links] if links else []
+    undirected = topomap.graph.to_undirected(as_view=True)
+    group = list(range(len(links)))
+
+    def root(i: int) -> int:
+        while group[i] != i:
+            group[i] = group[group[i]]
+            i = group[i]
+        return i
+
+    where = {v: i for i, (v, _) in enumerate(links)}
+    for i, (v, _) in enumerate(links):
+        for u in nx.single_source_shortest_path_length(undirected, v, cutoff=hops):
+            j = where.get(u)
+            if j is not None:
+                group[root(j)] = root(i)
+    members: dict[int, list[tuple[int, float]]] = {}
+    for i, link in enumerate(links):
+        members.setdefault(root(i), []).append(link)
+    return sorted(members.values(), key=lambda g: (max(round(p, 2) for _, p in g),
+                                                   sum(p for _, p in g)), reverse=True)
 
 
 def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation: np.ndarray,
@@ -107,19 +144,33 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
             result.reason = (f"the goal is reachable from no map vertex (best RE "
                              f"{max(p_goal, default=0.0):.2f} <= {m.config.p_link})")
             return result
-        g.add_node(START)
-        g.add_node(GOAL)
-        for v, p in links_s:
-            g.add_edge(START, v, p=p, weight=-math.log(p), kind="start")
-        for v, p in links_g:
-            g.add_edge(v, GOAL, p=p, weight=-math.log(p), kind="goal")
-        if p_direct > m.config.p_link:
-            g.add_edge(START, GOAL, p=p_direct, weight=-math.log(p_direct), kind="direct")
+        if m.config.link_consensus:     # one place at each end, the most trusted that joins
+            starts = link_groups(m, links_s, m.config.link_hops) or [[]]
+            goals = link_groups(m, links_g, m.config.link_hops) or [[]]
+            tries = sorted(((i, j) for i in range(len(starts)) for j in range(len(goals))),
+                           key=lambda ij: (ij[0] + ij[1], ij))
+            choices = [(starts[i], goals[j]) for i, j in tries]
+        else:
+            choices = [(links_s, links_g)]
         banned = {(int(u), int(v)) for u, v in excluded_edges}
         weight = (lambda u, v, d: None if (u, v) in banned else d["weight"]) if banned else "weight"
-        try:
-            cost, path = nx.single_source_dijkstra(g, START, GOAL, weight=weight)
-        except nx.NetworkXNoPath:
+        path = None
+        for from_start, into_goal in choices:
+            g.add_node(START)
+            g.add_node(GOAL)
+            for v, p in from_start:
+                g.add_edge(START, v, p=p, weight=-math.log(p), kind="start")
+            for v, p in into_goal:
+                g.add_edge(v, GOAL, p=p, weight=-math.log(p), kind="goal")
+            if p_direct > m.config.p_link:
+                g.add_edge(START, GOAL, p=p_direct, weight=-math.log(p_direct), kind="direct")
+            try:
+                cost, path = nx.single_source_dijkstra(g, START, GOAL, weight=weight)
+                result.start_links, result.goal_links = len(from_start), len(into_goal)
+                break
+            except nx.NetworkXNoPath:
+                g.remove_nodes_from([START, GOAL])
+        if path is None:
             result.reason = "no path of the map joins the start's links to the goal's"
             return result
         probs = [g.edges[u, v]["p"] for u, v in zip(path[:-1], path[1:])]

@@ -1,0 +1,182 @@
+"""Drives that meet at a place join there; start and goal links agree on one place."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from topodrake.errors import TopodrakeError
+from topodrake.topomap.build import add_trajectory
+from topodrake.topomap.graph import MapConfig, TopoMap
+from topodrake.topomap.joining import join_trial, joining_triples, summarize
+from topodrake.topomap.mapfile import load_map, save_map
+from topodrake.topomap.plan import link_groups, plan_path
+
+from test_topomap import FlatEmbedding, TableScorer, drive, same_drive_hops
+
+
+def meeting_drives(a, b, both_ways=(0.95, 0.95)):
+    """Drive 0 arrives where drive 1 departs: frame 9 of drive 0 and frame 0
+    of drive 1 are one place, which RE sees with ``both_ways`` (arrival ->
+    departure, departure -> arrival); the drives diverge on either side."""
+    if (a, b) == ((0, 9), (1, 0)):
+        return both_ways[0]
+    if (a, b) == ((1, 0), (0, 9)):
+        return both_ways[1]
+    return same_drive_hops(a, b)
+
+
+def table_map(rule, **config):
+    return TopoMap(TableScorer(rule), FlatEmbedding(), MapConfig(**config), world="table")
+
+
+def test_an_arrival_and_a_departure_at_one_place_join_by_a_junction_edge():
+    m = table_map(meeting_drives)
+    add_trajectory(m, drive(0, 10))
+    stats = add_trajectory(m, drive(1, 10))
+    end, start = m.trajectories[0].chain[-1], m.trajectories[1].chain[0]
+    assert stats.junctions == 1
+    assert m.graph.edges[end, start]["kind"] == "junction"
+    assert m.graph.edges[end, start]["p"] == pytest.approx(0.95)
+    assert not m.graph.has_edge(start, end)             # only the way a car drives on
+    r = plan_path(m, np.array([0, 0]), np.array([1, 9]))
+    assert r.reachable and end in r.vertices and start in r.vertices
+    # sequence matching alone cannot join them: the drives diverge around the place
+    m = table_map(meeting_drives, join_ends=False)
+    add_trajectory(m, drive(0, 10))
+    add_trajectory(m, drive(1, 10))
+    assert not plan_path(m, np.array([0, 0]), np.array([1, 9])).reachable
+
+
+def test_a_junction_is_made_whichever_drive_comes_first():
+    m = table_map(meeting_drives)
+    add_trajectory(m, drive(1, 10))
+    stats = add_trajectory(m, drive(0, 10))
+    end, start = m.trajectories[1].chain[-1], m.trajectories[0].chain[0]
+    assert stats.junctions == 1 and m.graph.edges[end, start]["kind"] == "junction"
+
+
+def test_a_junction_needs_the_views_to_agree_both_ways():
+    for both_ways in ((0.95, 0.3), (0.3, 0.95), (0.75, 0.95)):
+        m = table_map(lambda a, b, w=both_ways: meeting_drives(a, b, w))
+        add_trajectory(m, drive(0, 10))
+        assert add_trajectory(m, drive(1, 10)).junctions == 0, both_ways
+    m = table_map(lambda a, b: meeting_drives(a, b, (0.75, 0.95)), p_join=0.7)
+    add_trajectory(m, drive(0, 10))
+    assert add_trajectory(m, drive(1, 10)).junctions == 1
+    with pytest.raises(TopodrakeError, match="p_join"):
+        MapConfig(p_join=1.0).validate()
+    with pytest.raises(TopodrakeError, match="join_ends"):
+        MapConfig(join_ends="yes").validate()
+
+
+def test_map_files_keep_junction_edges_and_refuse_unknown_edge_kinds(tmp_path):
+    m = table_map(meeting_drives)
+    add_trajectory(m, drive(0, 10))
+    add_trajectory(m, drive(1, 10))
+    path = tmp_path / "m.tdmap"
+    save_map(m, path)
+    m2 = load_map(path, m.scorer, embedding=FlatEmbedding())
+    assert m2.edge_counts() == m.edge_counts() and m2.edge_counts()["junction"] == 1
+    with np.load(path) as z:
+        arrays = {name: z[name] for name in z.files}
+    arrays["edge_kind"] = np.full_like(arrays["edge_kind"], 7)
+    bad = tmp_path / "bad.tdmap"
+    with open(bad, "wb") as f:
+        np.savez_compressed(f, **arrays)
+    with pytest.raises(TopodrakeError, match="edge kind 7"):
+        load_map(bad, m.scorer, embedding=FlatEmbedding())
+
+
+# ---------------------------------------------------------------- start and goal links
+
+def look_alike_start(a, b):
+    """The start view (5, 0) reaches drive 0's frames 0 and 3, and frame 24
+    of the same drive looks just like it; the goal is frame 29."""
+    if a == (5, 0):
+        return 0.999 if b in ((0, 0), (0, 3), (0, 24)) else 0.1
+    return same_drive_hops(a, b)
+
+
+def test_start_links_agree_on_one_place_and_skip_a_look_alike_far_along_the_map():
+    m = table_map(look_alike_start, link_consensus=False)
+    add_trajectory(m, drive(0, 30))
+    frame = lambda r: [m.graph.nodes[v]["frame"] for v in r.vertices]
+    r = plan_path(m, np.array([5, 0]), np.array([0, 29]))
+    assert frame(r)[0] == 24                          # the look-alike: a shorter plan
+    m.config = MapConfig(link_consensus=True)
+    r = plan_path(m, np.array([5, 0]), np.array([0, 29]))
+    assert frame(r)[0] in (0, 3) and r.start_links == 2
+    assert r.probability < 0.999 ** 3                 # the whole drive, hop by hop
+
+
+def test_link_groups_rank_by_the_best_link_then_by_support():
+    m = table_map(same_drive_hops)
+    add_trajectory(m, drive(0, 30))                   # ten anchors, frames 0, 3, ..., 27
+    v = m.trajectories[0].chain
+    groups = link_groups(m, [(v[0], 0.9), (v[1], 0.9), (v[8], 0.97)], hops=3)
+    assert [[u for u, _ in g] for g in groups] == [[v[8]], [v[0], v[1]]]
+    groups = link_groups(m, [(v[0], 0.97), (v[2], 0.9), (v[8], 0.97)], hops=3)
+    assert [[u for u, _ in g] for g in groups] == [[v[0], v[2]], [v[8]]]
+    # a chain of links, each within reach of the next, is one group
+    assert len(link_groups(m, [(v[i], 0.9) for i in (0, 3, 6, 9)], hops=3)) == 1
+    assert link_groups(m, [], hops=3) == []
+
+
+def test_when_the_most_trusted_place_leads_nowhere_the_plan_starts_at_the_next():
+    def dead_end_look_alike(a, b):
+        if a == (5, 0):      # the start sees drive 2 (a dead end) best, drive 0 nearly as well
+            return {(2, 0): 0.999, (0, 0): 0.95}.get(b, 0.1)
+        return same_drive_hops(a, b)
+
+    m = table_map(dead_end_look_alike)
+    add_trajectory(m, drive(0, 10))
+    add_trajectory(m, drive(2, 10))
+    r = plan_path(m, np.array([5, 0]), np.array([0, 9]))
+    assert r.reachable and m.graph.nodes[r.vertices[0]]["traj"] == 0
+
+
+# ---------------------------------------------------------------- the joining study
+
+def test_joining_triples_are_distinct_seeded_and_a_prefix_of_a_longer_study():
+    t = joining_triples(10, 40, seed=3)
+    assert t.shape == (40, 3) and all(len(set(row)) == 3 for row in t.tolist())
+    assert t.min() >= 0 and t.max() < 10
+    np.testing.assert_array_equal(joining_triples(10, 12, seed=3), t[:12])
+    assert not np.array_equal(joining_triples(10, 40, seed=4), t)
+    with pytest.raises(TopodrakeError, match="3 places"):
+        joining_triples(2, 5, seed=0)
+
+
+def line_world():
+    """Drive 0 runs x = 0..9 from place 0 to place 1, drive 1 x = 9..18 from
+    place 1 to place 2 (1 cm aside, y = 0.01); a table observation is
+    (drive, frame) of a pose."""
+    places = np.array([[0.0, 0, 0], [9.0, 0, 0], [18.0, 0.01, 0]])
+    drives = {(0, 1): np.column_stack([np.arange(10.0), np.zeros((10, 2))]),
+              (1, 2): np.column_stack([9.0 + np.arange(10.0), np.full(10, 0.01), np.zeros(10)])}
+
+    def observe(poses):
+        p = np.asarray(poses)
+        second = p[:, 1] > 0.005
+        return np.column_stack([second, np.where(second, p[:, 0] - 9, p[:, 0])]).astype(int)
+
+    return SimpleNamespace(places=places), drives, observe
+
+
+def test_a_map_of_two_drives_through_a_place_plans_across_it():
+    world, drives, observe = line_world()
+    drive_of = lambda s, g: SimpleNamespace(poses=drives[(s, g)]) if (s, g) in drives else None
+    joined = join_trial(world, lambda: table_map(meeting_drives), drive_of, observe, (0, 1, 2))
+    assert joined.planned and joined.joined and joined.junctions == 1
+    assert joined.longest_join_m == pytest.approx(0.01)      # the arrival and departure, 1 cm apart
+    apart = join_trial(world, lambda: table_map(meeting_drives, join_ends=False), drive_of,
+                       observe, (0, 1, 2))
+    assert not apart.planned and not apart.joined and "no path" in apart.reason
+    missing = join_trial(world, lambda: table_map(meeting_drives), drive_of, observe, (2, 1, 0))
+    assert not missing.planned and "no expert drive" in missing.reason
+    s = summarize([joined, apart, missing])
+    assert s["joined_triples"] == s["planned"] == round(1 / 3, 4)
+    assert s["false_steps"] == 0.0

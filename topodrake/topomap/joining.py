@@ -1,0 +1,153 @@
+"""Do drives that share a place join? Maps of two drives, a -> b and b -> c.
+
+A map built from only the drive a -> b and the drive b -> c must plan
+a -> c: the first drive's arrival at b and the second's departure from it
+have to become one route (a junction edge, a reused vertex or a cross
+edge), and neither the start's nor the goal's links may jump to a place
+that only looks alike. :func:`join_trial` builds such a map and plans on
+it; :func:`joining_triples` draws the seeded (a, b, c) of a study.
+
+A plan's steps are judged in truth (privileged poses, evaluation only). A
+join between the drives (a cross or junction edge) longer than
+:data:`JOIN_STEP_M` joins places that are not the same; so does a start or
+goal link longer than :data:`~topodrake.navigation.plan_trials.FALSE_LINK_M`
+(a link from the place to an anchor one ordinary hop along its drive, up
+to 3-4 m on a lidar map, is the planner skipping an anchor, not a false
+link). Either is a ``false step``. ``strict`` also counts every start or
+goal link longer than :data:`JOIN_STEP_M`; the drives' own hops are never
+counted (:attr:`JoinResult.longest_step_m` reports every step).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+
+JOIN_STEP_M = 2.0     # a link or edge between drives longer than this in truth is false
+
+
+@dataclass
+class JoinResult:
+    """One triple's map and plan."""
+
+    places: tuple[int, int, int]
+    vertices: int
+    junctions: int              # junction edges in the map
+    planned: bool
+    probability: float
+    longest_step_m: float       # over every step of the plan (nan: no plan)
+    longest_link_m: float       # over the steps that are not a drive's own hop (nan: no plan)
+    longest_link_kind: str = ""  # start, goal, cross or junction
+    longest_join_m: float = 0.0  # over the cross and junction edges of the plan
+    reason: str = ""
+
+    @property
+    def false_step(self) -> bool:
+        from topodrake.navigation.plan_trials import FALSE_LINK_M
+
+        return self.planned and (self.longest_join_m > JOIN_STEP_M
+                                 or self.longest_link_m > FALSE_LINK_M)
+
+    @property
+    def strict_false_step(self) -> bool:
+        return self.planned and self.longest_link_m > JOIN_STEP_M
+
+    @property
+    def joined(self) -> bool:
+        """Planned a -> c with no false step."""
+        return self.planned and not self.false_step
+
+    def record(self) -> dict:
+        out = asdict(self)
+        out["places"] = list(self.places)
+        out.update(joined=self.joined, false_step=self.false_step,
+                   strict_false_step=self.strict_false_step)
+        for k in ("probability", "longest_step_m", "longest_link_m", "longest_join_m"):
+            out[k] = None if not np.isfinite(out[k]) else round(float(out[k]), 4)
+        return out
+
+
+def joining_triples(n_places: int, n: int, seed: int) -> np.ndarray:
+    """(n, 3) ordered triples of distinct places (a, b, c); triple i comes
+    from its own spawned seed, so a prefix of a longer study is the same
+    triples."""
+    from topodrake.montecarlo import trial_seeds
+
+    if n_places < 3:
+        raise TopodrakeError(f"joining needs at least 3 places, the world has {n_places}")
+    return np.array([np.random.default_rng(s).choice(n_places, 3, replace=False)
+                     for s in trial_seeds(seed, n)], np.int64).reshape(n, 3)
+
+
+def plan_steps(topomap, result, start_pose, goal_pose) -> tuple[float, float, str, float]:
+    """(longest step, longest step that is not a trajectory edge, that
+    step's kind, longest cross or junction edge) of a plan ``result`` from
+    ``start_pose`` to ``goal_pose``, in truth."""
+    vs = list(result.vertices)
+    xy = np.vstack([np.asarray(start_pose, np.float64)[None, :2],
+                    topomap.pose(vs).reshape(-1, 3)[:, :2] if vs else np.zeros((0, 2)),
+                    np.asarray(goal_pose, np.float64)[None, :2]])
+    steps = np.hypot(*np.diff(xy, axis=0).T)
+    kinds = ["start"] + [topomap.graph.edges[u, v]["kind"] for u, v in zip(vs[:-1], vs[1:])] \
+        + ["goal"]
+    if not vs:
+        kinds = ["direct"]
+    links = [(d, k) for d, k in zip(steps, kinds) if k != "trajectory"]
+    d, kind = max(links)
+    joins = [d for d, k in links if k in ("cross", "junction")]
+    return float(steps.max()), float(d), kind, float(max(joins, default=0.0))
+
+
+def join_trial(world, make_map, drive_of, observe, triple) -> JoinResult:
+    """Build a map from the drives a -> b and b -> c of ``triple`` and plan
+    a -> c from the views at the places.
+
+    ``make_map()`` gives an empty map; ``drive_of(s, g)`` the expert drive
+    from place s to place g (its ``poses``) or None; ``observe(poses)``
+    what the map's scorer sees there."""
+    from topodrake.topomap.build import BuildStats, add_trajectory
+    from topodrake.topomap.plan import plan_path
+
+    a, b, c = (int(x) for x in triple)
+    topomap = make_map()
+    stats = BuildStats()
+    for s, g in ((a, b), (b, c)):
+        drive = drive_of(s, g)
+        if drive is None:
+            return JoinResult((a, b, c), len(topomap), stats.junctions, False, 0.0, np.nan,
+                              np.nan, reason=f"no expert drive from place {s} to place {g}")
+        add_trajectory(topomap, observe(drive.poses), drive.poses, f"{s}->{g}", stats)
+    places = np.asarray(world.places, np.float64)
+    views = observe(places[[a, c]])
+    plan = plan_path(topomap, views[0], views[1], start_pose=places[a], goal_pose=places[c])
+    if not plan.reachable:
+        return JoinResult((a, b, c), len(topomap), stats.junctions, False, 0.0, np.nan, np.nan,
+                          reason=plan.reason)
+    longest, link, kind, join = plan_steps(topomap, plan, places[a], places[c])
+    return JoinResult((a, b, c), len(topomap), stats.junctions, True, plan.probability, longest,
+                      link, kind, join)
+
+
+def summarize(results: list[JoinResult]) -> dict:
+    """``joined_triples`` (share planned without a false step),
+    ``false_steps`` (share of plans holding one), their ``strict_``
+    versions, ``planned``, counts."""
+    n = len(results)
+    planned = [r for r in results if r.planned]
+
+    def share(xs, of):
+        return round(sum(xs) / len(of), 4) if of else None
+
+    return {"triples": n,
+            "joined_triples": share([r.joined for r in results], results),
+            "false_steps": share([r.false_step for r in planned], planned),
+            "strict_joined_triples": share([r.planned and not r.strict_false_step
+                                            for r in results], results),
+            "strict_false_steps": share([r.strict_false_step for r in planned], planned),
+            "junction_maps": share([r.junctions > 0 for r in results], results),
+            "planned": round(len(planned) / n, 4) if n else None,
+            "mean_probability": (round(float(np.mean([r.probability for r in planned])), 4)
+                                 if planned else None)}
