@@ -5,9 +5,9 @@ map (camera and lidar, the shipped RE and place embedding) is built from
 only the expert drive a -> b and the drive b -> c, and a plan is made from
 the view at place a to the view at place c
 (:func:`topodrake.topomap.joining.join_trial`). A triple is joined when the
-plan exists without a false step: no edge between the drives (cross,
-junction) longer than 2 m in truth and no start or goal link longer than
-5 m; ``strict_`` figures hold start and goal links to 2 m as well.
+plan exists without a false step: no link (a start, goal or direct link,
+a cross or junction edge; not the drives' own hops) longer than 5 m in
+truth; ``strict_`` figures hold every link to 2 m.
 
     python studies/map_joining.py --json
 

@@ -54,7 +54,7 @@ class MapConfig:
     p_edge: float = 0.99         # cross edges: sequence-matched RE above this
     sequence_window: int = 2     # aligned anchors on each side for sequence matching
     join_ends: bool = True       # junction edges: a drive's last vertex -> another's first ...
-    p_join: float = 0.8          # ... where RE passes this both ways
+    p_join: float = 0.7          # ... where RE passes this both ways
     retrieval_k: int = 64        # building: vertices ranked by the embedding that RE checks
     retrieval_first: int = 0     # cross edges: RE checks this many first, the rest of the top
                                  # retrieval_k only for a vertex with edges in the second half

@@ -7,15 +7,15 @@ edge), and neither the start's nor the goal's links may jump to a place
 that only looks alike. :func:`join_trial` builds such a map and plans on
 it; :func:`joining_triples` draws the seeded (a, b, c) of a study.
 
-A plan's steps are judged in truth (privileged poses, evaluation only). A
-join between the drives (a cross or junction edge) longer than
-:data:`JOIN_STEP_M` joins places that are not the same; so does a start or
-goal link longer than :data:`~topodrake.navigation.plan_trials.FALSE_LINK_M`
-(a link from the place to an anchor one ordinary hop along its drive, up
-to 3-4 m on a lidar map, is the planner skipping an anchor, not a false
-link). Either is a ``false step``. ``strict`` also counts every start or
-goal link longer than :data:`JOIN_STEP_M`; the drives' own hops are never
-counted (:attr:`JoinResult.longest_step_m` reports every step).
+A plan's steps are judged in truth (privileged poses, evaluation only).
+Every step that is not one of the drives' own hops (a start, goal or
+direct link, a cross or junction edge) is a link. A link longer than
+:data:`~topodrake.navigation.plan_trials.FALSE_LINK_M` (5 m, the planning
+study's rule) joins places that only look alike: a ``false step``.
+``strict`` figures count every link longer than :data:`JOIN_STEP_M` (2 m)
+instead; they also count a start link to an anchor one clear hop along
+its drive (3-6 m on a lidar map, whose RE trusts long hops in the open),
+which is the planner skipping an anchor, not a look-alike.
 """
 
 from __future__ import annotations
@@ -40,16 +40,14 @@ class JoinResult:
     probability: float
     longest_step_m: float       # over every step of the plan (nan: no plan)
     longest_link_m: float       # over the steps that are not a drive's own hop (nan: no plan)
-    longest_link_kind: str = ""  # start, goal, cross or junction
-    longest_join_m: float = 0.0  # over the cross and junction edges of the plan
+    longest_link_kind: str = ""  # start, goal, direct, cross or junction
+    false_link_m: float = 0.0    # the longest false link of the plan (0: none)
+    false_link_kind: str = ""
     reason: str = ""
 
     @property
     def false_step(self) -> bool:
-        from topodrake.navigation.plan_trials import FALSE_LINK_M
-
-        return self.planned and (self.longest_join_m > JOIN_STEP_M
-                                 or self.longest_link_m > FALSE_LINK_M)
+        return self.planned and self.false_link_m > 0.0
 
     @property
     def strict_false_step(self) -> bool:
@@ -65,7 +63,7 @@ class JoinResult:
         out["places"] = list(self.places)
         out.update(joined=self.joined, false_step=self.false_step,
                    strict_false_step=self.strict_false_step)
-        for k in ("probability", "longest_step_m", "longest_link_m", "longest_join_m"):
+        for k in ("probability", "longest_step_m", "longest_link_m", "false_link_m"):
             out[k] = None if not np.isfinite(out[k]) else round(float(out[k]), 4)
         return out
 
@@ -82,23 +80,28 @@ def joining_triples(n_places: int, n: int, seed: int) -> np.ndarray:
                      for s in trial_seeds(seed, n)], np.int64).reshape(n, 3)
 
 
-def plan_steps(topomap, result, start_pose, goal_pose) -> tuple[float, float, str, float]:
-    """(longest step, longest step that is not a trajectory edge, that
-    step's kind, longest cross or junction edge) of a plan ``result`` from
-    ``start_pose`` to ``goal_pose``, in truth."""
+def plan_links(topomap, result, start_pose, goal_pose) -> dict:
+    """The steps of a plan ``result`` from ``start_pose`` to ``goal_pose``
+    in truth: ``longest_step_m`` (every step), ``longest_link_m`` and
+    ``longest_link_kind`` (steps that are not trajectory edges),
+    ``false_link_m`` and ``false_link_kind`` (the longest false link; 0 and
+    "" for none)."""
+    from topodrake.navigation.plan_trials import FALSE_LINK_M
+
     vs = list(result.vertices)
     xy = np.vstack([np.asarray(start_pose, np.float64)[None, :2],
                     topomap.pose(vs).reshape(-1, 3)[:, :2] if vs else np.zeros((0, 2)),
                     np.asarray(goal_pose, np.float64)[None, :2]])
     steps = np.hypot(*np.diff(xy, axis=0).T)
-    kinds = ["start"] + [topomap.graph.edges[u, v]["kind"] for u, v in zip(vs[:-1], vs[1:])] \
-        + ["goal"]
-    if not vs:
-        kinds = ["direct"]
-    links = [(d, k) for d, k in zip(steps, kinds) if k != "trajectory"]
-    d, kind = max(links)
-    joins = [d for d, k in links if k in ("cross", "junction")]
-    return float(steps.max()), float(d), kind, float(max(joins, default=0.0))
+    kinds = (["start"] + [topomap.graph.edges[u, v]["kind"] for u, v in zip(vs[:-1], vs[1:])]
+             + ["goal"]) if vs else ["direct"]
+    links = [(float(d), kind) for d, kind in zip(steps, kinds) if kind != "trajectory"]
+    false = [(d, kind) for d, kind in links if d > FALSE_LINK_M]
+    link_m, link_kind = max(links)
+    false_m, false_kind = max(false, default=(0.0, ""))
+    return {"longest_step_m": float(steps.max()), "longest_link_m": link_m,
+            "longest_link_kind": link_kind, "false_link_m": false_m,
+            "false_link_kind": false_kind}
 
 
 def join_trial(world, make_map, drive_of, observe, triple) -> JoinResult:
@@ -126,9 +129,8 @@ def join_trial(world, make_map, drive_of, observe, triple) -> JoinResult:
     if not plan.reachable:
         return JoinResult((a, b, c), len(topomap), stats.junctions, False, 0.0, np.nan, np.nan,
                           reason=plan.reason)
-    longest, link, kind, join = plan_steps(topomap, plan, places[a], places[c])
-    return JoinResult((a, b, c), len(topomap), stats.junctions, True, plan.probability, longest,
-                      link, kind, join)
+    return JoinResult((a, b, c), len(topomap), stats.junctions, True, plan.probability,
+                      **plan_links(topomap, plan, places[a], places[c]))
 
 
 def summarize(results: list[JoinResult]) -> dict:

@@ -9,10 +9,10 @@ when one is given), with the smaller of RE(v, goal) and RE(goal, v) as the
 link's probability (``goal_mutual``: RE toward a repeated image is
 overconfident); the candidates come from the same retrieval as map
 building. With ``link_consensus`` the links of each end must agree on one
-place: they are grouped by the map itself (links within ``link_hops``
-edges of each other, either way, are one group) and the plan starts from
-one group and ends at one group, the most trusted pair that the map joins
-(a group ranks by its most probable link, then by its summed p). A view
+place: they are grouped by the map itself (the most probable link and the
+links within ``link_hops`` edges of it, either way, are one group, then
+the next most probable link left, ...) and the plan starts from one group
+and ends at one group, the most trusted pair that the map joins. A view
 that also matches a look-alike room links there too, but to fewer or less
 certain anchors than at the place the car is at, and no longer lets the
 plan jump there. Dijkstra on the edge weights -log p gives the most probable path;
@@ -62,32 +62,19 @@ def _check_observation(topomap: TopoMap, obs: np.ndarray, what: str) -> np.ndarr
 
 def link_groups(topomap: TopoMap, links: list[tuple[int, float]],
                 hops: int) -> list[list[tuple[int, float]]]:
-    """``links`` ((vertex, p)) in groups, the most trusted first: a group
-    is the links joined through chains of links within ``hops`` edges of
-    each other (edges taken either way), ranked by its most probable link
-    (to two decimals), then by its summed p."""
-    if len(links) < 2:
-        return [links] if links else []
+    """``links`` ((vertex, p)) in groups, the most trusted first: the most
+    probable link left leads a group of the links within ``hops`` edges of
+    it (edges taken either way), and so on. A group is one place: a chain
+    of links along a corridor that looks alike for metres does not merge
+    into one group."""
     undirected = topomap.graph.to_undirected(as_view=True)
-    group = list(range(len(links)))
-
-    def root(i: int) -> int:
-        while group[i] != i:
-            group[i] = group[group[i]]
-            i = group[i]
-        return i
-
-    where = {v: i for i, (v, _) in enumerate(links)}
-    for i, (v, _) in enumerate(links):
-        for u in nx.single_source_shortest_path_length(undirected, v, cutoff=hops):
-            j = where.get(u)
-            if j is not None:
-                group[root(j)] = root(i)
-    members: dict[int, list[tuple[int, float]]] = {}
-    for i, link in enumerate(links):
-        members.setdefault(root(i), []).append(link)
-    return sorted(members.values(), key=lambda g: (max(round(p, 2) for _, p in g),
-                                                   sum(p for _, p in g)), reverse=True)
+    left = sorted(links, key=lambda link: -link[1])
+    groups = []
+    while left:
+        near = nx.single_source_shortest_path_length(undirected, left[0][0], cutoff=hops)
+        groups.append([link for link in left if link[0] in near])
+        left = [link for link in left if link[0] not in near]
+    return groups
 
 
 def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation: np.ndarray,
