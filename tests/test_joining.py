@@ -181,3 +181,19 @@ def test_a_map_of_two_drives_through_a_place_plans_across_it():
     s = summarize([joined, apart, missing])
     assert s["joined_triples"] == s["planned"] == round(1 / 3, 4)
     assert s["false_steps"] == 0.0
+
+
+def test_a_start_link_to_a_look_alike_far_along_the_map_is_a_false_step():
+    world, drives, observe = line_world()
+    drive_of = lambda s, g: SimpleNamespace(poses=drives[(s, g)]) if (s, g) in drives else None
+
+    def start_looks_like_the_second_drive(a, b):
+        if a == (0, 0):
+            return 0.999 if b == (1, 6) else 0.1
+        return meeting_drives(a, b)
+
+    r = join_trial(world, lambda: table_map(start_looks_like_the_second_drive),
+                   drive_of, observe, (0, 1, 2))
+    assert r.planned and r.false_step and not r.joined
+    assert r.false_link_kind == "start" and r.false_link_m == pytest.approx(np.hypot(15, 0.01))
+    assert r.record()["false_step"] and summarize([r])["false_steps"] == 1.0
