@@ -288,6 +288,13 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         plans = [plan_path(m, so[t], go[g], start_pose=starts[t], goal_pose=places[g])
                  for t, g in enumerate(goal_idx)]
     routes = [p.route if p.reachable else None for p in plans]
+    if method != "sptm":        # each plan's links (not the drives' own hops), judged in truth
+        from topodrake.topomap.joining import plan_links
+
+        links = [plan_links(m, p, starts[t], places[g])["false_link_m"] if p.reachable else None
+                 for t, (p, g) in enumerate(zip(plans, goal_idx))]
+    else:
+        links = [None] * len(plans)
     if method in ("oracle", "oracle_cwp"):      # the learned camera RE reads images
         policy, _ = networks("camera")
         routes = [None if r is None else render_pose_route(world, r, getattr(policy, "sensor", None))
@@ -296,7 +303,7 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     if method == "sptm":
         prob[:] = np.nan
         replan = None
-    return routes, prob, size, replan
+    return routes, prob, size, replan, links
 
 
 def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cfg: dict,
@@ -308,7 +315,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
 
     places = np.asarray(world.places, np.float64)
     t0 = time.perf_counter()
-    routes, prob, size, replan = plan_routes(method, spec, world, drives, indices, starts, places,
+    routes, prob, size, replan, false_links = plan_routes(method, spec, world, drives, indices, starts, places,
                                              pairs[:, 1], cfg, tag)
     plan_s = time.perf_counter() - t0
     policy, reach = networks(MAP_OF[method][1], world)
@@ -345,6 +352,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                 "plan_anchors": 0 if routes[t] is None else len(routes[t]),
                 "longest_link_m": None if routes[t] is None else
                 round(longest_link_m(starts[t], routes[t], places[b]), 3),
+                "false_link_m": None if false_links[t] is None else round(false_links[t], 3),
                 "outcome": res.outcome[t], "success": bool(res.success[t]),
                 "final_distance_m": round(float(res.final_distance_m[t]), 3),
                 "steps": int(res.steps[t]),
@@ -361,20 +369,26 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
 
 
 def _rates(records: list[dict]) -> dict:
-    """Success, plan and outcome counts of some trials' records, and the
-    share of plans with a step longer than FALSE_LINK_M in truth."""
+    """Success, plan and outcome counts of some trials' records; the share
+    of plans with a false link (a link, not a drive's own hop, longer than
+    FALSE_LINK_M in truth; SPTM: any step) and of plans with any step that
+    long (``long_step_plans``: also the lidar maps' long anchor hops)."""
     from topodrake.navigation.plan_trials import FALSE_LINK_M
 
     outcomes = [r["outcome"] for r in records]
     planned = [r for r in records if r["planned"]]
     probs = [r["plan_probability"] for r in planned if r["plan_probability"] is not None]
     links = [r["longest_link_m"] for r in planned if r.get("longest_link_m") is not None]
+    false = [r["false_link_m"] > 0 if r.get("false_link_m") is not None
+             else r["longest_link_m"] > FALSE_LINK_M
+             for r in planned if r.get("longest_link_m") is not None]
     return {"trials": len(records),
             "success": round(float(np.mean([r["success"] for r in records])), 4),
             "planned": round(len(planned) / len(records), 4),
             "mean_plan_probability": round(float(np.mean(probs)), 4) if probs else None,
-            "false_link_plans": (round(float(np.mean(np.array(links) > FALSE_LINK_M)), 4)
-                                 if links else None),
+            "false_link_plans": round(float(np.mean(false)), 4) if false else None,
+            "long_step_plans": (round(float(np.mean(np.array(links) > FALSE_LINK_M)), 4)
+                                if links else None),
             "outcomes": {o: outcomes.count(o) for o in sorted(set(outcomes))}}
 
 
