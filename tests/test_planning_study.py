@@ -308,3 +308,16 @@ def test_summary_reports_each_map_methods_anchors_per_metre():
     row = pt.summarize(houses, None, None)["houses"]["test-0"]
     assert row == {"lidar": 0.5, "lidar_reg": 0.9, "sptm": 0.2, "sptm_vertices": 500,
                    "lidar_anchors_per_m": 0.3, "lidar_reg_anchors_per_m": 0.8}
+
+
+def test_false_links_count_links_only_and_long_steps_count_every_step(load_study):
+    study = load_study("planning")
+    rec = lambda longest, false: {"outcome": "diverged", "success": False, "planned": True,
+                                  "plan_probability": 0.5, "longest_link_m": longest,
+                                  "false_link_m": false}
+    # a long anchor hop of the drive itself (7 m) is no false link; a 6 m start link is
+    rates = study._rates([rec(7.0, 0.0), rec(6.0, 6.0), rec(1.0, 0.0), rec(2.0, 0.0)])
+    assert rates["false_link_plans"] == 0.25 and rates["long_step_plans"] == 0.5
+    # SPTM's records judge every step (no link kinds)
+    sptm = study._rates([rec(7.0, None), rec(1.0, None)])
+    assert sptm["false_link_plans"] == 0.5 == sptm["long_step_plans"]
