@@ -14,9 +14,11 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
 ``poses``           (F, 3) where each frame was taken (metadata)
 ``vertex_*``        per vertex: ``id``, ``center`` row, ``context`` rows
                     (V, 2k+1), origin ``traj``, ``frame`` and chain ``pos``
-``edge_*``          per edge: ``src``, ``dst``, ``p``, ``kind`` (0 trajectory, 1 cross, 2 junction),
-                    ``leg`` (E, 3) and ``leg_path`` (E, LEG_POINTS, 3): the drive's
-                    odometry over a trajectory edge (NaN where none; from version 2)
+``edge_*``          per edge: ``src``, ``dst``, ``p``, ``kind`` (0 trajectory,
+                    1 cross, 2 junction: from version 3), ``leg`` (E, 3) and
+                    ``leg_path`` (E, LEG_POINTS, 3): the drive's odometry over
+                    a trajectory edge, or a junction's registered offset (NaN
+                    where none; from version 2)
 ``chain_ids``       every trajectory's chain of vertices, concatenated;
 ``chain_offsets``   (trajectories + 1,) into it
 ``embeddings``      (V, D) the vertices' place embeddings
@@ -25,7 +27,8 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
 :func:`load_map` refuses a truncated or foreign file, an unknown version, and
 a map built for another RE or controller than the one given, each with one
 line naming the file and the problem. Version 1 files (without legs) are
-read as maps without odometry on their edges.
+read as maps without odometry on their edges, version 2 files as maps
+without junction edges.
 """
 
 from __future__ import annotations
