@@ -197,3 +197,32 @@ def test_a_start_link_to_a_look_alike_far_along_the_map_is_a_false_step():
     assert r.planned and r.false_step and not r.joined
     assert r.false_link_kind == "start" and r.false_link_m == pytest.approx(np.hypot(15, 0.01))
     assert r.record()["false_step"] and summarize([r])["false_steps"] == 1.0
+
+
+def test_a_lidar_junction_carries_the_departure_s_pose_registered_in_the_arrival_s_frame():
+    from topodrake.se2 import relative
+    from topodrake.topomap.build import _junction_legs
+    from topodrake.topomap.retrieval import default_embedding
+    from topodrake.topomap.sources import drive_observations, make_scorer
+    from topodrake.world import load_world
+
+    world = load_world("test-0")
+    place = np.asarray(world.places[3], np.float64)
+    s = np.linspace(0.0, 1.5, 16)
+    ahead = np.array([np.cos(place[2]), np.sin(place[2])])
+    arrive = np.column_stack([place[:2] - np.outer(s[::-1], ahead), np.full(16, place[2])])
+    start = place + np.array([-0.05 * ahead[1], 0.05 * ahead[0], 0.05])    # 5 cm aside, 3 deg
+    onward = np.array([np.cos(start[2]), np.sin(start[2])])
+    depart = np.column_stack([start[:2] + np.outer(s, onward), np.full(16, start[2])])
+    scorer = make_scorer("lidar", world)
+    m = TopoMap(scorer, default_embedding(scorer.observation), MapConfig(reuse=False), world="test-0")
+    for name, poses in (("arrive", arrive), ("depart", depart)):
+        add_trajectory(m, drive_observations(world, scorer, poses), poses, name)
+    u, x = m.trajectories[0].chain[-1], m.trajectories[1].chain[0]
+    (leg, path), = _junction_legs(m, np.array([u]), np.array([x]))
+    truth = relative(m.pose([u]).reshape(1, 3), m.pose([x]).reshape(1, 3))[0]
+    np.testing.assert_allclose(leg, truth, atol=0.01)
+    np.testing.assert_allclose(path[0], 0.0)
+    np.testing.assert_allclose(path[-1], leg)
+    m.config = MapConfig(teach_odometry="none")                # a map that keeps no odometry
+    assert _junction_legs(m, np.array([u]), np.array([x])) == [(None, None)]
