@@ -315,8 +315,8 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
 
     places = np.asarray(world.places, np.float64)
     t0 = time.perf_counter()
-    routes, prob, size, replan, false_links = plan_routes(method, spec, world, drives, indices, starts, places,
-                                             pairs[:, 1], cfg, tag)
+    routes, prob, size, replan, false_links = plan_routes(
+        method, spec, world, drives, indices, starts, places, pairs[:, 1], cfg, tag)
     plan_s = time.perf_counter() - t0
     policy, reach = networks(MAP_OF[method][1], world)
     if method == "ours_obstacles":

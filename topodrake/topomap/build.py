@@ -190,20 +190,11 @@ def _junction_legs(m: TopoMap, us: np.ndarray, xs: np.ndarray) -> list:
     if m.modality != "lidar" or not len(us) or m.config.teach_odometry == "none":
         return [(None, None)] * len(us)
     from topodrake.navigation.route import LEG_POINTS
-    from topodrake.registration.icp import register
 
     obs = m.bank.observations
-    res = register(np.asarray(obs[m.centers(xs)], np.float64),
-                   np.asarray(obs[m.centers(us)], np.float64))
-    good = res.accepted & (res.constraint >= REUSE_PINNED)
-    out = []
-    for k in range(len(us)):
-        if not good[k]:
-            out.append((None, None))
-            continue
-        leg = res.pose[k]
-        out.append((leg, np.linspace(0.0, 1.0, LEG_POINTS)[:, None] * leg[None]))
-    return out
+    poses = _pinned_poses(obs[m.centers(xs)], obs[m.centers(us)])
+    return [(None, None) if leg is None else
+            (leg, np.linspace(0.0, 1.0, LEG_POINTS)[:, None] * leg[None]) for leg in poses]
 
 
 def _teach_legs(kind: str, poses, chain, anchors, positions, seed: int,
@@ -245,16 +236,21 @@ def _reuse_offsets(m: TopoMap, obs: np.ndarray, chain, anchors) -> dict:
     other modalities."""
     if m.modality != "lidar":
         return {}
+    pos = [i for i, node in enumerate(chain) if node[0] == "v"]
+    source = m.bank.observations[m.centers([chain[i][1] for i in pos])]
+    poses = _pinned_poses(source, np.asarray(obs)[anchors[pos]]) if pos else []
+    return {i: pose for i, pose in zip(pos, poses) if pose is not None}
+
+
+def _pinned_poses(source, target) -> list:
+    """Each lidar scan of ``source`` registered onto the scan of ``target``
+    beside it: its pose in that scan's frame (3,), or None where the fit is
+    rejected or does not pin the translation (a corridor slides)."""
     from topodrake.registration.icp import register
 
-    pos = [i for i, node in enumerate(chain) if node[0] == "v"]
-    if not pos:
-        return {}
-    source = m.bank.observations[m.centers([chain[i][1] for i in pos])]
-    target = np.asarray(obs, np.float64)[anchors[pos]]
-    res = register(np.asarray(source, np.float64), target)
+    res = register(np.asarray(source, np.float64), np.asarray(target, np.float64))
     good = res.accepted & (res.constraint >= REUSE_PINNED)
-    return {i: res.pose[k] for k, i in enumerate(pos) if good[k]}
+    return [pose if ok else None for pose, ok in zip(res.pose, good)]
 
 
 #: a reused vertex's registration must pin the translation this well (corridors slide)
