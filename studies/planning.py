@@ -240,6 +240,41 @@ def networks(modality: str, world=None):
     return _NETWORKS[modality]
 
 
+def plan_calibration_of(method: str):
+    """The plan calibration shipped for a method whose map and follower use
+    one shipped RE (``ours``, ``lidar``, ``lidar_reg`` and ``ours``' variants), or None."""
+    from topodrake.topomap.plan_calibration import calibration_beside
+    from topodrake.topomap.sources import ROOT, SHIPPED
+
+    kind, follower = MAP_OF[method]
+    if kind != follower or kind not in SHIPPED:
+        return None
+    return calibration_beside(ROOT / "checkpoints" / SHIPPED[kind][0] / "checkpoint.pt")
+
+
+def calibration_table(methods: list[str], records: list[dict]) -> dict:
+    """Per map method, over its planned trials: the plan probability against
+    success (bins and ECE) and, where a calibration ships, its
+    ``success_probability`` against success (``ece``; else the raw ECE)."""
+    from topodrake.navigation.plan_trials import calibration
+
+    cal = {}
+    for m in methods:
+        if m == "sptm":
+            continue
+        recs = [r for r in records if r["method"] == m and r["planned"]]
+        rows, ece_raw = calibration([r["plan_probability"] for r in recs],
+                                    [r["success"] for r in recs])
+        row = {"bins_raw": rows, "ece_raw": ece_raw, "planned_trials": len(recs),
+               "calibrated": False, "bins": rows, "ece": ece_raw}
+        if recs and all(r.get("success_probability") is not None for r in recs):
+            bins, ece = calibration([r["success_probability"] for r in recs],
+                                    [r["success"] for r in recs])
+            row.update(calibrated=True, bins=bins, ece=ece)
+        cal[m] = row
+    return cal
+
+
 # ---------------------------------------------------------------- one method in one house
 
 def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
@@ -344,12 +379,17 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
         res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
                             SUCCESS_M, progress=None if bar is None else bar.update)
     key = house_key(spec)
+    calib = plan_calibration_of(method)
+    chance = (None if calib is None else
+              calib.predict(prob, [0 if r is None else len(r) for r in routes]))
     records = [{"house": key, "method": method, "map": tag, "trial": t,
                 "start_place": int(a), "goal_place": int(b),
                 "start_pose": [round(float(v), 4) for v in starts[t]],
                 "planned": routes[t] is not None,
                 "plan_probability": None if not np.isfinite(prob[t]) else round(float(prob[t]), 5),
                 "plan_anchors": 0 if routes[t] is None else len(routes[t]),
+                "success_probability": None if chance is None or routes[t] is None else
+                round(float(chance[t]), 5),
                 "longest_link_m": None if routes[t] is None else
                 round(longest_link_m(starts[t], routes[t], places[b]), 3),
                 "false_link_m": None if false_links[t] is None else round(false_links[t], 3),
@@ -522,33 +562,48 @@ def plot_table(houses: dict, methods: list[str], path: Path, trials: int) -> Non
     save_figure(fig, path)
 
 
-def plot_calibration(rows: list[dict], ece, n: int, path: Path) -> None:
+def plot_calibration(cal: dict, path: Path) -> None:
+    """One panel per map method: the plan probability and, where calibrated,
+    the chance of success against empirical success, with trials per bin."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from topodrake.world.plot import save_figure
 
-    fig, ax = plt.subplots(figsize=(6, 5.5))
-    ax.plot([0, 1], [0, 1], "--", color="gray", lw=1, label="perfect calibration")
-    full = [r for r in rows if r["count"]]
-    if full:
-        ax.bar([(r["lo"] + r["hi"]) / 2 for r in full], [r["observed"] for r in full],
-               width=0.09, alpha=0.35, color="C0", label="observed success per bin")
-        ax.plot([r["predicted"] for r in full], [r["observed"] for r in full], "o-", color="C0",
-                label="(mean predicted, observed)")
-        for r in full:
-            ax.annotate(f"n={r['count']}", ((r["lo"] + r["hi"]) / 2, r["observed"]),
-                        ha="center", va="bottom", fontsize=7)
-    ax.set_xlim(0, 1)
-    ax.set_ylim(0, 1.08)
-    ax.set_xlabel("predicted plan probability")
-    ax.set_ylabel("empirical success")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left")
-    ax.set_title(f"Plan probability vs success (ours, {n} planned trials, "
-                 f"ECE {'n/a' if ece is None else f'{ece:.3f}'})", fontsize=10)
+    names = list(cal)
+    fig, axes = plt.subplots(1, len(names), figsize=(4.6 * len(names), 4.8), squeeze=False)
+    for ax, m in zip(axes[0], names):
+        c = cal[m]
+        ax.plot([0, 1], [0, 1], "--", color="gray", lw=1, label="perfect calibration")
+        curves = [("plan probability", c["bins_raw"], c["ece_raw"], "C1")]
+        if c["calibrated"]:
+            curves.append(("calibrated chance", c["bins"], c["ece"], "C0"))
+        for label, rows, ece, colour in curves:
+            full = [r for r in rows if r["count"]]
+            ax.plot([r["predicted"] for r in full], [r["observed"] for r in full], "o-",
+                    color=colour, label=f"{label} (ECE {ece:.3f})" if ece is not None else label)
+            for r in full:
+                ax.annotate(f"{r['count']}", (r["predicted"], r["observed"]), fontsize=7,
+                            color=colour, xytext=(3, 3), textcoords="offset points")
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1.05)
+        ax.set_xlabel("predicted (numbers: planned trials per bin)")
+        ax.set_ylabel("empirical success")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+        ax.set_title(f"{m} ({c['planned_trials']} planned trials)", fontsize=10)
     save_figure(fig, path)
+
+
+def _calibration_houses(methods: list[str]) -> dict:
+    """The houses each method's shipped plan calibration was fitted on."""
+    out = {}
+    for m in methods:
+        c = plan_calibration_of(m) if m in MAP_OF else None
+        if c is not None:
+            out[m] = list(c.fitted_on.get("houses", []))
+    return out
 
 
 def plot_pruned(pruned: dict | None, path: Path) -> None:
@@ -654,8 +709,7 @@ def main(argv=None) -> int:
 def _run(args) -> int:
     from topodrake.learning.checkpoint import git_revision
     from topodrake.montecarlo import run_trials
-    from topodrake.navigation.plan_trials import (SUCCESS_M, T_MAX_S, calibration, pruned_ratio,
-                                                  summarize)
+    from topodrake.navigation.plan_trials import SUCCESS_M, T_MAX_S, pruned_ratio, summarize
     from topodrake.world import load_world
 
     t0 = time.perf_counter()
@@ -710,17 +764,14 @@ def _run(args) -> int:
                             progress=False, jobs=pjobs, cfg=cfg)[0]
         cfg.pop("full", None)
     # calibration: ours (the headline) and every map method, planned trials only
-    cal = {}
-    for m in methods:
-        if m == "sptm":
-            continue
-        recs = [r for h in houses.values() for r in h["records"] if r["method"] == m and r["planned"]]
-        rows, ece = calibration([r["plan_probability"] for r in recs], [r["success"] for r in recs])
-        cal[m] = {"bins": rows, "ece": ece, "planned_trials": len(recs)}
+    cal = calibration_table(methods, [r for h in houses.values() for r in h["records"]])
     ece = cal["ours"]["ece"] if "ours" in cal else None
     ratio = pruned_ratio({f: v["success"] for f, v in pruned["fractions"].items()}) \
         if pruned else None
     summary = summarize(houses, ece, ratio)
+    summary["plan_probability_ece_by_method"] = {m: c["ece"] for m, c in cal.items()}
+    summary["raw_plan_probability_ece"] = {m: c["ece_raw"] for m, c in cal.items()}
+    summary["calibration_houses"] = _calibration_houses(methods)
     out = Path(args.out)
     wall = time.perf_counter() - t0
     records = [r for h in houses.values() for r in h.pop("records")]
@@ -739,9 +790,8 @@ def _run(args) -> int:
         "houses": houses, "calibration": cal, "pruned": pruned,
         "trials": records, "pruned_trials": pruned_records})
     plot_table(houses, methods, out / "planning.png", args.trials)
-    if "ours" in cal:
-        plot_calibration(cal["ours"]["bins"], ece, cal["ours"]["planned_trials"],
-                         out / "plan_calibration.png")
+    if cal:
+        plot_calibration(cal, out / "plan_calibration.png")
     plot_pruned(pruned, out / "pruned_maps.png")
     if args.json:
         print(json.dumps(summary))

@@ -120,7 +120,7 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
     and a summary (outcome, times, real-time factor warm and cold)."""
     from topodrake.errors import TopodrakeError
     from topodrake.fileio import atomic_write_bytes
-    from topodrake.navigation.cli import chain_from_expert, plan_on_map
+    from topodrake.navigation.cli import chain_from_expert, plan_on_map, success_chance
     from topodrake.navigation.drive import drive_route, plot_drive
     from topodrake.navigation.outcomes import drive_outcome, goal_distance
     from topodrake.outputs import write_kept
@@ -193,6 +193,9 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
                "realtime_factor_cold": round(result.time_s / max(result.wall_time_s
                                                                  + result.startup_s, 1e-9), 1),
                "demo_wall_s": round(time.perf_counter() - wall, 2)}
+    chance = success_chance(map_path, route)
+    if chance is not None:
+        summary["success_probability"] = chance
     return {"files": files, "summary": summary}
 
 
@@ -247,7 +250,10 @@ def cmd_demo(args) -> int:
     if not args.expert:
         print(f"outcome {s['outcome']} in {s['time_s']} s over {s['distance_m']} m, "
               f"{s['distance_to_goal_m']} m from the goal (plan of {s['anchors']} anchors, "
-              f"probability {s['probability']}); real-time factor {s['realtime_factor']} "
+              f"probability {s['probability']}"
+              + (f", calibrated chance of success {s['success_probability']}"
+                 if "success_probability" in s else "")
+              + f"); real-time factor {s['realtime_factor']} "
               f"after start-up, {s['realtime_factor_cold']} with it; demo took {s['demo_wall_s']} s")
     return exit_status(s["outcome"])
 

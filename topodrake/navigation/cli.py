@@ -105,6 +105,19 @@ class MapPlanner:
                          excluded_edges=excluded_edges)
 
 
+def success_chance(map_path, route, reach_path=None) -> float | None:
+    """A route's calibrated chance of success on a map file (None where no
+    plan calibration ships for the map's RE, or without a map)."""
+    from topodrake.topomap.sources import plan_calibration_for_map
+
+    if map_path is None or Path(map_path).suffix != ".tdmap":
+        return None
+    calib = plan_calibration_for_map(map_path, reach_path)
+    if calib is None:
+        return None
+    return round(float(calib.predict(route.probability, len(route))[0]), 4)
+
+
 def plan_on_map(path: Path, start, goal, reach_path=None, controller_path=None):
     """(world, route, policy, reach, map layers) of a plan on a map file."""
     planner = MapPlanner(path, reach_path, controller_path)
@@ -235,6 +248,9 @@ def cmd_navigate(args) -> int:
     result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
                          record=bool(args.meshcat), seed=args.seed, replanner=replanner)
     first_p, anchors = float(route.probability), len(route)
+    chance = success_chance(source, route, args.reach) if planner is not None else None
+    if chance is not None:
+        extra["success_probability"] = chance
     if replanner is not None:
         extra["replans"] = int(replanner.plans[0]) - 1
         route = result.route

@@ -193,7 +193,8 @@ def cmd_map_plot(args) -> None:
 def cmd_map_plan(args) -> None:
     from topodrake.topomap.mapfile import load_map, read_map_meta
     from topodrake.topomap.plan import plan_path
-    from topodrake.topomap.sources import drive_observations, scorer_for_map
+    from topodrake.topomap.sources import (drive_observations, plan_calibration_for_map,
+                                           scorer_for_map)
     from topodrake.world import load_world
 
     check_output(args.plot, "image", force=args.force, option="--plot")
@@ -212,17 +213,57 @@ def cmd_map_plan(args) -> None:
            "query_s": round(query_s, 3)}
     if not result.reachable:
         out["reason"] = result.reason
+    calib = plan_calibration_for_map(args.file, args.reach)
+    if calib is not None and result.reachable:
+        out["success_probability"] = round(float(calib.predict(result.probability,
+                                                               out["anchors"])[0]), 4)
     if args.json:
         print(json.dumps(out))
     elif result.reachable:
+        chance = (f" (chance of success {out['success_probability']:.2f}, calibrated)"
+                  if "success_probability" in out else "")
         print(f"plan of {out['anchors']} anchors ({len(result.vertices)} map vertices and the "
-              f"goal), probability {result.probability:.4f}: {' '.join(map(str, result.vertices))}")
+              f"goal), probability {result.probability:.4f}{chance}: "
+              f"{' '.join(map(str, result.vertices))}")
     if args.plot:
         from topodrake.topomap.plot import plot_plan
 
         write_kept(args.plot, lambda p: plot_plan(topomap, result, start, goal, p), "the plot")
     if not result.reachable:
         raise Unreachable(f"no plan: {result.reason}")
+
+
+def cmd_map_calibrate(args) -> None:
+    from topodrake.topomap.plan_calibration import FILENAME, fit_from_records
+    from topodrake.topomap.sources import ROOT, SHIPPED
+
+    if args.out is None:
+        if args.method not in SHIPPED:
+            raise TopodrakeError(f"give --out: {args.method!r} has no shipped RE to put the "
+                                 f"calibration beside (shipped: {', '.join(SHIPPED)})")
+        args.out = str(ROOT / "checkpoints" / SHIPPED[args.method][0] / FILENAME)
+    check_output(args.out, "json", force=args.force)
+    try:
+        study = json.loads(Path(args.records).read_text())
+    except FileNotFoundError:
+        raise TopodrakeError(f"{args.records} does not exist") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise TopodrakeError(f"{args.records} is not readable JSON: {e}") from None
+    if not isinstance(study, dict) or not isinstance(study.get("trials"), list):
+        raise TopodrakeError(f"{args.records} holds no per-trial records ('trials'): give the "
+                             f"planning study's planning.json")
+    name = {"camera": "ours"}.get(args.method, args.method)
+    cal = fit_from_records(study["trials"], name, source=str(args.records),
+                           command=str(study.get("command", "")))
+    cal.save(args.out)
+    out = {"out": str(args.out), "method": name, **cal.fitted_on,
+           "coef": [round(c, 4) for c in cal.coef], "intercept": round(cal.intercept, 4)}
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(f"fitted {name}'s plan calibration on {cal.fitted_on['trials']} planned trials of "
+              f"{', '.join(cal.fitted_on['houses'])}: ECE {cal.fitted_on['ece_raw']} -> "
+              f"{cal.fitted_on['ece_fitted']}; wrote {args.out}")
 
 
 def anchor_count(plan) -> int:
@@ -287,6 +328,17 @@ def add_map_parser(sub) -> None:
     pn.add_argument("--json", action="store_true",
                     help='print {"path": [...], "probability": p, ...}')
     pn.set_defaults(func=cmd_map_plan)
+
+    c = msub.add_parser("calibrate", help="fit a method's plan calibration (chance of success "
+                                          "of a plan) on a planning study's trials")
+    c.add_argument("records", help="the planning study's planning.json, run on training houses")
+    c.add_argument("--method", required=True, choices=["camera", "lidar", "lidar_reg"],
+                   help="the map kind and follower (camera: the study's 'ours')")
+    c.add_argument("--out", help="calibration file to write (default: plan_calibration.json "
+                                 "beside the method's shipped RE)")
+    c.add_argument("--json", action="store_true", help="print the fit as one JSON object")
+    add_force_option(c)
+    c.set_defaults(func=cmd_map_calibrate)
 
 
 def cmd_bench_map(args) -> None:

@@ -256,3 +256,16 @@ def drive_observations(world, scorer, poses: np.ndarray) -> np.ndarray:
     from topodrake.sensing.observe import observe
 
     return observe(world, scorer.observation, poses, scorer.sensor)
+
+
+def plan_calibration_for_map(path, reach=None):
+    """The plan calibration shipped beside the RE a map file was built for
+    (or ``reach``), or None (oracle maps, an RE without one)."""
+    from topodrake.topomap.mapfile import read_map_meta
+    from topodrake.topomap.plan_calibration import calibration_beside
+
+    meta = read_map_meta(path)
+    if meta.get("modality") == "pose":
+        return None
+    reach = reach or _resolve(meta.get("identity", {}).get("reach", ""))
+    return calibration_beside(reach) if reach and Path(reach).is_file() else None
