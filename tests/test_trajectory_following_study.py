@@ -1,9 +1,12 @@
 """studies/trajectory_following.py resumes: finished chains and follows are
-kept with the settings that made them and reused only under those settings."""
+kept with the settings that made them (topodrake.navigation.follow_trials)
+and reused only under those settings."""
 
 import json
 
 import pytest
+
+from topodrake.navigation import follow_trials
 
 
 def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path, monkeypatch,
@@ -27,7 +30,7 @@ def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path,
     def no_rendering(self, m):
         raise AssertionError("rendered although every block was cached")
 
-    monkeypatch.setattr(study.Observations, "__getitem__", no_rendering)
+    monkeypatch.setattr(follow_trials.Observations, "__getitem__", no_rendering)
     assert study.main(args) == 0
     again = json.loads((tmp_path / "out" / "trajectory_following.json").read_text())
     assert again["summary"] == first["summary"]
@@ -35,8 +38,8 @@ def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path,
         study.main(args + ["--noise", "0.2"])          # another noise: nothing is reused
 
 
-def test_the_run_cache_refuses_other_settings_and_unreadable_files(tmp_path, load_study):
-    run_cache = load_study("trajectory_following").RunCache
+def test_the_run_cache_refuses_other_settings_and_unreadable_files(tmp_path):
+    run_cache = follow_trials.RunCache
     cache = run_cache(tmp_path, {"seed": 0})
     cache.put("block", {"p": 0.99}, [1, 2])
     assert cache.get("block", {"p": 0.99}) == [1, 2]
