@@ -252,6 +252,17 @@ def plan_calibration_of(method: str):
     return calibration_beside(ROOT / "checkpoints" / SHIPPED[kind][0] / "checkpoint.pt")
 
 
+def attach_success_probability(records: list[dict]) -> None:
+    """Set each planned record's ``success_probability`` from its method's
+    shipped plan calibration (None where the method has none or no plan)."""
+    calibs = {m: plan_calibration_of(m) for m in {r["method"] for r in records} if m in MAP_OF}
+    for r in records:
+        c = calibs.get(r["method"])
+        r["success_probability"] = (
+            None if c is None or not r["planned"] or r["plan_probability"] is None else
+            round(float(c.predict(r["plan_probability"], r["plan_anchors"])[0]), 5))
+
+
 def calibration_table(methods: list[str], records: list[dict]) -> dict:
     """Per map method, over its planned trials: the plan probability against
     success (bins and ECE) and, where a calibration ships, its
@@ -379,17 +390,12 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
         res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
                             SUCCESS_M, progress=None if bar is None else bar.update)
     key = house_key(spec)
-    calib = plan_calibration_of(method)
-    chance = (None if calib is None else
-              calib.predict(prob, [0 if r is None else len(r) for r in routes]))
     records = [{"house": key, "method": method, "map": tag, "trial": t,
                 "start_place": int(a), "goal_place": int(b),
                 "start_pose": [round(float(v), 4) for v in starts[t]],
                 "planned": routes[t] is not None,
                 "plan_probability": None if not np.isfinite(prob[t]) else round(float(prob[t]), 5),
                 "plan_anchors": 0 if routes[t] is None else len(routes[t]),
-                "success_probability": None if chance is None or routes[t] is None else
-                round(float(chance[t]), 5),
                 "longest_link_m": None if routes[t] is None else
                 round(longest_link_m(starts[t], routes[t], places[b]), 3),
                 "false_link_m": None if false_links[t] is None else round(false_links[t], 3),
@@ -764,6 +770,7 @@ def _run(args) -> int:
                             progress=False, jobs=pjobs, cfg=cfg)[0]
         cfg.pop("full", None)
     # calibration: ours (the headline) and every map method, planned trials only
+    attach_success_probability([r for h in houses.values() for r in h["records"]])
     cal = calibration_table(methods, [r for h in houses.values() for r in h["records"]])
     ece = cal["ours"]["ece"] if "ours" in cal else None
     ratio = pruned_ratio({f: v["success"] for f, v in pruned["fractions"].items()}) \
