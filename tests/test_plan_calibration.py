@@ -161,9 +161,9 @@ def test_a_plan_on_a_map_reports_the_chance_of_the_calibration_beside_its_re(cap
     assert plan["success_probability"] == pytest.approx(want, abs=1e-4)
 
 
-def test_the_planning_study_reports_the_calibrated_ece_where_every_plan_has_a_chance(
-        load_study):
-    planning = load_study("planning")
+def test_the_planning_study_reports_the_calibrated_ece_where_every_plan_has_a_chance():
+    from topodrake.navigation import plan_methods as planning
+
     recs = [{"method": "lidar", "planned": True, "plan_probability": 0.9,
              "success_probability": 0.5, "success": t % 2 == 0} for t in range(40)]
     recs += [{"method": "ours", "planned": True, "plan_probability": 0.9,

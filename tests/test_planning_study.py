@@ -1,6 +1,6 @@
-"""The planning study's pieces (studies/planning.py, topodrake.navigation.plan_trials):
-trials, subsets, calibration, the summary, and a tiny planned-and-followed
-run in the box world with the oracles."""
+"""The planning study's pieces (studies/planning.py, topodrake.navigation.plan_trials,
+plan_methods and plan_study): trials, subsets, calibration, the summary, the
+methods, and a tiny planned-and-followed run in the box world with the oracles."""
 
 import json
 
@@ -170,8 +170,14 @@ def test_study_refuses_bad_input_in_one_line(capsys, tmp_path, load_study):
     with pytest.raises(SystemExit) as e:
         study.main(["--trials", "0"])
     assert e.value.code == 2
-    assert study.house_key("/x/maps/willow/map.yaml") == "willow-map"
-    assert study.house_seed(0, "test-0") == study.house_seed(0, "test-0") != study.house_seed(1, "test-0")
+
+
+def test_house_keys_and_seeds():
+    from topodrake.navigation.plan_study import house_seed
+    from topodrake.topomap.map_cache import house_key
+
+    assert house_key("/x/maps/willow/map.yaml") == "willow-map"
+    assert house_seed(0, "test-0") == house_seed(0, "test-0") != house_seed(1, "test-0")
 
 
 # ---------------------------------------------------------------- end to end, oracles
@@ -310,8 +316,9 @@ def test_summary_reports_each_map_methods_anchors_per_metre():
                    "lidar_anchors_per_m": 0.3, "lidar_reg_anchors_per_m": 0.8}
 
 
-def test_false_links_count_links_only_and_long_steps_count_every_step(load_study):
-    study = load_study("planning")
+def test_false_links_count_links_only_and_long_steps_count_every_step():
+    from topodrake.navigation import plan_study as study
+
     rec = lambda longest, false: {"outcome": "diverged", "success": False, "planned": True,
                                   "plan_probability": 0.5, "longest_link_m": longest,
                                   "false_link_m": false}
@@ -321,3 +328,67 @@ def test_false_links_count_links_only_and_long_steps_count_every_step(load_study
     # SPTM's records judge every step (no link kinds)
     sptm = study._rates([rec(7.0, None), rec(1.0, None)])
     assert sptm["false_link_plans"] == 0.5 == sptm["long_step_plans"]
+
+
+# ---------------------------------------------------------------- the methods
+
+def test_the_method_registry_names_each_method_s_map_follower_and_drive():
+    from dataclasses import FrozenInstanceError
+
+    from topodrake.navigation.plan_methods import (FOLLOWERS, MAP_KINDS, METHODS,
+                                                   ORACLE_METHODS, Method)
+
+    assert list(METHODS) == ["ours", "lidar", "lidar_reg", "sptm", "oracle", "ours_replan",
+                             "ours_obstacles", "oracle_full", "ours_oracle_follow", "oracle_cwp"]
+    assert ORACLE_METHODS == ("oracle_full", "ours_oracle_follow", "oracle_cwp")
+    for name, m in METHODS.items():
+        assert m.name == name and m.map in MAP_KINDS and m.follower in FOLLOWERS
+        assert m.followed_by == FOLLOWERS[m.follower]
+        assert m.oracle == (name in ORACLE_METHODS)
+    assert {n: m.drive for n, m in METHODS.items() if m.drive != "plain"} == \
+        {"ours_replan": "replan", "ours_obstacles": "obstacles"}
+    assert [n for n, m in METHODS.items() if m.renders_routes] == ["oracle", "oracle_cwp"]
+    assert METHODS["sptm"].map == "sptm" and METHODS["ours_oracle_follow"].map == "camera"
+    with pytest.raises(ValueError, match="map kind"):
+        Method("sonar", map="sonar", follower="camera")
+    with pytest.raises(ValueError, match="drive"):
+        Method("ours_fast", map="camera", follower="camera", drive="fast")
+    with pytest.raises(FrozenInstanceError):
+        METHODS["ours"].map = "lidar"
+
+
+def test_the_study_writes_each_method_s_follower_into_its_config(load_study, tmp_path,
+                                                                 monkeypatch, capsys):
+    """The study's run with the houses' trials stubbed: it runs the library's
+    house job, and planning.json's config describes each method's follower
+    as its Method does."""
+    import topodrake.montecarlo as mc
+    from topodrake.navigation import plan_study
+    from topodrake.navigation.plan_methods import METHODS
+
+    jobs_run = []
+
+    def run_trials(job, seeds, *, jobs, cfg, **_):
+        jobs_run.append(job)
+        recs = [{"house": "test-0", "method": m, "planned": True, "plan_probability": 0.8,
+                 "plan_anchors": 5, "success": t % 2 == 0, "outcome": "goal"}
+                for m in cfg["methods"] for t in range(4)]
+        return [{"house": "test-0", "world": jobs[s], "seed": s, "drives": 90, "records": recs,
+                 "methods": {m: {"success": 0.5, "trials": 4} for m in cfg["methods"]}}
+                for s in seeds]
+
+    monkeypatch.setattr(mc, "run_trials", run_trials)
+    study = load_study("planning")
+    assert study.main(["--world", "test-0", "--methods", "oracle_full,lidar_reg", "--json",
+                       "--pruned-fractions", "none", "--out", str(tmp_path), "--quiet"]) == 0
+    assert jobs_run == [plan_study.house_job]
+    assert json.loads(capsys.readouterr().out)["houses"]["test-0"] == {"oracle_full": 0.5,
+                                                                      "lidar_reg": 0.5}
+    doc = json.loads((tmp_path / "planning.json").read_text())
+    assert doc["config"]["followers"] == {
+        "oracle_full": "A* oracle C_WP + geometric oracle RE",
+        "lidar_reg": "registration C_WP (lidar teach and repeat) + its learned RE"}
+    assert doc["config"]["followers"]["lidar_reg"] == METHODS["lidar_reg"].followed_by
+    assert all(r["success_probability"] is not None for r in doc["trials"]
+               if r["method"] == "lidar_reg")                     # its calibration ships
+    assert (tmp_path / "planning.png").is_file()

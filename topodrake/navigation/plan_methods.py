@@ -1,0 +1,159 @@
+"""The planning study's methods: what each builds its map with and follows its plans with.
+
+A :class:`Method` names a map kind (the RE a map is built with, the
+geometric oracle, or SPTM's graph), the networks its plans are followed
+with (:func:`networks`), whether it is one of the fast oracle ablations
+(run with ``--oracle-trials`` trials), and how its plans are driven: plainly,
+replanning in dead reckoning, or past unmapped obstacles. :data:`METHODS`
+holds them in the order the study runs and reports them. Here too is each
+method's shipped plan calibration (:func:`plan_calibration_of`) and the
+calibration table of a study's records (:func:`calibration_table`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: what a method's map is built with: the learned RE of a map kind of
+#: :mod:`topodrake.topomap.sources`, the geometric ``"oracle"``, or SPTM's graph
+MAP_KINDS = ("camera", "lidar", "lidar_reg", "oracle", "sptm")
+#: follower's networks -> how the JSON config describes them ("camera", "lidar",
+#: "lidar_reg": the shipped k=5 follower; "oracle": A* C_WP + geometric RE;
+#: "oracle_cwp": A* C_WP + the learned camera RE)
+FOLLOWERS = {"camera": "camera k5 C_WP + learned camera k5 RE",
+             "lidar": "lidar k5 C_WP + learned lidar k5 RE",
+             "lidar_reg": "registration C_WP (lidar teach and repeat) + its learned RE",
+             "oracle": "A* oracle C_WP + geometric oracle RE",
+             "oracle_cwp": "A* oracle C_WP + learned camera k5 RE"}
+#: how a method's plans are driven: followed, followed with replanning in
+#: dead reckoning, or followed one trial at a time past unmapped boxes
+DRIVES = ("plain", "replan", "obstacles")
+
+
+@dataclass(frozen=True)
+class Method:
+    """One planning method: its map kind (:data:`MAP_KINDS`), its follower's
+    networks (a key of :data:`FOLLOWERS`), whether it is an oracle ablation
+    (run with ``--oracle-trials`` trials), how its plans are driven
+    (:data:`DRIVES`) and its follower as the JSON config describes it
+    (default: :data:`FOLLOWERS`' line)."""
+
+    name: str
+    map: str
+    follower: str
+    oracle: bool = False
+    drive: str = "plain"
+    followed_by: str = ""
+
+    def __post_init__(self):
+        if self.map not in MAP_KINDS:
+            raise ValueError(f"method {self.name}: map kind {self.map!r} is not one of {MAP_KINDS}")
+        if self.follower not in FOLLOWERS:
+            raise ValueError(f"method {self.name}: follower {self.follower!r} is not one of "
+                             f"{tuple(FOLLOWERS)}")
+        if self.drive not in DRIVES:
+            raise ValueError(f"method {self.name}: drive {self.drive!r} is not one of {DRIVES}")
+        if not self.followed_by:
+            object.__setattr__(self, "followed_by", FOLLOWERS[self.follower])
+
+    @property
+    def renders_routes(self) -> bool:
+        """Whether its plans, made on a pose map, are rendered as camera
+        images for a follower whose learned RE reads them."""
+        return self.map == "oracle" and self.follower in ("camera", "oracle_cwp")
+
+
+METHODS: dict[str, Method] = {m.name: m for m in (
+    Method("ours", map="camera", follower="camera"),
+    Method("lidar", map="lidar", follower="lidar"),
+    Method("lidar_reg", map="lidar_reg", follower="lidar_reg"),
+    Method("sptm", map="sptm", follower="camera"),
+    Method("oracle", map="oracle", follower="camera"),
+    Method("ours_replan", map="camera", follower="camera", drive="replan"),
+    Method("ours_obstacles", map="camera", follower="camera", drive="obstacles"),
+    Method("oracle_full", map="oracle", follower="oracle", oracle=True),
+    Method("ours_oracle_follow", map="camera", follower="oracle", oracle=True),
+    Method("oracle_cwp", map="oracle", follower="oracle_cwp", oracle=True),
+)}
+#: the perfect-perception ablations (fast: they run ``--oracle-trials`` trials)
+ORACLE_METHODS = tuple(name for name, m in METHODS.items() if m.oracle)
+
+_NETWORKS: dict = {}
+
+
+def networks(modality: str, world=None):
+    """(C_WP, RE) of the shipped k=5 follower of ``modality`` (``lidar_reg``:
+    the registration C_WP and its RE; loaded once), or of the oracles in
+    ``world`` (``"oracle"``: A* C_WP and geometric RE; ``"oracle_cwp"``: A*
+    C_WP and the learned camera RE)."""
+    from topodrake.topomap.sources import (SHIPPED, load_networks, shipped_checkpoint,
+                                           shipped_controller)
+
+    if modality in ("oracle", "oracle_cwp"):
+        from topodrake.learning.policy import AStarOracle
+        from topodrake.navigation.evaluate import GeometricReachability
+
+        cwp = AStarOracle(world, k=5)
+        return cwp, (GeometricReachability(world, k=5) if modality == "oracle"
+                     else networks("camera")[1])
+    if modality not in _NETWORKS:
+        _NETWORKS[modality] = load_networks(shipped_controller(modality),
+                                            shipped_checkpoint(SHIPPED[modality][0]))
+    return _NETWORKS[modality]
+
+
+def plan_calibration_of(method: str):
+    """The plan calibration shipped for a method whose map and follower use
+    one shipped RE (``ours``, ``lidar``, ``lidar_reg`` and ``ours``' variants), or None."""
+    from topodrake.topomap.plan_calibration import calibration_beside
+    from topodrake.topomap.sources import ROOT, SHIPPED
+
+    kind, follower = METHODS[method].map, METHODS[method].follower
+    if kind != follower or kind not in SHIPPED:
+        return None
+    return calibration_beside(ROOT / "checkpoints" / SHIPPED[kind][0] / "checkpoint.pt")
+
+
+def attach_success_probability(records: list[dict]) -> None:
+    """Set each planned record's ``success_probability`` from its method's
+    shipped plan calibration (None where the method has none or no plan)."""
+    calibs = {m: plan_calibration_of(m) for m in {r["method"] for r in records} if m in METHODS}
+    for r in records:
+        c = calibs.get(r["method"])
+        r["success_probability"] = (
+            None if c is None or not r["planned"] or r["plan_probability"] is None else
+            round(float(c.predict(r["plan_probability"], r["plan_anchors"])[0]), 5))
+
+
+def calibration_table(methods: list[str], records: list[dict]) -> dict:
+    """Per map method, over its planned trials: the plan probability against
+    success (bins and ECE) and, where a calibration ships, its
+    ``success_probability`` against success (``ece``; else the raw ECE)."""
+    from topodrake.navigation.plan_trials import calibration
+
+    cal = {}
+    for m in methods:
+        if m in METHODS and METHODS[m].map == "sptm":       # its plans have no probability
+            continue
+        recs = [r for r in records if r["method"] == m and r["planned"]]
+        rows, ece_raw = calibration([r["plan_probability"] for r in recs],
+                                    [r["success"] for r in recs])
+        row = {"bins_raw": rows, "ece_raw": ece_raw, "planned_trials": len(recs),
+               "calibrated": False, "bins": rows, "ece": ece_raw}
+        if recs and all(r.get("success_probability") is not None for r in recs):
+            bins, ece = calibration([r["success_probability"] for r in recs],
+                                    [r["success"] for r in recs])
+            row.update(calibrated=True, bins=bins, ece=ece)
+        cal[m] = row
+    return cal
+
+
+def calibration_houses(methods: list[str]) -> dict:
+    """The houses each method's shipped plan calibration was fitted on."""
+    out = {}
+    for m in methods:
+        c = plan_calibration_of(m) if m in METHODS else None
+        if c is not None:
+            out[m] = list(c.fitted_on.get("houses", []))
+    return out
+

@@ -1,0 +1,275 @@
+"""The planning study's trials: one method in one house, every method in a house, pruned maps.
+
+:func:`house_job` runs every method of a study's config in one house on
+the same trials (a Monte Carlo runner job, one per house): each method's
+plans are made on its map (:func:`plan_routes`; maps cached by
+:mod:`topodrake.topomap.map_cache`) and followed by its networks
+(:func:`run_method`, the methods of
+:mod:`topodrake.navigation.plan_methods`). :func:`pruned_job` does the
+same for maps of fractions of one house's drives. Trial seeds come from
+the base seed and the house's name (:func:`house_seed`), so a house's trials
+do not depend on which other houses run.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.navigation.plan_methods import METHODS, networks
+from topodrake.topomap.map_cache import DEMO_SEED, get_map, house_drives, house_key
+
+SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
+
+
+def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
+                cfg: dict, tag: str = "all"):
+    """(plans' routes (None = no plan), plan probabilities, map size dict,
+    ``replan(trial, pose, excluded_edges)`` on our maps (None for SPTM))."""
+    from topodrake.navigation.plan_trials import render_pose_route
+    from topodrake.topomap.plan import plan_path
+    from topodrake.topomap.sources import drive_observations
+
+    data, progress = Path(cfg["data"]), not cfg["quiet"]
+    meth = METHODS[method]
+    if meth.map == "sptm":
+        from topodrake.baselines.retrieval_net import RetrievalScorer
+        from topodrake.baselines.sptm import build_sptm_graph, plan_sptm
+        from topodrake.sensing.observe import observe
+        from topodrake.topomap.sources import resolve_checkpoint
+
+        net = RetrievalScorer.from_checkpoint(resolve_checkpoint(SPTM_CHECKPOINT))
+        t0 = time.perf_counter()
+        trajs = [(observe(world, "camera", drives[i].poses, net.sensor), drives[i].poses,
+                  f"pairs-s{DEMO_SEED}/{i}") for i in indices]
+        m = build_sptm_graph(trajs, net, progress=progress)
+        s = m.summary()
+        size = {"vertices": s["vertices"], "edges": s["directed_edges"],
+                "undirected_edges": s["edges"], "shortcuts": s["shortcuts"],
+                "build_s": round(time.perf_counter() - t0, 1)}
+        so = observe(world, "camera", starts, net.sensor)
+        go = observe(world, "camera", places, net.sensor)
+        plans = [plan_sptm(m, so[t], go[g], starts[t], places[g], net)
+                 for t, g in enumerate(goal_idx)]
+    else:
+        modality = meth.map
+        m, build_s = get_map(spec, world, modality, drives, indices, data, tag, progress)
+        metres = sum(float(np.hypot(*np.diff(drives[i].poses[:, :2], axis=0).T).sum())
+                     for i in indices)
+        size = {"vertices": len(m), "edges": m.n_edges, "build_s": round(build_s, 1),
+                "anchors_per_m": round(len(m) / max(metres, 1e-9), 4)}
+        so = drive_observations(world, m.scorer, starts)
+        go = drive_observations(world, m.scorer, places)
+
+        def replan(t, pose, excluded):
+            obs = drive_observations(world, m.scorer, np.asarray(pose)[None])[0]
+            p = plan_path(m, obs, go[goal_idx[t]], start_pose=pose, goal_pose=places[goal_idx[t]],
+                          excluded_edges=excluded)
+            return p.route if p.reachable else None
+        plans = [plan_path(m, so[t], go[g], start_pose=starts[t], goal_pose=places[g])
+                 for t, g in enumerate(goal_idx)]
+    routes = [p.route if p.reachable else None for p in plans]
+    if meth.map != "sptm":        # each plan's links (not the drives' own hops), judged in truth
+        from topodrake.topomap.joining import plan_links
+
+        links = [plan_links(m, p, starts[t], places[g])["false_link_m"] if p.reachable else None
+                 for t, (p, g) in enumerate(zip(plans, goal_idx))]
+    else:
+        links = [None] * len(plans)
+    if meth.renders_routes:      # the learned camera RE reads images
+        policy, _ = networks("camera")
+        routes = [None if r is None else render_pose_route(world, r, getattr(policy, "sensor", None))
+                  for r in routes]
+    prob = np.array([p.probability if p.reachable else 0.0 for p in plans])
+    if meth.map == "sptm":
+        prob[:] = np.nan
+        replan = None
+    return routes, prob, size, replan, links
+
+
+def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cfg: dict,
+               tag: str = "all", bar=None) -> tuple[dict, list[dict]]:
+    """One method's trials in one house: (stats, per-trial records)."""
+    from topodrake.navigation.engine import NavigationConfig, NavigationEngine
+    from topodrake.navigation.plan_trials import (SUCCESS_M, T_MAX_S, follow_routes,
+                                                  longest_link_m)
+
+    places = np.asarray(world.places, np.float64)
+    t0 = time.perf_counter()
+    routes, prob, size, replan, false_links = plan_routes(
+        method, spec, world, drives, indices, starts, places, pairs[:, 1], cfg, tag)
+    plan_s = time.perf_counter() - t0
+    meth = METHODS[method]
+    policy, reach = networks(meth.follower, world)
+    if meth.drive == "obstacles":
+        from topodrake.navigation.plan_trials import follow_past_obstacles
+
+        n = min(cfg["obstacle_trials"], len(pairs))
+        pairs, starts, routes, prob = pairs[:n], starts[:n], routes[:n], prob[:n]
+        seeds = [np.random.SeedSequence([cfg["seed"], zlib.crc32(house_key(spec).encode()), t])
+                 for t in range(n)]
+        res, boxes = follow_past_obstacles(
+            world, lambda w: NavigationEngine(w, policy, reach, NavigationConfig()), starts,
+            routes, places[pairs[:, 1]], seeds, cfg["obstacles"], T_MAX_S, SUCCESS_M)
+        if bar is not None:
+            bar.update(n)
+    elif meth.drive == "replan":
+        from topodrake.navigation.replan import ReplanSchedule
+
+        engine = NavigationEngine(world, policy, reach, NavigationConfig())
+        res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
+                            SUCCESS_M, replan=replan, schedule=ReplanSchedule(**cfg["replan"]))
+        if bar is not None:
+            bar.update(len(pairs))
+    else:
+        engine = NavigationEngine(world, policy, reach, NavigationConfig())
+        res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
+                            SUCCESS_M, progress=None if bar is None else bar.update)
+    key = house_key(spec)
+    records = [{"house": key, "method": method, "map": tag, "trial": t,
+                "start_place": int(a), "goal_place": int(b),
+                "start_pose": [round(float(v), 4) for v in starts[t]],
+                "planned": routes[t] is not None,
+                "plan_probability": None if not np.isfinite(prob[t]) else round(float(prob[t]), 5),
+                "plan_anchors": 0 if routes[t] is None else len(routes[t]),
+                "longest_link_m": None if routes[t] is None else
+                round(longest_link_m(starts[t], routes[t], places[b]), 3),
+                "false_link_m": None if false_links[t] is None else round(false_links[t], 3),
+                "outcome": res.outcome[t], "success": bool(res.success[t]),
+                "final_distance_m": round(float(res.final_distance_m[t]), 3),
+                "steps": int(res.steps[t]),
+                **({"plans": int(res.plans[t])} if getattr(res, "plans", None) is not None
+                   else {}),
+                **({"boxes": None if boxes[t] is None else np.round(boxes[t], 3).tolist()}
+                   if meth.drive == "obstacles" else {})}
+               for t, (a, b) in enumerate(pairs)]
+    rated = [r for r in records if r["outcome"] != "no_room"]
+    stats = {**size, **_rates(rated or records), "no_room": len(records) - len(rated),
+             "map_and_plan_s": round(plan_s, 1),
+             "follow_s": round(time.perf_counter() - t0 - plan_s, 1)}
+    return stats, records
+
+
+def _rates(records: list[dict]) -> dict:
+    """Success, plan and outcome counts of some trials' records; the share
+    of plans with a false link (a link, not a drive's own hop, longer than
+    FALSE_LINK_M in truth; SPTM: any step) and of plans with any step that
+    long (``long_step_plans``: also the lidar maps' long anchor hops)."""
+    from topodrake.navigation.plan_trials import FALSE_LINK_M
+
+    outcomes = [r["outcome"] for r in records]
+    planned = [r for r in records if r["planned"]]
+    probs = [r["plan_probability"] for r in planned if r["plan_probability"] is not None]
+    links = [r["longest_link_m"] for r in planned if r.get("longest_link_m") is not None]
+    false = [r["false_link_m"] > 0 if r.get("false_link_m") is not None
+             else r["longest_link_m"] > FALSE_LINK_M
+             for r in planned if r.get("longest_link_m") is not None]
+    return {"trials": len(records),
+            "success": round(float(np.mean([r["success"] for r in records])), 4),
+            "planned": round(len(planned) / len(records), 4),
+            "mean_plan_probability": round(float(np.mean(probs)), 4) if probs else None,
+            "false_link_plans": round(float(np.mean(false)), 4) if false else None,
+            "long_step_plans": (round(float(np.mean(np.array(links) > FALSE_LINK_M)), 4)
+                                if links else None),
+            "outcomes": {o: outcomes.count(o) for o in sorted(set(outcomes))}}
+
+
+def house_seed(base: int, key: str) -> int:
+    """A house's trial seed: from the base seed and the house's name (so a
+    house's trials do not depend on which other houses run)."""
+    return int(np.random.SeedSequence([base, zlib.crc32(key.encode())]).generate_state(1)[0])
+
+
+def house_job(seed: int, jobs: dict, cfg: dict) -> dict:
+    """Every method's trials in one house (a Monte Carlo runner job)."""
+    import torch
+    from tqdm import tqdm
+
+    from topodrake.navigation.plan_trials import jittered_starts, trial_pairs
+    from topodrake.world import load_world
+
+    torch.set_num_threads(1)
+    spec = jobs[seed]
+    world = load_world(spec)
+    drives = house_drives(spec, Path(cfg["data"]), not cfg["quiet"])
+    n = min(cfg["trajectories"] or len(drives), len(drives))
+    indices = list(range(n))
+    places = np.asarray(world.places, np.float64)
+    # trial i is the same for every count (a prefix), so the oracles' longer
+    # runs hold the learned methods' trials
+    n_trials = {m: cfg["oracle_trials"] if METHODS[m].oracle else cfg["trials"]
+                for m in cfg["methods"]}
+    pairs = trial_pairs(len(places), max(n_trials.values()), seed)
+    starts = jittered_starts(world, places, pairs, seed)
+    out = {"house": house_key(spec), "world": spec, "seed": seed, "drives": n, "methods": {},
+           "records": []}
+    tag = "all" if n == len(drives) else f"first{n}"
+    with tqdm(total=sum(n_trials.values()), desc=f"trials {house_key(spec)}",
+              disable=cfg["quiet"], unit="trial", leave=False) as bar:
+        for method in cfg["methods"]:
+            t = n_trials[method]
+            stats, records = run_method(method, spec, world, drives, indices, pairs[:t],
+                                        starts[:t], cfg, tag=tag, bar=bar)
+            out["methods"][method] = stats
+            out["records"].extend(records)
+    if any(METHODS[m].map == "oracle" for m in cfg["methods"]):
+        out["oracle_unplanned_pairs"] = unplanned_pairs(spec, world, drives, indices, cfg, tag)
+    return out
+
+
+def unplanned_pairs(spec: str, world, drives, indices, cfg: dict, tag: str) -> list:
+    """The ordered pairs of places (start place, goal place) that get no plan
+    on the oracle map, from the start place's own pose."""
+    from topodrake.topomap.plan import plan_path
+    from topodrake.topomap.sources import drive_observations
+
+    m, _ = get_map(spec, world, "oracle", drives, indices, Path(cfg["data"]), tag,
+                   not cfg["quiet"])
+    places = np.asarray(world.places, np.float64)
+    obs = drive_observations(world, m.scorer, places)
+    return [[a, b] for a in range(len(places)) for b in range(len(places))
+            if a != b and not plan_path(m, obs[a], obs[b], start_pose=places[a],
+                                        goal_pose=places[b]).reachable]
+
+
+def pruned_job(seed: int, jobs: dict, cfg: dict) -> dict:
+    """Our maps from fractions of one house's drives, and their trials."""
+    import torch
+    from tqdm import tqdm
+
+    from topodrake.navigation.plan_trials import jittered_starts, pruned_subset, trial_pairs
+    from topodrake.world import load_world
+
+    torch.set_num_threads(1)
+    spec = jobs[seed]
+    world = load_world(spec)
+    drives = house_drives(spec, Path(cfg["data"]), not cfg["quiet"])
+    n = min(cfg["trajectories"] or len(drives), len(drives))
+    places = np.asarray(world.places, np.float64)
+    pairs = trial_pairs(len(places), cfg["pruned_trials"], seed)
+    starts = jittered_starts(world, places, pairs, seed)
+    out = {"house": house_key(spec), "method": cfg["pruned_method"], "fractions": {},
+           "records": []}
+    fractions = cfg["pruned_fractions"]
+    with tqdm(total=len(fractions) * len(pairs), desc=f"pruned {house_key(spec)}",
+              disable=cfg["quiet"], unit="trial", leave=False) as bar:
+        for f in fractions:
+            idx = pruned_subset(n, f, cfg["pruned_seed"])
+            base = "all" if n == len(drives) else f"first{n}"
+            tag = base if len(idx) == n else f"{base}-f{f:g}-r{cfg['pruned_seed']}"
+            full = (cfg.get("full") or {}).get(house_key(spec))
+            if len(idx) == n and full is not None and len(full["records"]) >= len(pairs):
+                # the whole map with the main study's trials (same seed: the same trials)
+                records = [dict(r) for r in full["records"][:len(pairs)]]
+                stats = {**full["stats"], **_rates(records), "reused_main_trials": True}
+                bar.update(len(pairs))
+            else:
+                stats, records = run_method(cfg["pruned_method"], spec, world, drives,
+                                            idx.tolist(), pairs, starts, cfg, tag=tag, bar=bar)
+            out["fractions"][f"{f:g}"] = {**stats, "drives": len(idx)}
+            out["records"].extend(records)
+    return out
+

@@ -1,0 +1,125 @@
+"""The planning study's map cache: demonstrations and maps per house.
+
+Every house's expert drives between all ordered pairs of its places
+(``topodrake collect``, seed :data:`DEMO_SEED`) are collected once into
+``DATA/demos/pairs-s0/`` (:func:`house_drives`); a map of a subset of them
+for one map kind is built once and kept in ``DATA/planning/``
+(:func:`get_map`), keyed by house, modality, scorer, demonstration seed and
+subset (:func:`map_path`). A map built elsewhere from the same drives with
+the default config (``topodrake map build``) is adopted instead of rebuilt.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import time
+import zlib
+from dataclasses import asdict
+from pathlib import Path
+
+from topodrake.errors import TopodrakeError
+
+DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (noise-free)
+
+
+def house_key(spec: str) -> str:
+    """A world's name in caches and results: the catalogue name, or a map
+    file's folder and stem (as ``topodrake collect`` names its demos)."""
+    from topodrake.topomap.sources import demo_folder
+
+    return demo_folder(spec).name
+
+
+def house_drives(spec: str, data: Path, progress: bool) -> list:
+    """The successful demonstrations of all ordered place pairs (collected once)."""
+    from topodrake.demonstrations import CollectConfig, collect, load_demos
+
+    folder = data / "demos" / f"pairs-s{DEMO_SEED}" / house_key(spec)
+    collect(spec, folder, CollectConfig(protocol="pairs", seed=DEMO_SEED), progress=progress)
+    _, drives = load_demos(folder, successful_only=True)
+    if not drives:
+        raise TopodrakeError(f"{folder} holds no successful drive")
+    return drives
+
+
+def map_path(data: Path, key: str, modality: str, tag: str) -> Path:
+    if modality == "oracle":        # keyed by the oracle's parameters, which may change
+        from topodrake.topomap.scorer import OracleConfig
+
+        digest = zlib.crc32(json.dumps(asdict(OracleConfig()), sort_keys=True).encode())
+        return data / "planning" / f"{key}-pose-oracle{digest:08x}-demos{DEMO_SEED}-{tag}.tdmap"
+    return data / "planning" / f"{key}-{modality}-re-demos{DEMO_SEED}-{tag}.tdmap"
+
+
+def _adoptable(candidate: Path, world: str, modality: str, names: list[str]) -> bool:
+    """Whether a map built elsewhere (``topodrake map build`` or the map
+    scalability study) is this very map: same world, modality, default
+    config and the same drives in the same order."""
+    from topodrake.topomap.graph import MapConfig
+    from topodrake.topomap.mapfile import read_map_meta
+
+    try:
+        meta = read_map_meta(candidate)
+    except TopodrakeError:
+        return False
+    return (meta.get("world") == world and meta.get("modality") == modality
+            and meta.get("config") == asdict(MapConfig())
+            and [t["name"] for t in meta.get("trajectories", [])] == names)
+
+
+def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, tag: str,
+            progress: bool):
+    """The map of ``drives[indices]`` for ``modality`` (cached; built when missing)."""
+    from topodrake.topomap.build import build_map
+    from topodrake.topomap.graph import MapConfig, TopoMap
+    from topodrake.topomap.mapfile import load_map, read_map_meta, save_map
+    from topodrake.topomap.retrieval import default_embedding
+    from topodrake.topomap.sources import drive_observations, make_scorer
+
+    key = house_key(spec)
+    path = map_path(data, key, modality, tag)
+    scorer = make_scorer(modality, world)
+    names = [f"pairs-s{DEMO_SEED}/{i}" for i in indices]
+    legacy = data / "maps" / f"{key}-{modality}.tdmap"
+    if not path.is_file() and modality != "oracle" and legacy.is_file() \
+            and _adoptable(legacy, spec, modality, names):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        shutil.copyfile(legacy, tmp)
+        tmp.replace(path)
+    if path.is_file():
+        m = load_map(path, scorer)
+        if [t.name for t in m.trajectories] != names:
+            raise TopodrakeError(f"{path} holds other drives than {len(names)} of "
+                                 f"{key}; delete it to rebuild")
+        # the config as written (a map from before a setting existed reads it as the default)
+        if read_map_meta(path).get("config") == asdict(MapConfig()):
+            return m, 0.0
+        print(f"{path} was built with another map config; rebuilding it", file=sys.stderr)
+    t0 = time.perf_counter()
+    m = TopoMap(scorer, default_embedding(scorer.observation), world=spec)
+    items = [(drive_observations(world, scorer, drives[i].poses), drives[i].poses, n)
+             for i, n in zip(indices, names)] if modality == "oracle" else \
+        _Lazy(world, scorer, drives, indices, names)
+    build_map(m, items, progress=progress, desc=f"map {key} {modality} {tag}")
+    save_map(m, path)
+    return m, time.perf_counter() - t0
+
+
+class _Lazy:
+    """Drives' observations rendered one at a time (with a length, for tqdm)."""
+
+    def __init__(self, world, scorer, drives, indices, names):
+        self.args = world, scorer, drives, list(indices), names
+
+    def __len__(self):
+        return len(self.args[3])
+
+    def __iter__(self):
+        from topodrake.topomap.sources import drive_observations
+
+        world, scorer, drives, indices, names = self.args
+        for i, n in zip(indices, names):
+            yield drive_observations(world, scorer, drives[i].poses), drives[i].poses, n
