@@ -640,13 +640,71 @@ def test_the_shipped_lidar_map_s_legs_agree_with_where_its_anchors_were_taken():
     reused vertices included, carry legs, and they agree with the anchors'
     recorded poses (metadata) to centimetres."""
     from topodrake.se2 import relative
-    from topodrake.topomap.sources import ROOT, scorer_for_map
+    from topodrake.topomap.sources import ROOT, open_map
 
     path = ROOT / "checkpoints" / "demo_map" / "map.tdmap"
-    m = load_map(path, scorer_for_map(path))
+    m = open_map(path).topomap
     edges = [(u, v, d) for u, v, d in m.graph.edges(data=True) if d["kind"] == "trajectory"]
     with_legs = [(u, v, d["leg"]) for u, v, d in edges if "leg" in d]
     assert len(with_legs) > 0.8 * len(edges)
     err = np.array([np.hypot(*(leg[:2] - relative(m.pose([u]), m.pose([v]))[0, :2]))
                     for u, v, leg in with_legs])
     assert np.median(err) < 0.02 and np.quantile(err, 0.9) < 0.1
+
+
+def test_a_map_file_opens_with_the_world_scorer_and_checkpoints_it_was_built_for(
+        oracle_map, tmp_path, capsys):
+    """open_map: an oracle map gets the geometric oracle and no checkpoints;
+    the shipped lidar map its recorded RE and C_WP and the plan calibration
+    beside that RE; a map whose RE is not here is refused in the one line
+    every command that opens a map prints."""
+    import io
+    import zipfile
+
+    from topodrake.cli import main
+    from topodrake.learning.reachability import Reachability
+    from topodrake.topomap.scorer import LearnedScorer, OracleScorer
+    from topodrake.topomap.sources import REGISTRATION, ROOT, open_map
+
+    world, m, path = oracle_map
+    oracle = open_map(path)
+    assert isinstance(oracle.scorer, OracleScorer) and oracle.world.name == world.name
+    assert sorted(oracle.topomap.graph.nodes) == sorted(m.graph.nodes)
+    assert (oracle.reach, oracle.controller, oracle.calibration) == (None, None, None)
+    assert oracle.meta["modality"] == "pose" and oracle.meta["world"] == "test-0"
+
+    shipped = ROOT / "checkpoints" / "demo_map" / "map.tdmap"
+    learned = open_map(shipped)
+    assert isinstance(learned.scorer, LearnedScorer) and learned.scorer.observation == "lidar"
+    assert isinstance(learned.scorer.reach, Reachability)
+    assert learned.reach == ROOT / "checkpoints" / "reach_lidar_reg" / "checkpoint.pt"
+    assert learned.controller == REGISTRATION
+    assert learned.calibration is not None and learned.calibration.method == "lidar_reg"
+    assert learned.topomap.scorer is learned.scorer and learned.world.name == "test-0"
+
+    # the same map, its RE recorded where none is
+    with zipfile.ZipFile(shipped) as z:
+        files = {n: z.read(n) for n in z.namelist()}
+    meta = json.loads(np.load(io.BytesIO(files["meta.npy"])).tobytes())
+    meta["identity"]["reach"] = "checkpoints/nowhere/checkpoint.pt"
+    buf = io.BytesIO()
+    np.save(buf, np.frombuffer(json.dumps(meta).encode(), np.uint8))
+    files["meta.npy"] = buf.getvalue()
+    moved = tmp_path / "moved.tdmap"
+    with zipfile.ZipFile(moved, "w") as z:
+        for n, b in files.items():
+            z.writestr(n, b)
+    want = (f"{moved} was built for the reachability estimator "
+            f"{ROOT / 'checkpoints' / 'nowhere' / 'checkpoint.pt'}, which does not exist here; "
+            f"pass it with --reach/--controller")
+    with pytest.raises(TopodrakeError) as e:
+        open_map(moved)
+    assert str(e.value) == want
+    pose = ",".join(f"{v:.4f}" for v in world.places[0])
+    for argv in (["map", "plan", str(moved), "--start", pose, "--goal", pose],
+                 ["navigate", str(moved), "--start", pose, "--goal", pose]):
+        assert main(argv) == 2
+        assert capsys.readouterr().err == f"topodrake: error: {want}\n"
+    # navigate follows learned maps only
+    assert main(["navigate", str(path), "--start", pose, "--goal", pose]) == 2
+    assert "is an oracle map; navigate follows learned maps" in capsys.readouterr().err

@@ -153,9 +153,11 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
         raise TopodrakeError("--start-place and --goal-place must differ")
     start, goal = world.places[start_place].copy(), world.places[goal_place].copy()
     t0 = time.perf_counter()
-    layers = None
+    layers = planner = None
     if map_path is not None:
-        world, route, policy, reach_net, layers = plan_on_map(map_path, start, goal)
+        planner, route = plan_on_map(map_path, start, goal)
+        world, policy, reach_net, layers = (planner.world, planner.policy, planner.reach,
+                                            planner.layers)
     else:
         scenario = NavigationScenario(world=world_name, controller=controller, reach=reach)
         policy, reach_net = load_networks(scenario)
@@ -193,7 +195,7 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
                "realtime_factor_cold": round(result.time_s / max(result.wall_time_s
                                                                  + result.startup_s, 1e-9), 1),
                "demo_wall_s": round(time.perf_counter() - wall, 2)}
-    chance = success_chance(map_path, route)
+    chance = success_chance(planner, route)
     if chance is not None:
         summary["success_probability"] = chance
     return {"files": files, "summary": summary}

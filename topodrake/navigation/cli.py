@@ -78,21 +78,17 @@ class MapPlanner:
 
     def __init__(self, path: Path, reach_path=None, controller_path=None):
         from topodrake.learning.reach_train import controller_policy
-        from topodrake.topomap.mapfile import load_map, read_map_meta
         from topodrake.topomap.plot import _map_layers
-        from topodrake.topomap.sources import _resolve, scorer_for_map
-        from topodrake.world import load_world
+        from topodrake.topomap.sources import open_map
 
         self.path = Path(path)
-        meta = read_map_meta(path)
-        self.world = load_world(meta["world"])
-        self.scorer = scorer_for_map(path, reach_path, controller_path)
-        if not hasattr(self.scorer, "reach"):
+        loaded = open_map(path, reach_path, controller_path)
+        if not hasattr(loaded.scorer, "reach"):
             raise TopodrakeError(f"{path} is an oracle map; navigate follows learned maps")
-        controller = controller_path or _resolve(meta.get("identity", {}).get("controller", ""))
-        self.policy = controller_policy(controller)
+        self.world, self.scorer, self.topomap = loaded.world, loaded.scorer, loaded.topomap
+        self.calibration = loaded.calibration        # the plan calibration of its RE, or None
+        self.policy = controller_policy(loaded.controller)
         self.reach = self.scorer.reach
-        self.topomap = load_map(path, self.scorer)
         self.layers = _map_layers(self.topomap)
 
     def plan(self, start, goal, excluded_edges=()):
@@ -105,26 +101,21 @@ class MapPlanner:
                          excluded_edges=excluded_edges)
 
 
-def success_chance(map_path, route, reach_path=None) -> float | None:
-    """A route's calibrated chance of success on a map file (None where no
-    plan calibration ships for the map's RE, or without a map)."""
-    from topodrake.topomap.sources import plan_calibration_for_map
-
-    if map_path is None or Path(map_path).suffix != ".tdmap":
+def success_chance(planner: MapPlanner | None, route) -> float | None:
+    """A route's calibrated chance of success on a map (None where no plan
+    calibration ships for the map's RE, or without a map)."""
+    if planner is None or planner.calibration is None:
         return None
-    calib = plan_calibration_for_map(map_path, reach_path)
-    if calib is None:
-        return None
-    return round(float(calib.predict(route.probability, len(route))[0]), 4)
+    return round(float(planner.calibration.predict(route.probability, len(route))[0]), 4)
 
 
 def plan_on_map(path: Path, start, goal, reach_path=None, controller_path=None):
-    """(world, route, policy, reach, map layers) of a plan on a map file."""
+    """(the map's MapPlanner, route) of a plan on a map file."""
     planner = MapPlanner(path, reach_path, controller_path)
     planner.world.check_pose(start, "start")
     planner.world.check_pose(goal, "goal")
     route = _plan_or_refuse(planner.plan(start, goal), path)
-    return planner.world, route, planner.policy, planner.reach, planner.layers
+    return planner, route
 
 
 def chain_from_demos(folder: Path, start, goal, drive, policy, reach, p):
@@ -248,7 +239,7 @@ def cmd_navigate(args) -> int:
     result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
                          record=bool(args.meshcat), seed=args.seed, replanner=replanner)
     first_p, anchors = float(route.probability), len(route)
-    chance = success_chance(source, route, args.reach) if planner is not None else None
+    chance = success_chance(planner, route)
     if chance is not None:
         extra["success_probability"] = chance
     if replanner is not None:

@@ -92,19 +92,17 @@ def _start_build(args, out: Path, collect_into: Path | None):
     """The map to grow (new, ``--add``'s, or an interrupted build's) and the
     drives to add (collected first into ``collect_into`` when given)."""
     from topodrake.topomap.graph import TopoMap
-    from topodrake.topomap.mapfile import load_map
     from topodrake.topomap.resumable import MapBuild, interrupted_build, resume_file
     from topodrake.topomap.retrieval import default_embedding
-    from topodrake.topomap.sources import (demo_drives, drives_between, make_scorer,
-                                           scorer_for_map)
+    from topodrake.topomap.sources import demo_drives, drives_between, make_scorer, open_map
     from topodrake.world import load_world
 
     world = load_world(args.world)
     config = load_map_config(args.config)
     base = set()
     if args.add:
-        scorer = scorer_for_map(out, args.reach, args.controller)
-        topomap = load_map(out, scorer)
+        loaded = open_map(out, args.reach, args.controller)
+        scorer, topomap = loaded.scorer, loaded.topomap
         if topomap.world != args.world:
             raise TopodrakeError(f"{out} is a map of {topomap.world!r}, not of {args.world!r}")
         base = {t.name for t in topomap.trajectories}
@@ -191,19 +189,15 @@ def cmd_map_plot(args) -> None:
 
 
 def cmd_map_plan(args) -> None:
-    from topodrake.topomap.mapfile import load_map, read_map_meta
     from topodrake.topomap.plan import plan_path
-    from topodrake.topomap.sources import (drive_observations, plan_calibration_for_map,
-                                           scorer_for_map)
-    from topodrake.world import load_world
+    from topodrake.topomap.sources import drive_observations, open_map
 
     check_output(args.plot, "image", force=args.force, option="--plot")
     start, goal = parse_pose(args.start, "start"), parse_pose(args.goal, "goal")
-    meta = read_map_meta(args.file)
-    world = load_world(meta["world"])
+    loaded = open_map(args.file, args.reach, args.controller)
+    world, topomap = loaded.world, loaded.topomap
     world.check_pose(start, "start")
     world.check_pose(goal, "goal")
-    topomap = load_map(args.file, scorer_for_map(args.file, args.reach, args.controller))
     obs = drive_observations(world, topomap.scorer, np.stack([start, goal]))
     wall = time.perf_counter()
     result = plan_path(topomap, obs[0], obs[1], start_pose=start, goal_pose=goal)
@@ -213,7 +207,7 @@ def cmd_map_plan(args) -> None:
            "query_s": round(query_s, 3)}
     if not result.reachable:
         out["reason"] = result.reason
-    calib = plan_calibration_for_map(args.file, args.reach)
+    calib = loaded.calibration
     if calib is not None and result.reachable:
         out["success_probability"] = round(float(calib.predict(result.probability,
                                                                out["anchors"])[0]), 4)
@@ -347,20 +341,17 @@ def cmd_bench_map(args) -> None:
 
     from tqdm import tqdm
 
-    from topodrake.topomap.mapfile import load_map, read_map_meta
     from topodrake.topomap.plan import plan_path
-    from topodrake.topomap.sources import drive_observations, scorer_for_map
-    from topodrake.world import load_world
+    from topodrake.topomap.sources import drive_observations, open_map
 
     path = Path(args.map)
-    meta = read_map_meta(path)
-    world = load_world(meta["world"])
     say = (lambda text: None) if args.quiet else \
         (lambda text: print(f"bench map: {text}", file=sys.stderr, flush=True))
     say(f"loading {path} and its estimators")
     wall = time.perf_counter()
-    topomap = load_map(path, scorer_for_map(path))
+    loaded = open_map(path)
     load_s = time.perf_counter() - wall
+    world, topomap = loaded.world, loaded.topomap
     places = world.places
     say(f"rendering the observations at {len(places)} places")
     obs = drive_observations(world, topomap.scorer, places)

@@ -4,14 +4,16 @@
 learned RE of a modality (camera k=5 or lidar k=5, with the C_WP it was
 trained for; ``lidar_reg``: the RE of the registration C_WP, which has no
 checkpoint and is named ``registration``), explicit checkpoints, or the
-geometric oracle. ``scorer_for_map`` gives the one a map file was built for;
-``load_networks`` the C_WP and RE a follower drives with.
+geometric oracle. ``open_map`` opens a map file with the world, reachability,
+checkpoints and plan calibration it was built for; ``load_networks`` the
+C_WP and RE a follower drives with.
 ``demo_trajectories`` reads (collecting them first if needed) a world's
 expert demonstrations and renders each drive's observations lazily.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -183,16 +185,33 @@ def make_scorer(modality: str, world=None, reach=None, controller=None):
     return scorer
 
 
-def scorer_for_map(path, reach=None, controller=None):
-    """The reachability a map file was built for (its recorded checkpoints,
-    or the ones given, which must be the same files)."""
-    from topodrake.topomap.mapfile import read_map_meta
+@dataclass
+class LoadedMap:
+    """A map file opened with what it was built for."""
+
+    world: object           # the world it maps
+    topomap: object         # the TopoMap
+    scorer: object          # its reachability (learned, or the geometric oracle of a pose map)
+    controller: object      # the C_WP checkpoint or "registration" (None: an oracle map)
+    reach: object           # the RE checkpoint (None: an oracle map)
+    calibration: object     # the plan calibration shipped beside the RE, or None
+    meta: dict              # the file's meta
+
+
+def open_map(path, reach=None, controller=None) -> LoadedMap:
+    """A map file with its world and the reachability it was built for: its
+    recorded checkpoints, or the ones given, which must be the same files;
+    and the plan calibration shipped beside that RE (none for oracle maps)."""
+    from topodrake.topomap.mapfile import load_map, read_map_meta
+    from topodrake.topomap.plan_calibration import calibration_beside
     from topodrake.world import load_world
 
     meta = read_map_meta(path)
-    ident = meta.get("identity", {})
+    world = load_world(meta["world"])
     if meta.get("modality") == "pose":
-        return make_scorer("oracle", load_world(meta["world"]))
+        scorer = make_scorer("oracle", world)
+        return LoadedMap(world, load_map(path, scorer), scorer, None, None, None, meta)
+    ident = meta.get("identity", {})
     check_controller(controller, reach)
     reach = reach or _resolve(ident.get("reach", ""))
     controller = controller or _resolve(ident.get("controller", ""))
@@ -200,7 +219,9 @@ def scorer_for_map(path, reach=None, controller=None):
         if p != REGISTRATION and not Path(p).is_file():
             raise TopodrakeError(f"{path} was built for the {what} {p}, which does not exist "
                                  f"here; pass it with --reach/--controller")
-    return make_scorer(meta["modality"], reach=reach, controller=controller)
+    scorer = make_scorer(meta["modality"], reach=reach, controller=controller)
+    calibration = calibration_beside(reach) if reach and Path(reach).is_file() else None
+    return LoadedMap(world, load_map(path, scorer), scorer, controller, reach, calibration, meta)
 
 
 def demo_folder(world_spec: str, demos=None) -> Path:
@@ -256,16 +277,3 @@ def drive_observations(world, scorer, poses: np.ndarray) -> np.ndarray:
     from topodrake.sensing.observe import observe
 
     return observe(world, scorer.observation, poses, scorer.sensor)
-
-
-def plan_calibration_for_map(path, reach=None):
-    """The plan calibration shipped beside the RE a map file was built for
-    (or ``reach``), or None (oracle maps, an RE without one)."""
-    from topodrake.topomap.mapfile import read_map_meta
-    from topodrake.topomap.plan_calibration import calibration_beside
-
-    meta = read_map_meta(path)
-    if meta.get("modality") == "pose":
-        return None
-    reach = reach or _resolve(meta.get("identity", {}).get("reach", ""))
-    return calibration_beside(reach) if reach and Path(reach).is_file() else None
