@@ -8,6 +8,8 @@ subset; existing maps are reused):
 
 - ``ours``: the camera k=5 map (learned RE), followed by camera k=5 C_WP + RE;
 - ``lidar``: the lidar k=5 map, followed by lidar k=5 C_WP + RE;
+- ``lidar_scale``: the lidar k=5 map, followed by the lidar C_WP trained at
+  scale (``checkpoints/lidar_k5_scale``) with the lidar k=5 RE;
 - ``lidar_reg``: the map built with the RE of the registration C_WP (lidar
   teach and repeat, no network; ``checkpoints/reach_lidar_reg``), followed
   by that controller and its RE; its short reach keeps denser anchors
@@ -32,6 +34,8 @@ subset; existing maps are reused):
   oracles (reading the route's anchor poses): the map's share of the errors;
 - ``oracle_cwp``: the oracle map followed by the A* oracle C_WP and the
   learned camera RE: RE's share of the follower's errors;
+- ``lidar_oracle_follow``: the lidar map followed by the two oracles: the
+  lidar map's share;
 - ``ours_obstacles``: ``ours`` on the first ``--obstacle-trials`` trials,
   each alone in a copy of its house with ``--obstacles`` boxes (0.3-0.6 m)
   that the map never saw, placed on its planned route away from its start

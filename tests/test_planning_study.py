@@ -339,8 +339,10 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
                                                    ORACLE_METHODS, Method)
 
     assert list(METHODS) == ["ours", "lidar", "lidar_reg", "sptm", "oracle", "ours_replan",
-                             "ours_obstacles", "oracle_full", "ours_oracle_follow", "oracle_cwp"]
-    assert ORACLE_METHODS == ("oracle_full", "ours_oracle_follow", "oracle_cwp")
+                             "ours_obstacles", "oracle_full", "ours_oracle_follow", "oracle_cwp",
+                             "lidar_scale", "lidar_oracle_follow"]
+    assert ORACLE_METHODS == ("oracle_full", "ours_oracle_follow", "oracle_cwp",
+                              "lidar_oracle_follow")
     for name, m in METHODS.items():
         assert m.name == name and m.map in MAP_KINDS and m.follower in FOLLOWERS
         assert m.followed_by == FOLLOWERS[m.follower]
@@ -349,6 +351,7 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
         {"ours_replan": "replan", "ours_obstacles": "obstacles"}
     assert [n for n, m in METHODS.items() if m.renders_routes] == ["oracle", "oracle_cwp"]
     assert METHODS["sptm"].map == "sptm" and METHODS["ours_oracle_follow"].map == "camera"
+    assert METHODS["lidar_scale"].map == METHODS["lidar_oracle_follow"].map == "lidar"
     with pytest.raises(ValueError, match="map kind"):
         Method("sonar", map="sonar", follower="camera")
     with pytest.raises(ValueError, match="drive"):
@@ -392,3 +395,18 @@ def test_the_study_writes_each_method_s_follower_into_its_config(load_study, tmp
     assert all(r["success_probability"] is not None for r in doc["trials"]
                if r["method"] == "lidar_reg")                     # its calibration ships
     assert (tmp_path / "planning.png").is_file()
+
+
+def test_the_lidar_scale_follower_drives_the_scale_c_wp_with_the_lidar_re():
+    """``lidar_scale`` follows the lidar map with the C_WP trained at scale,
+    its hops rated by the RE of the lidar k5 C_WP the map was built for."""
+    from topodrake.navigation.plan_methods import networks
+    from topodrake.topomap.sources import shipped_checkpoint
+
+    cwp, reach = networks("lidar_scale")
+    base_cwp, base_reach = networks("lidar")
+    assert cwp.observation == base_cwp.observation == "lidar"
+    assert cwp is not base_cwp and reach is not base_reach
+    scale_params = sum(p.numel() for p in cwp.model.parameters())
+    assert scale_params != sum(p.numel() for p in base_cwp.model.parameters())
+    assert str(shipped_checkpoint("lidar_k5_scale")).endswith("lidar_k5_scale/checkpoint.pt")

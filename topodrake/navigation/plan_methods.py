@@ -22,6 +22,7 @@ MAP_KINDS = ("camera", "lidar", "lidar_reg", "oracle", "sptm")
 #: "oracle_cwp": A* C_WP + the learned camera RE)
 FOLLOWERS = {"camera": "camera k5 C_WP + learned camera k5 RE",
              "lidar": "lidar k5 C_WP + learned lidar k5 RE",
+             "lidar_scale": "lidar k5 C_WP trained at scale + learned lidar k5 RE",
              "lidar_reg": "registration C_WP (lidar teach and repeat) + its learned RE",
              "oracle": "A* oracle C_WP + geometric oracle RE",
              "oracle_cwp": "A* oracle C_WP + learned camera k5 RE"}
@@ -74,11 +75,15 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("oracle_full", map="oracle", follower="oracle", oracle=True),
     Method("ours_oracle_follow", map="camera", follower="oracle", oracle=True),
     Method("oracle_cwp", map="oracle", follower="oracle_cwp", oracle=True),
+    Method("lidar_scale", map="lidar", follower="lidar_scale"),
+    Method("lidar_oracle_follow", map="lidar", follower="oracle", oracle=True),
 )}
 #: the perfect-perception ablations (fast: they run ``--oracle-trials`` trials)
 ORACLE_METHODS = tuple(name for name, m in METHODS.items() if m.oracle)
 
 _NETWORKS: dict = {}
+#: the lidar C_WP trained at scale (``lidar_scale``)
+SCALE_CWP = "lidar_k5_scale"
 
 
 def networks(modality: str, world=None):
@@ -96,6 +101,14 @@ def networks(modality: str, world=None):
         cwp = AStarOracle(world, k=5)
         return cwp, (GeometricReachability(world, k=5) if modality == "oracle"
                      else networks("camera")[1])
+    if modality == "lidar_scale" and modality not in _NETWORKS:
+        # the C_WP at scale drives the lidar k5 map's hops, rated by lidar k5's RE
+        from topodrake.learning.reach_train import controller_policy
+        from topodrake.learning.reachability import Reachability
+
+        _NETWORKS[modality] = (controller_policy(shipped_checkpoint(SCALE_CWP)),
+                               Reachability.from_checkpoint(shipped_checkpoint(SHIPPED["lidar"][0]),
+                                                            shipped_checkpoint(SHIPPED["lidar"][1])))
     if modality not in _NETWORKS:
         _NETWORKS[modality] = load_networks(shipped_controller(modality),
                                             shipped_checkpoint(SHIPPED[modality][0]))

@@ -272,7 +272,7 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
             margins.append(row["ours"] - row["sptm"])
         out["houses"][name] = row
     out["min_ours"] = round(min(ours), 4) if ours else None
-    for m in ("oracle_full", "ours_oracle_follow", "oracle_cwp"):
+    for m in ("oracle_full", "ours_oracle_follow", "oracle_cwp", "lidar_oracle_follow"):
         rates = [h["methods"][m]["success"] for h in houses.values() if m in h["methods"]]
         out[f"min_{m}"] = round(min(rates), 4) if rates else None
     unplanned = [(name, pair) for name, h in houses.items()
