@@ -262,6 +262,10 @@ def main(argv=None) -> int:
                     help="local worker processes, one house each")
     ap.add_argument("--ray", metavar="ADDRESS", help="run the houses on a Ray cluster")
     ap.add_argument("--out", default="results", help="folder of the JSON and PNG results")
+    ap.add_argument("--rescore", metavar="PLANNING_JSON[,...]",
+                    help="run no trials: set the shipped plan calibrations against the trials "
+                         "recorded in these planning.json files and write "
+                         "plan_calibration.json and plan_calibration.png into --out")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
@@ -269,7 +273,51 @@ def main(argv=None) -> int:
     return study_main(_run, args)
 
 
+def _rescore(args) -> int:
+    """The shipped plan calibrations against recorded trials (no new trials)."""
+    files = [Path(f) for f in args.rescore.split(",") if f]
+    records, seen, commands = [], set(), []
+    for f in files:
+        try:
+            study = json.loads(f.read_text())
+        except FileNotFoundError:
+            raise TopodrakeError(f"--rescore: {f} does not exist") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise TopodrakeError(f"--rescore: {f} is not readable JSON: {e}") from None
+        if not isinstance(study, dict) or not isinstance(study.get("trials"), list):
+            raise TopodrakeError(f"--rescore: {f} holds no per-trial records ('trials')")
+        for r in study["trials"]:
+            key = (r.get("house"), r.get("method"), r.get("map", "all"), r.get("trial"))
+            if key in seen:
+                raise TopodrakeError(f"--rescore: trial {key} is recorded twice (in {f})")
+            seen.add(key)
+            records.append(r)
+        commands.append(str(study.get("command", "")))
+    methods = [m for m in dict.fromkeys(r["method"] for r in records) if m in METHODS]
+    attach_success_probability(records)
+    cal = calibration_table(methods, records)
+    summary = {"plan_probability_ece_by_method": {m: c["ece"] for m, c in cal.items()},
+               "raw_plan_probability_ece": {m: c["ece_raw"] for m, c in cal.items()},
+               "planned_trials": {m: c["planned_trials"] for m, c in cal.items()},
+               "houses": sorted({r["house"] for r in records}),
+               "calibration_houses": calibration_houses(methods)}
+    out = Path(args.out)
+    atomic_write_json(out / "plan_calibration.json", {
+        "command": "python studies/planning.py " + " ".join(args.argv),
+        "sources": [{"file": str(f), "command": c} for f, c in zip(files, commands)],
+        "summary": summary, "calibration": cal})
+    if cal:
+        plot_calibration(cal, out / "plan_calibration.png")
+    print(json.dumps(summary) if args.json else
+          "\n".join(f"{m:<20} ECE {c['ece_raw']} raw, {c['ece']} "
+                    f"{'calibrated' if c['calibrated'] else '(no calibration)'} over "
+                    f"{c['planned_trials']} planned trials" for m, c in cal.items()))
+    return 0
+
+
 def _run(args) -> int:
+    if args.rescore:
+        return _rescore(args)
     from topodrake.learning.checkpoint import git_revision
     from topodrake.montecarlo import run_trials
     from topodrake.navigation.plan_trials import SUCCESS_M, T_MAX_S, pruned_ratio, summarize

@@ -410,3 +410,42 @@ def test_the_lidar_scale_follower_drives_the_scale_c_wp_with_the_lidar_re():
     scale_params = sum(p.numel() for p in cwp.model.parameters())
     assert scale_params != sum(p.numel() for p in base_cwp.model.parameters())
     assert str(shipped_checkpoint("lidar_k5_scale")).endswith("lidar_k5_scale/checkpoint.pt")
+
+
+def test_rescore_sets_the_shipped_calibration_against_recorded_trials(load_study, tmp_path,
+                                                                     capsys):
+    """``--rescore`` runs no trial: it reads recorded trials, attaches the
+    shipped calibration's chance (lidar has one) and writes the table and
+    figure; a trial recorded twice is refused in one line."""
+    import json
+
+    from topodrake.errors import TopodrakeError
+    from topodrake.navigation.plan_methods import plan_calibration_of
+
+    planning = load_study("planning")
+    rng = np.random.default_rng(0)
+    recs = [{"house": "test-0", "method": m, "map": "all", "trial": t, "planned": True,
+             "plan_probability": float(rng.uniform(0.8, 1.0)), "plan_anchors": int(rng.integers(5, 30)),
+             "success": bool(rng.random() < 0.3)} for m in ("lidar", "oracle_full") for t in range(40)]
+    src = tmp_path / "planning.json"
+    src.write_text(json.dumps({"command": "python studies/planning.py", "trials": recs}))
+    out = tmp_path / "out"
+    assert planning.main(["--rescore", str(src), "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    table = json.loads((out / "plan_calibration.json").read_text())["calibration"]
+    lidar = [r for r in recs if r["method"] == "lidar"]
+    want = plan_calibration_of("lidar").predict([r["plan_probability"] for r in lidar],
+                                               [r["plan_anchors"] for r in lidar])
+    assert table["lidar"]["calibrated"] and not table["oracle_full"]["calibrated"]
+    assert summary["plan_probability_ece_by_method"]["lidar"] == pytest.approx(
+        pt.calibration(np.round(want, 5), [r["success"] for r in lidar])[1], abs=1e-4)
+    assert summary["planned_trials"] == {"lidar": 40, "oracle_full": 40}
+    assert (out / "plan_calibration.png").stat().st_size > 10_000
+    with pytest.raises(TopodrakeError, match="recorded twice"):
+        planning._run(planning_args(planning, f"{src},{src}", tmp_path / "o2"))
+
+
+def planning_args(planning, rescore, out):
+    import argparse
+
+    return argparse.Namespace(rescore=rescore, out=str(out), json=True, argv=[])
