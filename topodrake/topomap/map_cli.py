@@ -255,7 +255,7 @@ def cmd_map_calibrate(args) -> None:
     if args.json:
         print(json.dumps(out))
     else:
-        print(f"fitted {name}'s plan calibration on {cal.fitted_on['trials']} planned trials of "
+        print(f"fitted the plan calibration of {name} on {cal.fitted_on['trials']} planned trials of "
               f"{', '.join(cal.fitted_on['houses'])}: ECE {cal.fitted_on['ece_raw']} -> "
               f"{cal.fitted_on['ece_fitted']}; wrote {args.out}")
 
