@@ -275,24 +275,13 @@ def main(argv=None) -> int:
 
 def _rescore(args) -> int:
     """The shipped plan calibrations against recorded trials (no new trials)."""
+    from topodrake.topomap.plan_calibration import read_trial_records
+
     files = [Path(f) for f in args.rescore.split(",") if f]
-    records, seen, commands = [], set(), []
-    for f in files:
-        try:
-            study = json.loads(f.read_text())
-        except FileNotFoundError:
-            raise TopodrakeError(f"--rescore: {f} does not exist") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise TopodrakeError(f"--rescore: {f} is not readable JSON: {e}") from None
-        if not isinstance(study, dict) or not isinstance(study.get("trials"), list):
-            raise TopodrakeError(f"--rescore: {f} holds no per-trial records ('trials')")
-        for r in study["trials"]:
-            key = (r.get("house"), r.get("method"), r.get("map", "all"), r.get("trial"))
-            if key in seen:
-                raise TopodrakeError(f"--rescore: trial {key} is recorded twice (in {f})")
-            seen.add(key)
-            records.append(r)
-        commands.append(str(study.get("command", "")))
+    try:
+        records, commands = read_trial_records(files)
+    except TopodrakeError as e:
+        raise TopodrakeError(f"--rescore: {e}") from None
     methods = [m for m in dict.fromkeys(r["method"] for r in records) if m in METHODS]
     attach_success_probability(records)
     cal = calibration_table(methods, records)

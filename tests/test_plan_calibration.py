@@ -116,6 +116,14 @@ def test_map_calibrate_cli_writes_the_file_and_refuses_test_houses(capsys, tmp_p
     fit = json.loads(text)
     assert code == 0 and fit["trials"] == 108 and fit["houses"] == ["train-60", "train-61"]
     assert PlanCalibration.load(out).fitted_on["command"].startswith("python studies/planning")
+    other = tmp_path / "more.json"
+    other.write_text(json.dumps({"command": "c2", "trials": _records(["train-62"], seed=6)}))
+    code, text, _ = run(capsys, "map", "calibrate", study, other, "--method", "lidar", "--out",
+                        out, "--json", "--force")
+    assert code == 0 and json.loads(text)["houses"] == ["train-60", "train-61", "train-62"]
+    code, _, err = run(capsys, "map", "calibrate", study, study, "--method", "lidar", "--out",
+                       out, "--force")
+    one_line(code, err, "recorded twice")
     study.write_text(json.dumps({"trials": _records(["test-0"])}))
     code, _, err = run(capsys, "map", "calibrate", study, "--method", "lidar", "--out",
                        tmp_path / "c2.json")

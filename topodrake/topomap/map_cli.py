@@ -228,7 +228,7 @@ def cmd_map_plan(args) -> None:
 
 
 def cmd_map_calibrate(args) -> None:
-    from topodrake.topomap.plan_calibration import FILENAME, fit_from_records
+    from topodrake.topomap.plan_calibration import FILENAME, fit_from_records, read_trial_records
     from topodrake.topomap.sources import ROOT, SHIPPED
 
     if args.out is None:
@@ -237,18 +237,10 @@ def cmd_map_calibrate(args) -> None:
                                  f"calibration beside (shipped: {', '.join(SHIPPED)})")
         args.out = str(ROOT / "checkpoints" / SHIPPED[args.method][0] / FILENAME)
     check_output(args.out, "json", force=args.force)
-    try:
-        study = json.loads(Path(args.records).read_text())
-    except FileNotFoundError:
-        raise TopodrakeError(f"{args.records} does not exist") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise TopodrakeError(f"{args.records} is not readable JSON: {e}") from None
-    if not isinstance(study, dict) or not isinstance(study.get("trials"), list):
-        raise TopodrakeError(f"{args.records} holds no per-trial records ('trials'): give the "
-                             f"planning study's planning.json")
+    records, commands = read_trial_records(args.records)
     name = {"camera": "ours"}.get(args.method, args.method)
-    cal = fit_from_records(study["trials"], name, source=str(args.records),
-                           command=str(study.get("command", "")))
+    cal = fit_from_records(records, name, source=", ".join(map(str, args.records)),
+                           command=" ; ".join(commands))
     cal.save(args.out)
     out = {"out": str(args.out), "method": name, **cal.fitted_on,
            "coef": [round(c, 4) for c in cal.coef], "intercept": round(cal.intercept, 4)}
@@ -325,7 +317,8 @@ def add_map_parser(sub) -> None:
 
     c = msub.add_parser("calibrate", help="fit a method's plan calibration (chance of success "
                                           "of a plan) on a planning study's trials")
-    c.add_argument("records", help="the planning study's planning.json, run on training houses")
+    c.add_argument("records", nargs="+",
+                   help="the planning study's planning.json files, run on training houses")
     c.add_argument("--method", required=True, choices=["camera", "lidar", "lidar_reg"],
                    help="the map kind and follower (camera: the study's 'ours')")
     c.add_argument("--out", help="calibration file to write (default: plan_calibration.json "

@@ -170,3 +170,28 @@ def fit_from_records(records: list[dict], method: str, source: str = "",
     cal.fitted_on["ece_raw"] = calibration(p, y)[1]
     cal.fitted_on["ece_fitted"] = calibration(cal.predict(p, n), y)[1]
     return cal
+
+
+def read_trial_records(files) -> tuple[list[dict], list[str]]:
+    """The per-trial records of planning study results (``planning.json``
+    files) and each file's command; a file without records, or a trial
+    (house, method, map, trial) recorded twice, is refused in one line."""
+    records, seen, commands = [], set(), []
+    for f in map(Path, files):
+        try:
+            study = json.loads(f.read_text())
+        except FileNotFoundError:
+            raise TopodrakeError(f"{f} does not exist") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise TopodrakeError(f"{f} is not readable JSON: {e}") from None
+        if not isinstance(study, dict) or not isinstance(study.get("trials"), list):
+            raise TopodrakeError(f"{f} holds no per-trial records ('trials'): give the planning "
+                                 f"study's planning.json")
+        for r in study["trials"]:
+            key = (r.get("house"), r.get("method"), r.get("map", "all"), r.get("trial"))
+            if key in seen:
+                raise TopodrakeError(f"trial {key} is recorded twice (again in {f})")
+            seen.add(key)
+            records.append(r)
+        commands.append(str(study.get("command", "")))
+    return records, commands
