@@ -38,8 +38,16 @@ FIGURES = {
                         f"{PY} studies/map_scalability.py --json"),
     "trajectory_following": (["results/trajectory_following.png"],
                              f"{PY} studies/trajectory_following.py --json"),
-    "planning": (["results/planning.png", "results/plan_calibration.png",
-                  "results/pruned_maps.png"], f"{PY} studies/planning.py --json"),
+    "planning": (["results/planning.png", "results/pruned_maps.png"],
+                 f"{PY} studies/planning.py --json"),
+    "plan_calibration": (["results/plan_calibration/plan_calibration.png"],
+                         f"{PY} studies/planning.py --rescore "
+                         + ",".join(["results/joining/planning/planning.json",
+                                     "results/lidar_planning/test-0-2.json",
+                                     "results/lidar_planning/test-3-4.json"]
+                                    + [f"results/plan_calibration/test_ours/planning_{t}.json"
+                                       for t in "abc"])
+                         + " --out results/plan_calibration --json"),
 }
 
 
