@@ -53,8 +53,11 @@ A trial starts at one place jittered (0.3 m sideways, 9 deg) and gets the
 observation at another place as its goal; it succeeds when the car comes
 within 0.54 m of the goal within 150 s (1,500 steps) at <= 0.5 m/s without
 colliding. A goal without a plan is a failed trial. Every method of a house
-runs the same trials. Plan probabilities are set against empirical success
-(10 bins, expected calibration error), and maps built from 10%..100% of
+runs the same trials. Plan probabilities, and where a plan calibration
+ships for the method (``topodrake map calibrate``, fitted on training
+houses) each plan's calibrated ``success_probability``, are set against
+empirical success (10 bins, expected calibration error; ``--rescore``
+does this for recorded trials without running new ones), and maps built from 10%..100% of
 the drives show how success grows with experience (``pruned_60_over_peak``:
 success with 60% of the drives over the best over all fractions).
 
@@ -75,7 +78,10 @@ paper's protocol is ``--trials 1000`` with the ten fractions.
 "min_ours": s, "min_oracle_full": s, "min_ours_oracle_follow": s,
 "min_oracle_cwp": s, "oracle_unplanned_pairs": n, "min_margin_over_sptm": m,
 "plan_probability_ece": e, "pruned_60_over_peak": r, "replanning_gain": g,
-"false_link_plans": {method: share}, "unmapped_obstacles": s}``
+"false_link_plans": {method: share}, "unmapped_obstacles": s,
+"plan_probability_ece_by_method": {method: e}, "raw_plan_probability_ece": {method: e},
+"calibration_houses": {method: [house, ...]}}`` (``plan_probability_ece``: ours,
+calibrated where a calibration ships)
 and writes ``results/planning.json`` (command, seed, config, per-trial
 records), ``planning.png``, ``plan_calibration.png`` and ``pruned_maps.png``.
 """
