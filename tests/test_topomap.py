@@ -708,3 +708,46 @@ def test_a_map_file_opens_with_the_world_scorer_and_checkpoints_it_was_built_for
     # navigate follows learned maps only
     assert main(["navigate", str(path), "--start", pose, "--goal", pose]) == 2
     assert "is an oracle map; navigate follows learned maps" in capsys.readouterr().err
+
+
+def _rooms_alike_then_apart(a, b):
+    """Two drives start in look-alike rooms (frames 0-4 of either pass for
+    the other's) and then go different ways."""
+    if a[0] == b[0]:
+        return same_drive_hops(a, b)
+    return 0.999 if a[1] <= 4 and b[1] <= 4 and 0 <= b[1] - a[1] <= 3 else 0.1
+
+
+def test_reuse_ahead_refuses_a_look_alike_whose_drive_goes_elsewhere():
+    plain = table_map(_rooms_alike_then_apart)
+    add_trajectory(plain, drive(0, 10))
+    add_trajectory(plain, drive(1, 10))
+    first = plain.trajectories[0].chain           # drive 0's vertices at frames 0, 3, 6, 9
+    # without the check drive 1 takes drive 0's vertex at frame 3, whose drive goes on elsewhere
+    assert first[1] in plain.trajectories[1].chain
+
+    m = table_map(_rooms_alike_then_apart, reuse_ahead=2)
+    add_trajectory(m, drive(0, 10))
+    add_trajectory(m, drive(1, 10))
+    chain = m.trajectories[1].chain
+    assert m.trajectories[0].chain == first
+    assert first[1] not in chain
+    # a vertex whose drive leads on where drive 1 goes (frame 0 -> frame 3, alike) is still reused
+    assert chain[0] == first[0]
+    assert all(m.graph.nodes[v]["traj"] == 1 for v in chain[1:])
+    with pytest.raises(TopodrakeError, match="reuse_ahead"):
+        MapConfig(reuse_ahead=-1).validate()
+
+
+def test_a_stored_config_from_before_reuse_ahead_reads_as_the_same_config():
+    """A map cache keeps maps written before a setting existed whose default
+    builds the same map, and rebuilds those with another value."""
+    from dataclasses import asdict
+
+    from topodrake.topomap.graph import same_config
+
+    old = {k: v for k, v in asdict(MapConfig()).items() if k != "reuse_ahead"}
+    assert same_config(old, MapConfig())
+    assert not same_config(old, MapConfig(reuse_ahead=4))
+    assert not same_config({**old, "p_reuse": 0.9}, MapConfig())
+    assert not same_config(None, MapConfig())

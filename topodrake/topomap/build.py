@@ -312,7 +312,9 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
         ahead = start + ctx_local[min(j + 1, n - 1)]
         after = source[1] if isinstance(source, tuple) else None
         best = _stand_in(m, m.embedding.embed(obs[j:j + 1])[0], used, after, row(source), ahead,
-                         score, stats, lambda: (cfg.p_reuse, cfg.p_reuse))
+                         score, stats, lambda: (cfg.p_reuse, cfg.p_reuse),
+                         confirm=(lambda v: _leads_on(m, v, start, j, n, score))
+                         if cfg.reuse_ahead else None)
         return j if best is None else ("v", best)
 
     anchors, sources = sparsify_chain(n, reach, cfg.p_sparsify, cfg.sparsify_window,
@@ -321,12 +323,28 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
     return anchors, chain
 
 
+def _leads_on(m: TopoMap, v: int, start: int, j: int, n: int, score) -> bool:
+    """Whether the drive's frames ahead of frame ``j`` (``reuse_ahead`` of
+    them, every ``frame_step``-th) reach where v's own drive went next (a
+    trajectory successor of v) above ``p_reuse``: a look-alike room passes
+    RE at one frame, rarely along the way out of it."""
+    nxt = [w for w in m.graph.successors(v) if m.graph.edges[v, w]["kind"] == "trajectory"]
+    frames = np.arange(j + 1, min(n, j + 1 + m.config.reuse_ahead * m.frame_step), m.frame_step)
+    if not nxt or not len(frames):
+        return False
+    rows = np.repeat(start + frames, len(nxt))
+    ctx = np.tile(m.contexts(nxt), (len(frames), 1))
+    return bool((score(rows, ctx) > m.config.p_reuse).any())
+
+
 def _stand_in(m: TopoMap, query: np.ndarray, used: set[int], after: int | None, source_row: int,
-              target_context: np.ndarray, score, stats: BuildStats, needs) -> int | None:
+              target_context: np.ndarray, score, stats: BuildStats, needs,
+              confirm=None) -> int | None:
     """The existing vertex v (among the ``retrieval_k`` nearest to ``query``,
     none of ``used``) with the largest RE(source, v) RE(v, target) where
-    both pass ``needs()`` = (need_in, need_out); None when none does. After
-    a reused vertex ``after``, vertices of its drive must come later in it."""
+    both pass ``needs()`` = (need_in, need_out) and ``confirm(v)`` holds
+    (when given); None when none does. After a reused vertex ``after``,
+    vertices of its drive must come later in it."""
     cfg = m.config
     cands = m.index.search(query, cfg.retrieval_k, exclude=np.fromiter(used, np.int64))[0]
     if after is not None:      # keep the order of a drive we reuse from
@@ -345,6 +363,11 @@ def _stand_in(m: TopoMap, query: np.ndarray, used: set[int], after: int | None, 
         return None
     prod = np.where(s2 > need_out, s1[s1 > need_in] * s2, -1.0)
     best = int(ok[np.argmax(prod)])
+    if confirm is not None:
+        order = [int(ok[i]) for i in np.argsort(-prod, kind="stable") if prod[i] > 0]
+        best = next((v for v in order if confirm(v)), None)
+        if best is None:
+            return None
     used.add(best)
     stats.reused += 1
     return best

@@ -39,6 +39,15 @@ EDGE_KINDS = ("trajectory", "cross", "junction")
 
 REUSE_RULES = ("paper", "resume")
 TEACH_ODOMETRY = ("wheel", "perfect", "none")
+#: settings added after maps were first written whose default builds a map as
+#: before: a stored config without them reads as these values
+LATER_DEFAULTS = {"reuse_ahead": 0}
+
+
+def same_config(stored, config: "MapConfig") -> bool:
+    """Whether a map file's stored config is ``config`` (the settings it
+    predates read as :data:`LATER_DEFAULTS`)."""
+    return isinstance(stored, dict) and {**LATER_DEFAULTS, **stored} == asdict(config)
 
 
 @dataclass
@@ -72,6 +81,9 @@ class MapConfig:
                                  # it stands in for an anchor frame and the scan resumes from it
     teach_odometry: str = "wheel"  # the drives' odometry stored on trajectory edges: wheel
                                    # odometry that drifts, the true motion, or none
+    reuse_ahead: int = 0         # resume reuse: a stand-in's drive must lead on where this one
+                                 # goes (its successor within RE of one of the next this many
+                                 # context steps' frames; 0: off)
     reuse_legs: bool = True      # lidar maps: edges into and out of a reused vertex carry the
                                  # drive's odometry too, the vertex placed by registering its scan
 
@@ -102,7 +114,8 @@ class MapConfig:
         if self.reuse_slack > 0 and self.reuse_rule != "paper":
             raise TopodrakeError(f"{where}: reuse_slack applies to reuse_rule 'paper' only")
         for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1),
-                          ("retrieval_first", 0), ("link_k", 1), ("link_hops", 0)):
+                          ("retrieval_first", 0), ("link_k", 1), ("link_hops", 0),
+                          ("reuse_ahead", 0)):
             v = getattr(self, name)
             if not isinstance(v, int) or v < low:
                 raise TopodrakeError(f"{where}: {name} must be an integer >= {low}, got {v}")

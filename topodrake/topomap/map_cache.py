@@ -57,7 +57,7 @@ def _adoptable(candidate: Path, world: str, modality: str, names: list[str]) -> 
     """Whether a map built elsewhere (``topodrake map build`` or the map
     scalability study) is this very map: same world, modality, default
     config and the same drives in the same order."""
-    from topodrake.topomap.graph import MapConfig
+    from topodrake.topomap.graph import MapConfig, same_config
     from topodrake.topomap.mapfile import read_map_meta
 
     try:
@@ -65,7 +65,7 @@ def _adoptable(candidate: Path, world: str, modality: str, names: list[str]) -> 
     except TopodrakeError:
         return False
     return (meta.get("world") == world and meta.get("modality") == modality
-            and meta.get("config") == asdict(MapConfig())
+            and same_config(meta.get("config"), MapConfig())
             and [t["name"] for t in meta.get("trajectories", [])] == names)
 
 
@@ -73,7 +73,7 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
             progress: bool):
     """The map of ``drives[indices]`` for ``modality`` (cached; built when missing)."""
     from topodrake.topomap.build import build_map
-    from topodrake.topomap.graph import MapConfig, TopoMap
+    from topodrake.topomap.graph import MapConfig, TopoMap, same_config
     from topodrake.topomap.mapfile import load_map, read_map_meta, save_map
     from topodrake.topomap.retrieval import default_embedding
     from topodrake.topomap.sources import drive_observations, make_scorer
@@ -94,8 +94,8 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
         if [t.name for t in m.trajectories] != names:
             raise TopodrakeError(f"{path} holds other drives than {len(names)} of "
                                  f"{key}; delete it to rebuild")
-        # the config as written (a map from before a setting existed reads it as the default)
-        if read_map_meta(path).get("config") == asdict(MapConfig()):
+        # the config as written (settings a map predates read as LATER_DEFAULTS)
+        if same_config(read_map_meta(path).get("config"), MapConfig()):
             return m, 0.0
         print(f"{path} was built with another map config; rebuilding it", file=sys.stderr)
     t0 = time.perf_counter()
