@@ -20,23 +20,19 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.fileio import atomic_write_bytes, atomic_write_json
+from topodrake.learning.follower_bench import CONTROLLERS as BENCH_CONTROLLERS
 from topodrake.learning.noisy_oracle import is_oracle_spec
 from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, follow_chains_once, path_length
 
-#: name: (C_WP checkpoint, RE checkpoint, the controller the RE was trained for)
+#: name: (C_WP checkpoint, RE checkpoint, the controller the RE was trained for):
+#: the follower bench's controllers, the smaller camera ones, and the
+#: registration C_WP (no checkpoint: "registration" names it)
 CONTROLLERS = {
     "camera_k0": ("checkpoints/camera_k0/checkpoint.pt", "checkpoints/reach_camera_k2/checkpoint.pt",
                   "checkpoints/camera_k2/checkpoint.pt"),
     "camera_k2": ("checkpoints/camera_k2/checkpoint.pt", "checkpoints/reach_camera_k2/checkpoint.pt",
                   "checkpoints/camera_k2/checkpoint.pt"),
-    "camera_k5": ("checkpoints/camera_k5/checkpoint.pt", "checkpoints/reach_camera_k5/checkpoint.pt",
-                  "checkpoints/camera_k5/checkpoint.pt"),
-    "lidar_k5": ("checkpoints/lidar_k5/checkpoint.pt", "checkpoints/reach_lidar_k5/checkpoint.pt",
-                 "checkpoints/lidar_k5/checkpoint.pt"),
-    # the C_WP trained at scale, with the RE of the C_WP its chains were made for
-    "lidar_k5_scale": ("checkpoints/lidar_k5_scale/checkpoint.pt",
-                       "checkpoints/reach_lidar_k5/checkpoint.pt", "checkpoints/lidar_k5/checkpoint.pt"),
-    # the registration C_WP has no checkpoint: "registration" names it
+    **BENCH_CONTROLLERS,
     "lidar_reg": ("registration", "checkpoints/reach_lidar_reg/checkpoint.pt", "registration"),
 }
 

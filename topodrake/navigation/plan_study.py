@@ -183,19 +183,26 @@ def house_seed(base: int, key: str) -> int:
     return int(np.random.SeedSequence([base, zlib.crc32(key.encode())]).generate_state(1)[0])
 
 
-def house_job(seed: int, jobs: dict, cfg: dict) -> dict:
-    """Every method's trials in one house (a Monte Carlo runner job)."""
+def _house(seed: int, jobs: dict, cfg: dict):
+    """(spec, world, drives, drives used) of a job's house, torch on one thread."""
     import torch
-    from tqdm import tqdm
 
-    from topodrake.navigation.plan_trials import jittered_starts, trial_pairs
     from topodrake.world import load_world
 
     torch.set_num_threads(1)
     spec = jobs[seed]
     world = load_world(spec)
     drives = house_drives(spec, Path(cfg["data"]), not cfg["quiet"])
-    n = min(cfg["trajectories"] or len(drives), len(drives))
+    return spec, world, drives, min(cfg["trajectories"] or len(drives), len(drives))
+
+
+def house_job(seed: int, jobs: dict, cfg: dict) -> dict:
+    """Every method's trials in one house (a Monte Carlo runner job)."""
+    from tqdm import tqdm
+
+    from topodrake.navigation.plan_trials import jittered_starts, trial_pairs
+
+    spec, world, drives, n = _house(seed, jobs, cfg)
     indices = list(range(n))
     places = np.asarray(world.places, np.float64)
     # trial i is the same for every count (a prefix), so the oracles' longer
@@ -237,17 +244,11 @@ def unplanned_pairs(spec: str, world, drives, indices, cfg: dict, tag: str) -> l
 
 def pruned_job(seed: int, jobs: dict, cfg: dict) -> dict:
     """Our maps from fractions of one house's drives, and their trials."""
-    import torch
     from tqdm import tqdm
 
     from topodrake.navigation.plan_trials import jittered_starts, pruned_subset, trial_pairs
-    from topodrake.world import load_world
 
-    torch.set_num_threads(1)
-    spec = jobs[seed]
-    world = load_world(spec)
-    drives = house_drives(spec, Path(cfg["data"]), not cfg["quiet"])
-    n = min(cfg["trajectories"] or len(drives), len(drives))
+    spec, world, drives, n = _house(seed, jobs, cfg)
     places = np.asarray(world.places, np.float64)
     pairs = trial_pairs(len(places), cfg["pruned_trials"], seed)
     starts = jittered_starts(world, places, pairs, seed)

@@ -45,6 +45,16 @@ def plan_features(probability, anchors) -> np.ndarray:
     return np.stack([np.log(np.clip(p, _P_FLOOR, 1.0)), n / 10.0], axis=1)
 
 
+def _read_json(path: Path, what: str = ""):
+    """A JSON file's contents; a missing or unreadable file is refused in one line."""
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise TopodrakeError(f"{what}{path} does not exist") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise TopodrakeError(f"{what}{path} is not readable JSON: {e}") from None
+
+
 def _sigmoid(z: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * z))
 
@@ -84,12 +94,7 @@ class PlanCalibration:
     def load(cls, path) -> "PlanCalibration":
         """A calibration file, checked; a bad file is refused in one line."""
         path = Path(path)
-        try:
-            d = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise TopodrakeError(f"plan calibration {path} does not exist") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise TopodrakeError(f"plan calibration {path} is not readable JSON: {e}") from None
+        d = _read_json(path, "plan calibration ")
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             raise TopodrakeError(f"{path} is not a plan calibration (format {FORMAT!r})")
         if d.get("version") != VERSION:
@@ -178,12 +183,7 @@ def read_trial_records(files) -> tuple[list[dict], list[str]]:
     (house, method, map, trial) recorded twice, is refused in one line."""
     records, seen, commands = [], set(), []
     for f in map(Path, files):
-        try:
-            study = json.loads(f.read_text())
-        except FileNotFoundError:
-            raise TopodrakeError(f"{f} does not exist") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise TopodrakeError(f"{f} is not readable JSON: {e}") from None
+        study = _read_json(f)
         if not isinstance(study, dict) or not isinstance(study.get("trials"), list):
             raise TopodrakeError(f"{f} holds no per-trial records ('trials'): give the planning "
                                  f"study's planning.json")
