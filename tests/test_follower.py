@@ -280,3 +280,85 @@ def test_the_goal_distance_is_its_own_setting():
     assert s.mode[0] == FOLLOW
     s, _ = step(following(active=2, visited=1), ev, 3, goal_m=0.45)
     assert s.mode[0] == REACHED
+
+
+class Beside(Scripted):
+    """Scripted answers whose waypoint toward every anchor lies at ``point`` (car frame)."""
+
+    def __init__(self, point, n_anchors=4):
+        super().__init__(p=[0.99] * n_anchors, prox=[0.2] * n_anchors, dist=[1.0] * n_anchors)
+        self.point = np.asarray(point, float)
+
+    def __call__(self, cars, anchors, cwp, re):
+        ans = super().__call__(cars, anchors, cwp, re)
+        if cwp:
+            ans.waypoint = np.tile(self.point, (len(cars), 1))
+        return ans
+
+
+def test_inside_turn_marks_points_the_car_circles_driving_forward():
+    from topodrake.navigation.follower import inside_turn
+    from topodrake.vehicle import VehicleConfig
+
+    r = VehicleConfig().turn_radius()
+    assert r == pytest.approx(0.16 / np.tan(0.36))
+    pts = np.array([[0.0, 0.6], [0.0, -0.5], [0.2, 0.45], [2.0, 0.0], [1.0, 0.6], [-0.1, 0.9],
+                    [0.3, 0.0]])
+    np.testing.assert_array_equal(inside_turn(pts, r, 0.0),
+                                  [True, True, True, False, False, False, False])
+    # the widened circle takes in points just outside it
+    assert not inside_turn(np.array([[0.0, 0.88]]), r, 0.0)[0]
+    assert inside_turn(np.array([[0.0, 0.88]]), r, 0.1)[0]
+
+
+def test_a_waypoint_beside_the_car_is_driven_as_a_point_behind_it():
+    car = np.array([[1.0, 2.0, np.pi / 2, 0.0, 0.0]])          # facing +y
+    s, out = step(following(active=1, visited=0), Beside([0.0, 0.6]), 4, car=car)
+    assert s.mode[0] == FOLLOW and not out.held[0]
+    np.testing.assert_allclose(out.waypoint[0], [1.0, 1.0], atol=1e-9)   # 1 m behind the car
+    np.testing.assert_allclose(s.waypoint[0], [0.4, 2.0], atol=1e-9)     # C_WP's, kept as held
+    np.testing.assert_allclose(out.local[0], [0.0, 0.6])                 # the answer itself
+    # off, or a waypoint the car can turn onto: driven as C_WP gave it
+    s, out = step(following(active=1, visited=0), Beside([0.0, 0.6]), 4, car=car,
+                  reverse_inside_turn=-1.0)
+    np.testing.assert_allclose(out.waypoint[0], [0.4, 2.0], atol=1e-9)
+    s, out = step(following(active=1, visited=0), Beside([1.0, 0.6]), 4, car=car)
+    np.testing.assert_allclose(out.waypoint[0], [0.4, 3.0], atol=1e-9)
+    assert FollowerConfig.paper().reverse_inside_turn < 0
+    with pytest.raises(TopodrakeError, match="turn_radius_m"):
+        FollowerConfig(turn_radius_m=0.0).check()
+
+
+def test_dead_reckoning_waypoints_are_not_backed_up():
+    s = following(active=1, visited=0)
+    s.mode[:] = DEAD_RECKONING
+    s.waypoint[:] = [[1.0, 2.6]]                   # held, 0.6 m beside the car (facing +x)
+    ev = Scripted(p=[0.5] * 4, prox=[0.2] * 4, dist=[1.0] * 4)
+    s, out = step(s, ev, 4)
+    assert s.mode[0] == DEAD_RECKONING and out.held[0]
+    np.testing.assert_allclose(out.waypoint[0], [1.0, 2.6])
+
+
+def test_backing_up_brings_the_car_onto_a_target_it_would_circle():
+    """Closed loop with the RMP: a target beside the car is reached within
+    80 periods when the car backs up first; driving forward at full lock
+    it circles it for longer."""
+    from topodrake.navigation.follower import back_up_inside_turn
+    from topodrake.rmp import RmpConfig, rmp_controls
+    from topodrake.vehicle import VehicleConfig, vehicle_step, world_to_car
+
+    veh, rmp, cfg = VehicleConfig(), RmpConfig(), FollowerConfig()
+
+    def closest(target, back_up, periods=80):
+        state, best = np.zeros((1, 5)), np.inf
+        for _ in range(periods):
+            wp = back_up_inside_turn(target, state, cfg) if back_up else target
+            local = world_to_car(wp[:, None], state)[:, 0]
+            state = vehicle_step(state, rmp_controls(state, local, None, None, rmp, veh), veh)
+            best = min(best, float(np.hypot(*(state[0, :2] - target[0]))))
+        return best
+
+    for target in ([[0.0, 0.6]], [[0.0, -0.5]]):
+        target = np.array(target)
+        assert closest(target, back_up=True) < 0.2
+        assert closest(target, back_up=False) > 0.2

@@ -113,6 +113,10 @@ class VehicleConfig:
         """(P, 2) control points in the car frame."""
         return np.asarray(self.control_points, dtype=np.float64).reshape(-1, 2)
 
+    def turn_radius(self) -> float:
+        """The smallest turning radius of the reference point (m): wheelbase / tan(steer_limit)."""
+        return float(self.wheelbase / np.tan(self.steer_limit))
+
     def approx_radius(self) -> float:
         """Largest distance of a control point from the reference point."""
         return float(np.max(np.linalg.norm(self.control_points_array(), axis=1)))

@@ -59,6 +59,13 @@ Per period, with the current observation:
   up). After ``dr_max_iterations`` periods it gives up
   (``dead_reckoning_gave_up``).
 
+A Follow waypoint of C_WP's that lies inside the car's turning circle
+(``reverse_inside_turn``; ours) is driven as a point straight behind the
+car: driving forward at full lock the car would circle it (an anchor
+beside the car), and a near answer far off the heading (C_WP's typical
+large error) would swing the car round; backing up brings the target
+where the car can turn onto it, and the next answer comes from farther.
+
 The state is a handful of numbers per car (:class:`FollowerState`): mode,
 active anchor, last visited anchor, the held waypoint and counters, and
 ``track``: (N, S) floats that a stateful C_WP keeps per car (S =
@@ -76,7 +83,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.navigation import tracker
-from topodrake.vehicle import car_to_world
+from topodrake.vehicle import VehicleConfig, car_to_world, world_to_car
 
 SEARCH, FOLLOW, DEAD_RECKONING, REACHED, FAILED = 0, 1, 2, 3, 4
 MODES = ("search", "follow", "dead_reckoning", "reached", "failed")
@@ -113,6 +120,12 @@ class FollowerConfig:
                                     # answers as fixes, and drive toward the tracked anchor when
                                     # C_WP's waypoint disagrees (routes without legs: no effect)
     check_deg: float = 35.0         # ... by more than this angle
+    reverse_inside_turn: float = 0.1  # a C_WP waypoint inside the car's turning circle (its
+                                    # radius widened by this share) is replaced by a point
+                                    # straight behind: the car backs up until it can turn onto
+                                    # it (negative: off)
+    turn_radius_m: float = field(default_factory=lambda: VehicleConfig().turn_radius())
+                                    # the car's smallest turning radius
 
     @classmethod
     def paper(cls) -> "FollowerConfig":
@@ -124,7 +137,7 @@ class FollowerConfig:
         be turned off and stays)."""
         return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65,
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
-                   odometry_check=False)
+                   odometry_check=False, reverse_inside_turn=-1.0)
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
@@ -136,6 +149,8 @@ class FollowerConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise TopodrakeError(f"follower {name} must be in [0, 1], got {v}")
+        if not self.turn_radius_m > 0:
+            raise TopodrakeError(f"follower turn_radius_m must be > 0, got {self.turn_radius_m}")
         if not 0.0 < self.check_deg <= 180.0:
             raise TopodrakeError(f"follower check_deg must be in (0, 180], got {self.check_deg}")
         if self.dr_back_anchors < -1:
@@ -492,7 +507,40 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     off = target < 0
     local[off], local_overlap[off], local_heading[off] = np.nan, np.nan, np.nan
     held = off & ((new.mode == FOLLOW) | (new.mode == DEAD_RECKONING))
+    if cfg.reverse_inside_turn >= 0:
+        answer = np.flatnonzero((new.mode == FOLLOW) & ~held)
+        drive[answer] = back_up_inside_turn(drive[answer], car_state[answer], cfg)
     return new, StepOutput(drive, target, local, local_overlap, local_heading, held)
+
+
+BACK_UP_M = 1.0     # how far behind the car the backing-up waypoint lies
+
+
+def inside_turn(local: np.ndarray, radius: float, widen: float = 0.0) -> np.ndarray:
+    """Car-frame points (N, 2) inside the car's turning circle on their side
+    (radius widened by the share ``widen``): driving forward at full lock
+    the car circles them without coming onto them."""
+    side = np.where(local[:, 1] >= 0.0, 1.0, -1.0)
+    return np.hypot(local[:, 0], local[:, 1] - side * radius) < radius * (1.0 + widen)
+
+
+def back_up_inside_turn(waypoint: np.ndarray, car_state: np.ndarray, cfg: FollowerConfig
+                        ) -> np.ndarray:
+    """World waypoints (N, 2) with those inside the car's turning circle
+    (:func:`inside_turn`) replaced by a point ``BACK_UP_M`` straight behind
+    the car: it reverses until it can reach them driving forward (a near
+    C_WP answer far off the heading, or an anchor beside the car, which it
+    would otherwise circle)."""
+    out = np.array(waypoint, np.float64)
+    if not len(out):
+        return out
+    local = world_to_car(out[:, None], car_state)[:, 0]
+    inside = np.isfinite(local).all(axis=1) & inside_turn(local, cfg.turn_radius_m,
+                                                          cfg.reverse_inside_turn)
+    if inside.any():
+        behind = np.tile([[-BACK_UP_M, 0.0]], (int(inside.sum()), 1))
+        out[inside] = car_to_world(behind[:, None], car_state[inside])[:, 0]
+    return out
 
 
 TRACKER = tracker.TrackerConfig()
