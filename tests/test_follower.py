@@ -314,7 +314,7 @@ def test_inside_turn_marks_points_the_car_circles_driving_forward():
 def test_a_waypoint_beside_the_car_is_driven_as_a_point_behind_it():
     car = np.array([[1.0, 2.0, np.pi / 2, 0.0, 0.0]])          # facing +y
     s, out = step(following(active=1, visited=0), Beside([0.0, 0.6]), 4, car=car)
-    assert s.mode[0] == FOLLOW and not out.held[0]
+    assert s.mode[0] == FOLLOW and out.held[0]                           # the follower's own
     np.testing.assert_allclose(out.waypoint[0], [1.0, 1.0], atol=1e-9)   # 1 m behind the car
     np.testing.assert_allclose(s.waypoint[0], [0.4, 2.0], atol=1e-9)     # C_WP's, kept as held
     np.testing.assert_allclose(out.local[0], [0.0, 0.6])                 # the answer itself
@@ -322,8 +322,10 @@ def test_a_waypoint_beside_the_car_is_driven_as_a_point_behind_it():
     s, out = step(following(active=1, visited=0), Beside([0.0, 0.6]), 4, car=car,
                   reverse_inside_turn=-1.0)
     np.testing.assert_allclose(out.waypoint[0], [0.4, 2.0], atol=1e-9)
+    assert not out.held[0]
     s, out = step(following(active=1, visited=0), Beside([1.0, 0.6]), 4, car=car)
     np.testing.assert_allclose(out.waypoint[0], [0.4, 3.0], atol=1e-9)
+    assert not out.held[0]
     assert FollowerConfig.paper().reverse_inside_turn < 0
     with pytest.raises(TopodrakeError, match="turn_radius_m"):
         FollowerConfig(turn_radius_m=0.0).check()
@@ -352,7 +354,7 @@ def test_backing_up_brings_the_car_onto_a_target_it_would_circle():
     def closest(target, back_up, periods=80):
         state, best = np.zeros((1, 5)), np.inf
         for _ in range(periods):
-            wp = back_up_inside_turn(target, state, cfg) if back_up else target
+            wp = back_up_inside_turn(target, state, cfg)[0] if back_up else target
             local = world_to_car(wp[:, None], state)[:, 0]
             state = vehicle_step(state, rmp_controls(state, local, None, None, rmp, veh), veh)
             best = min(best, float(np.hypot(*(state[0, :2] - target[0]))))

@@ -79,14 +79,24 @@ def test_follower_fsm_on_one_context(box_world, route, oracles, drive):
     from topodrake.navigation.follower import FOLLOW, FollowerState
     from topodrake.systems.follower import FollowerFsm
 
-    fsm = FollowerFsm(route, *oracles)
+    from topodrake.navigation.follower import FollowerConfig
+
+    fsm = FollowerFsm(route, *oracles, FollowerConfig(reverse_inside_turn=-1.0))
     ctx = fsm.CreateDefaultContext()
     car = np.array([*drive[0], 0.0, 0.0])
     fsm.state_port.FixValue(ctx, car)
     target = fsm.target_port.Eval(ctx)
     assert target.key == 0                               # Search picked the anchor under the car
     np.testing.assert_allclose(target.poses, route.contexts[0])
-    assert np.isnan(fsm.held_waypoint_port.Eval(ctx)).all()
+    assert np.isnan(fsm.held_waypoint_port.Eval(ctx)).all()       # WaypointNet's answer drives
+    # backing up (the default): the anchor under the car lies inside its turning circle, so
+    # the follower holds a point behind the car instead
+    backing = FollowerFsm(route, *oracles)
+    backing_ctx = backing.CreateDefaultContext()
+    backing.state_port.FixValue(backing_ctx, car)
+    held = backing.held_waypoint_port.Eval(backing_ctx)
+    ahead = np.array([np.cos(car[2]), np.sin(car[2])])
+    assert np.dot(held - car[:2], ahead) == pytest.approx(-1.0)
     assert fsm.mode_port.Eval(ctx)[0] == FOLLOW
     # the decision is a cache entry: nothing is committed before the periodic update
     s = fsm.follower_state(ctx)

@@ -315,174 +315,212 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     state and get a NaN waypoint."""
     cfg = config or FollowerConfig()
     n = len(state)
-    n_anchors = np.broadcast_to(np.asarray(n_anchors, np.int64), (n,))
-    car_state = np.asarray(car_state, np.float64).reshape(n, 5)
     new = state.copy()
-    target = np.full(n, -1, np.int64)
-    local = np.full((n, 2), np.nan)          # C_WP's answer toward the new active anchor
-    local_overlap = np.full((n, 2), np.nan)
-    local_heading = np.full(n, np.nan)
-    have_wp = np.zeros(n, bool)
-    need = np.zeros(n, bool)                 # cars that still need C_WP toward their active anchor
+    car_state = np.asarray(car_state, np.float64).reshape(n, 5)
     # the car's pose along its route by odometry, checked by C_WP's answers
     frames = getattr(evaluate, "anchor_frames", None) if cfg.odometry_check else None
     if frames is not None:
         tracker.advance(new, car_state[:, :3], TRACKER)
+    per = _Period(cfg, state, new, np.broadcast_to(np.asarray(n_anchors, np.int64), (n,)),
+                  car_state, evaluate, frames, np.full((n, 2), np.nan), np.full((n, 2), np.nan),
+                  np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool))
+    _search(per, np.flatnonzero(state.mode == SEARCH))
+    _follow(per, np.flatnonzero(state.mode == FOLLOW))
+    _dead_reckoning(per, np.flatnonzero(state.mode == DEAD_RECKONING))
+    return new, _drive(per)
 
-    # -- Search: RE toward every anchor ----------------------------------------------
-    s = np.flatnonzero(state.mode == SEARCH)
-    if s.size:
-        rows, anchors = _windows(np.zeros(s.size, np.int64), n_anchors[s] - 1)
-        p = evaluate(s[rows], anchors, False, True).probability
-        arg, best = _best_per_row(rows, p, s.size)
-        ok = best > cfg.p_search
-        new.best_p[s] = np.where(np.isfinite(best), best, 0.0)
-        got = s[ok]
-        new.active[got] = anchors[arg[ok]]
-        new.visited[got] = new.active[got] - 1
-        new.mode[got] = FOLLOW
-        need[got] = True
-        new.mode[s[~ok]] = FAILED
-        new.reason[s[~ok]] = SEARCH_FAILED
 
-    # -- Follow: proximity over the lookahead window, then RE toward the active anchor --
-    f = np.flatnonzero(state.mode == FOLLOW)
-    if f.size:
-        # an anchor the car has not reached for stall_periods (an obstacle the
-        # map never saw stands on it, or the car circles it) counts as visited,
-        # but for the route's last one
-        start = state.visited[f].copy()
-        stuck = ((state.stall[f] >= cfg.stall_periods) & (state.active[f] < n_anchors[f] - 1)
-                 & (state.active[f] > start))
-        start[stuck] = state.active[f][stuck]
-        lo = start + 1
-        hi = np.minimum(start + cfg.lookahead, n_anchors[f] - 1)
-        rows, anchors = _windows(lo, hi)
-        ans = evaluate(f[rows], anchors, True, False)
-        if frames is not None:
-            tracker.apply_answers(new, f[rows], anchors, ans.waypoint, ans.heading, frames, TRACKER)
-        prox = ans.overlap.mean(axis=1)
-        # close (a short waypoint) or already passed (the waypoint points backwards)
-        length = np.hypot(*ans.waypoint.T)
-        # (the route's last anchor, the goal, only when close: passing it is not arriving)
-        passed = (ans.waypoint[:, 0] < 0.0) & (anchors < n_anchors[f[rows]] - 1)
-        last = anchors == n_anchors[f[rows]] - 1
-        # (the looser proximity only where no earlier anchor of the window looks nearer:
-        # a C_WP that says "here" toward an anchor a room away is wrong)
-        # (rows ascend and proximities lie in [0, 1]: shifting each row by 2 per row keeps
-        # the running maximum within its row)
-        nearest = prox >= np.maximum.accumulate(prox + 2.0 * rows) - 2.0 * rows
-        there = (((prox > cfg.p_visited) & ((length < cfg.visit_m) | passed))
-                 | ((prox > cfg.p_visited_close) & (length < cfg.visit_m) & nearest))
-        there = np.where(last, _at_goal(prox, length, cfg), there)
-        visited = start.copy()
-        for m in np.flatnonzero(there):
-            visited[rows[m]] = max(visited[rows[m]], anchors[m])
-        new.visited[f] = visited
-        done = visited >= n_anchors[f] - 1
-        new.mode[f[done]] = REACHED
-        keep = ~done
-        fk = f[keep]
-        if fk.size:
-            # the candidate to advance to: the one after the next (the paper's
-            # rule) or the open anchor of highest proximity (the authors' code)
-            nxt = visited[keep] + 1
-            pos = np.full(len(f), -1, np.int64)
-            pos[keep] = np.arange(fk.size)
-            cand = np.full(fk.size, -1, np.int64)
-            cand_prox = np.full(fk.size, -np.inf)
-            for m in range(len(rows)):
-                r = pos[rows[m]]
-                if r < 0 or anchors[m] <= nxt[r]:
-                    continue
-                if cfg.advance == "next" and anchors[m] == nxt[r] + 1:
-                    cand[r], cand_prox[r] = anchors[m], prox[m]
-                elif cfg.advance == "proximity" and prox[m] > cand_prox[r]:
-                    cand[r], cand_prox[r] = anchors[m], prox[m]
-            two = (cand >= 0) & (cand_prox > cfg.p_near)
-            cars = np.concatenate([np.arange(fk.size), np.flatnonzero(two)])
-            p = evaluate(fk[cars], np.concatenate([nxt, cand[two]]), False, True).probability
-            p_next = p[:fk.size]
-            p_cand = np.full(fk.size, -np.inf)
-            p_cand[two] = p[fk.size:]
-            advance = p_cand > cfg.p_follow
-            new.active[fk] = np.where(advance, cand, nxt)
-            p_active = np.where(advance, p_cand, p_next)
-            new.best_p[fk] = p_active
-            # C_WP's waypoint toward the active anchor, when it was in the window
-            for m in range(len(rows)):
-                r = pos[rows[m]]
-                if r >= 0 and anchors[m] == new.active[fk[r]]:
-                    local[fk[r]] = ans.waypoint[m]
-                    local_overlap[fk[r]] = ans.overlap[m]
-                    if ans.heading is not None:
-                        local_heading[fk[r]] = ans.heading[m]
-                    have_wp[fk[r]] = True
-            same = (new.active[fk] == state.active[fk]) & (visited[keep] == state.visited[fk])
-            new.stall[fk] = np.where(same, state.stall[fk] + 1, 0)
-            lost = p_active <= cfg.p_follow
-            new.mode[fk[lost]] = DEAD_RECKONING
-            new.dr_count[fk[lost]] = 0
-            need[fk] = True         # (entering Dead reckoning holds this period's waypoint)
+@dataclass
+class _Period:
+    """What one period's modes share: the settings, the state before and
+    after, the inputs, and C_WP's answer toward each car's new active anchor."""
 
-    # -- Dead reckoning: RE over a widening window; back to Follow above p_follow ------
+    cfg: FollowerConfig
+    state: FollowerState              # before the period
+    new: FollowerState                # after it (updated in place)
+    n_anchors: np.ndarray             # (N,)
+    car_state: np.ndarray             # (N, 5)
+    evaluate: Evaluate
+    frames: Callable | None           # the route tracker's anchor frames (None: no tracker)
+    local: np.ndarray                 # (N, 2) C_WP's waypoint toward the new active anchor
+    local_overlap: np.ndarray         # (N, 2) ... its overlaps
+    local_heading: np.ndarray         # (N,) ... its heading difference
+    have_wp: np.ndarray               # (N,) bool: that answer is known
+    need: np.ndarray                  # (N,) bool: the car drives a fresh C_WP waypoint
+
+
+def _search(per: _Period, s: np.ndarray) -> None:
+    """Search (cars ``s``): RE toward every anchor; the best above ``p_search`` becomes active."""
+    if not s.size:
+        return
+    cfg, new, n_anchors, evaluate = per.cfg, per.new, per.n_anchors, per.evaluate
+    rows, anchors = _windows(np.zeros(s.size, np.int64), n_anchors[s] - 1)
+    p = evaluate(s[rows], anchors, False, True).probability
+    arg, best = _best_per_row(rows, p, s.size)
+    ok = best > cfg.p_search
+    new.best_p[s] = np.where(np.isfinite(best), best, 0.0)
+    got = s[ok]
+    new.active[got] = anchors[arg[ok]]
+    new.visited[got] = new.active[got] - 1
+    new.mode[got] = FOLLOW
+    per.need[got] = True
+    new.mode[s[~ok]] = FAILED
+    new.reason[s[~ok]] = SEARCH_FAILED
+
+
+def _follow(per: _Period, f: np.ndarray) -> None:
+    """Follow (cars ``f``): visits from proximity over the lookahead window, then RE
+    toward the active anchor (or the one after it)."""
+    if not f.size:
+        return
+    cfg, state, new, n_anchors, evaluate = per.cfg, per.state, per.new, per.n_anchors, per.evaluate
+    # an anchor the car has not reached for stall_periods (an obstacle the
+    # map never saw stands on it, or the car circles it) counts as visited,
+    # but for the route's last one
+    start = state.visited[f].copy()
+    stuck = ((state.stall[f] >= cfg.stall_periods) & (state.active[f] < n_anchors[f] - 1)
+             & (state.active[f] > start))
+    start[stuck] = state.active[f][stuck]
+    lo = start + 1
+    hi = np.minimum(start + cfg.lookahead, n_anchors[f] - 1)
+    rows, anchors = _windows(lo, hi)
+    ans = evaluate(f[rows], anchors, True, False)
+    if per.frames is not None:
+        tracker.apply_answers(new, f[rows], anchors, ans.waypoint, ans.heading, per.frames, TRACKER)
+    prox = ans.overlap.mean(axis=1)
+    # close (a short waypoint) or already passed (the waypoint points backwards)
+    length = np.hypot(*ans.waypoint.T)
+    # (the route's last anchor, the goal, only when close: passing it is not arriving)
+    passed = (ans.waypoint[:, 0] < 0.0) & (anchors < n_anchors[f[rows]] - 1)
+    last = anchors == n_anchors[f[rows]] - 1
+    # (the looser proximity only where no earlier anchor of the window looks nearer:
+    # a C_WP that says "here" toward an anchor a room away is wrong)
+    # (rows ascend and proximities lie in [0, 1]: shifting each row by 2 per row keeps
+    # the running maximum within its row)
+    nearest = prox >= np.maximum.accumulate(prox + 2.0 * rows) - 2.0 * rows
+    there = (((prox > cfg.p_visited) & ((length < cfg.visit_m) | passed))
+             | ((prox > cfg.p_visited_close) & (length < cfg.visit_m) & nearest))
+    there = np.where(last, _at_goal(prox, length, cfg), there)
+    visited = start.copy()
+    for m in np.flatnonzero(there):
+        visited[rows[m]] = max(visited[rows[m]], anchors[m])
+    new.visited[f] = visited
+    done = visited >= n_anchors[f] - 1
+    new.mode[f[done]] = REACHED
+    keep = ~done
+    fk = f[keep]
+    if fk.size:
+        # the candidate to advance to: the one after the next (the paper's
+        # rule) or the open anchor of highest proximity (the authors' code)
+        nxt = visited[keep] + 1
+        pos = np.full(len(f), -1, np.int64)
+        pos[keep] = np.arange(fk.size)
+        cand = np.full(fk.size, -1, np.int64)
+        cand_prox = np.full(fk.size, -np.inf)
+        for m in range(len(rows)):
+            r = pos[rows[m]]
+            if r < 0 or anchors[m] <= nxt[r]:
+                continue
+            if cfg.advance == "next" and anchors[m] == nxt[r] + 1:
+                cand[r], cand_prox[r] = anchors[m], prox[m]
+            elif cfg.advance == "proximity" and prox[m] > cand_prox[r]:
+                cand[r], cand_prox[r] = anchors[m], prox[m]
+        two = (cand >= 0) & (cand_prox > cfg.p_near)
+        cars = np.concatenate([np.arange(fk.size), np.flatnonzero(two)])
+        p = evaluate(fk[cars], np.concatenate([nxt, cand[two]]), False, True).probability
+        p_next = p[:fk.size]
+        p_cand = np.full(fk.size, -np.inf)
+        p_cand[two] = p[fk.size:]
+        advance = p_cand > cfg.p_follow
+        new.active[fk] = np.where(advance, cand, nxt)
+        p_active = np.where(advance, p_cand, p_next)
+        new.best_p[fk] = p_active
+        # C_WP's waypoint toward the active anchor, when it was in the window
+        for m in range(len(rows)):
+            r = pos[rows[m]]
+            if r >= 0 and anchors[m] == new.active[fk[r]]:
+                per.local[fk[r]] = ans.waypoint[m]
+                per.local_overlap[fk[r]] = ans.overlap[m]
+                if ans.heading is not None:
+                    per.local_heading[fk[r]] = ans.heading[m]
+                per.have_wp[fk[r]] = True
+        same = (new.active[fk] == state.active[fk]) & (visited[keep] == state.visited[fk])
+        new.stall[fk] = np.where(same, state.stall[fk] + 1, 0)
+        lost = p_active <= cfg.p_follow
+        new.mode[fk[lost]] = DEAD_RECKONING
+        new.dr_count[fk[lost]] = 0
+        per.need[fk] = True         # (entering Dead reckoning holds this period's waypoint)
+
+
+def _dead_reckoning(per: _Period, d: np.ndarray) -> None:
+    """Dead reckoning (cars ``d``): RE over a widening window; back to Follow above
+    ``p_follow``."""
+    if not d.size:
+        return
+    cfg, state, new, n_anchors = per.cfg, per.state, per.new, per.n_anchors
+    car_state, evaluate = per.car_state, per.evaluate
     # (a car that entered Dead reckoning this period searches from the next one)
-    d = np.flatnonzero(state.mode == DEAD_RECKONING)
-    if d.size:
-        grow = state.dr_count[d] // cfg.dr_widen_every
-        nxt = state.visited[d] + 1
-        if cfg.dr_back_anchors == 0:
-            lo = nxt
-            hi = np.minimum(nxt + cfg.lookahead - 1 + 2 * grow, n_anchors[d] - 1)
-        else:
-            # the paper's window widens both ways; ours reaches back dr_back_anchors at most
-            back = grow if cfg.dr_back_anchors < 0 else np.minimum(grow, cfg.dr_back_anchors)
-            lo = np.maximum(nxt - back, 0)
-            hi = np.minimum(nxt + cfg.lookahead - 1 + grow, n_anchors[d] - 1)
-        lo = np.maximum(lo, hi - cfg.dr_max_window + 1)
-        rows, anchors = _windows(lo, hi)
-        p = evaluate(d[rows], anchors, False, True).probability
-        arg, best = _best_per_row(rows, p, d.size, prefer_last=True)
-        new.best_p[d] = np.where(np.isfinite(best), best, 0.0)
-        back = best > cfg.p_follow
-        db = d[back]
-        new.active[db] = anchors[arg[back]]
-        new.visited[db] = new.active[db] - 1
-        new.mode[db] = FOLLOW
-        new.dr_count[db] = 0
-        need[db] = True
-        stay = d[~back]
-        # the goal in sight ends the route in Dead reckoning too (RE often doubts the
-        # last metre: the car stands on the goal in Dead reckoning)
-        near = stay[new.visited[stay] + cfg.lookahead >= n_anchors[stay] - 1]
-        if near.size:
-            ans = evaluate(near, n_anchors[near] - 1, True, False)
-            home = near[_at_goal(ans.overlap.mean(axis=1), np.hypot(*ans.waypoint.T), cfg)]
-            new.visited[home] = n_anchors[home] - 1
-            new.mode[home] = REACHED
-            stay = stay[new.mode[stay] == DEAD_RECKONING]
-        new.dr_count[stay] = state.dr_count[stay] + 1
-        gave_up = stay[new.dr_count[stay] >= cfg.dr_max_iterations]
-        new.mode[gave_up] = FAILED
-        new.reason[gave_up] = DR_GAVE_UP
-        # arrived at the held waypoint without RE's consent: a new leg from C_WP
-        going = stay[new.mode[stay] == DEAD_RECKONING]
-        arrived = going[np.hypot(*(state.waypoint[going] - car_state[going, :2]).T)
-                        < cfg.dr_arrive_m]
-        if arrived.size:
-            leg = evaluate(arrived, new.active[arrived], True, False).waypoint
-            # standing on the active anchor (a junction overshot): it counts as visited and
-            # the leg goes to the next one, which RE may not see from this heading
-            on = np.flatnonzero((np.hypot(*leg.T) < cfg.visit_m)
-                                & (new.active[arrived] < n_anchors[arrived] - 1))
-            if on.size:
-                cars_on = arrived[on]
-                new.visited[cars_on] = new.active[cars_on]
-                new.active[cars_on] += 1
-                leg[on] = evaluate(cars_on, new.active[cars_on], True, False).waypoint
-            new.waypoint[arrived] = car_to_world(leg[:, None], car_state[arrived])[:, 0]
+    grow = state.dr_count[d] // cfg.dr_widen_every
+    nxt = state.visited[d] + 1
+    if cfg.dr_back_anchors == 0:
+        lo = nxt
+        hi = np.minimum(nxt + cfg.lookahead - 1 + 2 * grow, n_anchors[d] - 1)
+    else:
+        # the paper's window widens both ways; ours reaches back dr_back_anchors at most
+        back = grow if cfg.dr_back_anchors < 0 else np.minimum(grow, cfg.dr_back_anchors)
+        lo = np.maximum(nxt - back, 0)
+        hi = np.minimum(nxt + cfg.lookahead - 1 + grow, n_anchors[d] - 1)
+    lo = np.maximum(lo, hi - cfg.dr_max_window + 1)
+    rows, anchors = _windows(lo, hi)
+    p = evaluate(d[rows], anchors, False, True).probability
+    arg, best = _best_per_row(rows, p, d.size, prefer_last=True)
+    new.best_p[d] = np.where(np.isfinite(best), best, 0.0)
+    back = best > cfg.p_follow
+    db = d[back]
+    new.active[db] = anchors[arg[back]]
+    new.visited[db] = new.active[db] - 1
+    new.mode[db] = FOLLOW
+    new.dr_count[db] = 0
+    per.need[db] = True
+    stay = d[~back]
+    # the goal in sight ends the route in Dead reckoning too (RE often doubts the
+    # last metre: the car stands on the goal in Dead reckoning)
+    near = stay[new.visited[stay] + cfg.lookahead >= n_anchors[stay] - 1]
+    if near.size:
+        ans = evaluate(near, n_anchors[near] - 1, True, False)
+        home = near[_at_goal(ans.overlap.mean(axis=1), np.hypot(*ans.waypoint.T), cfg)]
+        new.visited[home] = n_anchors[home] - 1
+        new.mode[home] = REACHED
+        stay = stay[new.mode[stay] == DEAD_RECKONING]
+    new.dr_count[stay] = state.dr_count[stay] + 1
+    gave_up = stay[new.dr_count[stay] >= cfg.dr_max_iterations]
+    new.mode[gave_up] = FAILED
+    new.reason[gave_up] = DR_GAVE_UP
+    # arrived at the held waypoint without RE's consent: a new leg from C_WP
+    going = stay[new.mode[stay] == DEAD_RECKONING]
+    arrived = going[np.hypot(*(state.waypoint[going] - car_state[going, :2]).T)
+                    < cfg.dr_arrive_m]
+    if arrived.size:
+        leg = evaluate(arrived, new.active[arrived], True, False).waypoint
+        # standing on the active anchor (a junction overshot): it counts as visited and
+        # the leg goes to the next one, which RE may not see from this heading
+        on = np.flatnonzero((np.hypot(*leg.T) < cfg.visit_m)
+                            & (new.active[arrived] < n_anchors[arrived] - 1))
+        if on.size:
+            cars_on = arrived[on]
+            new.visited[cars_on] = new.active[cars_on]
+            new.active[cars_on] += 1
+            leg[on] = evaluate(cars_on, new.active[cars_on], True, False).waypoint
+        new.waypoint[arrived] = car_to_world(leg[:, None], car_state[arrived])[:, 0]
 
-    # -- C_WP toward active anchors not asked yet; the waypoints to drive ---------------
+
+def _drive(per: _Period) -> StepOutput:
+    """C_WP toward active anchors not asked yet, and the waypoints to drive."""
+    cfg, new, car_state, evaluate = per.cfg, per.new, per.car_state, per.evaluate
+    local, local_overlap, local_heading = per.local, per.local_overlap, per.local_heading
+    have_wp, need, frames, n_anchors = per.have_wp, per.need, per.frames, per.n_anchors
+    n = len(new)
+    target = np.full(n, -1, np.int64)
     moving = (new.mode == FOLLOW) | (new.mode == DEAD_RECKONING)
     ask = np.flatnonzero(need & ~have_wp & moving)
     if ask.size:
@@ -509,8 +547,9 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     held = off & ((new.mode == FOLLOW) | (new.mode == DEAD_RECKONING))
     if cfg.reverse_inside_turn >= 0:
         answer = np.flatnonzero((new.mode == FOLLOW) & ~held)
-        drive[answer] = back_up_inside_turn(drive[answer], car_state[answer], cfg)
-    return new, StepOutput(drive, target, local, local_overlap, local_heading, held)
+        drive[answer], backed = back_up_inside_turn(drive[answer], car_state[answer], cfg)
+        held[answer[backed]] = True             # the follower's own waypoint now
+    return StepOutput(drive, target, local, local_overlap, local_heading, held)
 
 
 BACK_UP_M = 1.0     # how far behind the car the backing-up waypoint lies
@@ -525,22 +564,22 @@ def inside_turn(local: np.ndarray, radius: float, widen: float = 0.0) -> np.ndar
 
 
 def back_up_inside_turn(waypoint: np.ndarray, car_state: np.ndarray, cfg: FollowerConfig
-                        ) -> np.ndarray:
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """World waypoints (N, 2) with those inside the car's turning circle
     (:func:`inside_turn`) replaced by a point ``BACK_UP_M`` straight behind
     the car: it reverses until it can reach them driving forward (a near
     C_WP answer far off the heading, or an anchor beside the car, which it
-    would otherwise circle)."""
+    would otherwise circle), and which were replaced (N,)."""
     out = np.array(waypoint, np.float64)
     if not len(out):
-        return out
+        return out, np.zeros(0, bool)
     local = world_to_car(out[:, None], car_state)[:, 0]
     inside = np.isfinite(local).all(axis=1) & inside_turn(local, cfg.turn_radius_m,
                                                           cfg.reverse_inside_turn)
     if inside.any():
         behind = np.tile([[-BACK_UP_M, 0.0]], (int(inside.sum()), 1))
         out[inside] = car_to_world(behind[:, None], car_state[inside])[:, 0]
-    return out
+    return out, inside
 
 
 TRACKER = tracker.TrackerConfig()
