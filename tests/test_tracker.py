@@ -120,7 +120,8 @@ def test_the_follower_replaces_a_waypoint_that_disagrees_with_the_tracked_anchor
     assert s.active[0] == 3
     np.testing.assert_allclose(out.waypoint[0], [3.0, 0.0], atol=0.05)   # the tracked anchor
     assert out.held[0] and out.target[0] == -1      # the follower's own waypoint: C_WP's not driven
-    plain, out_plain = drive(ev, before, car, odometry_check=False)
+    # (the wrong answer lies inside the turning circle: without backing up, to see it driven)
+    plain, out_plain = drive(ev, before, car, odometry_check=False, reverse_inside_turn=-1.0)
     assert plain.active[0] == 3
     assert out_plain.waypoint[0, 1] > 0.5          # without the check the car turns left
     assert not out_plain.held[0] and out_plain.target[0] == 3
