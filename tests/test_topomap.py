@@ -373,9 +373,6 @@ def test_a_map_written_before_the_slacks_and_the_resume_rule_loads_with_the_pape
 
 
 def test_map_files_that_do_not_fit_are_refused_in_one_line(oracle_map, tmp_path):
-    import io
-    import zipfile
-
     from topodrake.topomap.scorer import OracleConfig, OracleScorer
 
     world, m, path = oracle_map
@@ -389,17 +386,7 @@ def test_map_files_that_do_not_fit_are_refused_in_one_line(oracle_map, tmp_path)
     with pytest.raises(TopodrakeError, match="built for the reachability estimator"):
         load_map(path, other)
     # an unknown version
-    with zipfile.ZipFile(path) as z:
-        files = {n: z.read(n) for n in z.namelist()}
-    meta = json.loads(np.load(io.BytesIO(files["meta.npy"])).tobytes())
-    meta["version"] = 99
-    buf = io.BytesIO()
-    np.save(buf, np.frombuffer(json.dumps(meta).encode(), np.uint8))
-    files["meta.npy"] = buf.getvalue()
-    newer = tmp_path / "newer.tdmap"
-    with zipfile.ZipFile(newer, "w") as z:
-        for n, b in files.items():
-            z.writestr(n, b)
+    newer = _with_meta(path, tmp_path / "newer.tdmap", lambda meta: meta.update(version=99))
     with pytest.raises(TopodrakeError, match="version 99"):
         load_map(newer, m.scorer)
 
@@ -658,9 +645,6 @@ def test_a_map_file_opens_with_the_world_scorer_and_checkpoints_it_was_built_for
     the shipped lidar map its recorded RE and C_WP and the plan calibration
     beside that RE; a map whose RE is not here is refused in the one line
     every command that opens a map prints."""
-    import io
-    import zipfile
-
     from topodrake.cli import main
     from topodrake.learning.reachability import Reachability
     from topodrake.topomap.scorer import LearnedScorer, OracleScorer
@@ -683,17 +667,8 @@ def test_a_map_file_opens_with_the_world_scorer_and_checkpoints_it_was_built_for
     assert learned.topomap.scorer is learned.scorer and learned.world.name == "test-0"
 
     # the same map, its RE recorded where none is
-    with zipfile.ZipFile(shipped) as z:
-        files = {n: z.read(n) for n in z.namelist()}
-    meta = json.loads(np.load(io.BytesIO(files["meta.npy"])).tobytes())
-    meta["identity"]["reach"] = "checkpoints/nowhere/checkpoint.pt"
-    buf = io.BytesIO()
-    np.save(buf, np.frombuffer(json.dumps(meta).encode(), np.uint8))
-    files["meta.npy"] = buf.getvalue()
-    moved = tmp_path / "moved.tdmap"
-    with zipfile.ZipFile(moved, "w") as z:
-        for n, b in files.items():
-            z.writestr(n, b)
+    moved = _with_meta(shipped, tmp_path / "moved.tdmap", lambda meta: meta["identity"].update(
+        reach="checkpoints/nowhere/checkpoint.pt"))
     want = (f"{moved} was built for the reachability estimator "
             f"{ROOT / 'checkpoints' / 'nowhere' / 'checkpoint.pt'}, which does not exist here; "
             f"pass it with --reach/--controller")
@@ -751,3 +726,22 @@ def test_a_stored_config_from_before_reuse_ahead_reads_as_the_same_config():
     assert not same_config(old, MapConfig(reuse_ahead=4))
     assert not same_config({**old, "p_reuse": 0.9}, MapConfig())
     assert not same_config(None, MapConfig())
+
+
+def _with_meta(path, out, edit):
+    """A copy of map file ``path`` at ``out`` with its metadata changed by ``edit(meta)``."""
+    import io
+    import json
+    import zipfile
+
+    with zipfile.ZipFile(path) as z:
+        files = {n: z.read(n) for n in z.namelist()}
+    meta = json.loads(np.load(io.BytesIO(files["meta.npy"])).tobytes())
+    edit(meta)
+    buf = io.BytesIO()
+    np.save(buf, np.frombuffer(json.dumps(meta).encode(), np.uint8))
+    files["meta.npy"] = buf.getvalue()
+    with zipfile.ZipFile(out, "w") as z:
+        for n, b in files.items():
+            z.writestr(n, b)
+    return out
