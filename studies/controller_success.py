@@ -74,7 +74,7 @@ def _fingerprint(checkpoint: str) -> str:
     if checkpoint == "oracle":
         return "oracle"
     if checkpoint == "registration":
-        from topodrake.learning.reach_train import registration_runs_key
+        from topodrake.learning.reachability.controllers import registration_runs_key
 
         return registration_runs_key()
     return hashlib.sha1(Path(checkpoint).read_bytes()).hexdigest()[:16]

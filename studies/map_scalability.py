@@ -58,7 +58,7 @@ HOUSES = "test-0,test-1,test-2,test-3,test-4"
 def dense_edges(scorer, world, drives, p_edge: float, samples: int, seed: int,
                 radius_m: float = 4.0, turn_rad: float = np.radians(100)) -> dict:
     """Estimated edges of the dense graph over all frames of ``drives``."""
-    from topodrake.learning.policy import context_frames
+    from topodrake.learning.frames import context_frames
     from topodrake.topomap.sources import drive_observations
 
     poses = np.concatenate([d.poses for d in drives])
@@ -90,6 +90,7 @@ def tag_of_order(order: str) -> str:
 
 
 def run_house(house: str, args, policy_for) -> dict:
+    from topodrake.demonstrations import load_demos
     from topodrake.learning.samples import collect_trajectories
     from topodrake.topomap.build import BuildStats, add_trajectory
     from topodrake.topomap.graph import TopoMap
@@ -97,7 +98,6 @@ def run_house(house: str, args, policy_for) -> dict:
     from topodrake.topomap.mapfile import save_map
     from topodrake.topomap.retrieval import default_embedding
     from topodrake.topomap.sources import drive_observations, make_scorer
-    from topodrake.demonstrations import load_demos
     from topodrake.world import load_world
     from tqdm import tqdm
 
@@ -202,7 +202,7 @@ def main(argv=None) -> int:
 def _run(args) -> int:
     import torch
 
-    from topodrake.learning.policy import AStarOracle, LearnedWaypointPolicy
+    from topodrake.learning.waypoint.policy import AStarOracle, LearnedWaypointPolicy
     from topodrake.topomap.graph import MapConfig
     from topodrake.topomap.map_cli import load_map_config
     from topodrake.topomap.sources import SHIPPED, shipped_checkpoint

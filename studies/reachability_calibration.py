@@ -33,7 +33,7 @@ import numpy as np
 from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
-from topodrake.learning.reachability import parse_estimators
+from topodrake.learning.reachability.estimator import parse_estimators
 from topodrake.montecarlo import add_study_arguments, study_main
 
 DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
@@ -46,7 +46,7 @@ def keep_ratios(reach: str, controller: str, data_dir: str, p: float,
     """Anchors kept / frames over the test houses' successful expert drives,
     with RE's anchor-hop calibration and with its temperature (as for any
     other pair), from one pass over the drives."""
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.topomap.hops import sparsify_houses
 
     re = Reachability.from_checkpoint(reach, controller)
@@ -64,8 +64,8 @@ def summarise_trials(res: list[dict]) -> dict:
     overlaps < 0.05): ``auroc_reached_vs_not_overlapping`` says how well RE
     tells the reached pairs from those, ``auroc_overlapping`` how well it
     ranks the pairs that are actually driven."""
-    from topodrake.learning.calibration import calibration_summary, reliability
-    from topodrake.learning.reach_labels import ReachLabelConfig
+    from topodrake.learning.reachability.calibration import calibration_summary, reliability
+    from topodrake.learning.reachability.labels import ReachLabelConfig
 
     p = np.array([r["p"] for r in res], float)
     y = np.array([r["success"] for r in res], int)

@@ -2,7 +2,7 @@
 
 Three measurements per RE (default: camera k=5 and lidar k=5, each with its
 C_WP), in the test houses, with the batched engine
-(:func:`topodrake.learning.reach_labels.rollout_pairs`, actuation noise on):
+(:func:`topodrake.learning.reachability.labels.rollout_pairs`, actuation noise on):
 
 * **noise ceiling**: ``--pairs`` fresh pairs drawn as for the RE labels, each
   driven ``--runs`` times with different noise seeds. ``oracle_auroc`` ranks
@@ -56,7 +56,7 @@ MAX_HOP_FRAMES = 40     # 2 m of expert drive: the controller-sparsified hops' c
 def oracle_auroc(outcomes: np.ndarray) -> float:
     """Leave-one-run-out AUROC of the pairs' success rates: ``outcomes``
     (pairs, runs) 0/1; each run's outcomes ranked by the other runs' mean."""
-    from topodrake.learning.calibration import auroc
+    from topodrake.learning.reachability.calibration import auroc
 
     runs = outcomes.shape[1]
     if runs < 2:
@@ -70,7 +70,7 @@ def oracle_auroc(outcomes: np.ndarray) -> float:
 
 def mean_auroc(p: np.ndarray, outcomes: np.ndarray) -> float:
     """AUROC of scores ``p`` against each run's outcomes, averaged over runs."""
-    from topodrake.learning.calibration import auroc
+    from topodrake.learning.reachability.calibration import auroc
 
     return float(np.mean([auroc(p, outcomes[:, r]) for r in range(outcomes.shape[1])]))
 
@@ -87,7 +87,7 @@ def success_by_distance(distance: np.ndarray, success: np.ndarray,
 
 
 def _re_probabilities(re, world, trajs, pairs) -> np.ndarray:
-    from topodrake.learning.reach_labels import target_contexts
+    from topodrake.learning.reachability.labels import target_contexts
 
     ctx = target_contexts(world, re, trajs, pairs["traj"], pairs["tgt"])
     return re.probability(re.observe(world, pairs["src_pose"]), re.encode_target(ctx))
@@ -132,12 +132,12 @@ def measure(reach: str, controller: str, trajs, pairs_per_house: int, runs: int,
             progress: bool = True) -> dict:
     from tqdm import tqdm
 
-    from topodrake.learning.calibration import auroc
-    from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reach_labels import ReachLabelConfig, draw_pairs, rollout_pairs
-    from topodrake.learning.reach_train import AnchorCalibration
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.calibration import auroc
+    from topodrake.learning.reachability.estimator import Reachability
+    from topodrake.learning.reachability.labels import ReachLabelConfig, draw_pairs, rollout_pairs
+    from topodrake.learning.reachability.train import AnchorCalibration
     from topodrake.learning.samples import _arclength
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
     from topodrake.montecarlo import trial_seeds
     from topodrake.sensing.overlap import mutual_overlap
     from topodrake.world import load_world
@@ -217,7 +217,7 @@ def main(argv=None) -> int:
 def _run(args) -> int:
     import torch
 
-    from topodrake.learning.reachability import parse_estimators
+    from topodrake.learning.reachability.estimator import parse_estimators
     from topodrake.learning.samples import collect_trajectories
 
     if args.pairs < len(WORLDS) or args.runs < 2 or args.hop_pairs < 0:

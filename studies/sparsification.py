@@ -89,9 +89,9 @@ def main(argv=None) -> int:
 
 def _run(args) -> int:
     from topodrake.demonstrations import load_demos
-    from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reachability import Reachability, parse_estimators
+    from topodrake.learning.reachability.estimator import Reachability, parse_estimators
     from topodrake.learning.samples import collect_trajectories
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
     from topodrake.topomap.hops import anchor_hop_success, share_made, sparsify_houses
     from topodrake.world import load_world
 

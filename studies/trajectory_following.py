@@ -19,7 +19,7 @@ the follower's design from the networks' errors.
 ``--follower`` changes the follower's thresholds (an ablation).
 ``--cwp NAME=oracle:anchor=0.3`` follows NAME's chains with the A* oracle
 C_WP plus a controlled error and NAME's RE
-(:mod:`topodrake.learning.noisy_oracle`); ``--sensitivity anchor=0.1,0.3``
+(:mod:`topodrake.learning.waypoint.noisy_oracle`); ``--sensitivity anchor=0.1,0.3``
 follows the RE chains at the headline p with it at each error size (the
 ``sensitivity`` table: cover against error).
 
@@ -140,7 +140,7 @@ def main(argv=None) -> int:
 
 def parse_sensitivity(text: str | None) -> tuple[str, list[str]] | None:
     """``--sensitivity KEY=V1,V2,...`` as (KEY, values), each checked as an oracle spec value."""
-    from topodrake.learning.noisy_oracle import OracleError
+    from topodrake.learning.waypoint.noisy_oracle import OracleError
 
     if not text:
         return None
@@ -180,7 +180,7 @@ def _run(args) -> int:
     except (ValueError, TypeError) as e:
         raise TopodrakeError(f"--follower is not a JSON object of FollowerConfig fields ({e})") \
             from None
-    from topodrake.learning.follower_bench import parse_controllers
+    from topodrake.learning.onpolicy.bench import parse_controllers
     from topodrake.odometry import OdometryConfig
 
     args.odometry_config = getattr(OdometryConfig, args.odometry)()

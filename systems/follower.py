@@ -26,7 +26,7 @@ replanner's bookkeeping (tries, excluded edges) lives in that object, one
 per run (:class:`~topodrake.systems.navigation.NavigationRunner` resets it).
 
 Outputs: ``target`` (the active anchor's
-:class:`~topodrake.learning.policy.TargetContext` for WaypointNet; key = the
+:class:`~topodrake.learning.waypoint.policy.TargetContext` for WaypointNet; key = the
 anchor index, -1 = none; it carries the anchor's C_WP features and C_WP's
 answer toward it from the period's observation, which the decision already
 computed, so WaypointNet does not run the network again), ``held_waypoint``
@@ -41,7 +41,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
-from topodrake.learning.policy import TargetContext, WaypointPrediction
+from topodrake.learning.waypoint.policy import TargetContext, WaypointPrediction
 from topodrake.navigation.evaluate import (Evaluator, encode_routes, initial_track,
                                            network_context, take_rows)
 from topodrake.navigation.follower import (FAILED, MODES, REACHED, REASONS,

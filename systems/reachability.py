@@ -1,6 +1,6 @@
 """ReachabilityEstimator: RE as a Drake system (10 Hz sample and hold).
 
-A thin wrapper over :class:`topodrake.learning.reachability.Reachability`
+A thin wrapper over :class:`topodrake.learning.reachability.estimator.Reachability`
 with the same timing and target cache as ``WaypointNet`` (both derive from
 :class:`~topodrake.systems.waypoint_net.TargetConditionedNet`): the held
 observation and the target's cached first-layer half give one probability
@@ -16,7 +16,7 @@ from topodrake.systems.waypoint_net import TargetConditionedNet
 
 class ReachabilityEstimator(TargetConditionedNet):
     """Inputs ``observation`` (camera image or lidar ranges) and ``target``
-    (:class:`~topodrake.learning.policy.TargetContext`); output
+    (:class:`~topodrake.learning.waypoint.policy.TargetContext`); output
     ``probability``: the estimated probability that the controller RE was
     trained for reaches the target from here."""
 

@@ -184,7 +184,7 @@ class TargetRunner(DiagramRunner):
 
     def run(self, start, target_pose, target, seed: int = 0, t_max_s: float = 30.0
             ) -> TargetRunResult:
-        """``target``: the :class:`~topodrake.learning.policy.TargetContext`
+        """``target``: the :class:`~topodrake.learning.waypoint.policy.TargetContext`
         the network sees; ``target_pose`` (3,): where it was taken."""
         from topodrake.sensing.overlap import mutual_overlap
 

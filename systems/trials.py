@@ -53,7 +53,7 @@ def _evaluation_set(data_dir: str, worlds: tuple[str, ...]):
 def _policy(checkpoint: str):
     import torch
 
-    from topodrake.learning.policy import AStarOracle, LearnedWaypointPolicy
+    from topodrake.learning.waypoint.policy import AStarOracle, LearnedWaypointPolicy
 
     torch.set_num_threads(1)        # one trial per core
     if checkpoint == "oracle":
@@ -68,7 +68,7 @@ def _policy(checkpoint: str):
 @lru_cache(maxsize=8)
 def _target_runner(checkpoint: str, data_dir: str, worlds: tuple[str, ...], world: str,
                    noise_std: float, overlap_lost: float | None = None):
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.systems.run import TargetRunner
     from topodrake.systems.scenario import Scenario
     from topodrake.systems.waypoint_net import build_waypoint_diagram
@@ -92,11 +92,11 @@ def controller_trial(seed: int, checkpoint: str = "oracle", noise_std: float = 0
                      worlds: tuple[str, ...] = ("test-0", "test-1", "test-2", "test-3", "test-4")
                      ) -> dict:
     """One run of the controller-success protocol
-    (:mod:`topodrake.learning.evaluation`): C_WP of ``checkpoint`` (or the A*
+    (:mod:`topodrake.learning.waypoint.evaluation`): C_WP of ``checkpoint`` (or the A*
     ``"oracle"``) + RMP drives from the source of the seed's pair toward its
     target in the Drake diagram. The pair depends on the seed only."""
-    from topodrake.learning.evaluation import sample_controller_pair
-    from topodrake.learning.policy import make_target_context
+    from topodrake.learning.waypoint.evaluation import sample_controller_pair
+    from topodrake.learning.waypoint.policy import make_target_context
 
     trajs, loaded = _evaluation_set(str(data_dir), tuple(worlds))
     pair = sample_controller_pair(trajs, seed, loaded)
@@ -119,7 +119,7 @@ def controller_trial(seed: int, checkpoint: str = "oracle", noise_std: float = 0
 
 @lru_cache(maxsize=4)
 def _reachability(reach: str, controller: str):
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
 
     return Reachability.from_checkpoint(reach, controller)
 
@@ -132,8 +132,8 @@ def reach_trial(seed: int, reach: str = "", controller: str = "", noise_std: flo
     the outcome of the C_WP ``controller`` driving it in the Drake diagram."""
     import numpy as np
 
-    from topodrake.learning.policy import make_target_context
-    from topodrake.learning.reach_labels import ReachLabelConfig, draw_pairs, time_limits
+    from topodrake.learning.reachability.labels import ReachLabelConfig, draw_pairs, time_limits
+    from topodrake.learning.waypoint.policy import make_target_context
 
     cfg = ReachLabelConfig()
     trajs, loaded = _evaluation_set(str(data_dir), tuple(worlds))

@@ -1,7 +1,7 @@
 """WaypointNet (C_WP as a Drake system), TargetSource, and the C_WP + RMP diagram.
 
-WaypointNet is a thin wrapper over :mod:`topodrake.learning.policy`: any
-:class:`~topodrake.learning.policy.WaypointPolicy` (the learned network or
+WaypointNet is a thin wrapper over :mod:`topodrake.learning.waypoint.policy`: any
+:class:`~topodrake.learning.waypoint.policy.WaypointPolicy` (the learned network or
 the A* oracle) runs inside it.
 
 Timing (10 Hz, sample and hold). Its inputs are held signals: the camera
@@ -37,7 +37,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
-from topodrake.learning.policy import TargetContext, WaypointPrediction, target_input
+from topodrake.learning.waypoint.policy import TargetContext, WaypointPrediction, target_input
 from topodrake.vehicle import car_to_world
 
 

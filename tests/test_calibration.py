@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.calibration import (auroc, brier, calibration_summary, ece,
-                                            fit_temperature, reliability)
+from topodrake.learning.reachability.calibration import (auroc, brier, calibration_summary, ece,
+                                                         fit_temperature, reliability)
 
 
 def test_reliability_and_ece_by_hand():
@@ -62,7 +62,7 @@ def test_bad_input_is_refused():
 
 
 def test_platt_scaling_recovers_slope_and_bias():
-    from topodrake.learning.calibration import fit_platt
+    from topodrake.learning.reachability.calibration import fit_platt
 
     rng = np.random.default_rng(0)
     z = rng.normal(0.0, 3.0, 20000)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.evaluation import PairConfig, sample_controller_pair
 from topodrake.learning.samples import TrajectorySet
+from topodrake.learning.waypoint.evaluation import PairConfig, sample_controller_pair
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +58,7 @@ def test_pairs_refused_without_room(box_world, line_set):
 
 @pytest.fixture(scope="module")
 def oracle_runner(box_world):
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.systems.run import TargetRunner
     from topodrake.systems.scenario import Scenario
     from topodrake.systems.waypoint_net import build_waypoint_diagram
@@ -69,7 +69,7 @@ def oracle_runner(box_world):
 
 
 def _target(pose, key):
-    from topodrake.learning.policy import TargetContext
+    from topodrake.learning.waypoint.policy import TargetContext
 
     return TargetContext(key=key, poses=np.asarray([pose], float))
 
@@ -159,7 +159,7 @@ def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatc
 
 
 def test_target_runner_stops_when_the_target_is_lost(box_world):
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.systems.run import TargetRunner
     from topodrake.systems.scenario import Scenario
     from topodrake.systems.waypoint_net import build_waypoint_diagram

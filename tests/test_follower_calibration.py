@@ -8,8 +8,8 @@ import pytest
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import file_sha1
-from topodrake.learning.follower_calibration import (SIDECAR, FollowerCalibrationConfig,
-                                                     load_follower_platt)
+from topodrake.learning.onpolicy.calibration import FollowerCalibrationConfig
+from topodrake.learning.onpolicy.platt import SIDECAR, load_follower_platt
 from topodrake.navigation.evaluate import route_calibrated
 
 LIDAR = "checkpoints/lidar_k5/checkpoint.pt"
@@ -33,14 +33,14 @@ def _write(re_path, **fields):
 
 
 def test_no_file_means_no_follower_calibration(re_copy):
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
 
     assert load_follower_platt(re_copy) is None
     assert Reachability.from_checkpoint(re_copy, LIDAR).follower_platt is None
 
 
 def test_the_follower_queries_use_the_calibration_beside_the_checkpoint(re_copy):
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
 
     plain = Reachability.from_checkpoint(re_copy, LIDAR)
     _write(re_copy, follower_platt=[0.5, 0.2])

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.follower_reach_labels import FollowerStateLabels, label_follower_states
-from topodrake.learning.reach_labels import load_reach_labels
+from topodrake.learning.onpolicy.reach_labels import FollowerStateLabels, label_follower_states
+from topodrake.learning.reachability.labels import load_reach_labels
 
 LIDAR = "checkpoints/lidar_k5/checkpoint.pt"
 LIDAR_RE = "checkpoints/reach_lidar_k5/checkpoint.pt"
@@ -23,8 +23,8 @@ def drives(test0_drives):
 
 @pytest.fixture(scope="module")
 def networks():
-    from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
 
     return LearnedWaypointPolicy.from_checkpoint(LIDAR), Reachability.from_checkpoint(LIDAR_RE, LIDAR)
 
@@ -80,7 +80,7 @@ def test_a_finished_house_is_not_labelled_again_and_other_settings_are_refused(
 
 
 def _config(**follower):
-    from topodrake.learning.reach_train import ReachTrainConfig
+    from topodrake.learning.reachability.train import ReachTrainConfig
 
     cfg = ReachTrainConfig(controller=LIDAR, init=LIDAR_RE)
     cfg.labels.follower = [FollowerStateLabels(**follower)]

@@ -256,7 +256,7 @@ def test_batchnorm_split_and_folding_are_exact(modality):
 
 
 def test_policy_cached_equals_naive_on_rendered_images():
-    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
     from topodrake.sensing.camera import Camera
     from topodrake.sensing.config import CameraConfig
     from topodrake.world import load_world
@@ -303,7 +303,7 @@ def test_policy_cached_equals_naive_on_rendered_images():
 
 def test_checkpoint_roundtrip_and_refusals(tmp_path):
     from topodrake.learning.checkpoint import load_checkpoint, save_checkpoint
-    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
     from topodrake.sensing.config import CameraConfig, LidarConfig
 
     torch.manual_seed(2)
@@ -382,7 +382,7 @@ def _tiny_config(**kw):
 
 
 def test_tiny_training_reduces_loss_and_resumes(samples, tmp_path):
-    from topodrake.learning.train import train_waypoint
+    from topodrake.learning.waypoint.train import train_waypoint
 
     train, val = samples.subset(np.arange(240)), samples.subset(np.arange(240, 300))
     first = train_waypoint(_tiny_config(max_samples=32), tmp_path, samples=(train, val),
@@ -413,7 +413,7 @@ def test_tiny_training_reduces_loss_and_resumes(samples, tmp_path):
 
 
 def test_warm_start_begins_from_the_given_checkpoint_and_refuses_another_network(samples, tmp_path):
-    from topodrake.learning.train import train_waypoint
+    from topodrake.learning.waypoint.train import train_waypoint
 
     train, val = samples.subset(np.arange(240)), samples.subset(np.arange(240, 300))
     base = train_waypoint(_tiny_config(max_samples=1280), tmp_path / "base", samples=(train, val),
@@ -454,7 +454,7 @@ def _run(built, start, seconds):
 
 
 def test_waypoint_net_oracle_drives_to_target(box_world):
-    from topodrake.learning.policy import AStarOracle, TargetContext
+    from topodrake.learning.waypoint.policy import AStarOracle, TargetContext
     from topodrake.systems.scenario import Scenario
     from topodrake.systems.waypoint_net import build_waypoint_diagram
 
@@ -478,7 +478,8 @@ def test_waypoint_net_oracle_drives_to_target(box_world):
 @pytest.mark.parametrize("modality,output", [("camera", "waypoint"), ("lidar", "waypoint"),
                                              ("camera", "control")])
 def test_waypoint_net_matches_policy(box_world, modality, output):
-    from topodrake.learning.policy import LearnedWaypointPolicy, context_frames, make_target_context
+    from topodrake.learning.frames import context_frames
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy, make_target_context
     from topodrake.sensing.config import CameraConfig, LidarConfig
     from topodrake.systems.scenario import Scenario
     from topodrake.systems.waypoint_net import build_waypoint_diagram
@@ -508,8 +509,8 @@ def test_waypoint_net_matches_policy(box_world, modality, output):
 
 def test_waypoint_net_reuses_what_the_target_carries_only_for_its_own_policy_and_observation(
         box_world):
-    from topodrake.learning.policy import (LearnedWaypointPolicy, TargetContext,
-                                           WaypointPrediction, make_target_context)
+    from topodrake.learning.waypoint.policy import (LearnedWaypointPolicy, TargetContext,
+                                                    WaypointPrediction, make_target_context)
     from topodrake.sensing.config import CameraConfig
     from topodrake.systems.scenario import Scenario
     from topodrake.systems.waypoint_net import build_waypoint_diagram
@@ -564,7 +565,7 @@ def test_cli_parsers_refuse_a_missing_config(tmp_path):
 
 
 def test_config_diff_on_resume_reaches_into_lists_and_ignores_later_none_fields():
-    from topodrake.learning.train import _diff
+    from topodrake.learning.waypoint.train import _diff
 
     old = {"lr": 1e-3, "labels": {"more": [{"seed": 10, "pairs": 5}]}}
     assert _diff(old, {"lr": 1e-3, "labels": {"more": [{"seed": 10, "pairs": 5, "worlds": None}]}}) is None

@@ -20,7 +20,7 @@ def drive(box_world):
 
 @pytest.fixture(scope="module")
 def oracles(box_world):
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.navigation.evaluate import GeometricReachability
 
     return AStarOracle(box_world, k=1, frame_step=3), GeometricReachability(box_world, k=1)

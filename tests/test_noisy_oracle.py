@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.noisy_oracle import NoisyOracle, OracleError, parse_oracle_spec
-from topodrake.learning.policy import AStarOracle, WaypointPrediction
+from topodrake.learning.waypoint.noisy_oracle import NoisyOracle, OracleError, parse_oracle_spec
+from topodrake.learning.waypoint.policy import AStarOracle, WaypointPrediction
 
 
 @pytest.mark.parametrize("spec,says", [
@@ -118,8 +118,8 @@ def test_without_error_it_is_the_a_star_oracle_exactly(box_world):
 
 
 def test_the_spec_names_a_c_wp_wherever_a_checkpoint_does(box_world):
-    from topodrake.learning.controllers import controller_policy
-    from topodrake.learning.follower_bench import CONTROLLERS, parse_controllers
+    from topodrake.learning.onpolicy.bench import CONTROLLERS, parse_controllers
+    from topodrake.learning.reachability.controllers import controller_policy
 
     got = parse_controllers("lidar_k5", ["lidar_k5=oracle:anchor=0.3"], must_exist=True)
     assert got == {"lidar_k5": ("oracle:anchor=0.3", *CONTROLLERS["lidar_k5"][1:])}

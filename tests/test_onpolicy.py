@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.onpolicy import (OnPolicyConfig, collect_visited, concat_samples,
-                                         label_visited, pick_drives, samples_from_fields)
+from topodrake.learning.onpolicy.states import (OnPolicyConfig, collect_visited, concat_samples,
+                                                label_visited, pick_drives, samples_from_fields)
 from topodrake.learning.samples import TrajectorySet, expert_waypoint_labels, make_samples
 
 LIDAR = "checkpoints/lidar_k5/checkpoint.pt"
@@ -23,8 +23,8 @@ def drives(test0_drives):
 
 @pytest.fixture(scope="module")
 def networks():
-    from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
 
     return LearnedWaypointPolicy.from_checkpoint(LIDAR), Reachability.from_checkpoint(LIDAR_RE, LIDAR)
 
@@ -130,7 +130,7 @@ def test_onpolicy_config_refuses_bad_values():
 
 
 def test_dagger_config_names_what_is_wrong(tmp_path):
-    from topodrake.learning.dagger import DaggerConfig, load_dagger_config
+    from topodrake.learning.onpolicy.dagger import DaggerConfig, load_dagger_config
 
     assert DaggerConfig().validate().round_worlds(1) == [f"train-{i:02d}" for i in range(24, 36)]
     with pytest.raises(TopodrakeError, match="there are 96"):
@@ -151,7 +151,7 @@ def test_dagger_config_names_what_is_wrong(tmp_path):
 
 
 def test_dagger_refuses_an_output_folder_of_another_run(tmp_path):
-    from topodrake.learning.dagger import DaggerConfig, run_dagger
+    from topodrake.learning.onpolicy.dagger import DaggerConfig, run_dagger
 
     (tmp_path / "dagger.json").write_text(json.dumps({"config": {"seed": 99}, "rounds": []}))
     with pytest.raises(TopodrakeError, match="another config"):
@@ -159,7 +159,7 @@ def test_dagger_refuses_an_output_folder_of_another_run(tmp_path):
 
 
 def test_follower_bench_controllers_parse_with_overrides(tmp_path):
-    from topodrake.learning.follower_bench import CONTROLLERS, parse_controllers
+    from topodrake.learning.onpolicy.bench import CONTROLLERS, parse_controllers
 
     got = parse_controllers("lidar_k5", ["lidar_k5=x.pt"])
     assert got == {"lidar_k5": ("x.pt", *CONTROLLERS["lidar_k5"][1:])}
@@ -174,7 +174,7 @@ def test_follower_bench_controllers_parse_with_overrides(tmp_path):
 def test_the_oracle_c_wp_follows_the_learned_res_chains(drives, networks):
     """A pose oracle beside a sensor RE reads the anchors' poses from the
     route (the mixed ablation of the follower benchmark and the studies)."""
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
 
     world, trajs = drives
     _, reach = networks
@@ -184,7 +184,7 @@ def test_the_oracle_c_wp_follows_the_learned_res_chains(drives, networks):
 
 
 def test_a_dagger_card_carries_the_rounds_up_to_its_network():
-    from topodrake.learning.dagger import dagger_card
+    from topodrake.learning.onpolicy.dagger import dagger_card
 
     state = {"config": {"init": "a.pt"}, "rounds": [
         {"round": 0, "worlds": ["train-12"], "train_wall_time_s": 600.0},
@@ -199,7 +199,7 @@ def test_a_dagger_card_carries_the_rounds_up_to_its_network():
 @pytest.mark.parametrize("name,modality", [("lidar_k5_dagger", "lidar"),
                                            ("camera_k5_dagger", "camera")])
 def test_the_shipped_dagger_c_wps_load_with_their_cards(name, modality):
-    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
 
     policy = LearnedWaypointPolicy.from_checkpoint(f"checkpoints/{name}/checkpoint.pt",
                                                    modality=modality, k=5)
@@ -212,8 +212,8 @@ def test_the_shipped_dagger_c_wps_load_with_their_cards(name, modality):
 def test_follower_state_labels_are_re_logits_and_c_wp_rollouts(drives, networks, visited):
     import torch
 
-    from topodrake.learning.follower_calibration import follower_probability, label_visited_reach
-    from topodrake.learning.reach_labels import target_contexts
+    from topodrake.learning.onpolicy.calibration import follower_probability, label_visited_reach
+    from topodrake.learning.reachability.labels import target_contexts
 
     world, trajs = drives
     policy, reach = networks

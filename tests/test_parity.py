@@ -45,7 +45,7 @@ def test_parallel_batch_matches_serial_batch(box_world, monkeypatch):
 
 
 def _policy_parity(box_world, policy, target_poses, noise_std, t_max):
-    from topodrake.learning.policy import make_target_context
+    from topodrake.learning.waypoint.policy import make_target_context
     from topodrake.rollout import PolicyRollout
     from topodrake.systems.run import TargetRunner
     from topodrake.systems.waypoint_net import build_waypoint_diagram
@@ -57,7 +57,7 @@ def _policy_parity(box_world, policy, target_poses, noise_std, t_max):
     goal = target_poses[len(target_poses) // 2]
     drake = TargetRunner(build_waypoint_diagram(sc, policy, world=box_world)).run(
         start, goal, target, seed=4, t_max_s=t_max)
-    from topodrake.learning.policy import target_input
+    from topodrake.learning.waypoint.policy import target_input
     feats = policy.encode_target(target_input(policy, target))
     noise = np.zeros((1, int(round(t_max / 0.1)), 2))
     noise[0, :len(drake.noise)] = drake.noise
@@ -73,7 +73,7 @@ def _policy_parity(box_world, policy, target_poses, noise_std, t_max):
 
 
 def test_oracle_policy_drake_and_batched_agree(box_world, noise_std=0.33):
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
 
     # target around the partition: the oracle must drive there
     tposes = np.array([[7.6, 7.5, -1.2], [7.7, 7.3, -1.3], [7.8, 7.1, -1.4]])
@@ -89,7 +89,7 @@ def test_learned_camera_policy_drake_and_batched_agree(box_world):
     import torch
 
     from topodrake.learning.networks import NetworkConfig, WaypointNetwork
-    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
     from topodrake.sensing.config import CameraConfig
 
     torch.manual_seed(0)

@@ -185,7 +185,7 @@ def test_house_keys_and_seeds():
 def test_plan_and_follow_on_an_oracle_map_in_the_box_world(box_world):
     """Two expert drives make an oracle map; trials between three places are
     planned on it and followed by the A* oracle with the geometric RE."""
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.navigation.engine import NavigationEngine
     from topodrake.navigation.evaluate import GeometricReachability
     from topodrake.rollout import ExpertRollout, RolloutConfig
@@ -274,7 +274,7 @@ def test_summary_reports_the_oracle_ablations():
 def test_pose_oracles_follow_a_route_of_images_by_its_anchor_poses(box_world):
     """ours_oracle_follow: a route planned on a camera map carries images; the
     oracles read its anchors' poses instead, and the engine drives it."""
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.navigation.engine import NavigationEngine
     from topodrake.navigation.evaluate import GeometricReachability, encode_routes
     from topodrake.navigation.route import Route

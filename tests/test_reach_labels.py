@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.reach_labels import (ReachLabelConfig, draw_pairs, label_reachability,
-                                             load_reach_labels, time_limits)
+from topodrake.learning.reachability.labels import (ReachLabelConfig, draw_pairs,
+                                                    label_reachability, load_reach_labels,
+                                                    time_limits)
 from topodrake.learning.samples import TrajectorySet
 
 
@@ -73,7 +74,7 @@ def test_time_limit_is_astar_length_over_v_min(box_world):
 
 
 def test_labels_resume_and_refuse_another_config(box_world, two_lines, tmp_path):
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
 
     def oracle(world):
         return AStarOracle(world)
@@ -110,7 +111,7 @@ def test_labels_resume_and_refuse_another_config(box_world, two_lines, tmp_path)
 
 
 def test_anchor_hops_are_checked_by_closed_loop_rollouts(box_world):
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.topomap.hops import anchor_hop_success
 
     # a 'drive' along y = 2 whose last frame lies behind the partition wall
@@ -127,7 +128,7 @@ def test_anchor_hops_are_checked_by_closed_loop_rollouts(box_world):
 
 
 def test_controller_sparsify_passes_frames_by_the_controllers_own_runs(box_world):
-    from topodrake.learning.policy import AStarOracle
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.topomap.hops import controller_sparsify
 
     # frames 0.2 m apart along y = 2, the last one behind the partition wall:
@@ -149,8 +150,8 @@ def test_controller_sparsify_passes_frames_by_the_controllers_own_runs(box_world
 def test_label_sets_join_over_shared_or_other_houses(box_world, two_lines, tmp_path):
     from dataclasses import replace
 
-    from topodrake.learning.policy import AStarOracle
-    from topodrake.learning.reach_labels import concat_reach_labels
+    from topodrake.learning.reachability.labels import concat_reach_labels
+    from topodrake.learning.waypoint.policy import AStarOracle
 
     loader = {"box": box_world}.__getitem__
     made = [load_reach_labels(label_reachability(

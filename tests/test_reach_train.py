@@ -16,10 +16,10 @@ WORLD = "train-00"
 
 @pytest.fixture(scope="module")
 def labels(tmp_path_factory):
-    from topodrake.learning.policy import AStarOracle
-    from topodrake.learning.reach_labels import (ReachLabelConfig, label_reachability,
-                                                 load_reach_labels)
+    from topodrake.learning.reachability.labels import (ReachLabelConfig, label_reachability,
+                                                        load_reach_labels)
     from topodrake.learning.samples import TrajectorySet
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.rollout import ExpertRollout, RolloutConfig
     from topodrake.world import load_world
 
@@ -40,7 +40,7 @@ def labels(tmp_path_factory):
 
 def _config(**kw):
     from topodrake.learning.networks import NetworkConfig
-    from topodrake.learning.reach_train import ReachTrainConfig
+    from topodrake.learning.reachability.train import ReachTrainConfig
 
     cfg = ReachTrainConfig(network=NetworkConfig(output="reach", k=1, channels=[8, 8, 16],
                                                  feature_dim=16, combine_channels=16, hidden=16),
@@ -52,7 +52,7 @@ def _config(**kw):
 
 
 def test_more_label_sets_come_from_yaml_and_need_seeds_of_their_own():
-    from topodrake.learning.reach_train import ReachTrainConfig
+    from topodrake.learning.reachability.train import ReachTrainConfig
     from topodrake.typed_yaml import load_typed_data
 
     text = ("labels:\n  seed: 0\n  more:\n    - train_pairs: 500\n      seed: 7\n"
@@ -78,8 +78,9 @@ def test_labels_have_both_outcomes(labels):
 
 
 def test_training_fits_the_labels_and_ties_the_checkpoint_to_its_controller(labels, tmp_path):
-    from topodrake.learning.reach_train import (controller_identity, evaluate_reach,
-                                                load_reachability, train_reachability, ReachBatcher)
+    from topodrake.learning.reachability.controllers import controller_identity, load_reachability
+    from topodrake.learning.reachability.train import (ReachBatcher, evaluate_reach,
+                                                       train_reachability)
 
     ctrl = tmp_path / "cwp.pt"
     ctrl.write_bytes(b"controller weights")
@@ -110,10 +111,10 @@ def test_training_fits_the_labels_and_ties_the_checkpoint_to_its_controller(labe
 def test_re_starts_from_its_controller_and_keeps_a_temperature_that_helps(labels, tmp_path):
     from topodrake.learning.checkpoint import save_checkpoint
     from topodrake.learning.networks import NetworkConfig, WaypointNetwork
-    from topodrake.learning.reach_train import (checkpoint_temperature, controller_identity,
-                                                init_from_controller, load_reachability,
-                                                train_reachability)
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.controllers import (checkpoint_temperature,
+                                                             controller_identity, load_reachability)
+    from topodrake.learning.reachability.estimator import Reachability
+    from topodrake.learning.reachability.train import init_from_controller, train_reachability
     from topodrake.sensing.config import CameraConfig
 
     tiny = dict(k=1, channels=[8, 8, 16], feature_dim=16, combine_channels=16, hidden=16)
@@ -145,8 +146,10 @@ def test_re_starts_from_its_controller_and_keeps_a_temperature_that_helps(labels
 
 
 def test_re_warm_starts_from_an_earlier_re_of_the_same_controller_only(labels, tmp_path):
-    from topodrake.learning.reach_train import (controller_identity, evaluate_reach, file_sha1,
-                                                load_reachability, train_reachability, ReachBatcher)
+    from topodrake.fileio import file_sha1
+    from topodrake.learning.reachability.controllers import controller_identity, load_reachability
+    from topodrake.learning.reachability.train import (ReachBatcher, evaluate_reach,
+                                                       train_reachability)
 
     ctrl, other = tmp_path / "cwp.pt", tmp_path / "other.pt"
     ctrl.write_bytes(b"controller weights")
@@ -191,10 +194,11 @@ def test_re_warm_starts_from_an_earlier_re_of_the_same_controller_only(labels, t
 
 
 def test_re_of_a_controller_warm_starts_the_re_of_its_fine_tuned_child(labels, tmp_path):
+    from topodrake.fileio import file_sha1
     from topodrake.learning.checkpoint import save_checkpoint
     from topodrake.learning.networks import NetworkConfig, WaypointNetwork
-    from topodrake.learning.reach_train import (controller_identity, controller_parent,
-                                                file_sha1, train_reachability)
+    from topodrake.learning.reachability.controllers import controller_identity
+    from topodrake.learning.reachability.train import controller_parent, train_reachability
     from topodrake.sensing.config import CameraConfig
 
     tiny = dict(k=1, channels=[8, 8, 16], feature_dim=16, combine_channels=16, hidden=16)
@@ -225,7 +229,7 @@ def test_re_of_a_controller_warm_starts_the_re_of_its_fine_tuned_child(labels, t
 
 
 def test_reach_batches_carry_the_starting_overlaps(labels):
-    from topodrake.learning.reach_train import ReachBatcher, start_overlaps
+    from topodrake.learning.reachability.train import ReachBatcher, start_overlaps
     from topodrake.sensing.overlap import mutual_overlap
     from topodrake.world import load_world
 
@@ -242,7 +246,7 @@ def test_reach_batches_carry_the_starting_overlaps(labels):
 
 
 def test_reach_config_is_checked(tmp_path):
-    from topodrake.learning.reach_train import load_reach_config
+    from topodrake.learning.reachability.train import load_reach_config
 
     bad = tmp_path / "re.yaml"
     bad.write_text("network: {output: waypoint}\n")
@@ -270,7 +274,7 @@ def test_cli_refuses_bad_reach_configs(tmp_path, capsys):
 
 def test_reachability_cached_pairwise_and_naive_agree():
     from topodrake.learning.networks import NetworkConfig, WaypointNetwork
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.sensing.camera import Camera
     from topodrake.sensing.config import CameraConfig
     from topodrake.world import load_world
@@ -307,7 +311,7 @@ def test_reachability_cached_pairwise_and_naive_agree():
 
 def test_mirror_average_is_the_mean_of_the_pair_and_its_mirror_image_on_every_path():
     from topodrake.learning.networks import NetworkConfig, WaypointNetwork, mirrored
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.sensing.camera import Camera
     from topodrake.sensing.config import CameraConfig
     from topodrake.world import load_world
@@ -345,7 +349,7 @@ def test_mirror_average_is_the_mean_of_the_pair_and_its_mirror_image_on_every_pa
 
 
 def test_mirror_augment_flips_both_views_of_the_chosen_pairs_only(labels):
-    from topodrake.learning.reach_train import ReachBatcher, mirror_some
+    from topodrake.learning.reachability.train import ReachBatcher, mirror_some
 
     b = ReachBatcher(labels, _config().network).batch(np.arange(8))
     assert mirror_some(b, 0.0) is b
@@ -367,8 +371,8 @@ def test_reachability_estimator_system_matches_the_batched_call(mirror_average):
     from pydrake.systems.primitives import ConstantVectorSource
 
     from topodrake.learning.networks import NetworkConfig, WaypointNetwork
-    from topodrake.learning.policy import TargetContext
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
+    from topodrake.learning.waypoint.policy import TargetContext
     from topodrake.sensing.camera import Camera
     from topodrake.sensing.config import CameraConfig
     from topodrake.systems.diagram import add_chassis
@@ -425,7 +429,7 @@ def tiny_re(tmp_path_factory):
     from topodrake.demonstrations import CollectConfig, collect
     from topodrake.learning.checkpoint import save_checkpoint
     from topodrake.learning.networks import NetworkConfig, WaypointNetwork
-    from topodrake.learning.reach_train import controller_identity
+    from topodrake.learning.reachability.controllers import controller_identity
     from topodrake.sensing.config import CameraConfig
 
     tmp = tmp_path_factory.mktemp("tiny_re")
@@ -513,7 +517,7 @@ def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, 
 
 
 def test_houses_are_sparsified_under_other_calibrations_from_the_same_features(tiny_re, tmp_path):
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.topomap.hops import sparsify_houses
 
     demos, re_path, ctrl = tiny_re
@@ -529,7 +533,7 @@ def test_houses_are_sparsified_under_other_calibrations_from_the_same_features(t
 
 def test_houses_report_the_share_of_hops_that_advance_one_frame(tiny_re, tmp_path):
     from topodrake.demonstrations import load_demos
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.topomap.hops import sparsify_houses
     from topodrake.world import load_world
 
@@ -571,8 +575,8 @@ def test_calibration_study_splits_auroc_by_how_pairs_start():
 
 
 def test_label_folders_name_what_the_labels_depend_on_not_the_data_path(tmp_path):
-    from topodrake.learning.reach_labels import ReachLabelConfig
-    from topodrake.learning.reach_train import label_folder
+    from topodrake.learning.reachability.labels import ReachLabelConfig
+    from topodrake.learning.reachability.train import label_folder
 
     ident = {"sha1": "ab" * 20}
     args = ("train", "pairs-s0", ["train-00"], 100, 0)
@@ -587,10 +591,10 @@ def test_label_folders_name_what_the_labels_depend_on_not_the_data_path(tmp_path
 
 
 def test_anchor_hops_get_their_own_temperature_also_after_training(labels, tmp_path):
-    from topodrake.learning.reach_labels import ReachLabels
-    from topodrake.learning.reach_train import (AnchorCalibration, controller_identity,
-                                                load_reachability, train_reachability)
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.controllers import controller_identity, load_reachability
+    from topodrake.learning.reachability.estimator import Reachability
+    from topodrake.learning.reachability.labels import ReachLabels
+    from topodrake.learning.reachability.train import AnchorCalibration, train_reachability
 
     ctrl = tmp_path / "cwp.pt"
     ctrl.write_bytes(b"controller weights")
@@ -629,7 +633,7 @@ def test_anchor_hops_get_their_own_temperature_also_after_training(labels, tmp_p
 
 
 def test_anchor_calibration_config_is_checked():
-    from topodrake.learning.reach_train import AnchorCalibration
+    from topodrake.learning.reachability.train import AnchorCalibration
 
     with pytest.raises(TopodrakeError, match="anchor_calibration.seed 1"):
         _config(anchor_calibration=AnchorCalibration(seed=1)).validate()
@@ -661,9 +665,9 @@ def test_limits_study_ceiling_and_hop_bins(tmp_path, capsys):
 
 def test_limits_study_compares_res_keep_ratio_with_the_controllers_own(tiny_re):
     from topodrake.demonstrations import load_demos
-    from topodrake.learning.policy import AStarOracle
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.learning.samples import TrajectorySet
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.world import load_world
 
     study = _study("reachability_limits")
@@ -689,9 +693,11 @@ def test_shipped_res_were_trained_with_their_configs_and_controllers(name):
     and the C_WP file it measured; label sets name catalogue houses only."""
     from pathlib import Path
 
+    from topodrake.fileio import file_sha1
     from topodrake.learning.checkpoint import load_checkpoint
-    from topodrake.learning.reach_train import controller_identity, file_sha1, load_reach_config
-    from topodrake.learning.train import config_change
+    from topodrake.learning.reachability.controllers import controller_identity
+    from topodrake.learning.reachability.train import load_reach_config
+    from topodrake.learning.waypoint.train import config_change
     from topodrake.world.catalogue import catalogue_names
 
     root = Path(__file__).resolve().parents[1]
@@ -718,10 +724,12 @@ def test_registration_controller_is_named_by_its_settings(labels, tmp_path):
     """The registration C_WP has no checkpoint file: its RE is tied to the
     fingerprint of its settings, and a registration controller with other
     settings (or a C_WP checkpoint) is refused next to it."""
-    from topodrake.learning.reach_train import (controller_identity, controller_policy,
-                                                file_sha1, load_reachability,
-                                                registration_identity, train_reachability)
-    from topodrake.learning.reachability import Reachability
+    from topodrake.fileio import file_sha1
+    from topodrake.learning.reachability.controllers import (controller_identity, controller_policy,
+                                                             load_reachability,
+                                                             registration_identity)
+    from topodrake.learning.reachability.estimator import Reachability
+    from topodrake.learning.reachability.train import train_reachability
     from topodrake.registration.policy import RegistrationConfig, RegistrationPolicy
 
     ident = controller_identity("registration")
@@ -771,7 +779,8 @@ def test_maps_and_followers_load_the_registration_controller_by_name(labels, tmp
     the follower's networks load from that name, and a mismatched pair is
     refused."""
     from topodrake.learning.networks import NetworkConfig
-    from topodrake.learning.reach_train import controller_identity, train_reachability
+    from topodrake.learning.reachability.controllers import controller_identity
+    from topodrake.learning.reachability.train import train_reachability
     from topodrake.registration.policy import RegistrationPolicy
     from topodrake.topomap.sources import load_networks, make_scorer
 

@@ -220,9 +220,9 @@ def test_drake_waypoint_diagram_and_label_rollouts_drive_the_same_path(house, dr
     """Table I's Drake diagram keeps the registration C_WP's track in the
     WaypointNet's state and commits it once a period: it drives the same
     path as the batched label rollouts, noise included."""
-    from topodrake.learning.policy import make_target_context, target_input
-    from topodrake.se2 import compose
+    from topodrake.learning.waypoint.policy import make_target_context, target_input
     from topodrake.rollout import PolicyRollout, RolloutConfig
+    from topodrake.se2 import compose
     from topodrake.systems.run import TargetRunner
     from topodrake.systems.scenario import Scenario
     from topodrake.systems.waypoint_net import build_waypoint_diagram
@@ -308,7 +308,7 @@ def test_the_handover_settings_leave_the_re_fingerprint_alone():
     """RE's labels come from rollouts toward one target, where the handover
     along a route's legs never acts: an RE stays valid whatever those
     settings are, and any other setting changes the fingerprint."""
-    from topodrake.learning.controllers import registration_identity
+    from topodrake.learning.reachability.controllers import registration_identity
 
     base = registration_identity(RegistrationPolicy())["sha1"]
     assert registration_identity(RegistrationPolicy(RegistrationConfig(

@@ -11,8 +11,8 @@ from topodrake.errors import TopodrakeError
 from topodrake.learning.cli import expand_worlds
 from topodrake.learning.networks import NetworkConfig
 from topodrake.learning.samples import TrajectorySet
-from topodrake.learning.scale import ScaleConfig, ScaleRunConfig, train_at_scale
 from topodrake.learning.trajpack import load_packed_trajectories, pack_trajectories
+from topodrake.learning.waypoint.scale import ScaleConfig, ScaleRunConfig, train_at_scale
 from topodrake.typed_yaml import _plain_load
 
 TINY = dict(modality="lidar", channels=[8, 8, 16], feature_dim=16, combine_channels=16, hidden=16,
@@ -105,7 +105,7 @@ def _tiny_run(pack, max_samples: int) -> ScaleRunConfig:
 
 
 def test_scale_trainer_trains_resumes_with_new_shards(test0_drives, tmp_path):
-    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
 
     _, drives = test0_drives
     pack = pack_trajectories(drives, tmp_path / "t.npz")
@@ -130,7 +130,7 @@ def test_shipped_scale_configs_load():
     from pathlib import Path
 
     from topodrake.learning.networks import WaypointNetwork, input_size
-    from topodrake.learning.scale import load_scale_config
+    from topodrake.learning.waypoint.scale import load_scale_config
 
     root = Path(__file__).resolve().parents[1] / "configs"
     names = sorted(root.glob("scale_*.yaml"))

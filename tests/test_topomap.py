@@ -646,7 +646,7 @@ def test_a_map_file_opens_with_the_world_scorer_and_checkpoints_it_was_built_for
     beside that RE; a map whose RE is not here is refused in the one line
     every command that opens a map prints."""
     from topodrake.cli import main
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.topomap.scorer import LearnedScorer, OracleScorer
     from topodrake.topomap.sources import REGISTRATION, ROOT, open_map
 

@@ -58,7 +58,7 @@ import numpy as np
 import torch
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.policy import context_frames
+from topodrake.learning.frames import context_frames
 from topodrake.navigation.route import Route
 from topodrake.topomap.plan import PlanResult
 

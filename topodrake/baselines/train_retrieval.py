@@ -324,7 +324,7 @@ def train_retrieval(cfg: RetrievalTrainConfig, out_dir, data_dir="data", *, prog
     """Render the data, train, evaluate on ``data.eval_world`` and write
     ``checkpoint.pt`` and ``card.json`` into ``out_dir``."""
     from topodrake.learning.checkpoint import git_revision
-    from topodrake.learning.train import _set_threads
+    from topodrake.learning.waypoint.train import _set_threads
 
     cfg.validate()
     _set_threads(cfg.threads)

@@ -84,9 +84,9 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
     from topodrake.learning.config import TrainConfig
     from topodrake.learning.data import SampleBatcher
     from topodrake.learning.networks import WaypointNetwork, input_size
-    from topodrake.learning.policy import LearnedWaypointPolicy
     from topodrake.learning.samples import make_samples
-    from topodrake.learning.train import waypoint_loss
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
+    from topodrake.learning.waypoint.train import waypoint_loss
     from topodrake.registration.bench import registration_rate
     from topodrake.world import load_world
 
@@ -157,10 +157,10 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
     doubles both RE paths) is untrained: throughput does not depend on the
     weights."""
     from topodrake.learning.networks import WaypointNetwork, input_size
-    from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reach_labels import ReachLabelConfig, draw_pairs, rollout_pairs
-    from topodrake.learning.reach_train import ReachTrainConfig
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
+    from topodrake.learning.reachability.labels import ReachLabelConfig, draw_pairs, rollout_pairs
+    from topodrake.learning.reachability.train import ReachTrainConfig
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
     from topodrake.montecarlo import trial_seeds
     from topodrake.sensing.observe import observe
     from topodrake.world import load_world

@@ -57,7 +57,7 @@ def _print_result(args, result) -> None:
 
 
 def cmd_train_reachability(args) -> None:
-    from topodrake.learning.reach_train import load_reach_config, train_reachability
+    from topodrake.learning.reachability.train import load_reach_config, train_reachability
 
     _check_folders(args)
     cfg = _apply_overrides(load_reach_config(args.config), args)
@@ -68,7 +68,7 @@ def cmd_train_reachability(args) -> None:
 
 def cmd_train_waypoint(args) -> None:
     from topodrake.learning.config import load_train_config
-    from topodrake.learning.train import train_waypoint
+    from topodrake.learning.waypoint.train import train_waypoint
 
     _check_folders(args)
     cfg = _apply_overrides(load_train_config(args.config), args)
@@ -194,7 +194,7 @@ def cmd_train_pack(args) -> None:
 
 
 def cmd_train_scale(args) -> None:
-    from topodrake.learning.scale import load_scale_config, train_at_scale
+    from topodrake.learning.waypoint.scale import load_scale_config, train_at_scale
 
     _check_folders(args)
     run = load_scale_config(args.config)
@@ -209,7 +209,7 @@ def cmd_train_dagger(args) -> None:
     import json
     import sys
 
-    from topodrake.learning.dagger import load_dagger_config, run_dagger
+    from topodrake.learning.onpolicy.dagger import load_dagger_config, run_dagger
 
     _check_folders(args)
     cfg = load_dagger_config(args.config)
@@ -234,7 +234,7 @@ def cmd_train_follower_calibration(args) -> None:
 
     import torch
 
-    from topodrake.learning.follower_calibration import (FollowerCalibrationConfig,
+    from topodrake.learning.onpolicy.calibration import (FollowerCalibrationConfig,
                                                          calibrate_follower)
 
     torch.set_num_threads(args.threads)
@@ -305,7 +305,7 @@ def cmd_bench_reachability(args) -> None:
 
     cfg = None
     if args.config:
-        from topodrake.learning.reach_train import load_reach_config
+        from topodrake.learning.reachability.train import load_reach_config
         cfg = load_reach_config(args.config)
     if args.controller:
         from topodrake.topomap.sources import check_controller
@@ -378,7 +378,7 @@ def cmd_bench_follower(args) -> None:
 
     import torch
 
-    from topodrake.learning.follower_bench import bench_follower, parse_controllers
+    from topodrake.learning.onpolicy.bench import bench_follower, parse_controllers
 
     torch.set_num_threads(args.threads)
     result = bench_follower(parse_controllers(args.controllers, args.cwp, args.re), data=args.data,

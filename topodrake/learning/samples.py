@@ -237,7 +237,7 @@ def expert_waypoint_labels(world, src_poses: np.ndarray, tgt_xy: np.ndarray,
     nearest free cell within ``snap_m``); the waypoint is the farthest path
     point within ``lookahead_m`` with a clear line of sight, shortened to the
     straight-line source-target distance. Also the A* oracle of
-    :class:`topodrake.learning.policy.AStarOracle`.
+    :class:`topodrake.learning.waypoint.policy.AStarOracle`.
     """
     from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints
 

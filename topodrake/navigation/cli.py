@@ -77,7 +77,7 @@ class MapPlanner:
     given edges."""
 
     def __init__(self, path: Path, reach_path=None, controller_path=None):
-        from topodrake.learning.reach_train import controller_policy
+        from topodrake.learning.reachability.controllers import controller_policy
         from topodrake.topomap.plot import _map_layers
         from topodrake.topomap.sources import open_map
 

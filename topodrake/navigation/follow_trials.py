@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.fileio import atomic_write_bytes, atomic_write_json
-from topodrake.learning.follower_bench import CONTROLLERS as BENCH_CONTROLLERS
-from topodrake.learning.noisy_oracle import is_oracle_spec
+from topodrake.learning.onpolicy.bench import CONTROLLERS as BENCH_CONTROLLERS
+from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec
 from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, follow_chains_once, path_length
 
 #: name: (C_WP checkpoint, RE checkpoint, the controller the RE was trained for):
@@ -213,7 +213,7 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
         world = world_of(name)
         cwp, re = policy, reach
         if oracle:
-            from topodrake.learning.policy import AStarOracle
+            from topodrake.learning.waypoint.policy import AStarOracle
             from topodrake.navigation.evaluate import GeometricReachability
 
             cwp = AStarOracle(world, k=wide.k, frame_step=wide.frame_step)
@@ -266,8 +266,8 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
     per run."""
     import torch
 
-    from topodrake.learning.reach_train import controller_policy
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.controllers import controller_policy
+    from topodrake.learning.reachability.estimator import Reachability
 
     cwp_path, re_path, re_controller = spec
     reach = Reachability.from_checkpoint(re_path, re_controller)
@@ -335,8 +335,8 @@ def sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache, bar) -
     none, with KEY set to each value."""
     import re as regex
 
-    from topodrake.learning.noisy_oracle import parse_oracle_spec
-    from topodrake.learning.reach_train import controller_policy
+    from topodrake.learning.reachability.controllers import controller_policy
+    from topodrake.learning.waypoint.noisy_oracle import parse_oracle_spec
 
     key, values = args.sensitivity
     p = args.headline_p
@@ -363,9 +363,9 @@ def _fingerprint(path: str) -> str:
     one), the registration controller's runs key, or an oracle spec's text
     (with a hash of the noisy oracle's source: a code change invalidates its runs)."""
     from topodrake.fileio import file_sha1
-    from topodrake.learning import noisy_oracle
-    from topodrake.learning.follower_platt import SIDECAR
-    from topodrake.learning.reach_train import REGISTRATION, registration_runs_key
+    from topodrake.learning.onpolicy.platt import SIDECAR
+    from topodrake.learning.reachability.controllers import REGISTRATION, registration_runs_key
+    from topodrake.learning.waypoint import noisy_oracle
 
     if is_oracle_spec(path):
         return f"{path}+{file_sha1(noisy_oracle.__file__)[:16]}"

@@ -5,7 +5,7 @@ for the follower, :class:`topodrake.topomap.scorer.OracleScorer` for maps)
 stands in for a perfect RE of the A* oracle C_WP. It should say what that
 controller actually reaches, so it is fitted to the controller's own
 closed-loop outcomes, labelled exactly as the learned RE's labels are
-(:mod:`topodrake.learning.reach_labels`: jittered sources on expert drives,
+(:mod:`topodrake.learning.reachability.labels`: jittered sources on expert drives,
 targets on the same drive at a signed arc distance or on another drive of
 the house, actuation noise, success within 0.27 m or both overlaps above
 0.7 before ``A* / 0.25 m/s``; collisions and losing sight fail).
@@ -31,9 +31,9 @@ def oracle_reach_pairs(world, drives: list[np.ndarray], n: int, seed: int, *,
     """``n`` labelled (source, target) pairs of the A* oracle controller in
     ``world`` over the drives' pose arrays: ``src`` (n, 3), ``tgt`` (n, 3),
     ``same`` (n,), ``outcome`` and ``label`` (n,)."""
-    from topodrake.learning.policy import AStarOracle
-    from topodrake.learning.reach_labels import ReachLabelConfig, rollout_to_targets
+    from topodrake.learning.reachability.labels import ReachLabelConfig, rollout_to_targets
     from topodrake.learning.samples import SampleConfig, _arclength, apply_jitter, draw_jitter
+    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.montecarlo import trial_seeds
 
     drives = [np.asarray(d, np.float64) for d in drives if len(d) > 1]
@@ -83,7 +83,7 @@ def _nll(p: np.ndarray, y: np.ndarray) -> float:
 def calibration_scores(probability: np.ndarray, label: np.ndarray, bins: int = 10) -> dict:
     """ECE (``bins`` equal bins), AUROC and mean negative log-likelihood of
     predicted probabilities against 0/1 outcomes."""
-    from topodrake.learning.calibration import auroc, ece
+    from topodrake.learning.reachability.calibration import auroc, ece
 
     p = np.asarray(probability, np.float64)
     y = np.asarray(label, np.float64)

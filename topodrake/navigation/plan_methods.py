@@ -95,7 +95,7 @@ def networks(modality: str, world=None):
                                            shipped_controller)
 
     if modality in ("oracle", "oracle_cwp"):
-        from topodrake.learning.policy import AStarOracle
+        from topodrake.learning.waypoint.policy import AStarOracle
         from topodrake.navigation.evaluate import GeometricReachability
 
         cwp = AStarOracle(world, k=5)
@@ -103,8 +103,8 @@ def networks(modality: str, world=None):
                      else networks("camera")[1])
     if modality == "lidar_scale" and modality not in _NETWORKS:
         # the C_WP at scale drives the lidar k5 map's hops, rated by lidar k5's RE
-        from topodrake.learning.reach_train import controller_policy
-        from topodrake.learning.reachability import Reachability
+        from topodrake.learning.reachability.controllers import controller_policy
+        from topodrake.learning.reachability.estimator import Reachability
 
         _NETWORKS[modality] = (controller_policy(shipped_checkpoint(SCALE_CWP)),
                                Reachability.from_checkpoint(shipped_checkpoint(SHIPPED["lidar"][0]),

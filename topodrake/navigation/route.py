@@ -109,7 +109,7 @@ def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network
     with each anchor's context rendered for ``network`` (its ``observation``,
     ``k``, ``frame_step`` and ``sensor``; a pose oracle gets the poses) and
     its legs from the drive's odometry (:func:`teach_legs`)."""
-    from topodrake.learning.policy import context_frames
+    from topodrake.learning.frames import context_frames
 
     poses = np.asarray(poses, np.float64)
     anchors = np.asarray(anchors, np.int64)
@@ -137,7 +137,7 @@ def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors
     observations (T, ...) are already rendered (no rendering again):
     each anchor's 2k + 1 context frames, clamped to the trajectory; legs as
     in :func:`route_from_trajectory`."""
-    from topodrake.learning.policy import context_frames
+    from topodrake.learning.frames import context_frames
 
     poses = np.asarray(poses, np.float64)
     anchors = np.asarray(anchors, np.int64)

@@ -57,7 +57,7 @@ without any estimate is approached along the exit of the previous anchor's
 taught path (``exit_m`` on past its last frame) when the car tracks that
 one, else straight ahead. The policy reads the scans and the motion between odometry
 poses, never the map or the car's true pose. ``predict`` (the stateless
-:class:`~topodrake.learning.policy.WaypointPolicy` call) answers each query
+:class:`~topodrake.learning.waypoint.policy.WaypointPolicy` call) answers each query
 from a fresh state.
 """
 
@@ -68,7 +68,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.policy import WaypointPrediction
+from topodrake.learning.waypoint.policy import WaypointPrediction
 from topodrake.registration.icp import IcpConfig, Registration, register_points, scan_points
 from topodrake.se2 import compose, invert, relative
 from topodrake.sensing.config import LidarConfig

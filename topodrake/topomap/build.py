@@ -72,7 +72,7 @@ class BuildStats:
 
 
 def context_rows(n_frames: int, frames: np.ndarray, k: int, step: int) -> np.ndarray:
-    from topodrake.learning.policy import context_frames
+    from topodrake.learning.frames import context_frames
 
     return context_frames(n_frames, np.asarray(frames, np.int64), k, step).reshape(-1, 2 * k + 1)
 

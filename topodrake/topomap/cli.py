@@ -27,7 +27,7 @@ def cmd_sparsify(args) -> None:
     check_output(args.plot, "image", force=args.force, option="--plot")
     check_controller(args.controller, args.reach)
     from topodrake.demonstrations import load_demos
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.world import load_world
 
     world = load_world(args.world)
@@ -46,7 +46,7 @@ def cmd_sparsify(args) -> None:
               "anchors": len(anchors), "keep_ratio": round(len(anchors) / len(poses), 4),
               "p_sparsify": args.p, "anchor_frames": anchors.tolist()}
     if args.hop_runs:
-        from topodrake.learning.policy import LearnedWaypointPolicy
+        from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
         from topodrake.topomap.hops import anchor_hop_success, share_made
 
         ok = anchor_hop_success(world, LearnedWaypointPolicy.from_checkpoint(args.controller),

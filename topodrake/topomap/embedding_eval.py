@@ -73,7 +73,7 @@ def re_relevance(world, split: dict, reach, queries: np.ndarray, threshold: floa
     """(len(queries), D) bool: RE(query -> vertex) > ``threshold``, the vertex
     seen with its context in its own drive; the RE's general calibration
     (temperature), as query and vertex come from different drives."""
-    from topodrake.learning.policy import context_frames
+    from topodrake.learning.frames import context_frames
     from topodrake.sensing.observe import observe
 
     drives = split["drives"]
@@ -166,7 +166,7 @@ def bench_place(checkpoint: str, world: str = "test-0", data_dir="data", seed: i
            "queries": study["queries"], "database": study["database"],
            "mean_relevant": study["mean_relevant"]}
     if reach is not None:
-        from topodrake.learning.reachability import Reachability
+        from topodrake.learning.reachability.estimator import Reachability
 
         re = Reachability.from_checkpoint(*reach)
         idx = np.unique(np.linspace(0, len(split["query_poses"]) - 1, re_queries).astype(int))

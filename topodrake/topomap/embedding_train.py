@@ -315,7 +315,7 @@ def train_place(cfg: PlaceTrainConfig, out_dir, data_dir="data", *, progress: bo
     """Build the data, train, measure recall on ``data.eval_world`` and write
     ``checkpoint.pt`` and ``card.json`` into ``out_dir``."""
     from topodrake.learning.checkpoint import git_revision
-    from topodrake.learning.train import _set_threads
+    from topodrake.learning.waypoint.train import _set_threads
     from topodrake.topomap.embedding_eval import recall_study
 
     cfg.validate()

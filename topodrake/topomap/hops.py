@@ -5,7 +5,7 @@ there from the previous one (RE > p_sparsify). :func:`anchor_hop_success`
 checks that promise in the batched engine: C_WP starts at rest on each
 anchor's pose, with actuation noise, and drives toward the next anchor
 (its context from the same trajectory) under the RE labels' rules
-(:func:`topodrake.learning.reach_labels.rollout_pairs`: success within
+(:func:`topodrake.learning.reachability.labels.rollout_pairs`: success within
 0.27 m or both overlaps > 0.7 before A*/v_min). :func:`sparsify_houses`
 sparsifies the expert drives of several houses, for their keep ratio and,
 optionally, that check of every hop.
@@ -46,7 +46,7 @@ def _drive_hops(world, policy, poses: np.ndarray, src: np.ndarray, tgt: np.ndarr
                 seeds: np.ndarray, config=None) -> np.ndarray:
     """Outcomes (bool) of driving from frame ``src[m]`` of one trajectory
     (``poses``) toward its frame ``tgt[m]``, one noise seed each."""
-    from topodrake.learning.reach_labels import ReachLabelConfig, rollout_pairs
+    from topodrake.learning.reachability.labels import ReachLabelConfig, rollout_pairs
     from topodrake.learning.samples import TrajectorySet
 
     # one trajectory; the rollouts read its poses only (no replayed states needed)
@@ -158,7 +158,7 @@ def map_hop_success(world, policy, topomap, hops: int = 200, runs: int = 2, seed
     at rest on u's pose toward v's stored context, under the RE labels'
     rules. Returns ``{"hops", "runs", "hop_success"}`` (the share of runs
     made). Poses are the map's metadata: this is an evaluation."""
-    from topodrake.learning.reach_labels import ReachLabelConfig, rollout_to_targets
+    from topodrake.learning.reachability.labels import ReachLabelConfig, rollout_to_targets
     from topodrake.montecarlo import trial_seeds
 
     edges = [(u, v) for u, v, kind in topomap.graph.edges(data="kind") if kind == "trajectory"]

@@ -7,7 +7,7 @@ context is rows ``c`` (2k+1)?" for batches of such pairs. A
 :class:`MapScorer` answers from per-frame features computed once per frame:
 
 * :class:`LearnedScorer` wraps the learned RE
-  (:class:`~topodrake.learning.reachability.Reachability`): the features
+  (:class:`~topodrake.learning.reachability.estimator.Reachability`): the features
   are the first layer's two halves of each image (and of its mirror image),
   the pairs use the RE's anchor-hop calibration (map edges are short hops);
 * :class:`OracleScorer` is a privileged reachability from geometry (the
@@ -55,8 +55,8 @@ class LearnedScorer:
     @classmethod
     def from_checkpoints(cls, reach_path, controller_path) -> "LearnedScorer":
         from topodrake.fileio import file_sha1
-        from topodrake.learning.reach_train import controller_identity
-        from topodrake.learning.reachability import Reachability
+        from topodrake.learning.reachability.controllers import controller_identity
+        from topodrake.learning.reachability.estimator import Reachability
 
         reach = Reachability.from_checkpoint(reach_path, controller_path)
         return cls(reach, {"reach": str(reach_path), "reach_sha1": file_sha1(reach_path),
@@ -71,7 +71,7 @@ class LearnedScorer:
         return out
 
     def score(self, feats: dict, source: np.ndarray, context_rows: np.ndarray) -> np.ndarray:
-        from topodrake.learning.reachability import FrameFeatures
+        from topodrake.learning.reachability.estimator import FrameFeatures
 
         mirrored = (FrameFeatures(feats["m_current"], feats["m_target"])
                     if "m_current" in feats else None)

@@ -125,8 +125,8 @@ def load_networks(controller, reach=None):
     """(C_WP, RE) a follower drives with: ``controller`` a C_WP checkpoint or
     ``"registration"``; ``reach`` the RE checkpoint trained for it (default:
     :func:`default_reach`). An RE of another controller is refused."""
-    from topodrake.learning.reach_train import controller_policy
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.controllers import controller_policy
+    from topodrake.learning.reachability.estimator import Reachability
 
     controller = controller_checkpoint(controller)
     reach = default_reach(controller) if reach is None else resolve_checkpoint(reach)

@@ -74,11 +74,11 @@ def controller_policy(path, world=None):
     """The waypoint policy a controller name stands for: the registration
     C_WP for ``"registration"``, the A* oracle with a controlled error in
     ``world`` for an ``oracle[:KEY=VALUE...]`` spec
-    (:mod:`topodrake.learning.noisy_oracle`: it needs the world), else the
+    (:mod:`topodrake.learning.waypoint.noisy_oracle`: it needs the world), else the
     C_WP checkpoint's network (a direct-control network is refused: RE
     needs a C_WP)."""
-    from topodrake.learning.noisy_oracle import NoisyOracle, is_oracle_spec
-    from topodrake.learning.policy import LearnedWaypointPolicy
+    from topodrake.learning.waypoint.noisy_oracle import NoisyOracle, is_oracle_spec
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
 
     if is_oracle_spec(path):
         if world is None:

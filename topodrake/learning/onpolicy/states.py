@@ -9,9 +9,9 @@ state it drives through with the anchor it was aiming at
 that anchor and the one after it (:func:`onpolicy_samples`), as C_WP samples
 of the usual format (:class:`~topodrake.learning.samples.SampleSet`).
 
-The follower benchmark (:mod:`topodrake.learning.follower_bench`) scores a
+The follower benchmark (:mod:`topodrake.learning.onpolicy.bench`) scores a
 controller on such states; on-policy training (DAgger,
-:mod:`topodrake.learning.dagger`) aggregates them round after round.
+:mod:`topodrake.learning.onpolicy.dagger`) aggregates them round after round.
 
 A chain is a demonstration drive sparsified by the follower's RE at
 ``p_sparsify``; its car starts 0.3 m / 9 deg off the drive's first pose and

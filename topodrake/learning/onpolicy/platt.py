@@ -1,7 +1,7 @@
 """The follower calibration file beside an RE checkpoint: its name and its reader.
 
-:mod:`topodrake.learning.follower_calibration` fits and writes it;
-:meth:`topodrake.learning.reachability.Reachability.from_checkpoint` reads
+:mod:`topodrake.learning.onpolicy.calibration` fits and writes it;
+:meth:`topodrake.learning.reachability.estimator.Reachability.from_checkpoint` reads
 it with :func:`load_follower_platt`.
 """
 

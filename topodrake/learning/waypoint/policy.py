@@ -34,7 +34,7 @@ from topodrake.learning.networks import CONTROL_SCALE
 from topodrake.sensing.config import CameraConfig, LidarConfig
 
 __all__ = ["AStarOracle", "LearnedWaypointPolicy", "TargetContext", "WaypointPolicy",
-           "WaypointPrediction", "context_frames", "make_target_context", "target_input"]
+           "WaypointPrediction", "make_target_context", "target_input"]
 
 
 @dataclass

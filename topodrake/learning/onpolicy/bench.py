@@ -3,7 +3,7 @@
 A validation set scores C_WP on jittered demonstration poses; the follower
 asks it elsewhere (drifted cars, far anchors). This benchmark follows a
 fixed, seeded set of chains in the test houses with the learned follower
-(the controller's C_WP and RE; :mod:`topodrake.learning.onpolicy`; half the
+(the controller's C_WP and RE; :mod:`topodrake.learning.onpolicy.states`; half the
 chains with actuation noise), records every other period's state and the
 anchor it aimed at, and reports:
 
@@ -13,8 +13,8 @@ anchor it aimed at, and reports:
   own validation set (``val_error_m``, from its card) and their ratio;
 * RE's calibration on those states: ``re_states`` of them are rolled out
   with the controller alone toward the anchor (the RE labels' rules:
-  :func:`topodrake.learning.reach_labels.rollout_to_targets`, with actuation
-  noise: :func:`~topodrake.learning.follower_calibration.label_visited_reach`),
+  :func:`topodrake.learning.reachability.labels.rollout_to_targets`, with actuation
+  noise: :func:`~topodrake.learning.onpolicy.calibration.label_visited_reach`),
   and the probability the follower acts on (its follower calibration where
   the RE has one, else the anchor-hop one: ``re_calibration``) is scored
   against the outcomes (``re_ece``, ``re_auroc``; ``re_ece_temperature``:
@@ -91,16 +91,16 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
                      drives_per_world: int = 8, re_states: int = 300, seed: int = 0,
                      oracle: bool = True, progress: bool = False) -> dict:
     """The figures of one controller (see the module docstring)."""
-    from topodrake.learning.calibration import auroc, ece
     from topodrake.learning.checkpoint import load_checkpoint
-    from topodrake.learning.onpolicy import (OnPolicyConfig, collect_visited, label_visited,
-                                             pick_drives, samples_from_fields)
-    from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.follower_calibration import (StateLabels, follower_probability,
+    from topodrake.learning.onpolicy.calibration import (StateLabels, follower_probability,
                                                          label_visited_reach, platt_probability)
-    from topodrake.learning.reachability import Reachability
-    from topodrake.learning.noisy_oracle import is_oracle_spec
+    from topodrake.learning.onpolicy.states import (OnPolicyConfig, collect_visited, label_visited,
+                                                    pick_drives, samples_from_fields)
+    from topodrake.learning.reachability.calibration import auroc, ece
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.learning.samples import collect_trajectories
+    from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
     from topodrake.world import load_world
 
     if is_oracle_spec(cwp_path):
@@ -133,7 +133,7 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
         tgt = trajs.poses[trajs.traj_offsets[fields["traj"]] + fields["tgt"]]
         dist_parts.append(np.hypot(*(tgt[:, :2] - fields["src_pose"][:, :2]).T))
         if oracle:
-            from topodrake.learning.policy import AStarOracle
+            from topodrake.learning.waypoint.policy import AStarOracle
             from topodrake.navigation.evaluate import GeometricReachability
 
             wide = max(policy.k, reach.k)
@@ -193,11 +193,11 @@ def parse_controllers(names: str, overrides: list[str], reach: list[str] | None 
     ``table``, default :data:`CONTROLLERS`: name -> (C_WP, RE, the C_WP
     that RE was trained for)), with ``NAME=C_WP.pt`` overrides of their C_WP
     (or ``NAME=oracle:KEY=VALUE...``, the A* oracle with a controlled error:
-    :mod:`topodrake.learning.noisy_oracle`; NAME's RE stays) and
+    :mod:`topodrake.learning.waypoint.noisy_oracle`; NAME's RE stays) and
     ``NAME=RE.pt`` overrides of their RE (an RE trained for NAME's C_WP, the
     overridden checkpoint if given); ``must_exist``: an override's file must
     exist."""
-    from topodrake.learning.noisy_oracle import is_oracle_spec, parse_oracle_spec
+    from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec, parse_oracle_spec
 
     table = CONTROLLERS if table is None else table
     chosen = [n for n in names.split(",") if n]

@@ -13,7 +13,7 @@ context frames) without touching an image again. :meth:`sparsify` runs the
 greedy anchor selection of :mod:`topodrake.topomap.sparsify` on top of it.
 
 An RE calibrated with ``mirror_average`` (see
-:mod:`topodrake.learning.reach_train`) answers with the mean of the pair's
+:mod:`topodrake.learning.reachability.train`) answers with the mean of the pair's
 logit and of its mirror image's (both views flipped left-right), which
 ranks pairs better than either alone; every path here (single pairs,
 cached targets, all pairs) does the same, at twice the cost.
@@ -57,7 +57,7 @@ class Reachability(ObservationNetwork):
     succeed far more often than the average pair (default: the temperature,
     ``(1 / T, 0)``). ``follower_platt`` (a, b), when given, is the
     calibration of the follower's own queries (fitted on rollouts from the
-    states the follower visits: :mod:`topodrake.learning.follower_calibration`;
+    states the follower visits: :mod:`topodrake.learning.onpolicy.calibration`;
     :func:`topodrake.navigation.evaluate.route_calibrated` prefers it to
     ``anchor_platt``). ``mirror_average``: the logit is the mean of the pair's
     and its mirror image's (what the calibrations were fitted on)."""
@@ -84,9 +84,10 @@ class Reachability(ObservationNetwork):
         calibrations default to the ones fitted after training (T = 1 if
         none; anchor hops fall back to the temperature), and the follower's
         to a ``follower_calibration.json`` beside the checkpoint made for
-        this file (:func:`~topodrake.learning.follower_platt.load_follower_platt`)."""
-        from topodrake.learning.follower_platt import load_follower_platt
-        from topodrake.learning.controllers import checkpoint_temperature, load_reachability
+        this file (:func:`~topodrake.learning.onpolicy.platt.load_follower_platt`)."""
+        from topodrake.learning.onpolicy.platt import load_follower_platt
+        from topodrake.learning.reachability.controllers import (checkpoint_temperature,
+                                                                 load_reachability)
 
         ck = load_reachability(path, controller_checkpoint)
         t = checkpoint_temperature(ck.meta) if temperature is None else temperature
@@ -192,7 +193,7 @@ class Reachability(ObservationNetwork):
 
     def context_rows(self, n_frames: int, targets: np.ndarray) -> np.ndarray:
         """(M, 2k+1) clamped context frames of target frames ``targets`` of one trajectory."""
-        from topodrake.learning.policy import context_frames
+        from topodrake.learning.frames import context_frames
 
         return context_frames(n_frames, np.asarray(targets, np.int64), self.k, self.frame_step)
 

@@ -13,11 +13,11 @@ against 0.69).
 This module follows seeded chains with the controller (its C_WP and RE)
 in training houses that neither network saw, rolls C_WP alone out from a
 sample of the visited states toward the anchor aimed at (the RE labels'
-rules: :func:`topodrake.learning.reach_labels.rollout_to_targets`),
+rules: :func:`topodrake.learning.reachability.labels.rollout_to_targets`),
 fits a Platt scaling of RE's logit to the outcomes and writes it beside
 the RE checkpoint as ``follower_calibration.json`` (with the checkpoint's
 SHA-1: a calibration of another file is refused).
-:meth:`~topodrake.learning.reachability.Reachability.from_checkpoint`
+:meth:`~topodrake.learning.reachability.estimator.Reachability.from_checkpoint`
 loads it, and the follower's queries
 (:func:`~topodrake.navigation.evaluate.route_calibrated`) use it; the
 anchor placement (sparsification) keeps ``anchor_platt``.
@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.follower_platt import FORMAT, SIDECAR, load_follower_platt  # noqa: F401
+from topodrake.learning.onpolicy.platt import FORMAT, SIDECAR
 
 
 @dataclass(frozen=True)
@@ -79,10 +79,10 @@ class StateLabels:
 def label_visited_reach(world, trajs, visited, policy, reach, n: int, rng,
                         seed: int) -> StateLabels:
     """RE's logits and C_WP rollout outcomes for ``n`` random states of
-    ``visited`` (:class:`~topodrake.learning.onpolicy.VisitedStates`),
+    ``visited`` (:class:`~topodrake.learning.onpolicy.states.VisitedStates`),
     toward the anchor each aimed at."""
-    from topodrake.learning.reach_labels import (ReachLabelConfig, rollout_to_targets,
-                                                 target_contexts)
+    from topodrake.learning.reachability.labels import (ReachLabelConfig, rollout_to_targets,
+                                                        target_contexts)
 
     pick = rng.permutation(len(visited))[:n]
     if len(pick) == 0:
@@ -115,7 +115,7 @@ def collect_state_labels(policy, reach, config: FollowerCalibrationConfig, data=
     loaded: a calibration already beside the RE steers the follower) and
     label visited states; also returns the followed chains' cover per
     world."""
-    from topodrake.learning.onpolicy import OnPolicyConfig, collect_visited, pick_drives
+    from topodrake.learning.onpolicy.states import OnPolicyConfig, collect_visited, pick_drives
     from topodrake.learning.samples import collect_trajectories
     from topodrake.world import load_world
 
@@ -146,9 +146,9 @@ def calibrate_follower(cwp_path, re_path, config: FollowerCalibrationConfig | No
     ``"registration"``), and write it beside the RE checkpoint. Returns
     what was written."""
     from topodrake.fileio import atomic_write_json, file_sha1
-    from topodrake.learning.calibration import auroc, ece, fit_platt
-    from topodrake.learning.reach_train import controller_identity, controller_policy
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.calibration import auroc, ece, fit_platt
+    from topodrake.learning.reachability.controllers import controller_identity, controller_policy
+    from topodrake.learning.reachability.estimator import Reachability
 
     config = (config or FollowerCalibrationConfig()).check()
     if not Path(re_path).is_file():

@@ -33,7 +33,7 @@ from torch.nn import functional as F
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json, file_sha1
 from topodrake.learning.checkpoint import (RESUME, git_revision, load_checkpoint, load_resume_state,
-                                          save_checkpoint, save_resume_state)
+                                           save_checkpoint, save_resume_state)
 from topodrake.learning.config import TrainConfig
 from topodrake.learning.data import Batch, SampleBatcher
 from topodrake.learning.networks import WaypointNetwork, input_size

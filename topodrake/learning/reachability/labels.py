@@ -3,7 +3,7 @@
 The reachability estimator RE learns the outcome of the controller itself
 (the paper's section "Learning the Reachability Estimator"), so its labels
 come from closed-loop rollouts of that controller (C_WP + RMP, or any
-:class:`~topodrake.learning.policy.WaypointPolicy`) in the batched engine
+:class:`~topodrake.learning.waypoint.policy.WaypointPolicy`) in the batched engine
 (:class:`~topodrake.rollout.PolicyRollout`), with actuation noise:
 
 * the source is a frame of an expert trajectory, jittered as for the C_WP

@@ -1,6 +1,6 @@
 """Training C_WP at scale: samples made by worker processes while a GPU trains.
 
-The CPU loop of :mod:`topodrake.learning.train` renders every batch from
+The CPU loop of :mod:`topodrake.learning.waypoint.train` renders every batch from
 poses and draws it from one fixed sample set; at tens of millions of samples
 seen the renderer and the labeller (A* per sample) are the limit, not the
 network. Here
@@ -14,7 +14,7 @@ network. Here
   device as it arrives;
 * batches are drawn uniformly from the pool (a seeded generator on the
   device) and gathered there; the loss, Adam and the step decay are those of
-  :func:`topodrake.learning.train.train_network`;
+  :func:`topodrake.learning.waypoint.train.train_network`;
 * ``variants`` name more networks trained on the same batches (a width
   study at no extra data cost), each in its own folder.
 
@@ -25,7 +25,7 @@ checkpoints (CPU tensors): everything that loads a C_WP loads them.
 Batch order depends on when shards arrive, so two runs agree in their data,
 not bit for bit in their weights.
 
-    python -m topodrake.learning.scale --config configs/scale_lidar_k5.yaml \\
+    python -m topodrake.learning.waypoint.scale --config configs/scale_lidar_k5.yaml \\
         --out runs/lidar_k5_scale --minutes 8
 """
 
@@ -143,7 +143,8 @@ def _warm_kernels(traj_path: str, world: str) -> None:
     compiling them each (numba's thread pool must not exist before a fork)."""
     import subprocess
 
-    code = ("import numpy as np; from topodrake.learning.scale import _init_worker, _make_shard, _W; "
+    code = ("import numpy as np; "
+            "from topodrake.learning.waypoint.scale import _init_worker, _make_shard, _W; "
             f"from topodrake.learning.config import TrainConfig; t = TrainConfig().to_dict(); "
             f"t['data']['sample_seed'] = 0; t['shard_samples'] = 20; "
             f"_init_worker({traj_path!r}, [{world!r}], t); _make_shard(0)")
@@ -221,7 +222,7 @@ def _networks(run: ScaleRunConfig, out_dir: Path, beams: int) -> tuple[list[_Net
 
     from topodrake.learning.checkpoint import RESUME, load_checkpoint, load_resume_state
     from topodrake.learning.networks import WaypointNetwork, input_size
-    from topodrake.learning.train import CHECKPOINT, config_change
+    from topodrake.learning.waypoint.train import CHECKPOINT, config_change
 
     nets, state = [], {"samples_seen": 0, "wall_time_s": 0.0, "next_shard": 0, "shards_used": 0}
     specs = [("main", run.train)] + [(name, _with_network(run.train, net))
@@ -268,8 +269,8 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
     from topodrake.learning.checkpoint import RESUME, git_revision, save_checkpoint, save_resume_state
     from topodrake.learning.data import Batch, SampleBatcher
     from topodrake.learning.samples import SampleConfig, make_samples
-    from topodrake.learning.train import CARD, CHECKPOINT, waypoint_loss
     from topodrake.learning.trajpack import load_packed_trajectories
+    from topodrake.learning.waypoint.train import CARD, CHECKPOINT, waypoint_loss
 
     t_start = time.perf_counter()
     deadline = t_start + minutes * 60.0
@@ -447,7 +448,7 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
 
 def _validate(model, val: dict) -> dict:
     """Metrics on each validation set; the main set's figures also at the top level."""
-    from topodrake.learning.train import evaluate
+    from topodrake.learning.waypoint.train import evaluate
 
     per = {key: evaluate(model, b) for key, b in val.items()}
     return {**per["val"], **per}
@@ -455,7 +456,7 @@ def _validate(model, val: dict) -> dict:
 
 def _compare(paths: list[str], val: dict, device) -> dict:
     from topodrake.learning.checkpoint import load_checkpoint
-    from topodrake.learning.train import evaluate
+    from topodrake.learning.waypoint.train import evaluate
 
     out = {}
     for p in paths:
@@ -520,7 +521,7 @@ def main(argv=None) -> int:
     try:
         run = load_scale_config(args.config)
         card = train_at_scale(run, args.out, minutes=args.minutes, progress=not args.quiet,
-                              command="python -m topodrake.learning.scale " + " ".join(
+                              command="python -m topodrake.learning.waypoint.scale " + " ".join(
                                   sys.argv[1:] if argv is None else argv))
     except TopodrakeError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -5,14 +5,14 @@ follower asks RE from elsewhere: off the drive, at other headings, toward
 the anchor it aims at from wherever it got to. This module makes labels
 for those questions: it follows seeded RE chains of demonstration drives
 with the controller (its C_WP and an RE that steers the follower, as
-:func:`topodrake.learning.onpolicy.collect_visited` does), draws visited
+:func:`topodrake.learning.onpolicy.states.collect_visited` does), draws visited
 states, and rolls C_WP alone out from each toward the anchor the follower
 was aiming at (or, for ``next_share`` of them, the anchor after it, which
 Follow's advance rule and Dead reckoning ask about), under the labels'
-rules (:func:`topodrake.learning.reach_labels.rollout_to_targets`).
+rules (:func:`topodrake.learning.reachability.labels.rollout_to_targets`).
 
-The folder has the format of :mod:`topodrake.learning.reach_labels` (one
-chunk per house, resumable; :func:`~topodrake.learning.reach_labels.load_reach_labels`
+The folder has the format of :mod:`topodrake.learning.reachability.labels` (one
+chunk per house, resumable; :func:`~topodrake.learning.reachability.labels.load_reach_labels`
 reads it), and its manifest records the steering RE's fingerprint and the
 follower's settings beside the controller's. ``src_traj``/``src`` name the
 drive and its frame nearest the visited state; ``same`` is true. A house
@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.reach_labels import (ReachLabelConfig, open_label_folder,
-                                             rollout_to_targets, target_contexts,
-                                             write_label_chunk)
+from topodrake.learning.reachability.labels import (ReachLabelConfig, open_label_folder,
+                                                    rollout_to_targets, target_contexts,
+                                                    write_label_chunk)
 
 
 @dataclass
@@ -69,7 +69,7 @@ def label_follower_states(trajs, policy, reach, out_dir, n: int, *, seed: int,
     (resumable by house; a folder made for other settings is refused)."""
     from tqdm import tqdm
 
-    from topodrake.learning.onpolicy import OnPolicyConfig, collect_visited, pick_drives
+    from topodrake.learning.onpolicy.states import OnPolicyConfig, collect_visited, pick_drives
     from topodrake.montecarlo import trial_seeds
     from topodrake.navigation.follower import FollowerConfig
 

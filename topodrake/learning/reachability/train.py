@@ -2,7 +2,7 @@
 
 RE has the C_WP design with one logit (``network.output = "reach"``) and is
 trained with binary cross-entropy on labels from rollouts of the controller
-it describes (:mod:`topodrake.learning.reach_labels`): training houses for
+it describes (:mod:`topodrake.learning.reachability.labels`): training houses for
 training, test houses for validation (ECE, Brier score, AUROC). The
 checkpoint names its controller (path and SHA-1 of the C_WP checkpoint), and
 :func:`load_reachability` refuses an RE next to another controller.
@@ -10,10 +10,10 @@ checkpoint names its controller (path and SHA-1 of the C_WP checkpoint), and
 A controller without a network, the registration C_WP
 (:class:`~topodrake.registration.policy.RegistrationPolicy`), is named
 ``controller: registration``; its fingerprint is the SHA-1 of its settings
-and lidar (:func:`registration_identity`), so an RE trained for it is
-refused next to a registration controller with other settings. It has no
-encoder to start from: ``init`` is ``scratch`` or an RE checkpoint, and
-with ``init_any_controller`` that RE may be another controller's (its
+and lidar (:func:`~topodrake.learning.reachability.controllers.registration_identity`),
+so an RE trained for it is refused next to a registration controller with
+other settings. It has no encoder to start from: ``init`` is ``scratch`` or
+an RE checkpoint, and with ``init_any_controller`` that RE may be another controller's (its
 weights only: a warm start from an RE that has learnt to compare scans).
 
 Beyond the paper's recipe (each a config switch): RE starts from its
@@ -48,17 +48,16 @@ from torch.nn import functional as F
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import file_sha1
-from topodrake.learning.calibration import calibration_summary
 from topodrake.learning.config import TrainConfig
-from topodrake.learning.controllers import (REGISTRATION, checkpoint_temperature,  # noqa: F401
-                                            controller_identity, controller_policy,
-                                            load_reachability, registration_identity,
-                                            registration_runs_key)
-from topodrake.learning.follower_reach_labels import FollowerStateLabels, label_follower_states
 from topodrake.learning.data import ObservationSource, to_network_input
 from topodrake.learning.networks import NetworkConfig, mirrored
-from topodrake.learning.reach_labels import (ReachLabelConfig, ReachLabels, concat_reach_labels,
-                                             label_reachability, load_reach_labels)
+from topodrake.learning.onpolicy.reach_labels import FollowerStateLabels, label_follower_states
+from topodrake.learning.reachability.calibration import calibration_summary
+from topodrake.learning.reachability.controllers import (REGISTRATION, controller_identity,
+                                                         controller_policy, load_reachability)
+from topodrake.learning.reachability.labels import (ReachLabelConfig, ReachLabels,
+                                                    concat_reach_labels, label_reachability,
+                                                    load_reach_labels)
 from topodrake.typed_yaml import load_typed
 
 
@@ -398,7 +397,7 @@ def fit_reach_temperature(model, batcher: ReachBatcher, mirror: bool = False) ->
     """Temperature scaling on the validation pairs, kept only if it lowers
     their BCE: ``{"temperature": T, "calibrated_metrics": ...}`` (T = 1
     when it does not help)."""
-    from topodrake.learning.calibration import fit_temperature
+    from topodrake.learning.reachability.calibration import fit_temperature
 
     z, y = reach_logits(model, batcher, mirror=mirror)
     t = fit_temperature(z.numpy(), y.numpy())
@@ -457,9 +456,9 @@ def prepare_labels(cfg: ReachTrainConfig, data_dir, progress: bool = True,
 
 def _follower_set(cfg: ReachTrainConfig, data_dir, policy, ident: dict,
                   extra: FollowerStateLabels, progress: bool) -> ReachLabels:
-    """One set of follower-state labels (:mod:`topodrake.learning.follower_reach_labels`),
+    """One set of follower-state labels (:mod:`topodrake.learning.onpolicy.reach_labels`),
     made once in ``data_dir/reach-labels/`` (resumable) and loaded."""
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.learning.samples import collect_trajectories
     from topodrake.navigation.follower import FollowerConfig
 
@@ -519,8 +518,8 @@ def calibrate(model, val: ReachBatcher, anchors: ReachBatcher | None, scaling: b
     hops (``anchor_platt`` = [slope, bias], with the hops' metrics before
     (under the temperature) and after), both of the mirror-averaged logit
     if ``mirror`` (recorded as ``mirror_average``, which
-    :class:`~topodrake.learning.reachability.Reachability` follows)."""
-    from topodrake.learning.calibration import fit_platt
+    :class:`~topodrake.learning.reachability.estimator.Reachability` follows)."""
+    from topodrake.learning.reachability.calibration import fit_platt
 
     out = {"mirror_average": bool(mirror)}
     if scaling:
@@ -541,7 +540,7 @@ def train_reachability(cfg: ReachTrainConfig, out_dir, data_dir="data", *, resum
     """Train (or resume) RE for ``cfg.controller`` into ``out_dir``.
     ``labels``: (train, validation[, anchor hops]) instead of the config's
     rollouts."""
-    from topodrake.learning.train import Task, _set_threads, train_network
+    from topodrake.learning.waypoint.train import Task, _set_threads, train_network
 
     cfg.validate()
     _set_threads(cfg.threads)

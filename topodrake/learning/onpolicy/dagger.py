@@ -7,7 +7,7 @@ Each round:
    ``train-<first_world>`` on) with the current C_WP and the follower's RE,
    and labels every visited state with the A* expert toward the anchor the
    follower aimed at and the one after it
-   (:mod:`topodrake.learning.onpolicy`);
+   (:mod:`topodrake.learning.onpolicy.states`);
 2. fine-tunes the current C_WP for ``round_minutes`` on the aggregate: a
    fixed base set of demonstration samples (``base_samples`` from the
    config's ``data.train_worlds``, drawn with its ``data.samples``: targets
@@ -38,7 +38,7 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 from topodrake.learning.config import TrainConfig
-from topodrake.learning.onpolicy import OnPolicyConfig
+from topodrake.learning.onpolicy.states import OnPolicyConfig
 
 N_TRAIN_HOUSES = 96
 STATE = "dagger.json"
@@ -79,7 +79,7 @@ class DaggerConfig:
             if not Path(getattr(self, name)).is_file():
                 raise TopodrakeError(f"{where}: {name} checkpoint {getattr(self, name)} does not exist")
         from topodrake.learning.checkpoint import load_checkpoint
-        from topodrake.learning.train import _diff
+        from topodrake.learning.waypoint.train import _diff
 
         diff = _diff(load_checkpoint(self.init).network.to_dict(), self.train.network.to_dict())
         if diff:
@@ -110,7 +110,7 @@ def base_and_val_samples(cfg: DaggerConfig, data_dir: Path, progress: bool):
     from dataclasses import replace
 
     from topodrake.learning.samples import SampleConfig
-    from topodrake.learning.train import prepare_samples
+    from topodrake.learning.waypoint.train import prepare_samples
 
     d = replace(cfg.train.data, train_samples=cfg.base_samples)
     base, val = prepare_samples(replace(cfg.train, data=d), data_dir, progress)
@@ -131,11 +131,11 @@ def collect_round(cfg: DaggerConfig, r: int, controller: Path, data_dir: Path, p
     ``controller``) and the mean cover of its chains."""
     import torch
 
-    from topodrake.learning.onpolicy import (collect_visited, label_visited, pick_drives,
-                                             samples_from_fields)
-    from topodrake.learning.policy import LearnedWaypointPolicy
-    from topodrake.learning.reachability import Reachability
+    from topodrake.learning.onpolicy.states import (collect_visited, label_visited, pick_drives,
+                                                    samples_from_fields)
+    from topodrake.learning.reachability.estimator import Reachability
     from topodrake.learning.samples import collect_trajectories
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
     from topodrake.world import load_world
 
     torch.set_num_threads(max(cfg.train.threads, 1))
@@ -167,9 +167,9 @@ def run_dagger(cfg: DaggerConfig, out_dir, data_dir="data", *, progress: bool = 
     """Run (or resume) the rounds; returns the state (``dagger.json``)."""
     from dataclasses import replace
 
-    from topodrake.learning.onpolicy import concat_samples
+    from topodrake.learning.onpolicy.states import concat_samples
     from topodrake.learning.samples import SampleSet
-    from topodrake.learning.train import CARD, CHECKPOINT, train_waypoint
+    from topodrake.learning.waypoint.train import CARD, CHECKPOINT, train_waypoint
 
     cfg.validate()
     out_dir, data_dir = Path(out_dir), Path(data_dir)

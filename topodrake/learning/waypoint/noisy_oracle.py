@@ -33,7 +33,7 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 
 if TYPE_CHECKING:
-    from topodrake.learning.policy import WaypointPrediction
+    from topodrake.learning.waypoint.policy import WaypointPrediction
 
 __all__ = ["NoisyOracle", "OracleError", "is_oracle_spec", "parse_oracle_spec"]
 
@@ -98,7 +98,7 @@ def parse_oracle_spec(text: str) -> OracleError:
 
 
 class NoisyOracle:
-    """:class:`~topodrake.learning.policy.AStarOracle` in ``world`` plus the
+    """:class:`~topodrake.learning.waypoint.policy.AStarOracle` in ``world`` plus the
     seeded error ``error`` (an :class:`OracleError` or a spec string).
     ``encode_target`` returns (N, 5): the target pose and its anchor error
     (world frame); ``predict`` also takes bare (N, 3) target poses."""
@@ -107,7 +107,7 @@ class NoisyOracle:
 
     def __init__(self, world, error: OracleError | str = "oracle", k: int = 0,
                  frame_step: int = 3, **oracle_kw):
-        from topodrake.learning.policy import AStarOracle   # not at import: it loads torch
+        from topodrake.learning.waypoint.policy import AStarOracle   # not at import: it loads torch
 
         self.error = parse_oracle_spec(error) if isinstance(error, str) else error
         self.oracle = AStarOracle(world, k=k, frame_step=frame_step, **oracle_kw)

@@ -1,0 +1,1 @@
+"""The reachability estimator RE: the estimator, rollout labels, training, calibration."""
