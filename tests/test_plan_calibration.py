@@ -181,3 +181,34 @@ def test_the_planning_study_reports_the_calibrated_ece_where_every_plan_has_a_ch
     assert cal["lidar"]["calibrated"] and cal["lidar"]["ece"] == 0.0
     assert cal["lidar"]["ece_raw"] == pytest.approx(0.4)
     assert not cal["ours"]["calibrated"] and cal["ours"]["ece"] == pytest.approx(0.1)
+
+
+def test_each_learned_method_has_one_place_for_its_plan_calibration():
+    from topodrake.navigation.plan_methods import plan_calibration_path
+    from topodrake.topomap.sources import ROOT
+
+    ck = ROOT / "checkpoints"
+    assert plan_calibration_path("lidar") == ck / "reach_lidar_k5" / FILENAME
+    assert plan_calibration_path("ours_replan") == ck / "reach_camera_k5" / FILENAME
+    # the C_WP at scale follows the lidar map with another C_WP than the map's own
+    assert plan_calibration_path("lidar_scale") == ck / "lidar_k5_scale" / FILENAME
+    assert plan_calibration_path("oracle_full") is None
+    with pytest.raises(ValueError, match="unknown method"):
+        plan_calibration_path("lidar_k9")
+
+
+def test_map_calibrate_fits_the_method_named_and_not_another(capsys, tmp_path):
+    recs = _records(["train-60"])
+    scale = [dict(r, method="lidar_scale", success=r["planned"] and r["trial"] % 3 == 0)
+             for r in recs]
+    planned = [r for r in scale if r["planned"]]
+    study = tmp_path / "planning.json"
+    study.write_text(json.dumps({"command": "c", "trials": recs + scale}))
+    out = tmp_path / "scale.json"
+    code, text, _ = run(capsys, "map", "calibrate", study, "--method", "lidar_scale", "--out",
+                        out, "--json")
+    assert code == 0 and json.loads(text)["method"] == "lidar_scale"
+    cal = PlanCalibration.load(out)
+    assert cal.fitted_on["trials"] == len(planned)
+    assert cal.fitted_on["success_rate"] == pytest.approx(
+        np.mean([r["success"] for r in planned]), abs=0.01)

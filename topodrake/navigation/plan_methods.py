@@ -115,16 +115,35 @@ def networks(modality: str, world=None):
     return _NETWORKS[modality]
 
 
-def plan_calibration_of(method: str):
-    """The plan calibration shipped for a method whose map and follower use
-    one shipped RE (``ours``, ``lidar``, ``lidar_reg`` and ``ours``' variants), or None."""
-    from topodrake.topomap.plan_calibration import calibration_beside
+#: methods whose follower is not their map kind's own: their plan calibration
+#: ships beside the follower's C_WP (the map's RE is another follower's)
+CALIBRATED_BESIDE_CWP = {"lidar_scale": SCALE_CWP}
+
+
+def plan_calibration_path(method: str):
+    """Where a method's plan calibration ships: beside its map kind's RE where
+    map and follower are one shipped system (``ours``, ``lidar``,
+    ``lidar_reg`` and ``ours``' variants), beside the C_WP of
+    :data:`CALIBRATED_BESIDE_CWP`'s methods; None for the others."""
+    from topodrake.topomap.plan_calibration import FILENAME
     from topodrake.topomap.sources import ROOT, SHIPPED
 
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r} (known: {', '.join(METHODS)})")
+    if method in CALIBRATED_BESIDE_CWP:
+        return ROOT / "checkpoints" / CALIBRATED_BESIDE_CWP[method] / FILENAME
     kind, follower = METHODS[method].map, METHODS[method].follower
     if kind != follower or kind not in SHIPPED:
         return None
-    return calibration_beside(ROOT / "checkpoints" / SHIPPED[kind][0] / "checkpoint.pt")
+    return ROOT / "checkpoints" / SHIPPED[kind][0] / FILENAME
+
+
+def plan_calibration_of(method: str):
+    """The plan calibration shipped for a method (:func:`plan_calibration_path`), or None."""
+    from topodrake.topomap.plan_calibration import PlanCalibration
+
+    path = plan_calibration_path(method)
+    return PlanCalibration.load(path) if path is not None and path.is_file() else None
 
 
 def attach_success_probability(records: list[dict]) -> None:

@@ -228,17 +228,14 @@ def cmd_map_plan(args) -> None:
 
 
 def cmd_map_calibrate(args) -> None:
-    from topodrake.topomap.plan_calibration import FILENAME, fit_from_records, read_trial_records
-    from topodrake.topomap.sources import ROOT, SHIPPED
+    from topodrake.navigation.plan_methods import plan_calibration_path
+    from topodrake.topomap.plan_calibration import fit_from_records, read_trial_records
 
+    name = {"camera": "ours"}.get(args.method, args.method)
     if args.out is None:
-        if args.method not in SHIPPED:
-            raise TopodrakeError(f"give --out: {args.method!r} has no shipped RE to put the "
-                                 f"calibration beside (shipped: {', '.join(SHIPPED)})")
-        args.out = str(ROOT / "checkpoints" / SHIPPED[args.method][0] / FILENAME)
+        args.out = str(plan_calibration_path(name))
     check_output(args.out, "json", force=args.force)
     records, commands = read_trial_records(args.records)
-    name = {"camera": "ours"}.get(args.method, args.method)
     cal = fit_from_records(records, name, source=", ".join(map(str, args.records)),
                            command=" ; ".join(commands))
     cal.save(args.out)
@@ -319,10 +316,10 @@ def add_map_parser(sub) -> None:
                                           "of a plan) on a planning study's trials")
     c.add_argument("records", nargs="+",
                    help="the planning study's planning.json files, run on training houses")
-    c.add_argument("--method", required=True, choices=["camera", "lidar", "lidar_reg"],
-                   help="the map kind and follower (camera: the study's 'ours')")
+    c.add_argument("--method", required=True, choices=["camera", "lidar", "lidar_reg", "lidar_scale"],
+                   help="the planning study's method (camera: its 'ours')")
     c.add_argument("--out", help="calibration file to write (default: plan_calibration.json "
-                                 "beside the method's shipped RE)")
+                                 "beside the method's shipped RE; lidar_scale: beside its C_WP)")
     c.add_argument("--json", action="store_true", help="print the fit as one JSON object")
     add_force_option(c)
     c.set_defaults(func=cmd_map_calibrate)
