@@ -295,3 +295,25 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     assert rp.step(np.array([0]), st, np.zeros((1, 3)), p_start=0.6) == [(0, better)]
     with pytest.raises(TopodrakeError, match="discount"):
         ReplanSchedule(discount=1.5).check()
+
+
+def test_a_run_passes_the_hops_before_its_last_visited_anchor_and_fails_the_next():
+    from topodrake.navigation.replan import route_traversals
+
+    class Planned:
+        vertices = np.array([7, 3, 9, 4, -1])                   # the last anchor is no vertex
+
+        def __len__(self):
+            return len(self.vertices)
+
+    r = Planned()
+    assert route_traversals(r, visited=2, active=3, reached=False) == ([(7, 3), (3, 9)], [(9, 4)])
+    assert route_traversals(r, visited=2, active=3, reached=True) == ([(7, 3), (3, 9), (9, 4)], [])
+    # out of time: the hop it was on is not blamed
+    assert route_traversals(r, visited=2, active=3, reached=False, timed_out=True) == (
+        [(7, 3), (3, 9)], [])
+    # lost before the first anchor: nothing of the map was driven
+    assert route_traversals(r, visited=-1, active=0, reached=False) == ([], [])
+    # skipped ahead: the hops between count as passed, the failure is the hop it was on
+    assert route_traversals(r, visited=3, active=4, reached=False) == (
+        [(7, 3), (3, 9), (9, 4)], [])

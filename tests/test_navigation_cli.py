@@ -114,6 +114,21 @@ def test_a_lidar_reg_map_records_and_drives_the_registration_controller(capsys, 
     assert main(["map", "plan", str(path), "--start", start, "--goal", goal, "--json"]) == 0
     plan = json.loads(capsys.readouterr().out)
     assert plan["anchors"] == out["anchors"] == len(plan["path"]) + 1   # one count of anchors
+    # the drive folded into the map file's edges: what it reports is what the file holds
+    code = main(["navigate", str(path), "--start", start, "--goal", goal, "--t-max", "25",
+                 "--update-map", "--json"])
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    from topodrake.topomap.mapfile import load_map
+    from topodrake.topomap.recalibrate import experience_summary
+    from topodrake.topomap.sources import make_scorer
+
+    changed = out["updated_edges"]
+    assert changed and all(c["p_after"] != c["p_before"] or c["passed"] for c in changed)
+    held = experience_summary(load_map(path, make_scorer("lidar_reg")))
+    assert held == {"edges_driven": len(changed), "passes": sum(c["passed"] for c in changed),
+                    "failures": sum(c["failed"] for c in changed)}
+    assert held["passes"] > 0 and (held["failures"] > 0) == (out["outcome"] not in
+                                                             ("reached", "timeout"))
 
 
 def test_demo_drives_the_registration_controller(capsys, tmp_path):

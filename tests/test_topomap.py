@@ -482,22 +482,45 @@ def test_shipped_checkpoints_resolve_from_any_working_folder(tmp_path, monkeypat
 
 
 def test_failed_edges_are_lowered_and_the_next_plan_goes_around_them():
-    from topodrake.topomap.recalibrate import lower_failed_edges
+    from topodrake.topomap.recalibrate import PRIOR_WEIGHT, edge_posterior, record_traversals
 
     m = table_map(parallel_drives, reuse=False)
     add_trajectory(m, drive(0, 13))
     add_trajectory(m, drive(1, 13))
     r = plan_path(m, np.array([0, 0]), np.array([0, 12]))
-    edge = tuple(r.vertices[1:3])
+    edge = tuple(int(v) for v in r.vertices[1:3])
     before = m.graph.edges[edge]["p"]
-    lowered = lower_failed_edges(m, [edge, edge, (10_000, 10_001)])     # repeats and unknown edges
-    assert lowered == [{"edge": list(edge), "p_before": round(before, 6),
-                        "p_after": round(before * 0.5, 6)}]
-    assert m.graph.edges[edge]["weight"] == pytest.approx(-np.log(before * 0.5))
+    # each failure counts; edges the map does not hold are skipped
+    changed = record_traversals(m, failed=[edge, edge, (10_000, 10_001)])
+    after = PRIOR_WEIGHT * before / (PRIOR_WEIGHT + 2)
+    assert changed == [{"edge": list(edge), "p_before": round(before, 6),
+                        "p_after": round(after, 6), "passed": 0, "failed": 2}]
+    assert m.graph.edges[edge]["weight"] == pytest.approx(-np.log(after))
     r2 = plan_path(m, np.array([0, 0]), np.array([0, 12]))
     assert edge not in set(zip(r2.vertices[:-1], r2.vertices[1:]))
-    with pytest.raises(TopodrakeError, match="factor"):
-        lower_failed_edges(m, [edge], factor=1.5)
+    # passes later raise it again from RE's rating, not from the lowered value
+    record_traversals(m, passed=[edge] * 6)
+    assert m.graph.edges[edge]["p"] == pytest.approx(float(edge_posterior(before, 6, 2)))
+    assert m.graph.edges[edge]["p_re"] == before
+    with pytest.raises(TopodrakeError, match="prior weight"):
+        record_traversals(m, failed=[edge], prior_weight=0.0)
+    with pytest.raises(TopodrakeError, match=">= 0"):
+        edge_posterior(0.9, -1, 0)
+
+
+def test_experience_on_edges_survives_the_map_file(oracle_map, tmp_path):
+    from topodrake.topomap.recalibrate import experience_summary, record_traversals
+
+    _, m, path = oracle_map
+    m = load_map(path, m.scorer)                   # a copy: the fixture's map stays as built
+    edges = list(m.graph.edges)[:4]
+    record_traversals(m, passed=edges[:2], failed=[edges[2], edges[2]])
+    back = load_map(save_map(m, tmp_path / "m.tdmap"), m.scorer)
+    for e in edges[:3]:
+        for key in ("p", "p_re", "passed", "failed"):
+            assert back.graph.edges[e][key] == pytest.approx(m.graph.edges[e][key])
+    assert "p_re" not in back.graph.edges[edges[3]]
+    assert experience_summary(back) == {"edges_driven": 3, "passes": 2, "failures": 2}
 
 
 def test_retrieval_first_checks_the_rest_of_the_ranks_only_behind_edges_deep_in_the_first():

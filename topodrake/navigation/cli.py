@@ -245,11 +245,11 @@ def cmd_navigate(args) -> int:
     if replanner is not None:
         extra["replans"] = int(replanner.plans[0]) - 1
         route = result.route
-    if planner is not None and args.update_map:
-        failed = [] if replanner is None else replanner.excluded[0]
-        extra["lowered_edges"] = _update_map(planner, route, result, failed)
     goal_m = goal_distance(result.poses, goal)
     outcome = drive_outcome(result.outcome, goal_m)
+    if planner is not None and args.update_map:
+        failed = [] if replanner is None else replanner.excluded[0]
+        extra["updated_edges"] = _update_map(planner, route, result, failed, outcome)
     out = {"outcome": outcome, "time_s": round(result.time_s, 2),
            "probability": round(first_p, 4), "anchors": anchors,
            "distance_m": round(result.distance_m, 2), "distance_to_goal_m": round(goal_m, 3),
@@ -262,8 +262,8 @@ def cmd_navigate(args) -> int:
               f"from the goal; plan of {anchors} anchors, probability {first_p:.3f}"
               + (f", {extra['replans']} replans" if "replans" in extra else "")
               + f"; real-time factor {rtf:.1f} (start-up {result.startup_s:.1f} s)"
-              + (f"; lowered {len(extra['lowered_edges'])} failed edges in {source}"
-                 if "lowered_edges" in extra else ""), flush=True)
+              + (f"; updated {len(extra['updated_edges'])} driven edges in {source}"
+                 if "updated_edges" in extra else ""), flush=True)
     _write_drive_files(args, world, route, result, start, goal, layers, outcome, extra)
     return exit_status(outcome)
 
@@ -301,22 +301,20 @@ def _plan_or_refuse(plan, source):
     return plan.route
 
 
-def _update_map(planner, route, result, failed: list) -> list[dict]:
-    """Lower the edges the car failed on (those replanning left, and the
-    last route's, when it gave up) and save the map over its file."""
-    from topodrake.navigation.replan import GIVE_UP, failing_edge
+def _update_map(planner, route, result, failed: list, outcome: str) -> list[dict]:
+    """Fold the run into the map's edges (the hops it passed on its last
+    route, the edge it failed on unless time ran out, and those replanning
+    left) and save the map over its file."""
+    from topodrake.navigation.replan import route_traversals
     from topodrake.topomap.mapfile import save_map
-    from topodrake.topomap.recalibrate import lower_failed_edges
+    from topodrake.topomap.recalibrate import record_traversals
 
-    edges = list(failed)
-    if result.outcome in GIVE_UP:
-        edge = failing_edge(route, result.visited, result.active)
-        if edge is not None:
-            edges.append(edge)
-    lowered = lower_failed_edges(planner.topomap, edges)
-    if lowered:
+    passed, gave_up = route_traversals(route, result.visited, result.active,
+                                       outcome == "reached", outcome == "timeout")
+    changed = record_traversals(planner.topomap, passed, list(failed) + gave_up)
+    if changed:
         save_map(planner.topomap, planner.path)
-    return lowered
+    return changed
 
 
 def _route_or_none(plan):
@@ -350,8 +348,9 @@ def add_navigate_parser(sub) -> None:
                          "the new plan when it beats the current one (discounted 0.99 per try); "
                          "at most this many new plans (default: 0: no replanning)")
     nv.add_argument("--update-map", action="store_true",
-                    help="on a map: halve the probability of each edge the car gave up on and "
-                         "save the map over its file (online recalibration; default: off)")
+                    help="on a map: fold the drive into the probability of each edge it passed "
+                         "or gave up on and save the map over its file (edges from "
+                         "experience; default: off)")
     nv.add_argument("--plot", metavar="PNG",
                     help="draw the map, the plan and the driven path (default: none)")
     nv.add_argument("--meshcat", metavar="HTML",

@@ -77,6 +77,21 @@ def failing_edge(route, visited: int, active: int) -> tuple[int, int] | None:
     return (u, v) if u >= 0 and v >= 0 and u != v else None
 
 
+def route_traversals(route, visited: int, active: int, reached: bool, timed_out: bool = False
+                     ) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """What a run along ``route`` tells of its map edges: ``(passed,
+    failed)``. Every hop up to the last visited anchor was passed (all of
+    them when the car reached the goal); a car that failed otherwise than
+    by running out of time failed on :func:`failing_edge`. Hops to or from
+    anchors that are not map vertices are left out."""
+    v = [int(x) for x in route.vertices]
+    last = len(v) - 1 if reached else min(int(visited), len(v) - 1)
+    passed = [(v[i], v[i + 1]) for i in range(max(last, 0))
+              if v[i] >= 0 and v[i + 1] >= 0 and v[i] != v[i + 1]]
+    edge = None if reached or timed_out else failing_edge(route, visited, active)
+    return passed, ([edge] if edge is not None else [])
+
+
 PlanCallback = Callable[[int, np.ndarray, list], object]
 
 

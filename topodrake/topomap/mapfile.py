@@ -18,7 +18,10 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
                     1 cross, 2 junction: from version 3), ``leg`` (E, 3) and
                     ``leg_path`` (E, LEG_POINTS, 3): the drive's odometry over
                     a trajectory edge, or a junction's registered offset (NaN
-                    where none; from version 2)
+                    where none; from version 2); optional, where cars drove
+                    the map (:mod:`~topodrake.topomap.recalibrate`):
+                    ``passed``, ``failed`` and ``p_re`` (RE's own rating; NaN
+                    on edges never driven)
 ``chain_ids``       every trajectory's chain of vertices, concatenated;
 ``chain_offsets``   (trajectories + 1,) into it
 ``embeddings``      (V, D) the vertices' place embeddings
@@ -103,10 +106,32 @@ def save_map(topomap: TopoMap, path) -> Path:
                           np.float64).reshape(len(edges), 3),
         edge_leg_path=np.array([d.get("leg_path", nan_path) for _, _, d in edges],
                                np.float64).reshape(len(edges), LEG_POINTS, 3),
+        **_experience_arrays(edges),
         chain_ids=np.array([v for c in chains for v in c], np.int64),
         chain_offsets=np.cumsum([0] + [len(c) for c in chains]).astype(np.int64),
         embeddings=emb)
     return atomic_write_bytes(path, buf.getvalue())
+
+
+def _experience_arrays(edges) -> dict:
+    """The edges' driving experience as arrays (none where no edge was driven)."""
+    if not any("p_re" in d for _, _, d in edges):
+        return {}
+    return {"edge_p_re": np.array([d.get("p_re", np.nan) for _, _, d in edges], np.float64),
+            "edge_passed": np.array([d.get("passed", 0) for _, _, d in edges], np.int64),
+            "edge_failed": np.array([d.get("failed", 0) for _, _, d in edges], np.int64)}
+
+
+def _set_experience(m: TopoMap, z, path) -> None:
+    n_e = len(z["edge_src"])
+    if any(len(z.get(k, ())) != n_e for k in ("edge_p_re", "edge_passed", "edge_failed")):
+        raise TopodrakeError(f"{path}: the edges' driving experience does not cover its "
+                             f"{n_e} edges")
+    for u, v, p_re, n_pass, n_fail in zip(z["edge_src"], z["edge_dst"], z["edge_p_re"],
+                                          z["edge_passed"], z["edge_failed"]):
+        if np.isfinite(p_re):
+            m.graph.edges[int(u), int(v)].update(p_re=float(p_re), passed=int(n_pass),
+                                                 failed=int(n_fail))
 
 
 def read_map_meta(path) -> dict:
@@ -201,6 +226,8 @@ def load_map(path, scorer, embedding=None) -> TopoMap:
         for u, v, p, kind, leg, path_ in zip(z["edge_src"], z["edge_dst"], z["edge_p"],
                                              z["edge_kind"], legs, paths):
             m.add_edge(int(u), int(v), float(p), EDGE_KINDS[int(kind)], leg, path_)
+        if "edge_p_re" in z:
+            _set_experience(m, z, path)
         off, ids = z["chain_offsets"], z["chain_ids"]
         for i, t in enumerate(meta["trajectories"]):
             m.trajectories.append(Trajectory(t["name"], int(t["frames"]),
