@@ -81,7 +81,9 @@ paper's protocol is ``--trials 1000`` with the ten fractions.
 "false_link_plans": {method: share}, "unmapped_obstacles": s,
 "plan_probability_ece_by_method": {method: e}, "raw_plan_probability_ece": {method: e},
 "calibration_houses": {method: [house, ...]}}`` (``plan_probability_ece``: ours,
-calibrated where a calibration ships)
+calibrated where a calibration ships; with ``--experience-rounds R``, also
+``"success_by_round": {method: [s, ...]}``: each round's success, planned with the
+drives of the rounds before folded into the map's edges)
 and writes ``results/planning.json`` (command, seed, config, per-trial
 records), ``planning.png``, ``plan_calibration.png`` and ``pruned_maps.png``.
 """
@@ -102,7 +104,7 @@ from topodrake.fileio import atomic_write_json
 from topodrake.navigation.plan_methods import (METHODS, ORACLE_METHODS,
                                                attach_success_probability, calibration_houses,
                                                calibration_table)
-from topodrake.navigation.plan_study import house_job, house_seed, pruned_job
+from topodrake.navigation.plan_study import house_job, house_seed, pruned_job, success_by_round
 from topodrake.topomap.map_cache import DEMO_SEED, house_key
 
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
@@ -262,6 +264,10 @@ def main(argv=None) -> int:
     ap.add_argument("--pruned-trials", type=at.count, default=20,
                     help="trials per pruned map (paper: 1000)")
     ap.add_argument("--pruned-seed", type=at.seed, default=0, help="seed of the drive subsets")
+    ap.add_argument("--experience-rounds", type=at.count, default=1,
+                    help="run each plainly driven map method's trials in this many rounds, "
+                         "each planned with the drives of the rounds before folded into the "
+                         "map's edges (1: every trial on the map as built)")
     ap.add_argument("--seed", type=at.seed, default=0, help="base seed of the trials")
     ap.add_argument("--data", default="data", help="cache of demonstrations and maps")
     ap.add_argument("--workers", type=at.count, default=1,
@@ -352,7 +358,8 @@ def _run(args) -> int:
            "replan": asdict(ReplanSchedule()), "obstacle_trials": args.obstacle_trials,
            "obstacles": args.obstacles,
            "pruned_fractions": fractions, "pruned_method": args.pruned_method,
-           "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed}
+           "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed,
+           "experience_rounds": args.experience_rounds}
     jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
     results = run_trials(house_job, list(jobs), workers=args.workers, ray_address=args.ray,
                          progress=not args.quiet and len(jobs) > 1, desc="houses",
@@ -379,6 +386,9 @@ def _run(args) -> int:
     summary["plan_probability_ece_by_method"] = {m: c["ece"] for m, c in cal.items()}
     summary["raw_plan_probability_ece"] = {m: c["ece_raw"] for m, c in cal.items()}
     summary["calibration_houses"] = calibration_houses(methods)
+    if args.experience_rounds > 1:
+        summary["success_by_round"] = success_by_round(
+            [r for h in houses.values() for r in h["records"]])
     out = Path(args.out)
     wall = time.perf_counter() - t0
     records = [r for h in houses.values() for r in h.pop("records")]

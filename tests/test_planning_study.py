@@ -449,3 +449,58 @@ def planning_args(planning, rescore, out):
     import argparse
 
     return argparse.Namespace(rescore=rescore, out=str(out), json=True, argv=[])
+
+
+def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monkeypatch):
+    """A method's trials in rounds: round r is planned with the passed and
+    failed edges of rounds < r, and the records keep each trial's round."""
+    from types import SimpleNamespace
+
+    from topodrake.navigation import plan_study, plan_trials
+    from topodrake.navigation.plan_trials import FollowResult
+
+    class Planned:
+        def __init__(self, vertices):
+            self.vertices = np.array(vertices)
+            self.poses = np.zeros((len(vertices), 3))
+
+        def __len__(self):
+            return len(self.vertices)
+
+    seen = []
+
+    def plan_routes(method, spec, world, drives, indices, starts, places, goals, cfg, tag,
+                    experience=None):
+        seen.append(None if experience is None else (list(experience[0]), list(experience[1])))
+        routes = [Planned([1, 2, 3]) for _ in starts]
+        return routes, np.full(len(starts), 0.9), {"vertices": 3, "edges": 2}, None, \
+            [0.0] * len(starts)
+
+    def follow_routes(engine, starts, routes, goals, *a, **k):
+        n = len(starts)
+        # every car passes 1 -> 2 and fails on 2 -> 3
+        return FollowResult(["dead_reckoning_gave_up"] * n, np.ones(n), np.zeros(n, bool),
+                            np.full(n, 10), visited=np.ones(n, np.int64),
+                            active=np.full(n, 2, np.int64))
+
+    monkeypatch.setattr(plan_study, "plan_routes", plan_routes)
+    monkeypatch.setattr(plan_trials, "follow_routes", follow_routes)
+    monkeypatch.setattr(plan_study, "networks", lambda *a: (None, None))
+    monkeypatch.setattr("topodrake.navigation.engine.NavigationEngine",
+                        lambda *a, **k: SimpleNamespace())
+    world = SimpleNamespace(places=np.zeros((3, 3)))
+    pairs = np.array([[0, 1], [1, 2], [2, 0], [0, 2]])
+    cfg = {"experience_rounds": 2, "batch": 4, "data": "unused", "quiet": True}
+    stats, records = plan_study.run_method("lidar", "test-0", world, [], [], pairs,
+                                           np.zeros((4, 3)), cfg)
+    assert seen == [None, ([(1, 2), (1, 2)], [(2, 3), (2, 3)])]
+    assert [r["round"] for r in records] == [0, 0, 1, 1]
+    assert all(r["plan_vertices"] == [1, 2, 3] and r["visited"] == 1 for r in records)
+    assert stats["trials"] == 4 and stats["success"] == 0.0
+    assert plan_study.success_by_round(records) == {"lidar": [0.0, 0.0]}
+    # replanning and SPTM run as built; rounds below 1 are refused
+    assert plan_study.experience_rounds("ours_replan", cfg) == 1
+    assert plan_study.experience_rounds("sptm", cfg) == 1
+    with pytest.raises(ValueError, match=">= 1"):
+        plan_study.experience_rounds("lidar", {"experience_rounds": 0})
+    assert plan_study.round_bounds(10, 3).tolist() == [0, 3, 7, 10]

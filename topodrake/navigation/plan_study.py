@@ -26,9 +26,12 @@ SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
 
 
 def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
-                cfg: dict, tag: str = "all"):
+                cfg: dict, tag: str = "all", experience=None):
     """(plans' routes (None = no plan), plan probabilities, map size dict,
-    ``replan(trial, pose, excluded_edges)`` on our maps (None for SPTM))."""
+    ``replan(trial, pose, excluded_edges)`` on our maps (None for SPTM)).
+    ``experience``: ``(passed, failed)`` map edges of earlier drives, folded
+    into the map's edges before planning
+    (:func:`topodrake.topomap.recalibrate.record_traversals`)."""
     from topodrake.navigation.plan_trials import render_pose_route
     from topodrake.topomap.plan import plan_path
     from topodrake.topomap.sources import drive_observations
@@ -57,6 +60,10 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     else:
         modality = meth.map
         m, build_s = get_map(spec, world, modality, drives, indices, data, tag, progress)
+        if experience is not None:
+            from topodrake.topomap.recalibrate import record_traversals
+
+            record_traversals(m, *experience)
         metres = sum(float(np.hypot(*np.diff(drives[i].poses[:, :2], axis=0).T).sum())
                      for i in indices)
         size = {"vertices": len(m), "edges": m.n_edges, "build_s": round(build_s, 1),
@@ -98,11 +105,14 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                                                   longest_link_m)
 
     places = np.asarray(world.places, np.float64)
+    meth = METHODS[method]
+    rounds = experience_rounds(method, cfg)
+    first = len(pairs) if rounds == 1 else round_bounds(len(pairs), rounds)[1]
+    round_of = None
     t0 = time.perf_counter()
     routes, prob, size, replan, false_links = plan_routes(
-        method, spec, world, drives, indices, starts, places, pairs[:, 1], cfg, tag)
+        method, spec, world, drives, indices, starts[:first], places, pairs[:first, 1], cfg, tag)
     plan_s = time.perf_counter() - t0
-    meth = METHODS[method]
     policy, reach = networks(meth.follower, world)
     if meth.drive == "obstacles":
         from topodrake.navigation.plan_trials import follow_past_obstacles
@@ -126,8 +136,13 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
             bar.update(len(pairs))
     else:
         engine = NavigationEngine(world, policy, reach, NavigationConfig())
-        res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
-                            SUCCESS_M, progress=None if bar is None else bar.update)
+        res = follow_routes(engine, starts[:first], routes, places[pairs[:first, 1]], T_MAX_S,
+                            cfg["batch"], SUCCESS_M,
+                            progress=None if bar is None else bar.update)
+        if rounds > 1:
+            routes, prob, false_links, res, round_of = _later_rounds(
+                method, spec, world, drives, indices, pairs, starts, places, cfg, tag, engine,
+                routes, prob, false_links, res, rounds, bar)
     key = house_key(spec)
     records = [{"house": key, "method": method, "map": tag, "trial": t,
                 "start_place": int(a), "goal_place": int(b),
@@ -141,6 +156,10 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                 "outcome": res.outcome[t], "success": bool(res.success[t]),
                 "final_distance_m": round(float(res.final_distance_m[t]), 3),
                 "steps": int(res.steps[t]),
+                **({"plan_vertices": [int(v) for v in routes[t].vertices],
+                    "visited": int(res.visited[t]), "active": int(res.active[t])}
+                   if routes[t] is not None and meth.map != "sptm" else {}),
+                **({"round": int(round_of[t])} if round_of is not None else {}),
                 **({"plans": int(res.plans[t])} if getattr(res, "plans", None) is not None
                    else {}),
                 **({"boxes": None if boxes[t] is None else np.round(boxes[t], 3).tolist()}
@@ -151,6 +170,76 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
              "map_and_plan_s": round(plan_s, 1),
              "follow_s": round(time.perf_counter() - t0 - plan_s, 1)}
     return stats, records
+
+
+def experience_rounds(method: str, cfg: dict) -> int:
+    """Rounds a method's trials run in, each planned on its map with the
+    edges driven in the rounds before folded in (``cfg["experience_rounds"]``;
+    1: every trial on the map as built). Plainly driven map methods only."""
+    rounds = int(cfg.get("experience_rounds", 1))
+    if rounds < 1:
+        raise ValueError(f"experience rounds must be >= 1, got {rounds}")
+    meth = METHODS[method]
+    return rounds if meth.drive == "plain" and meth.map != "sptm" else 1
+
+
+def round_bounds(n: int, rounds: int) -> np.ndarray:
+    """(rounds + 1,) trial indices where each round starts (and the end)."""
+    return np.linspace(0, n, rounds + 1).round().astype(np.int64)
+
+
+def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, cfg, tag, engine,
+                  routes, prob, false_links, res, rounds, bar):
+    """Rounds 2.. of a method's trials: each planned with every earlier
+    round's drives folded into the map's edges. Returns the whole run's
+    routes, probabilities, false links, follow result and each trial's round."""
+    from topodrake.navigation.plan_trials import SUCCESS_M, T_MAX_S, FollowResult, follow_routes
+    from topodrake.navigation.replan import route_traversals
+
+    bounds = round_bounds(len(pairs), rounds)
+    passed, failed = [], []
+    routes, prob, false_links = list(routes), list(prob), list(false_links)
+    parts = [res]
+
+    def learn(rs, result):
+        for t, route in enumerate(rs):
+            if route is not None:
+                p, f = route_traversals(route, result.visited[t], result.active[t],
+                                        bool(result.success[t]), result.outcome[t] == "timeout")
+                passed.extend(p)
+                failed.extend(f)
+
+    learn(routes, res)
+    for r in range(1, rounds):
+        sl = slice(int(bounds[r]), int(bounds[r + 1]))
+        rs, pr, _, _, links = plan_routes(method, spec, world, drives, indices, starts[sl],
+                                          places, pairs[sl, 1], cfg, tag,
+                                          experience=(passed, failed))
+        out = follow_routes(engine, starts[sl], rs, places[pairs[sl, 1]], T_MAX_S, cfg["batch"],
+                            SUCCESS_M, progress=None if bar is None else bar.update)
+        learn(rs, out)
+        routes += rs
+        prob += list(pr)
+        false_links += links
+        parts.append(out)
+    whole = FollowResult([o for p in parts for o in p.outcome],
+                         *(np.concatenate([getattr(p, k) for p in parts])
+                           for k in ("final_distance_m", "success", "steps")),
+                         visited=np.concatenate([p.visited for p in parts]),
+                         active=np.concatenate([p.active for p in parts]))
+    round_of = np.repeat(np.arange(rounds), np.diff(bounds))
+    return routes, np.asarray(prob, np.float64), false_links, whole, round_of
+
+
+def success_by_round(records: list[dict]) -> dict:
+    """Per method run in experience rounds: each round's success over all
+    houses (rounded to 4 places)."""
+    out: dict[str, dict[int, list[bool]]] = {}
+    for r in records:
+        if "round" in r:
+            out.setdefault(r["method"], {}).setdefault(int(r["round"]), []).append(r["success"])
+    return {m: [round(float(np.mean(rounds[k])), 4) for k in sorted(rounds)]
+            for m, rounds in out.items()}
 
 
 def _rates(records: list[dict]) -> dict:

@@ -107,6 +107,15 @@ class FollowResult:
     steps: np.ndarray            # (n,) control periods driven
     plans: np.ndarray | None = None       # (n,) plans driven (with replanning)
     excluded: list | None = None          # per trial, the edges replanning excluded
+    visited: np.ndarray | None = None     # (n,) the follower's last visited anchor (-1: none)
+    active: np.ndarray | None = None      # (n,) ... and its active anchor at the end
+
+    def __post_init__(self) -> None:
+        n = len(self.outcome)
+        if self.visited is None:
+            self.visited = np.full(n, -1, np.int64)
+        if self.active is None:
+            self.active = np.full(n, -1, np.int64)
 
     @classmethod
     def not_driven(cls, starts, goals) -> "FollowResult":
@@ -150,6 +159,7 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
             if replanner is not None:
                 out.plans[i], out.excluded[i] = replanner.plans[j], replanner.excluded[j]
             code = int(res.outcome[j])
+            out.visited[i], out.active[i] = res.follower.visited[j], res.follower.active[j]
             final = float(np.hypot(*(res.poses[j, int(res.steps[j]), :2] - goals[i][:2])))
             dist[i] = final
             steps[i] = int(res.steps[j])
