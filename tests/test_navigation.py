@@ -300,13 +300,7 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
 def test_a_run_passes_the_hops_before_its_last_visited_anchor_and_fails_the_next():
     from topodrake.navigation.replan import route_traversals
 
-    class Planned:
-        vertices = np.array([7, 3, 9, 4, -1])                   # the last anchor is no vertex
-
-        def __len__(self):
-            return len(self.vertices)
-
-    r = Planned()
+    r = np.array([7, 3, 9, 4, -1])                               # the last anchor is no vertex
     assert route_traversals(r, visited=2, active=3, reached=False) == ([(7, 3), (3, 9)], [(9, 4)])
     assert route_traversals(r, visited=2, active=3, reached=True) == ([(7, 3), (3, 9), (9, 4)], [])
     # out of time: the hop it was on is not blamed

@@ -309,7 +309,7 @@ def _update_map(planner, route, result, failed: list, outcome: str) -> list[dict
     from topodrake.topomap.mapfile import save_map
     from topodrake.topomap.recalibrate import record_traversals
 
-    passed, gave_up = route_traversals(route, result.visited, result.active,
+    passed, gave_up = route_traversals(route.vertices, result.visited, result.active,
                                        outcome == "reached", outcome == "timeout")
     changed = record_traversals(planner.topomap, passed, list(failed) + gave_up)
     if changed:

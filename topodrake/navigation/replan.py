@@ -71,24 +71,30 @@ class ReplanSchedule:
 def failing_edge(route, visited: int, active: int) -> tuple[int, int] | None:
     """The map edge (u, v) a follower fails on: from its last visited anchor
     to its active one (None when either is not a map vertex)."""
-    if not (0 <= visited < len(route) and 0 <= active < len(route)):
+    return hop_edge(route.vertices, visited, active)
+
+
+def hop_edge(vertices, i: int, j: int) -> tuple[int, int] | None:
+    """The map edge from anchor ``i`` to anchor ``j`` of a route whose
+    anchors are the map vertices ``vertices`` (None when either is not one)."""
+    if not (0 <= i < len(vertices) and 0 <= j < len(vertices)):
         return None
-    u, v = int(route.vertices[visited]), int(route.vertices[active])
+    u, v = int(vertices[i]), int(vertices[j])
     return (u, v) if u >= 0 and v >= 0 and u != v else None
 
 
-def route_traversals(route, visited: int, active: int, reached: bool, timed_out: bool = False
+def route_traversals(vertices, visited: int, active: int, reached: bool, timed_out: bool = False
                      ) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
-    """What a run along ``route`` tells of its map edges: ``(passed,
-    failed)``. Every hop up to the last visited anchor was passed (all of
-    them when the car reached the goal); a car that failed otherwise than
-    by running out of time failed on :func:`failing_edge`. Hops to or from
-    anchors that are not map vertices are left out."""
-    v = [int(x) for x in route.vertices]
-    last = len(v) - 1 if reached else min(int(visited), len(v) - 1)
-    passed = [(v[i], v[i + 1]) for i in range(max(last, 0))
-              if v[i] >= 0 and v[i + 1] >= 0 and v[i] != v[i + 1]]
-    edge = None if reached or timed_out else failing_edge(route, visited, active)
+    """What a run along a route of map vertices ``vertices`` tells of its
+    map edges: ``(passed, failed)``. Every hop up to the last visited
+    anchor was passed (all of them when the car reached the goal); a car
+    that failed otherwise than by running out of time failed on the hop from
+    its last visited anchor to its active one. Hops to or from anchors that
+    are not map vertices are left out."""
+    last = len(vertices) - 1 if reached else min(int(visited), len(vertices) - 1)
+    passed = [e for e in (hop_edge(vertices, i, i + 1) for i in range(max(last, 0)))
+              if e is not None]
+    edge = None if reached or timed_out else hop_edge(vertices, visited, active)
     return passed, ([edge] if edge is not None else [])
 
 

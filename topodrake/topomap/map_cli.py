@@ -21,6 +21,7 @@ import numpy as np
 
 from topodrake import argtypes as at
 from topodrake.errors import TopodrakeError
+from topodrake.topomap.recalibrate import PRIOR_WEIGHT
 from topodrake.outputs import add_force_option, check_output, check_output_folder, write_kept
 
 
@@ -249,6 +250,42 @@ def cmd_map_calibrate(args) -> None:
               f"{cal.fitted_on['ece_fitted']}; wrote {args.out}")
 
 
+def cmd_map_refit(args) -> None:
+    """Fold a planning study's recorded drives on a map into its edges."""
+    from topodrake.navigation.plan_study import traversals_of_records
+    from topodrake.topomap.map_cache import house_key
+    from topodrake.topomap.mapfile import save_map
+    from topodrake.topomap.plan_calibration import read_trial_records
+    from topodrake.topomap.recalibrate import experience_summary, record_traversals
+    from topodrake.topomap.sources import open_map
+
+    out = check_output(args.out, "map", force=args.force)
+    loaded = open_map(args.file)
+    house = house_key(loaded.topomap.world)
+    records, _ = read_trial_records(args.records)
+    name = {"camera": "ours"}.get(args.method, args.method)
+    mine = [r for r in records if r.get("method") == name and r.get("house") == house]
+    if not mine:
+        have = sorted({f"{r.get('method')} in {r.get('house')}" for r in records})
+        raise TopodrakeError(f"no trials of {name} in {house} in the records (they hold "
+                             f"{', '.join(have) or 'none'})")
+    passed, failed = traversals_of_records(mine)
+    graph = loaded.topomap.graph
+    missing = [e for e in passed + failed if not graph.has_edge(*e)]
+    if missing:
+        raise TopodrakeError(f"the recorded plans drive edges {args.file} does not hold "
+                             f"({len(missing)}, e.g. {missing[0][0]} -> {missing[0][1]}): they "
+                             f"were planned on another map")
+    changed = record_traversals(loaded.topomap, passed, failed, args.prior_weight)
+    save_map(loaded.topomap, out)
+    summary = {"out": str(out), "trials": len(mine), "edges_changed": len(changed),
+               **experience_summary(loaded.topomap)}
+    print(json.dumps(summary) if args.json else
+          f"folded {len(mine)} trials of {name} into {len(changed)} edges "
+          f"({len(passed)} hops passed, {len(failed)} failed); the map has now driven "
+          f"{summary['edges_driven']} edges; wrote {out}")
+
+
 def anchor_count(plan) -> int:
     """The anchors a car follows on a plan: its map vertices and the goal."""
     return len(plan.route) if plan.route is not None else 0
@@ -323,6 +360,21 @@ def add_map_parser(sub) -> None:
     c.add_argument("--json", action="store_true", help="print the fit as one JSON object")
     add_force_option(c)
     c.set_defaults(func=cmd_map_calibrate)
+
+    rf = msub.add_parser("refit", help="fold a planning study's recorded drives on a map into "
+                                       "its edges (passed and failed hops against RE's rating)")
+    rf.add_argument("file", help="map file the drives were planned on")
+    rf.add_argument("records", nargs="+", help="the planning study's planning.json files")
+    rf.add_argument("--method", required=True, choices=["camera", "lidar", "lidar_reg",
+                                                        "lidar_scale"],
+                    help="the planning study's method whose trials to fold in (camera: 'ours')")
+    rf.add_argument("--out", required=True, help="map file to write (the same as the input "
+                                                 "with --force)")
+    rf.add_argument("--prior-weight", type=float, default=PRIOR_WEIGHT,
+                    help=f"drives RE's rating of an edge counts for (default: {PRIOR_WEIGHT:g})")
+    rf.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    add_force_option(rf)
+    rf.set_defaults(func=cmd_map_refit)
 
 
 def cmd_bench_map(args) -> None:
