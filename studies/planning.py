@@ -92,22 +92,14 @@ from __future__ import annotations
 
 import json
 import sys
-import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
 from topodrake import argtypes as at
-from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
-from topodrake.navigation.plan_methods import (METHODS, ORACLE_METHODS,
-                                               attach_success_probability, calibration_houses,
-                                               calibration_table)
-from topodrake.navigation.plan_study import house_job, house_seed, pruned_job, success_by_round
-from topodrake.topomap.map_cache import DEMO_SEED, house_key
-
-HOUSES = "test-0,test-1,test-2,test-3,test-4"
+from topodrake.navigation.plan_methods import METHODS, ORACLE_METHODS
+from topodrake.navigation.plan_results import HOUSES, planning, rescore
 
 
 # ---------------------------------------------------------------- plots
@@ -208,33 +200,6 @@ def plot_pruned(pruned: dict | None, path: Path) -> None:
 
 # ---------------------------------------------------------------- main
 
-def _local_changes() -> list[str]:
-    """Files of the checkout changed since its revision (the follower may be
-    under work while a study runs; the results belong to the code that ran)."""
-    import subprocess
-
-    try:
-        out = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                             cwd=Path(__file__).resolve().parents[1], capture_output=True,
-                             text=True, timeout=10)
-    except (OSError, subprocess.SubprocessError):
-        return []
-    return [line[3:] for line in out.stdout.splitlines()] if out.returncode == 0 else []
-
-
-def _fractions(text: str) -> list[float]:
-    if text.strip().lower() in ("", "none", "off"):
-        return []
-    try:
-        out = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise TopodrakeError(f"--pruned-fractions must be comma-separated numbers in (0, 1] or "
-                             f"'none', got {text!r}") from None
-    if not out or any(not 0.0 < f <= 1.0 for f in out):
-        raise TopodrakeError(f"--pruned-fractions must be numbers in (0, 1], got {text!r}")
-    return sorted(set(out))
-
-
 def main(argv=None) -> int:
     from topodrake.montecarlo import study_main
 
@@ -285,28 +250,15 @@ def main(argv=None) -> int:
     return study_main(_run, args)
 
 
+def _command(args) -> str:
+    return "python studies/planning.py " + " ".join(args.argv)
+
+
 def _rescore(args) -> int:
     """The shipped plan calibrations against recorded trials (no new trials)."""
-    from topodrake.topomap.plan_calibration import read_trial_records
-
-    files = [Path(f) for f in args.rescore.split(",") if f]
-    try:
-        records, commands = read_trial_records(files)
-    except TopodrakeError as e:
-        raise TopodrakeError(f"--rescore: {e}") from None
-    methods = [m for m in dict.fromkeys(r["method"] for r in records) if m in METHODS]
-    attach_success_probability(records)
-    cal = calibration_table(methods, records)
-    summary = {"plan_probability_ece_by_method": {m: c["ece"] for m, c in cal.items()},
-               "raw_plan_probability_ece": {m: c["ece_raw"] for m, c in cal.items()},
-               "planned_trials": {m: c["planned_trials"] for m, c in cal.items()},
-               "houses": sorted({r["house"] for r in records}),
-               "calibration_houses": calibration_houses(methods)}
-    out = Path(args.out)
-    atomic_write_json(out / "plan_calibration.json", {
-        "command": "python studies/planning.py " + " ".join(args.argv),
-        "sources": [{"file": str(f), "command": c} for f, c in zip(files, commands)],
-        "summary": summary, "calibration": cal})
+    doc = rescore(args.rescore, _command(args))
+    out, summary, cal = Path(args.out), doc["summary"], doc["calibration"]
+    atomic_write_json(out / "plan_calibration.json", doc)
     if cal:
         plot_calibration(cal, out / "plan_calibration.png")
     print(json.dumps(summary) if args.json else
@@ -319,97 +271,14 @@ def _rescore(args) -> int:
 def _run(args) -> int:
     if args.rescore:
         return _rescore(args)
-    from topodrake.learning.checkpoint import git_revision
-    from topodrake.montecarlo import run_trials
-    from topodrake.navigation.plan_trials import SUCCESS_M, T_MAX_S, pruned_ratio, summarize
-    from topodrake.world import load_world
-
-    t0 = time.perf_counter()
-    code = {"git_revision": git_revision(), "local_changes": _local_changes()}   # what runs
-    methods = [m for m in args.methods.split(",") if m]
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown or not methods:
-        raise TopodrakeError(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
-    if args.world is not None:
-        if args.houses != HOUSES:
-            raise TopodrakeError("give --world or --houses, not both")
-        specs = [args.world]
-    else:
-        specs = [h for h in args.houses.split(",") if h]
-    if not specs:
-        raise TopodrakeError("--houses names no house")
-    fractions = _fractions(args.pruned_fractions)
-    for spec in specs:
-        w = load_world(spec)               # a bad name or file fails here, in one line
-        if len(w.places) < 2:
-            raise TopodrakeError(f"world {spec!r} has {len(w.places)} places; planning trials "
-                                 f"need at least 2")
-    keys = [house_key(s) for s in specs]
-    if len(set(keys)) != len(keys):
-        raise TopodrakeError("--houses names a house twice")
-    pruned_spec = args.pruned_house or specs[0]
-    if fractions:
-        load_world(pruned_spec)
-    from topodrake.navigation.replan import ReplanSchedule
-
-    cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
-           "oracle_trials": args.oracle_trials,
-           "trajectories": args.trajectories, "batch": args.batch, "seed": args.seed,
-           "replan": asdict(ReplanSchedule()), "obstacle_trials": args.obstacle_trials,
-           "obstacles": args.obstacles,
-           "pruned_fractions": fractions, "pruned_method": args.pruned_method,
-           "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed,
-           "experience_rounds": args.experience_rounds}
-    jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
-    results = run_trials(house_job, list(jobs), workers=args.workers, ray_address=args.ray,
-                         progress=not args.quiet and len(jobs) > 1, desc="houses",
-                         jobs=jobs, cfg=cfg)
-    houses = {r["house"]: r for r in results}
-    pruned = None
-    if fractions:
-        pjobs = {house_seed(args.seed, house_key(pruned_spec)): pruned_spec}
-        pkey = house_key(pruned_spec)
-        if pkey in houses and args.pruned_method in houses[pkey]["methods"]:
-            cfg["full"] = {pkey: {"stats": houses[pkey]["methods"][args.pruned_method],
-                                  "records": [r for r in houses[pkey]["records"]
-                                              if r["method"] == args.pruned_method]}}
-        pruned = run_trials(pruned_job, list(pjobs), workers=1, ray_address=args.ray,
-                            progress=False, jobs=pjobs, cfg=cfg)[0]
-        cfg.pop("full", None)
-    # calibration: ours (the headline) and every map method, planned trials only
-    attach_success_probability([r for h in houses.values() for r in h["records"]])
-    cal = calibration_table(methods, [r for h in houses.values() for r in h["records"]])
-    ece = cal["ours"]["ece"] if "ours" in cal else None
-    ratio = pruned_ratio({f: v["success"] for f, v in pruned["fractions"].items()}) \
-        if pruned else None
-    summary = summarize(houses, ece, ratio)
-    summary["plan_probability_ece_by_method"] = {m: c["ece"] for m, c in cal.items()}
-    summary["raw_plan_probability_ece"] = {m: c["ece_raw"] for m, c in cal.items()}
-    summary["calibration_houses"] = calibration_houses(methods)
-    if args.experience_rounds > 1:
-        summary["success_by_round"] = success_by_round(
-            [r for h in houses.values() for r in h["records"]])
-    out = Path(args.out)
-    wall = time.perf_counter() - t0
-    records = [r for h in houses.values() for r in h.pop("records")]
-    pruned_records = pruned.pop("records") if pruned else []
-    atomic_write_json(out / "planning.json", {
-        "command": "python studies/planning.py " + " ".join(args.argv),
-        **code, "seed": args.seed,
-        "config": {**{k: v for k, v in cfg.items() if k != "quiet"}, "houses": specs,
-                   "success_m": SUCCESS_M, "t_max_s": T_MAX_S, "speed_cap_mps": 0.5,
-                   "jitter": "0.3 m to a random side, 9 deg to a random side",
-                   "demo_seed": DEMO_SEED, "workers": args.workers,
-                   "followers": {m: METHODS[m].followed_by for m in methods},
-                   "calibration": "planned trials only; unplanned trials count as failures in "
-                                  "the success rates"},
-        "wall_time_s": round(wall, 1), "summary": summary,
-        "houses": houses, "calibration": cal, "pruned": pruned,
-        "trials": records, "pruned_trials": pruned_records})
+    doc = planning(args, _command(args))
+    out, summary, houses, cal = Path(args.out), doc["summary"], doc["houses"], doc["calibration"]
+    methods = doc["config"]["methods"]
+    atomic_write_json(out / "planning.json", doc)
     plot_table(houses, methods, out / "planning.png", args.trials)
     if cal:
         plot_calibration(cal, out / "plan_calibration.png")
-    plot_pruned(pruned, out / "pruned_maps.png")
+    plot_pruned(doc["pruned"], out / "pruned_maps.png")
     if args.json:
         print(json.dumps(summary))
     else:
@@ -421,7 +290,7 @@ def _run(args) -> int:
               f"{summary['min_margin_over_sptm']}, plan ECE {summary['plan_probability_ece']}, "
               f"pruned 60%/peak {summary['pruned_60_over_peak']}")
     print(f"{len(houses)} houses x {len(methods)} methods x {args.trials} trials in "
-          f"{wall / 60:.1f} min; wrote {out / 'planning.json'}", file=sys.stderr)
+          f"{doc['wall_time_s'] / 60:.1f} min; wrote {out / 'planning.json'}", file=sys.stderr)
     return 0
 
 

@@ -25,26 +25,13 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from topodrake import argtypes as at
-from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
+from topodrake.topomap.sparsify_compare import compare_estimators, summarize
 
 DEFAULT = ("camera_k2=checkpoints/reach_camera_k2/checkpoint.pt:checkpoints/camera_k2/checkpoint.pt,"
            "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
            "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
-
-
-def pick_drive(lengths, drive: int | None) -> int:
-    """``drive`` if given (checked), else the longest of the drives' ``lengths``."""
-    if not len(lengths):
-        raise TopodrakeError("no successful drives to sparsify")
-    if drive is None:
-        return int(np.argmax(lengths))
-    if not 0 <= drive < len(lengths):
-        raise TopodrakeError(f"--drive must be in 0..{len(lengths) - 1}")
-    return drive
 
 
 def plot(world, poses, results: dict, path: Path, p: float) -> None:
@@ -88,68 +75,18 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    from topodrake.demonstrations import load_demos
-    from topodrake.learning.reachability.estimator import Reachability, parse_estimators
-    from topodrake.learning.samples import collect_trajectories
-    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
-    from topodrake.topomap.hops import anchor_hop_success, share_made, sparsify_houses
-    from topodrake.world import load_world
-
-    if args.hop_runs < 0 or args.check_drives < 0:
-        raise TopodrakeError("--hop-runs and --check-drives must be >= 0")
-    if args.check_drives and not args.hop_runs:
-        raise TopodrakeError("--check-drives needs --hop-runs >= 1")
-    check_worlds = [w for w in args.check_worlds.split(",") if w]
-    check_root = Path(args.data) / "demos" / "pairs-s0"
-    missing = [w for w in check_worlds if not (check_root / w / "manifest.json").is_file()]
-    if args.check_drives and missing:   # the houses' standard demonstrations, made once
-        collect_trajectories(missing, check_root, progress=False)
-    estimators = parse_estimators(args.estimators)
-    world = load_world(args.world)
-    if args.demos:
-        folder = Path(args.demos)
-        if not (folder / "manifest.json").is_file():
-            raise TopodrakeError(f"no demonstrations in {folder}")
-    else:   # the test houses' standard demonstrations, made once if missing
-        root = Path(args.data) / "demos" / "pairs-s0"
-        collect_trajectories([args.world], root, progress=False)
-        folder = root / args.world
-    _, demos = load_demos(folder, successful_only=True)
-    drive = pick_drive([len(d.poses) for d in demos], args.drive)
-    poses = demos[drive].poses
-    results = {}
-    for name, (reach, controller) in estimators.items():
-        re = Reachability.from_checkpoint(reach, controller)
-        anchors = re.sparsify(re.observe(world, poses), p=args.p)
-        results[name] = {"anchors": len(anchors), "keep_ratio": round(len(anchors) / len(poses), 4),
-                         "anchor_frames": anchors.tolist()}
-        if args.hop_runs:
-            ok = anchor_hop_success(world, LearnedWaypointPolicy.from_checkpoint(controller), poses,
-                                    anchors, runs=args.hop_runs, seed=args.seed)
-            results[name]["hop_success"] = share_made(ok)
-            results[name]["hop_successes"] = ok.sum(axis=1).tolist()
-        if args.check_drives:
-            results[name]["test_houses"] = sparsify_houses(
-                re, check_worlds, check_root, args.p, drives=args.check_drives,
-                policy=LearnedWaypointPolicy.from_checkpoint(controller), runs=args.hop_runs,
-                seed=args.seed)
-    out = Path(args.out)
-    atomic_write_json(out / "sparsification.json", {
-        "command": "python studies/sparsification.py " + " ".join(sys.argv[1:]),
-        "world": args.world, "demos": str(folder), "drive": drive, "frames": len(poses),
-        "p_sparsify": args.p, "hop_runs": args.hop_runs, "seed": args.seed,
-        "check_drives": args.check_drives, "check_worlds": check_worlds if args.check_drives else [],
-        "estimators": {k: {"reach": r, "controller": c} for k, (r, c) in estimators.items()},
-        "results": results})
+    doc, world, poses = compare_estimators(
+        args, "python studies/sparsification.py " + " ".join(sys.argv[1:]))
+    out, results, check_worlds = Path(args.out), doc["results"], doc["check_worlds"]
+    atomic_write_json(out / "sparsification.json", doc)
     plot(world, poses, results, out / "sparsification.png", args.p)
-    summary = {k: {key: r[key] for key in ("anchors", "keep_ratio", "hop_success", "test_houses")
-                   if key in r} for k, r in results.items()}
+    summary = summarize(results)
     if args.json:
         print(json.dumps(summary))
     else:
         for name, s in summary.items():
             hops = f", hops made {s['hop_success']:.3f}" if s.get("hop_success") is not None else ""
-            print(f"{name:<10} {s['anchors']:4d} anchors of {len(poses)} frames "
+            print(f"{name:<10} {s['anchors']:4d} anchors of {doc['frames']} frames "
                   f"(keep ratio {s['keep_ratio']:.3f}{hops})")
             if "test_houses" in s:
                 c = s["test_houses"]

@@ -49,18 +49,12 @@ from __future__ import annotations
 
 import json
 import sys
-import time
-from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
-
 from topodrake import argtypes as at
-from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
-from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, path_length
-from topodrake.navigation.follow_trials import (CONTROLLERS, load_trajectories, run_controller,
-                                                trajectories_name)
+from topodrake.navigation.follow_study import following
+from topodrake.navigation.follow_trials import CONTROLLERS
 
 
 def plot(results: dict, path: Path, n_traj: int) -> None:
@@ -138,92 +132,12 @@ def main(argv=None) -> int:
     return study_main(_run, args)
 
 
-def parse_sensitivity(text: str | None) -> tuple[str, list[str]] | None:
-    """``--sensitivity KEY=V1,V2,...`` as (KEY, values), each checked as an oracle spec value."""
-    from topodrake.learning.waypoint.noisy_oracle import OracleError
-
-    if not text:
-        return None
-    key, sep, values = text.partition("=")
-    items = [v for v in values.split(",") if v]
-    if not sep or not items:
-        raise TopodrakeError(f"--sensitivity {text!r} is not KEY=V1,V2,... (keys: anchor, fresh, "
-                             f"tail, seed)")
-    for v in items:
-        OracleError().with_value(key, v)
-    return key, items
-
-
 def _run(args) -> int:
-    from tqdm import tqdm
-
-    from topodrake.world import load_world
-
-    if args.trajectories < 1:
-        raise TopodrakeError("--trajectories must be >= 1")
-    if args.batch < 1:
-        raise TopodrakeError("--batch must be >= 1")
-    if args.seed < 0:
-        raise TopodrakeError("--seed must be >= 0")
-    if not (np.isfinite(args.noise) and args.noise >= 0):
-        raise TopodrakeError("--noise must be finite and >= 0")
-    try:
-        ps = [float(x) for x in args.p.split(",") if x]
-    except ValueError:
-        raise TopodrakeError(f"--p must be comma-separated numbers, got {args.p!r}") from None
-    if not ps or any(not 0 < p < 1 for p in ps):
-        raise TopodrakeError("--p values must be in (0, 1)")
-    from topodrake.navigation.follower import FollowerConfig
-
-    try:
-        args.follower_config = FollowerConfig(**json.loads(args.follower)).check()
-    except (ValueError, TypeError) as e:
-        raise TopodrakeError(f"--follower is not a JSON object of FollowerConfig fields ({e})") \
-            from None
-    from topodrake.learning.onpolicy.bench import parse_controllers
-    from topodrake.odometry import OdometryConfig
-
-    args.odometry_config = getattr(OdometryConfig, args.odometry)()
-    args.runs = {r for r in args.runs.split(",") if r}
-    if not args.runs or args.runs - {"re", "subsampled", "noisy", "oracle"}:
-        raise TopodrakeError(f"--runs takes re, subsampled, noisy, oracle, got "
-                             f"{','.join(sorted(args.runs)) or 'none'}")
-    specs = parse_controllers(args.controllers, args.cwp, args.re, table=CONTROLLERS,
-                              must_exist=True)
-    args.sensitivity = parse_sensitivity(args.sensitivity)
-    worlds = [w for w in args.worlds.split(",") if w]
-    t0 = time.perf_counter()
-    trajs = load_trajectories(Path(args.data), worlds, args.trajectories, args.seed)
-    args.trajectories_file = trajectories_name(worlds, args.trajectories, args.seed)
-    cache: dict = {}
-    world_of = lambda n: cache.setdefault(n, load_world(n))   # noqa: E731
-    lengths = [path_length(t["poses"])[-1] for t in trajs]
-    headline = any(abs(p - args.headline_p) < 1e-9 for p in ps)
-    per_p = ("re" in args.runs) + ("subsampled" in args.runs)
-    at_headline = ("noisy" in args.runs) + ("oracle" in args.runs) if headline else 0
-    steps = len(specs) * (per_p * len(ps) + at_headline
-                          + (len(args.sensitivity[1]) if args.sensitivity else 0))
-    results = {}
-    with tqdm(total=steps, desc="trajectory following", disable=args.quiet, unit="sweep") as bar:
-        for name in specs:
-            results[name] = run_controller(name, specs[name], trajs, world_of, ps, args, bar)
-    summary = {}
-    for name, r in results.items():
-        q = min(r["points"], key=lambda q: abs(q["p_sparsify"] - args.headline_p))
-        summary[name] = {k: (round(q[k], 4) if k in q else None)
-                         for k in ("cover", "cover_noisy", "cover_subsampled", "cover_oracle")}
-        summary[name]["anchors_per_m"] = q["anchors_per_m"]
-    tables = {name: r["sensitivity"] for name, r in results.items() if "sensitivity" in r}
-    out = Path(args.out)
-    wall = time.perf_counter() - t0
-    atomic_write_json(out / "trajectory_following.json", {
-        "command": "python studies/trajectory_following.py " + " ".join(sys.argv[1:]),
-        "trajectories": len(trajs), "mean_length_m": round(float(np.mean(lengths)), 2),
-        "worlds": worlds, "seed": args.seed, "noise": args.noise, "p_sparsify": ps,
-        "tolerance_m": TOLERANCE_M, "diverge_m": DIVERGE_M, "wall_time_s": round(wall, 1),
-        "follower": asdict(args.follower_config), "odometry": asdict(args.odometry_config),
-        "summary": summary, **({"sensitivity": tables} if tables else {}), "results": results})
-    plot(results, out / "trajectory_following.png", len(trajs))
+    doc = following(args, "python studies/trajectory_following.py " + " ".join(sys.argv[1:]))
+    out, results, summary = Path(args.out), doc["results"], doc["summary"]
+    tables = doc.get("sensitivity", {})
+    atomic_write_json(out / "trajectory_following.json", doc)
+    plot(results, out / "trajectory_following.png", doc["trajectories"])
     if args.json:
         print(json.dumps({**summary, **({"sensitivity": tables} if tables else {})}))
     else:
@@ -237,8 +151,9 @@ def _run(args) -> int:
             for row in t["rows"]:
                 print(f"  {t['key']}={row[t['key']]:<6g} cover {row['cover']:.3f} "
                       f"({row['trajectories']} trajectories, {row['spec']})")
-    print(f"{len(trajs)} trajectories (mean {np.mean(lengths):.1f} m), {len(specs)} controllers, "
-          f"{len(ps)} p values in {wall / 60:.1f} min", file=sys.stderr)
+    print(f"{doc['trajectories']} trajectories (mean {doc['mean_length_m']:.1f} m), "
+          f"{len(results)} controllers, {len(doc['p_sparsify'])} p values in "
+          f"{doc['wall_time_s'] / 60:.1f} min", file=sys.stderr)
     return 0
 
 

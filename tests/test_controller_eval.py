@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from study_run import run_study
 from topodrake.errors import TopodrakeError
 from topodrake.learning.samples import TrajectorySet
 from topodrake.learning.waypoint.evaluation import PairConfig, sample_controller_pair
+from topodrake.learning.waypoint.success_table import run_block, summarize, wilson
 
 
 @pytest.fixture(scope="module")
@@ -21,14 +21,6 @@ def line_set(box_world):
     poses = np.column_stack([x, np.full_like(x, 8.0), np.zeros_like(x)])
     states = np.column_stack([poses, np.full_like(x, 0.5), np.zeros_like(x)])
     return TrajectorySet(["box"], np.array([0], np.int32), np.array([0, len(x)]), poses, states)
-
-
-def _study():
-    path = Path(__file__).resolve().parents[1] / "studies" / "controller_success.py"
-    spec = importlib.util.spec_from_file_location("controller_success", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_pairs_follow_the_protocol_and_depend_on_the_seed_only(box_world, line_set):
@@ -110,24 +102,23 @@ def test_target_runner_accepts_poses_near_walls(oracle_runner):
 
 
 def test_wilson_interval_and_summary():
-    study = _study()
-    lo, hi = study.wilson(95, 100)
+    lo, hi = wilson(95, 100)
     assert lo < 0.95 < hi and hi - lo < 0.12
-    lo4, hi4 = study.wilson(380, 400)
+    lo4, hi4 = wilson(380, 400)
     assert hi4 - lo4 < hi - lo                     # more trials, tighter interval
-    assert study.wilson(0, 10)[0] == 0.0 and study.wilson(10, 10)[1] == 1.0
+    assert wilson(0, 10)[0] == 0.0 and wilson(10, 10)[1] == 1.0
     results = ([{"outcome": "success", "time_s": 0.1}] * 2 + [{"outcome": "success", "time_s": 4.0}] * 5
                + [{"outcome": "collision", "time_s": 2.0}] * 2 + [{"outcome": "timeout", "time_s": 9.0}])
-    s = study.summarize(results)
+    s = summarize(results)
     assert s["success"] == 0.7 and s["collisions"] == 2 and s["timeouts"] == 1
     assert s["immediate_successes"] == 2 and s["success_nontrivial"] == pytest.approx(5 / 8)
 
 
-def test_study_refuses_a_missing_checkpoint(tmp_path, capsys):
-    study = _study()
-    code = study.main(["--controllers", "camera_k5", "--checkpoints", str(tmp_path), "--trials", "2"])
+def test_study_refuses_a_missing_checkpoint(tmp_path):
+    code, _, err = run_study("controller_success", "--controllers", "camera_k5", "--checkpoints",
+                             tmp_path, "--trials", "2")
     assert code == 2
-    assert "no checkpoint" in capsys.readouterr().err
+    assert "no checkpoint" in err
 
 
 def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatch):
@@ -135,7 +126,6 @@ def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatc
 
     import topodrake.montecarlo as mc
 
-    study = _study()
     calls = []
 
     def fake_run_trials(fn, seeds, **kw):
@@ -144,17 +134,17 @@ def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatc
 
     monkeypatch.setattr(mc, "run_trials", fake_run_trials)
     args = argparse.Namespace(seed=0, data="data", out=str(tmp_path), workers=1, ray=None, quiet=True)
-    first = study.run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], args)
-    again = study.run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], args)
+    first = run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], args)
+    again = run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], args)
     assert first == again and calls == [0.0]
-    study.run_block("oracle", "clean", "oracle", 0.33, [1, 2, 3], args)     # other noise: rerun
-    study.run_block("oracle", "clean", "oracle", 0.33, [1, 2, 3, 4], args)  # other trials: rerun
+    run_block("oracle", "clean", "oracle", 0.33, [1, 2, 3], args)     # other noise: rerun
+    run_block("oracle", "clean", "oracle", 0.33, [1, 2, 3, 4], args)  # other trials: rerun
     assert calls == [0.0, 0.33, 0.33]
     ck = tmp_path / "ck.pt"
     ck.write_bytes(b"weights-a")
-    study.run_block("net", "clean", str(ck), 0.0, [1], args)
+    run_block("net", "clean", str(ck), 0.0, [1], args)
     ck.write_bytes(b"weights-b")                                            # retrained: rerun
-    study.run_block("net", "clean", str(ck), 0.0, [1], args)
+    run_block("net", "clean", str(ck), 0.0, [1], args)
     assert len(calls) == 5
 
 
@@ -171,15 +161,15 @@ def test_target_runner_stops_when_the_target_is_lost(box_world):
     assert r.lost and r.outcome == "lost" and not r.timeout and r.time_s < 1.0
 
 
-def test_study_runs_the_registration_controller_without_a_checkpoint(tmp_path, capsys):
+def test_study_runs_the_registration_controller_without_a_checkpoint(tmp_path):
     """``lidar_reg`` (the registration C_WP) needs no checkpoint folder; its
     blocks are keyed by the controller's settings and sources."""
-    study = _study()
     out = tmp_path / "out"
-    code = study.main(["--controllers", "lidar_reg", "--checkpoints", str(tmp_path / "none"),
-                       "--trials", "3", "--workers", "1", "--out", str(out), "--json", "--quiet"])
-    assert code == 0
-    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    code, stdout, err = run_study("controller_success", "--controllers", "lidar_reg",
+                                  "--checkpoints", tmp_path / "none", "--trials", "3",
+                                  "--workers", "1", "--out", out, "--json", "--quiet")
+    assert code == 0, err
+    summary = json.loads(stdout.strip().splitlines()[-1])
     assert set(summary) == {"lidar_reg"}
     assert all(0.0 <= summary["lidar_reg"][c] <= 1.0 for c in ("clean", "noisy"))
     details = json.loads((out / "controller_success_details.json").read_text())

@@ -1,12 +1,14 @@
 """The planning study's pieces (studies/planning.py, topodrake.navigation.plan_trials,
-plan_methods and plan_study): trials, subsets, calibration, the summary, the
+plan_methods, plan_study and plan_results): trials, subsets, calibration, the summary, the
 methods, and a tiny planned-and-followed run in the box world with the oracles."""
 
+import argparse
 import json
 
 import numpy as np
 import pytest
 
+from study_run import run_study
 from topodrake.errors import TopodrakeError
 from topodrake.navigation import plan_trials as pt
 
@@ -156,20 +158,22 @@ def test_render_pose_route_gives_camera_contexts(box_world):
 
 # ---------------------------------------------------------------- the study's command line
 
-def test_study_refuses_bad_input_in_one_line(capsys, tmp_path, load_study):
-    study = load_study("planning")
-    assert study.main(["--houses", "no-such-house", "--out", str(tmp_path)]) == 2
-    err = capsys.readouterr().err
+def test_study_refuses_bad_input_in_one_line(tmp_path):
+    code, _, err = run_study("planning", "--houses", "no-such-house", "--out", tmp_path)
+    assert code == 2
     assert err.startswith("error: unknown world") and err.count("\n") == 1
-    assert study.main(["--methods", "ours,magic", "--out", str(tmp_path)]) == 2
-    assert "unknown methods" in capsys.readouterr().err
-    assert study.main(["--pruned-fractions", "0.5,2", "--out", str(tmp_path)]) == 2
-    assert "(0, 1]" in capsys.readouterr().err
-    assert study.main(["--world", "test-0", "--houses", "test-1", "--out", str(tmp_path)]) == 2
-    assert "not both" in capsys.readouterr().err
-    with pytest.raises(SystemExit) as e:
-        study.main(["--trials", "0"])
-    assert e.value.code == 2
+    code, _, err = run_study("planning", "--methods", "ours,magic", "--out", tmp_path)
+    assert code == 2
+    assert "unknown methods" in err
+    code, _, err = run_study("planning", "--pruned-fractions", "0.5,2", "--out", tmp_path)
+    assert code == 2
+    assert "(0, 1]" in err
+    code, _, err = run_study("planning", "--world", "test-0", "--houses", "test-1", "--out",
+                             tmp_path)
+    assert code == 2
+    assert "not both" in err
+    code, _, err = run_study("planning", "--trials", "0")     # refused by the option's type
+    assert code == 2
 
 
 def test_house_keys_and_seeds():
@@ -360,14 +364,29 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
         METHODS["ours"].map = "lidar"
 
 
-def test_the_study_writes_each_method_s_follower_into_its_config(load_study, tmp_path,
-                                                                 monkeypatch, capsys):
+def _options(tmp_path, **changed) -> argparse.Namespace:
+    """The study's options as its command line parses ``--out TMP --quiet``,
+    with ``changed`` ones."""
+    from topodrake.navigation.plan_methods import METHODS
+    from topodrake.navigation.plan_results import HOUSES
+
+    options = {"houses": HOUSES, "world": None, "methods": ",".join(METHODS), "trials": 20,
+               "oracle_trials": 100, "trajectories": None, "obstacle_trials": 10, "obstacles": 3,
+               "batch": 32, "pruned_fractions": "0.3,0.6,1", "pruned_house": None,
+               "pruned_method": "ours", "pruned_trials": 20, "pruned_seed": 0, "seed": 0,
+               "data": "data", "workers": 1, "ray": None, "out": str(tmp_path), "rescore": None,
+               "json": False, "quiet": True}
+    return argparse.Namespace(**{**options, **changed})
+
+
+def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monkeypatch):
     """The study's run with the houses' trials stubbed: it runs the library's
     house job, and planning.json's config describes each method's follower
     as its Method does."""
     import topodrake.montecarlo as mc
     from topodrake.navigation import plan_study
     from topodrake.navigation.plan_methods import METHODS
+    from topodrake.navigation.plan_results import planning
 
     jobs_run = []
 
@@ -381,20 +400,17 @@ def test_the_study_writes_each_method_s_follower_into_its_config(load_study, tmp
                 for s in seeds]
 
     monkeypatch.setattr(mc, "run_trials", run_trials)
-    study = load_study("planning")
-    assert study.main(["--world", "test-0", "--methods", "oracle_full,lidar_reg", "--json",
-                       "--pruned-fractions", "none", "--out", str(tmp_path), "--quiet"]) == 0
+    doc = planning(_options(tmp_path, world="test-0", methods="oracle_full,lidar_reg",
+                            pruned_fractions="none", json=True), "python studies/planning.py")
     assert jobs_run == [plan_study.house_job]
-    assert json.loads(capsys.readouterr().out)["houses"]["test-0"] == {"oracle_full": 0.5,
-                                                                      "lidar_reg": 0.5}
-    doc = json.loads((tmp_path / "planning.json").read_text())
+    assert doc["summary"]["houses"]["test-0"] == {"oracle_full": 0.5, "lidar_reg": 0.5}
     assert doc["config"]["followers"] == {
         "oracle_full": "A* oracle C_WP + geometric oracle RE",
         "lidar_reg": "registration C_WP (lidar teach and repeat) + its learned RE"}
     assert doc["config"]["followers"]["lidar_reg"] == METHODS["lidar_reg"].followed_by
     assert all(r["success_probability"] is not None for r in doc["trials"]
                if r["method"] == "lidar_reg")                     # its calibration ships
-    assert (tmp_path / "planning.png").is_file()
+    json.dumps(doc)                                                # planning.json holds it
 
 
 def test_the_lidar_scale_follower_drives_the_scale_c_wp_with_the_lidar_re():
@@ -412,8 +428,7 @@ def test_the_lidar_scale_follower_drives_the_scale_c_wp_with_the_lidar_re():
     assert str(shipped_checkpoint("lidar_k5_scale")).endswith("lidar_k5_scale/checkpoint.pt")
 
 
-def test_rescore_sets_the_shipped_calibration_against_recorded_trials(load_study, tmp_path,
-                                                                     capsys):
+def test_rescore_sets_the_shipped_calibration_against_recorded_trials(tmp_path):
     """``--rescore`` runs no trial: it reads recorded trials, attaches the
     shipped calibration's chance (lidar has one) and writes the table and
     figure; a trial recorded twice is refused in one line."""
@@ -421,8 +436,8 @@ def test_rescore_sets_the_shipped_calibration_against_recorded_trials(load_study
 
     from topodrake.errors import TopodrakeError
     from topodrake.navigation.plan_methods import plan_calibration_of
+    from topodrake.navigation.plan_results import rescore
 
-    planning = load_study("planning")
     rng = np.random.default_rng(0)
     recs = [{"house": "test-0", "method": m, "map": "all", "trial": t, "planned": True,
              "plan_probability": float(rng.uniform(0.8, 1.0)), "plan_anchors": int(rng.integers(5, 30)),
@@ -430,8 +445,9 @@ def test_rescore_sets_the_shipped_calibration_against_recorded_trials(load_study
     src = tmp_path / "planning.json"
     src.write_text(json.dumps({"command": "python studies/planning.py", "trials": recs}))
     out = tmp_path / "out"
-    assert planning.main(["--rescore", str(src), "--out", str(out), "--json"]) == 0
-    summary = json.loads(capsys.readouterr().out)
+    code, stdout, err = run_study("planning", "--rescore", src, "--out", out, "--json")
+    assert code == 0, err
+    summary = json.loads(stdout)
     table = json.loads((out / "plan_calibration.json").read_text())["calibration"]
     lidar = [r for r in recs if r["method"] == "lidar"]
     want = plan_calibration_of("lidar").predict([r["plan_probability"] for r in lidar],
@@ -442,13 +458,7 @@ def test_rescore_sets_the_shipped_calibration_against_recorded_trials(load_study
     assert summary["planned_trials"] == {"lidar": 40, "oracle_full": 40}
     assert (out / "plan_calibration.png").stat().st_size > 10_000
     with pytest.raises(TopodrakeError, match="recorded twice"):
-        planning._run(planning_args(planning, f"{src},{src}", tmp_path / "o2"))
-
-
-def planning_args(planning, rescore, out):
-    import argparse
-
-    return argparse.Namespace(rescore=rescore, out=str(out), json=True, argv=[])
+        rescore(f"{src},{src}", "python studies/planning.py")
 
 
 def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monkeypatch):

@@ -465,26 +465,17 @@ def test_sparsify_cli_end_to_end(tiny_re, tmp_path, capsys):
     assert "no demonstrations" in capsys.readouterr().err
 
 
-def _study(name):
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "studies" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(name, path)
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
-    return study
-
-
-def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, tmp_path, capsys):
+def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, tmp_path):
+    from study_run import run_study
     from topodrake.demonstrations import load_demos
 
     demos, re_path, ctrl = tiny_re
-    study = _study("sparsification")
     est = f"a={re_path}:{ctrl},b={re_path}:{ctrl}"
-    assert study.main(["--world", "test-1", "--demos", str(demos), "--estimators", est,
-                       "--p", "0.3", "--hop-runs", "2", "--out", str(tmp_path), "--json"]) == 0
-    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    code, out, err = run_study("sparsification", "--world", "test-1", "--demos", demos,
+                               "--estimators", est, "--p", "0.3", "--hop-runs", "2",
+                               "--out", tmp_path, "--json")
+    assert code == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
     saved = json.loads((tmp_path / "sparsification.json").read_text())
     lengths = [len(d.poses) for d in load_demos(demos, successful_only=True)[1]]
     assert saved["drive"] == int(np.argmax(lengths)) and saved["frames"] == max(lengths)
@@ -496,9 +487,10 @@ def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, 
     assert len(hops) == len(frames) - 1 and all(0 <= h <= 2 for h in hops)
     assert summary["a"]["hop_success"] == pytest.approx(sum(hops) / (2 * len(hops)), abs=1e-4)
     assert (tmp_path / "sparsification.png").stat().st_size > 10000
-    assert study.main(["--world", "test-1", "--demos", str(demos), "--estimators", est,
-                       "--drive", "7", "--out", str(tmp_path)]) == 2
-    assert "--drive must be in 0..1" in capsys.readouterr().err
+    code, _, err = run_study("sparsification", "--world", "test-1", "--demos", demos,
+                             "--estimators", est, "--drive", "7", "--out", tmp_path)
+    assert code == 2
+    assert "--drive must be in 0..1" in err
     # the same check over the first drives of each house named
     root = tmp_path / "data" / "demos" / "pairs-s0"
     root.mkdir(parents=True)
@@ -506,14 +498,16 @@ def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, 
     base = ["--world", "test-1", "--demos", str(demos), "--estimators", f"a={re_path}:{ctrl}",
             "--p", "0.3", "--out", str(tmp_path), "--data", str(tmp_path / "data"), "--json",
             "--check-worlds", "test-1"]
-    assert study.main(base + ["--hop-runs", "2", "--check-drives", "1"]) == 0
-    checked = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["a"]["test_houses"]
+    code, out, err = run_study("sparsification", *base, "--hop-runs", "2", "--check-drives", "1")
+    assert code == 0, err
+    checked = json.loads(out.strip().splitlines()[-1])["a"]["test_houses"]
     first = load_demos(demos, successful_only=True)[1][0]
     assert checked["drives"] == 1 and checked["frames"] == len(first.poses)
     assert checked["hops"] == checked["anchors"] - 1
     assert checked["failed_runs"] == round(2 * checked["hops"] * (1 - checked["hop_success"]))
-    assert study.main(base + ["--hop-runs", "0", "--check-drives", "1"]) == 2
-    assert "--check-drives needs --hop-runs" in capsys.readouterr().err
+    code, _, err = run_study("sparsification", *base, "--hop-runs", "0", "--check-drives", "1")
+    assert code == 2
+    assert "--check-drives needs --hop-runs" in err
 
 
 def test_houses_are_sparsified_under_other_calibrations_from_the_same_features(tiny_re, tmp_path):
@@ -551,22 +545,28 @@ def test_houses_report_the_share_of_hops_that_advance_one_frame(tiny_re, tmp_pat
     assert stalled["keep_ratio"] == 1.0 and stalled["one_frame_hops"] == 1.0
 
 
-def test_calibration_study_refuses_bad_estimators(tmp_path, capsys):
-    study = _study("reachability_calibration")
-    assert study.main(["--estimators", "x=only-one-path", "--out", str(tmp_path)]) == 2
-    assert "name=RE.pt:CWP.pt" in capsys.readouterr().err
-    assert study.main(["--estimators", f"x={tmp_path}/a.pt:{tmp_path}/b.pt"]) == 2
-    assert "a.pt does not exist" in capsys.readouterr().err
+def test_calibration_study_refuses_bad_estimators(tmp_path):
+    from study_run import run_study
+
+    code, _, err = run_study("reachability_calibration", "--estimators", "x=only-one-path",
+                             "--out", tmp_path)
+    assert code == 2
+    assert "name=RE.pt:CWP.pt" in err
+    code, _, err = run_study("reachability_calibration", "--estimators",
+                             f"x={tmp_path}/a.pt:{tmp_path}/b.pt")
+    assert code == 2
+    assert "a.pt does not exist" in err
 
 
 def test_calibration_study_splits_auroc_by_how_pairs_start():
-    study = _study("reachability_calibration")
+    from topodrake.learning.reachability.calibration_trials import summarise_trials
+
     # reached pairs (p 0.6-0.9), two driven failures ranked among them,
     # blind starts (no overlap) all below every reached pair
     recs = ([{"p": v, "success": True, "start_overlap": [0.8, 0.6]} for v in (0.6, 0.7, 0.8, 0.9)]
             + [{"p": v, "success": False, "start_overlap": [0.5, 0.4]} for v in (0.75, 0.85)]
             + [{"p": v, "success": False, "start_overlap": [0.0, 0.01]} for v in (0.1, 0.2, 0.3)])
-    s = study.summarise_trials(recs)
+    s = summarise_trials(recs)
     assert s["n"] == 9 and s["share_not_overlapping"] == pytest.approx(3 / 9)
     assert s["auroc_reached_vs_not_overlapping"] == pytest.approx(1.0)
     assert s["auroc_overlapping"] == pytest.approx(3 / 8)   # 2 + 1 reached pairs above them
@@ -642,42 +642,44 @@ def test_anchor_calibration_config_is_checked():
     _config(anchor_calibration=AnchorCalibration(pairs=0, seed=1)).validate()
 
 
-def test_limits_study_ceiling_and_hop_bins(tmp_path, capsys):
-    study = _study("reachability_limits")
+def test_limits_study_ceiling_and_hop_bins(tmp_path):
+    from study_run import run_study
+    from topodrake.learning.reachability.limits import oracle_auroc, success_by_distance
+
     # deterministic outcomes: the other runs predict each run perfectly
     fixed = np.array([[1, 1, 1], [0, 0, 0], [1, 1, 1], [0, 0, 0]])
-    assert study.oracle_auroc(fixed) == 1.0
+    assert oracle_auroc(fixed) == 1.0
     # coin flips: the other runs know nothing (AUROC about 0.5)
     flips = (np.random.default_rng(0).random((400, 4)) < 0.5).astype(int)
-    assert abs(study.oracle_auroc(flips) - 0.5) < 0.08
+    assert abs(oracle_auroc(flips) - 0.5) < 0.08
     with pytest.raises(TopodrakeError, match="two runs"):
-        study.oracle_auroc(fixed[:, :1])
-    bins = study.success_by_distance(np.array([0.1, 0.2, 0.7, 3.0]), np.array([1, 0, 1, 1]))
+        oracle_auroc(fixed[:, :1])
+    bins = success_by_distance(np.array([0.1, 0.2, 0.7, 3.0]), np.array([1, 0, 1, 1]))
     assert [b["n"] for b in bins] == [2, 0, 1, 0, 0, 0, 1]        # 3.0 m counts in the last bin
     assert bins[0]["success"] == 0.5 and bins[1]["success"] is None
-    assert study.main(["--runs", "1", "--out", str(tmp_path)]) == 2
-    assert "--runs >= 2" in capsys.readouterr().err
-    with pytest.raises(SystemExit) as e:           # refused by the option's type
-        study.main(["--keep-runs", "0", "--out", str(tmp_path)])
-    assert e.value.code == 2
-    assert "argument --keep-runs: must be an integer >= 1, got 0" in capsys.readouterr().err
+    code, _, err = run_study("reachability_limits", "--runs", "1", "--out", tmp_path)
+    assert code == 2
+    assert "--runs >= 2" in err
+    code, _, err = run_study("reachability_limits", "--keep-runs", "0", "--out", tmp_path)
+    assert code == 2                               # refused by the option's type
+    assert "argument --keep-runs: must be an integer >= 1, got 0" in err
 
 
 def test_limits_study_compares_res_keep_ratio_with_the_controllers_own(tiny_re):
     from topodrake.demonstrations import load_demos
     from topodrake.learning.reachability.estimator import Reachability
+    from topodrake.learning.reachability.limits import controller_keep
     from topodrake.learning.samples import TrajectorySet
     from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.world import load_world
 
-    study = _study("reachability_limits")
     demos, re_path, ctrl = tiny_re
     poses = load_demos(demos, successful_only=True)[1][0].poses[:60]
     trajs = TrajectorySet(["test-1"], np.zeros(1, np.int32), np.array([0, 60]), poses,
                           np.column_stack([poses, np.zeros((60, 2))]))
     world = load_world("test-1")
     re = Reachability.from_checkpoint(re_path, ctrl)
-    out = study.controller_keep(re, AStarOracle(world), trajs, 1, runs=2, seed=0, progress=False)
+    out = controller_keep(re, AStarOracle(world), trajs, 1, runs=2, seed=0, progress=False)
     assert out["drives"] == 1 and out["frames"] == 60 and out["runs"] == 2
     # hops of at most MAX_HOP_FRAMES: at least 0, 40, 59 are kept
     assert out["keep_ratio"] >= round(3 / 60, 4) and 0.0 <= out["hop_success"] <= 1.0

@@ -18,12 +18,14 @@ def test_every_image_the_docs_link_exists():
 
 
 def test_every_readme_image_has_a_command_in_the_figures_script():
-    import importlib.util
+    from study_run import run_study
 
-    spec = importlib.util.spec_from_file_location("figures", ROOT / "studies" / "figures.py")
-    figures = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(figures)
-    made = {(ROOT / image).resolve() for images, _ in figures.FIGURES.values() for image in images}
+    code, listed, err = run_study("figures", "--list")    # "name: image, image" and its command
+    assert code == 0, err
+    images = [line.split(": ", 1)[1].split(", ") for line in listed.splitlines()
+              if line and not line.startswith(" ")]
+    assert images and all(images)
+    made = {(ROOT / image).resolve() for names in images for image in names}
     orphans = [str(p.relative_to(ROOT)) for p in _images(ROOT / "README.md") if p not in made]
     assert not orphans, f"README images no command in studies/figures.py makes: {orphans}"
 

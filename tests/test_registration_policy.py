@@ -167,22 +167,26 @@ def test_drake_diagram_and_engine_drive_the_same_path(box_world):
     np.testing.assert_array_equal(drake.modes[:k], res.modes[0, :k])
 
 
-def test_trajectory_following_study_has_a_lidar_reg_entry(tmp_path, load_study, capsys):
+def test_trajectory_following_study_has_a_lidar_reg_entry(tmp_path):
     import json
 
-    study = load_study("trajectory_following")
-    rc = study.main(["--controllers", "lidar_reg", "--trajectories", "1", "--worlds", "test-0",
-                     "--p", "0.99", "--data", str(tmp_path / "data"), "--out",
-                     str(tmp_path / "out"), "--json", "--quiet"])
-    assert rc == 0
-    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    from study_run import run_study
+
+    rc, out, err = run_study("trajectory_following", "--controllers", "lidar_reg",
+                             "--trajectories", "1", "--worlds", "test-0", "--p", "0.99",
+                             "--data", tmp_path / "data", "--out", tmp_path / "out", "--json",
+                             "--quiet")
+    assert rc == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
     entry = summary["lidar_reg"]
     assert set(entry) == {"cover", "cover_noisy", "cover_subsampled", "cover_oracle",
                           "anchors_per_m"}
     assert all(0.0 <= entry[k] <= 1.0 for k in ("cover", "cover_noisy", "cover_oracle"))
     assert entry["anchors_per_m"] > 0
-    assert study.main(["--controllers", "lidar_nope", "--data", str(tmp_path / "data")]) == 2
-    assert "unknown controllers ['lidar_nope']" in capsys.readouterr().err
+    rc, _, err = run_study("trajectory_following", "--controllers", "lidar_nope", "--data",
+                           tmp_path / "data")
+    assert rc == 2
+    assert "unknown controllers ['lidar_nope']" in err
 
 
 def test_label_rollouts_carry_each_cars_tracking_state(house, drives, policy):

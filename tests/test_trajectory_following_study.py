@@ -2,20 +2,43 @@
 kept with the settings that made them (topodrake.navigation.follow_trials)
 and reused only under those settings."""
 
+import argparse
 import json
 
 import pytest
 
+from study_run import run_study
 from topodrake.navigation import follow_trials
+from topodrake.navigation.follow_study import following
 
 
-def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path, monkeypatch,
-                                                                       load_study):
-    study = load_study("trajectory_following")
+def _options(tmp_path, **changed) -> argparse.Namespace:
+    """The study's options as its command line parses ``--trajectories 1
+    --worlds test-0 --p 0.99 --controllers lidar_k5 --data TMP/data --out
+    TMP/out --quiet --json``, with ``changed`` ones."""
+    options = {"trajectories": 1, "worlds": "test-0", "p": "0.99", "headline_p": 0.99,
+               "controllers": "lidar_k5", "cwp": None, "sensitivity": None, "re": None,
+               "batch": 48, "seed": 0, "noise": 0.33, "data": str(tmp_path / "data"),
+               "out": str(tmp_path / "out"), "follower": "{}", "runs": "re,subsampled,noisy,oracle",
+               "odometry": "wheel", "slack": 0.0, "json": True, "quiet": True}
+    return argparse.Namespace(**{**options, **changed})
+
+
+def _refused(*argv) -> str:
+    """The error of a study run refused with exit status 2."""
+    code, _, err = run_study("trajectory_following", *argv)
+    assert code == 2
+    return err
+
+
+def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path, monkeypatch):
+    """The study's run, then the library's run of the same options: every
+    block comes from the run cache."""
     args = ["--trajectories", "1", "--worlds", "test-0", "--p", "0.99", "--controllers",
             "lidar_k5", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
             "--quiet", "--json"]
-    assert study.main(args) == 0
+    code, _, err = run_study("trajectory_following", *args)
+    assert code == 0, err
     first = json.loads((tmp_path / "out" / "trajectory_following.json").read_text())
     runs = sorted(p.name for p in (tmp_path / "out" / "trajectory_following_runs").iterdir())
     assert runs == ["lidar_k5-chains-p0.99.json", "lidar_k5-p0.99-every%d-test-0-0.json"
@@ -31,11 +54,10 @@ def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path,
         raise AssertionError("rendered although every block was cached")
 
     monkeypatch.setattr(follow_trials.Observations, "__getitem__", no_rendering)
-    assert study.main(args) == 0
-    again = json.loads((tmp_path / "out" / "trajectory_following.json").read_text())
+    again = following(_options(tmp_path), "python studies/trajectory_following.py")
     assert again["summary"] == first["summary"]
     with pytest.raises(AssertionError, match="rendered"):
-        study.main(args + ["--noise", "0.2"])          # another noise: nothing is reused
+        following(_options(tmp_path, noise=0.2), "")   # another noise: nothing is reused
 
 
 def test_the_run_cache_refuses_other_settings_and_unreadable_files(tmp_path):
@@ -50,36 +72,32 @@ def test_the_run_cache_refuses_other_settings_and_unreadable_files(tmp_path):
     assert cache.get("missing", {"p": 0.99}) is None
 
 
-def test_another_c_wp_is_named_per_controller_and_checked(tmp_path, load_study, capsys):
-    study = load_study("trajectory_following")
+def test_another_c_wp_is_named_per_controller_and_checked(tmp_path):
     args = ["--controllers", "lidar_k5", "--out", str(tmp_path), "--quiet"]
-    assert study.main(args + ["--cwp", "camera_k5=checkpoints/camera_k5/checkpoint.pt"]) == 2
-    assert "NAME=CHECKPOINT with NAME one of ['lidar_k5']" in capsys.readouterr().err
-    assert study.main(args + ["--cwp", f"lidar_k5={tmp_path / 'none.pt'}"]) == 2
-    assert "does not exist" in capsys.readouterr().err
+    assert "NAME=CHECKPOINT with NAME one of ['lidar_k5']" in _refused(
+        *args, "--cwp", "camera_k5=checkpoints/camera_k5/checkpoint.pt")
+    assert "does not exist" in _refused(*args, "--cwp", f"lidar_k5={tmp_path / 'none.pt'}")
 
 
-def test_another_re_is_named_per_controller_and_must_fit_its_c_wp(tmp_path, load_study, capsys):
-    study = load_study("trajectory_following")
+def test_another_re_is_named_per_controller_and_must_fit_its_c_wp(tmp_path):
     args = ["--controllers", "lidar_k5", "--out", str(tmp_path), "--quiet", "--trajectories", "1"]
-    assert study.main(args + ["--re", "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt"]) == 2
-    assert "NAME=CHECKPOINT with NAME one of ['lidar_k5']" in capsys.readouterr().err
-    assert study.main(args + ["--re", f"lidar_k5={tmp_path / 'none.pt'}"]) == 2
-    assert "does not exist" in capsys.readouterr().err
+    assert "NAME=CHECKPOINT with NAME one of ['lidar_k5']" in _refused(
+        *args, "--re", "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt")
+    assert "does not exist" in _refused(*args, "--re", f"lidar_k5={tmp_path / 'none.pt'}")
     # the on-policy RE belongs to the on-policy C_WP: with the shipped one it is refused
-    assert study.main(args + ["--re", "lidar_k5=checkpoints/reach_lidar_k5_dagger/checkpoint.pt"]) == 2
-    assert "was trained for controller" in capsys.readouterr().err
+    assert "was trained for controller" in _refused(
+        *args, "--re", "lidar_k5=checkpoints/reach_lidar_k5_dagger/checkpoint.pt")
 
 
-def test_the_oracle_with_a_controlled_error_follows_the_re_chains(tmp_path, load_study, capsys):
+def test_the_oracle_with_a_controlled_error_follows_the_re_chains(tmp_path):
     """``--cwp NAME=oracle:...`` beside NAME's learned RE, and the sensitivity
     table: the same spec gives the same cover in both."""
-    study = load_study("trajectory_following")
     args = ["--trajectories", "1", "--worlds", "test-0", "--p", "0.99", "--controllers",
             "lidar_k5", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
             "--quiet", "--json", "--cwp", "lidar_k5=oracle:anchor=0.3"]
-    assert study.main(args + ["--sensitivity", "anchor=0.3,1"]) == 0
-    printed = json.loads(capsys.readouterr().out)
+    code, out, err = run_study("trajectory_following", *args, "--sensitivity", "anchor=0.3,1")
+    assert code == 0, err
+    printed = json.loads(out)
     table = printed["sensitivity"]["lidar_k5"]
     assert [r["spec"] for r in table["rows"]] == ["oracle:anchor=0.3", "oracle:anchor=1"]
     assert table["rows"][0]["cover"] == printed["lidar_k5"]["cover"]
@@ -87,18 +105,17 @@ def test_the_oracle_with_a_controlled_error_follows_the_re_chains(tmp_path, load
     stored = json.loads((tmp_path / "out" / "trajectory_following.json").read_text())
     assert stored["sensitivity"] == printed["sensitivity"]
     assert stored["results"]["lidar_k5"]["controller"] == "oracle:anchor=0.3"
-    assert study.main(args + ["--sensitivity", "bias=0.3"]) == 2
-    assert "unknown key 'bias'" in capsys.readouterr().err
+    assert "unknown key 'bias'" in _refused(*args, "--sensitivity", "bias=0.3")
 
 
-def test_runs_picks_what_is_followed_and_refuses_unknown_runs(tmp_path, load_study, capsys):
-    study = load_study("trajectory_following")
+def test_runs_picks_what_is_followed_and_refuses_unknown_runs(tmp_path):
     args = ["--trajectories", "1", "--worlds", "test-0", "--p", "0.99", "--controllers",
             "lidar_k5", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
             "--quiet", "--json"]
-    assert study.main(args + ["--runs", "re,bogus"]) == 2
-    assert "--runs" in capsys.readouterr().err
-    assert study.main(args + ["--runs", "re,oracle", "--odometry", "perfect"]) == 0
+    assert "--runs" in _refused(*args, "--runs", "re,bogus")
+    code, _, err = run_study("trajectory_following", *args, "--runs", "re,oracle",
+                             "--odometry", "perfect")
+    assert code == 0, err
     runs = sorted(p.name for p in (tmp_path / "out" / "trajectory_following_runs").iterdir())
     assert runs == ["lidar_k5-chains-p0.99.json", "lidar_k5-p0.99-oracle-test-0-0.json",
                     "lidar_k5-p0.99-re-test-0-0.json"]

@@ -15,13 +15,30 @@ the house, actuation noise, success within 0.27 m or both overlaps above
 :func:`fit_oracle` fits its parameters to the outcomes (maximum likelihood,
 coordinate descent over candidate values) and :func:`calibration_scores`
 rates any probabilities against them (ECE, AUROC, log-likelihood).
+:func:`house_pairs` keeps each house's labelled pairs in ``DATA/oracle_reach/``
+and :func:`oracle_study` fits and rates the oracles over the houses of a
+study's options, with its result document.
 """
 
 from __future__ import annotations
 
+import time
+from dataclasses import asdict
+from pathlib import Path
+
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.fileio import atomic_write_bytes
+
+HOUSES = "test-0,test-1,test-2,test-3,test-4"
+FIELDS = ("src", "tgt", "same", "outcome", "label")
+#: Candidate values of the fit (coordinate descent over the OracleConfig fields).
+GRID = {"reach_m": [2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0], "reach_soft_m": [0.1, 0.2, 0.5, 1.0],
+        "bearing_rad": [0.8, 1.2, 1.6, 2.0, 2.4, 2.8, 3.2], "bearing_soft_rad": [0.1, 0.2, 0.4, 0.8],
+        "turn_rad": [0.8, 1.2, 1.6, 2.0, 2.4], "turn_soft_rad": [0.1, 0.2, 0.4, 0.8],
+        "min_overlap": [0.0, 0.02, 0.05, 0.1, 0.2, 0.3], "overlap_soft": [0.01, 0.02, 0.05, 0.1],
+        "hidden": [0.0, 0.1, 0.2, 0.3, 0.5]}
 
 
 def oracle_reach_pairs(world, drives: list[np.ndarray], n: int, seed: int, *,
@@ -106,3 +123,73 @@ def fit_oracle(geometry: dict, label: np.ndarray, start, grid: dict, rounds: int
             best = min((replace(best, **{name: v}) for v in values),
                        key=lambda c: _nll(reach_from_geometry(geometry, c), y))
     return best, _nll(reach_from_geometry(geometry, best), y)
+
+
+def house_pairs(spec: str, n: int, seed: int, data: Path, progress: bool) -> dict:
+    """The labelled oracle pairs of one house (cached)."""
+    import io
+
+    from topodrake.demonstrations import CollectConfig, collect, load_demos
+    from topodrake.topomap.sources import demo_folder
+    from topodrake.world import load_world
+
+    key = demo_folder(spec).name
+    path = data / "oracle_reach" / f"{key}-n{n}-s{seed}.npz"
+    if path.is_file():
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in FIELDS}
+    folder = data / "demos" / "pairs-s0" / key
+    collect(spec, folder, CollectConfig(protocol="pairs", seed=0), progress=progress)
+    drives = [d.poses for d in load_demos(folder, successful_only=True)[1]]
+    out = oracle_reach_pairs(load_world(spec), drives, n, seed)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{k: out[k] for k in FIELDS})
+    atomic_write_bytes(path, buf.getvalue())
+    return {k: out[k] for k in FIELDS}
+
+
+def oracle_study(args, command: str) -> dict:
+    """The study's result document for its options ``args`` (houses, pairs,
+    seed, data, quiet); ``command`` is recorded."""
+    from tqdm import tqdm
+
+    from topodrake.navigation.evaluate import GeometricReachability
+    from topodrake.topomap.scorer import (CALIBRATED_ORACLE, TRUSTING_ORACLE, OracleConfig,
+                                          pair_geometry, reach_from_geometry)
+    from topodrake.world import load_world
+
+    specs = [h for h in args.houses.split(",") if h]
+    if not specs:
+        raise TopodrakeError("--houses names no house")
+    t0 = time.perf_counter()
+    geos, labels, follower = [], [], []
+    for spec in tqdm(specs, desc="houses", disable=args.quiet):
+        world = load_world(spec)
+        pairs = house_pairs(spec, args.pairs, args.seed, Path(args.data), not args.quiet)
+        geos.append(pair_geometry(world, pairs["src"], pairs["tgt"]))
+        labels.append(pairs["label"])
+        follower.append(GeometricReachability(world).probability(pairs["src"], pairs["tgt"]))
+    geo = {k: np.concatenate([g[k] for g in geos]) for k in geos[0]}
+    y = np.concatenate(labels).astype(np.float64)
+    fitted, _ = fit_oracle(geo, y, CALIBRATED_ORACLE, GRID)
+    paper = OracleConfig(reach_m=2.5, bearing_rad=float("inf"), turn_rad=1.2, min_overlap=0.3,
+                         hidden=0.0)
+    oracles = {name: calibration_scores(reach_from_geometry(geo, c), y)
+               for name, c in (("paper_geometry", paper), ("map", OracleConfig()),
+                               ("calibrated", CALIBRATED_ORACLE), ("trusting", TRUSTING_ORACLE),
+                               ("fitted", fitted))}
+    oracles["follower"] = calibration_scores(np.concatenate(follower), y)
+    by_distance = {}
+    for lo in range(8):
+        m = geo["sight"] & (geo["distance"] >= lo) & (geo["distance"] < lo + 1)
+        if m.any():
+            by_distance[f"{lo}-{lo + 1}m"] = {"pairs": int(m.sum()), "success": round(float(y[m].mean()), 3)}
+    summary = {"pairs": int(len(y)), "success": round(float(y.mean()), 4), "oracles": oracles,
+               "fitted": {k: (None if not np.isfinite(v) else round(float(v), 4))
+                          for k, v in asdict(fitted).items()},
+               "success_by_distance": by_distance}
+    return {"command": command, "seed": args.seed,
+            "houses": specs, "pairs_per_house": args.pairs,
+            "wall_time_s": round(time.perf_counter() - t0, 1),
+            "note": "success_by_distance: pairs with a clear straight line, by straight distance",
+            "summary": summary}

@@ -5,7 +5,9 @@ a -> c: the first drive's arrival at b and the second's departure from it
 have to become one route (a junction edge, a reused vertex or a cross
 edge), and neither the start's nor the goal's links may jump to a place
 that only looks alike. :func:`join_trial` builds such a map and plans on
-it; :func:`joining_triples` draws the seeded (a, b, c) of a study.
+it; :func:`joining_triples` draws the seeded (a, b, c) of a study;
+:func:`house_results` runs a house's triples and :func:`joining_study`
+every house and map kind of a study's options, with its result document.
 
 A plan's steps are judged in truth (privileged poses, evaluation only).
 Every step that is not one of the drives' own hops (a start, goal or
@@ -20,6 +22,7 @@ which is the planner skipping an anchor, not a look-alike.
 
 from __future__ import annotations
 
+import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -27,6 +30,8 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 
 JOIN_STEP_M = 2.0     # a link or edge between drives longer than this in truth is false
+#: the map kinds a joining study builds
+MODALITIES = ("camera", "lidar", "lidar_reg")
 
 
 @dataclass
@@ -153,3 +158,70 @@ def summarize(results: list[JoinResult]) -> dict:
             "planned": round(len(planned) / n, 4) if n else None,
             "mean_probability": (round(float(np.mean([r.probability for r in planned])), 4)
                                  if planned else None)}
+
+
+def house_results(spec: str, modality: str, triples, config, progress: bool) -> list:
+    """The :class:`JoinResult` of each triple in one house."""
+    from tqdm import tqdm
+
+    from topodrake.topomap.graph import TopoMap
+    from topodrake.topomap.retrieval import default_embedding
+    from topodrake.topomap.sources import demo_drives, drive_observations, make_scorer, place_of
+    from topodrake.world import load_world
+
+    world = load_world(spec)
+    _, drives = demo_drives(spec, None, progress=progress)
+    by_places = {}
+    for d in drives:
+        by_places.setdefault((place_of(world, d.poses[0]), place_of(world, d.poses[-1])), d)
+    scorer = make_scorer(modality, world)
+    embedding = default_embedding(scorer.observation)
+    seen: dict[bytes, np.ndarray] = {}
+
+    def observe(poses):
+        key = np.asarray(poses, np.float64).tobytes()
+        if key not in seen:
+            seen[key] = drive_observations(world, scorer, poses)
+        return seen[key]
+
+    def make_map():
+        return TopoMap(scorer, embedding, config, world=spec)
+
+    out = []
+    for triple in tqdm(triples, desc=f"{spec} {modality}", unit="triple", disable=not progress):
+        out.append(join_trial(world, make_map, lambda s, g: by_places.get((s, g)),
+                              observe, triple))
+    return out
+
+
+def joining_study(args, command: str) -> dict:
+    """The study's result document for its options ``args`` (houses,
+    modalities, triples, seed, config, quiet); ``command`` is recorded."""
+    from topodrake.montecarlo import trial_seeds
+    from topodrake.topomap.map_cli import load_map_config
+    from topodrake.world import load_world
+
+    houses = [h for h in args.houses.split(",") if h]
+    modalities = [m for m in args.modalities.split(",") if m]
+    bad = [m for m in modalities if m not in MODALITIES]
+    if bad or not modalities:
+        raise TopodrakeError(f"--modalities takes {', '.join(MODALITIES)}, got {args.modalities!r}")
+    if not houses:
+        raise TopodrakeError("--houses names no house")
+    config = load_map_config(args.config)
+    worlds = {h: load_world(h) for h in houses}             # unknown houses fail here, first
+    t0 = time.perf_counter()
+    per_house, records, summary = {}, [], {}
+    for modality in modalities:
+        every = []
+        for h, seed in zip(houses, trial_seeds(args.seed, len(houses))):
+            triples = joining_triples(len(worlds[h].places), args.triples, seed)
+            results = house_results(h, modality, triples, config, not args.quiet)
+            every += results
+            per_house.setdefault(h, {})[modality] = summarize(results)
+            records += [{"house": h, "modality": modality, **r.record()} for r in results]
+        summary[modality] = summarize(every)
+    return {"command": command,
+            "seed": args.seed, "triples_per_house": args.triples, "houses": houses,
+            "config": asdict(config), "wall_time_s": round(time.perf_counter() - t0, 1),
+            "summary": summary, "per_house": per_house, "trials": records}

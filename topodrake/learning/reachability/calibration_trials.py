@@ -1,0 +1,107 @@
+"""Is RE calibrated (the reachability-calibration study)? Its probability against closed-loop outcomes.
+
+:func:`calibration_trials` runs, for every RE of a study's options and for
+clean and noisy actuation, seeded Drake trials
+(``topodrake.systems.trials.reach_trial``), summarises them
+(:func:`summarise_trials`: ECE, Brier, AUROC split by how pairs start,
+reliability bins), adds RE's keep ratio on the test houses' drives
+(:func:`keep_ratios`) and assembles the result document.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from topodrake.errors import TopodrakeError
+
+WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
+
+
+def keep_ratios(reach: str, controller: str, data_dir: str, p: float,
+                drives: int | None) -> tuple[float, float]:
+    """Anchors kept / frames over the test houses' successful expert drives,
+    with RE's anchor-hop calibration and with its temperature (as for any
+    other pair), from one pass over the drives."""
+    from topodrake.learning.reachability.estimator import Reachability
+    from topodrake.topomap.hops import sparsify_houses
+
+    re = Reachability.from_checkpoint(reach, controller)
+    out = sparsify_houses(re, list(WORLDS), Path(data_dir) / "demos" / "pairs-s0", p,
+                          drives=drives,
+                          other_calibrations={"temperature": (1.0 / re.temperature, 0.0)})
+    return out["keep_ratio"] or 0.0, out["keep_ratios"]["temperature"] or 0.0
+
+
+def summarise_trials(res: list[dict]) -> dict:
+    """ECE, Brier, AUROC and reliability bins of trial records (``p``,
+    ``success``, ``start_overlap``), and AUROC split by the pairs' start.
+
+    Pairs that see nothing of each other at the start fail at once (both
+    overlaps < 0.05): ``auroc_reached_vs_not_overlapping`` says how well RE
+    tells the reached pairs from those, ``auroc_overlapping`` how well it
+    ranks the pairs that are actually driven."""
+    from topodrake.learning.reachability.calibration import calibration_summary, reliability
+    from topodrake.learning.reachability.labels import ReachLabelConfig
+
+    p = np.array([r["p"] for r in res], float)
+    y = np.array([r["success"] for r in res], int)
+    seeing = np.array([max(r["start_overlap"]) >= ReachLabelConfig().overlap_lost for r in res])
+
+    def auroc_of(sel):
+        return calibration_summary(p[sel], y[sel])["auroc"] if sel.any() else None
+
+    s = calibration_summary(p, y)
+    s["share_not_overlapping"] = float(1 - seeing.mean())
+    s["auroc_overlapping"] = auroc_of(seeing)
+    s["auroc_reached_vs_not_overlapping"] = auroc_of(~seeing | (y == 1))
+    rel = reliability(p, y)
+    s["reliability"] = {"edges": rel.edges.tolist(), "count": rel.count.tolist(),
+                        "rate": [None if np.isnan(v) else float(v) for v in rel.rate],
+                        "mean_pred": [None if np.isnan(v) else float(v) for v in rel.mean_pred]}
+    return s
+
+
+def calibration_trials(args, command: str) -> dict:
+    """The study's result document for its options ``args`` (pairs,
+    estimators, p, keep drives, seed, data, noise, workers, ray, quiet);
+    ``command`` is recorded."""
+    from topodrake.learning.reachability.estimator import parse_estimators
+    from topodrake.learning.samples import collect_trajectories
+    from topodrake.montecarlo import run_trials, trial_seeds
+    from topodrake.systems.trials import reach_trial
+
+    if args.pairs < 1:
+        raise TopodrakeError("--pairs must be >= 1")
+    estimators = parse_estimators(args.estimators)
+    # make sure the test houses' demonstrations exist before the workers start
+    collect_trajectories(list(WORLDS), Path(args.data) / "demos" / "pairs-s0",
+                         progress=not args.quiet)
+    seeds = trial_seeds(args.seed, args.pairs)
+    summary, details = {}, {}
+    t0 = time.perf_counter()
+    for name, (reach, controller) in estimators.items():
+        details[name] = {}
+        for cond, noise in (("clean", 0.0), ("noisy", args.noise)):
+            res = run_trials(reach_trial, seeds, workers=args.workers, ray_address=args.ray,
+                             progress=not args.quiet, desc=f"{name} {cond}", reach=reach,
+                             controller=controller, noise_std=noise, data_dir=args.data,
+                             worlds=WORLDS)
+            details[name][cond] = summarise_trials(res)
+    # The keep ratios run RE in this process, so they come after every
+    # forked Monte Carlo block (a fork after torch has started its OpenMP
+    # threads can hang the children).
+    for name, (reach, controller) in estimators.items():
+        ratio, under_t = keep_ratios(reach, controller, args.data, args.p, args.keep_drives)
+        details[name]["keep_ratio_temperature"] = round(under_t, 4)
+        n = details[name]["noisy"]
+        summary[name] = {"ece": round(n["ece"], 4), "brier": round(n["brier"], 4),
+                         "auroc": None if n["auroc"] is None else round(n["auroc"], 4),
+                         "keep_ratio": round(ratio, 4)}
+    return {
+        "command": command,
+        "pairs": args.pairs, "seed": args.seed, "noise_std": args.noise, "p_sparsify": args.p,
+        "estimators": {k: {"reach": r, "controller": c} for k, (r, c) in estimators.items()},
+        "wall_time_s": round(time.perf_counter() - t0, 1), "summary": summary, "details": details}
