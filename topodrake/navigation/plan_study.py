@@ -231,28 +231,6 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, c
     return routes, np.asarray(prob, np.float64), false_links, whole, round_of
 
 
-def traversals_of_records(records: list[dict]) -> tuple[list, list]:
-    """``(passed, failed)`` map edges of the planned trials of a planning
-    study's records (each with ``plan_vertices``, ``visited``, ``active``,
-    ``success`` and ``outcome``); a planned trial without them is refused."""
-    from topodrake.errors import TopodrakeError
-    from topodrake.navigation.replan import route_traversals
-
-    passed, failed = [], []
-    for r in records:
-        if not r.get("planned"):
-            continue
-        if not all(k in r for k in ("plan_vertices", "visited", "active")):
-            raise TopodrakeError(f"trial {r.get('trial')} of {r.get('method')} in "
-                                 f"{r.get('house')} has no plan_vertices, visited and active "
-                                 f"anchor: it was recorded before the study kept them")
-        p, f = route_traversals(r["plan_vertices"], r["visited"], r["active"],
-                                bool(r["success"]), r.get("outcome") == "timeout")
-        passed += p
-        failed += f
-    return passed, failed
-
-
 def success_by_round(records: list[dict]) -> dict:
     """Per method run in experience rounds: each round's success over all
     houses (rounded to 4 places)."""

@@ -98,6 +98,25 @@ def route_traversals(vertices, visited: int, active: int, reached: bool, timed_o
     return passed, ([edge] if edge is not None else [])
 
 
+def traversals_of_records(records: list[dict]) -> tuple[list, list]:
+    """``(passed, failed)`` map edges of the planned trials of a planning
+    study's records (each with ``plan_vertices``, ``visited``, ``active``,
+    ``success`` and ``outcome``); a planned trial without them is refused."""
+    passed, failed = [], []
+    for r in records:
+        if not r.get("planned"):
+            continue
+        if not all(k in r for k in ("plan_vertices", "visited", "active")):
+            raise TopodrakeError(f"trial {r.get('trial')} of {r.get('method')} in "
+                                 f"{r.get('house')} has no plan_vertices, visited and active "
+                                 f"anchor: it was recorded before the study kept them")
+        p, f = route_traversals(r["plan_vertices"], r["visited"], r["active"],
+                                bool(r["success"]), r.get("outcome") == "timeout")
+        passed += p
+        failed += f
+    return passed, failed
+
+
 PlanCallback = Callable[[int, np.ndarray, list], object]
 
 

@@ -252,7 +252,7 @@ def cmd_map_calibrate(args) -> None:
 
 def cmd_map_refit(args) -> None:
     """Fold a planning study's recorded drives on a map into its edges."""
-    from topodrake.navigation.plan_study import traversals_of_records
+    from topodrake.navigation.replan import traversals_of_records
     from topodrake.topomap.map_cache import house_key
     from topodrake.topomap.mapfile import save_map
     from topodrake.topomap.plan_calibration import read_trial_records
