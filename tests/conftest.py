@@ -37,3 +37,26 @@ def test0_drives():
             t = res.trajectory(0)
             got.append((0, t["poses"], t["controls"]))
     return world, TrajectorySet.from_drives(["test-0"], got)
+
+
+@pytest.fixture(scope="session")
+def small_map(tmp_path_factory):
+    """``small_map(modality)``: a map file of test-0's drives between places
+    4 and 9, built once per session (read it, never write it)."""
+    import contextlib
+    import io
+
+    from topodrake.cli import main
+
+    built = {}
+
+    def get(modality: str):
+        if modality not in built:
+            path = tmp_path_factory.mktemp(f"small-{modality}") / f"{modality}.tdmap"
+            with contextlib.redirect_stdout(io.StringIO()):     # not into a test's capsys
+                code = main(["map", "build", "test-0", "--modality", modality, "--places",
+                             "4,9", "--out", str(path), "--quiet"])
+            assert code == 0
+            built[modality] = path
+        return built[modality]
+    return get

@@ -11,13 +11,10 @@ from topodrake.navigation.outcomes import EXIT_FAILED, drive_outcome, exit_statu
 from topodrake.navigation.plan_trials import SUCCESS_M, judge_outcome
 
 
-@pytest.fixture(scope="module")
-def oracle_map(tmp_path_factory):
+@pytest.fixture
+def oracle_map(small_map):
     """A small oracle map of test-0 (the drives between places 4 and 9)."""
-    path = tmp_path_factory.mktemp("maps") / "o.tdmap"
-    assert main(["map", "build", "test-0", "--modality", "oracle", "--places", "4,9",
-                 "--out", str(path), "--quiet"]) == 0
-    return path
+    return small_map("oracle")
 
 
 def test_the_success_rule_is_the_studies():

@@ -10,14 +10,9 @@ from topodrake.topomap.recalibrate import edge_posterior
 from topodrake.topomap.sources import make_scorer
 
 
-@pytest.fixture(scope="module")
-def reg_map(tmp_path_factory):
-    from topodrake.cli import main
-
-    path = tmp_path_factory.mktemp("refit") / "reg.tdmap"
-    assert main(["map", "build", "test-0", "--modality", "lidar_reg", "--places", "4,9",
-                 "--out", str(path), "--quiet"]) == 0
-    return path
+@pytest.fixture
+def reg_map(small_map):
+    return small_map("lidar_reg")
 
 
 def _trial(t, chain, visited, success, outcome, house="test-0", method="lidar_reg"):

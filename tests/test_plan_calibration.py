@@ -135,14 +135,9 @@ def test_map_calibrate_cli_writes_the_file_and_refuses_test_houses(capsys, tmp_p
     one_line(code, err, "no per-trial records")
 
 
-@pytest.fixture(scope="module")
-def reg_map(tmp_path_factory):
-    from topodrake.cli import main
-
-    path = tmp_path_factory.mktemp("calmap") / "reg.tdmap"
-    assert main(["map", "build", "test-0", "--modality", "lidar_reg", "--places", "4,9",
-                 "--out", str(path), "--quiet"]) == 0
-    return path
+@pytest.fixture
+def reg_map(small_map):
+    return small_map("lidar_reg")
 
 
 def test_a_plan_on_a_map_reports_the_chance_of_the_calibration_beside_its_re(capsys, tmp_path,
