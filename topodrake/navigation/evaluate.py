@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.learning.frames import centre_pose
 from topodrake.navigation.follower import Answers
 
 
@@ -288,11 +289,7 @@ class GeometricReachability:
         self.camera = camera or CameraConfig()
 
     def encode_target(self, context: np.ndarray) -> np.ndarray:
-        ctx = np.asarray(context, np.float64)
-        if ctx.ndim != 3 or ctx.shape[1:] != (2 * self.k + 1, 3):
-            raise TopodrakeError(f"oracle target context must be (N, {2 * self.k + 1}, 3) poses, "
-                                 f"got {ctx.shape}")
-        return ctx[:, self.k].copy()
+        return centre_pose(context, self.k)
 
     def probability(self, observation: np.ndarray, target) -> np.ndarray:
         from topodrake.sensing.overlap import mutual_overlap

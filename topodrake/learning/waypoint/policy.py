@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.frames import context_frames
+from topodrake.learning.frames import centre_pose, context_frames
 from topodrake.learning.inference import ObservationNetwork
 from topodrake.learning.networks import CONTROL_SCALE
 from topodrake.sensing.config import CameraConfig, LidarConfig
@@ -160,11 +160,7 @@ class AStarOracle:
         self.overlap_rays = overlap_rays
 
     def encode_target(self, context: np.ndarray) -> np.ndarray:
-        ctx = np.asarray(context, np.float64)
-        if ctx.ndim != 3 or ctx.shape[1:] != (2 * self.k + 1, 3):
-            raise TopodrakeError(f"oracle target context must be (N, {2 * self.k + 1}, 3) poses, "
-                                 f"got {ctx.shape}")
-        return ctx[:, self.k].copy()
+        return centre_pose(context, self.k)
 
     def predict(self, observation: np.ndarray, target) -> WaypointPrediction:
         from topodrake.learning.samples import expert_waypoint_labels, wrap_angle
