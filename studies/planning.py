@@ -100,6 +100,7 @@ from topodrake import argtypes as at
 from topodrake.fileio import atomic_write_json
 from topodrake.navigation.plan_methods import METHODS, ORACLE_METHODS
 from topodrake.navigation.plan_results import HOUSES, planning, rescore
+from topodrake.topomap.recalibrate import PRIOR_WEIGHT
 
 
 # ---------------------------------------------------------------- plots
@@ -233,6 +234,9 @@ def main(argv=None) -> int:
                     help="run each plainly driven map method's trials in this many rounds, "
                          "each planned with the drives of the rounds before folded into the "
                          "map's edges (1: every trial on the map as built)")
+    ap.add_argument("--experience-prior-weight", type=float, default=PRIOR_WEIGHT,
+                    help="drives RE's rating of an edge counts for when earlier drives are "
+                         "folded in")
     ap.add_argument("--seed", type=at.seed, default=0, help="base seed of the trials")
     ap.add_argument("--data", default="data", help="cache of demonstrations and maps")
     ap.add_argument("--workers", type=at.count, default=1,

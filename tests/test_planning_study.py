@@ -174,6 +174,8 @@ def test_study_refuses_bad_input_in_one_line(tmp_path):
     assert "not both" in err
     code, _, err = run_study("planning", "--trials", "0")     # refused by the option's type
     assert code == 2
+    code, _, err = run_study("planning", "--experience-prior-weight", "0", "--out", tmp_path)
+    assert code == 2 and "--experience-prior-weight must be > 0" in err
 
 
 def test_house_keys_and_seeds():

@@ -22,6 +22,7 @@ from topodrake.navigation.plan_methods import (METHODS, attach_success_probabili
                                                calibration_houses, calibration_table)
 from topodrake.navigation.plan_study import house_job, house_seed, pruned_job, success_by_round
 from topodrake.topomap.map_cache import DEMO_SEED, house_key
+from topodrake.topomap.recalibrate import PRIOR_WEIGHT
 
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
 
@@ -88,6 +89,9 @@ def _check(args) -> tuple[list[str], list[str], list[str], list[float]]:
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
         raise TopodrakeError(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
+    weight = getattr(args, "experience_prior_weight", PRIOR_WEIGHT)
+    if not (weight > 0 and weight < float("inf")):
+        raise TopodrakeError(f"--experience-prior-weight must be > 0, got {weight}")
     if args.world is not None:
         if args.houses != HOUSES:
             raise TopodrakeError("give --world or --houses, not both")
@@ -129,7 +133,8 @@ def planning(args, command: str) -> dict:
            "obstacles": args.obstacles,
            "pruned_fractions": fractions, "pruned_method": args.pruned_method,
            "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed,
-           "experience_rounds": getattr(args, "experience_rounds", 1)}
+           "experience_rounds": getattr(args, "experience_rounds", 1),
+           "experience_prior_weight": getattr(args, "experience_prior_weight", PRIOR_WEIGHT)}
     jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
     results = run_trials(house_job, list(jobs), workers=args.workers, ray_address=args.ray,
                          progress=not args.quiet and len(jobs) > 1, desc="houses",

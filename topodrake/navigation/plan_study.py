@@ -61,9 +61,10 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         modality = meth.map
         m, build_s = get_map(spec, world, modality, drives, indices, data, tag, progress)
         if experience is not None:
-            from topodrake.topomap.recalibrate import record_traversals
+            from topodrake.topomap.recalibrate import PRIOR_WEIGHT, record_traversals
 
-            record_traversals(m, *experience)
+            record_traversals(m, *experience,
+                              prior_weight=cfg.get("experience_prior_weight", PRIOR_WEIGHT))
         metres = sum(float(np.hypot(*np.diff(drives[i].poses[:, :2], axis=0).T).sum())
                      for i in indices)
         size = {"vertices": len(m), "edges": m.n_edges, "build_s": round(build_s, 1),
