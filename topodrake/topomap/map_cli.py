@@ -228,11 +228,16 @@ def cmd_map_plan(args) -> None:
         raise Unreachable(f"no plan: {result.reason}")
 
 
+#: the planning study's methods as ``--method`` names them (camera: the study's "ours")
+STUDY_METHODS = {"camera": "ours", "lidar": "lidar", "lidar_reg": "lidar_reg",
+                 "lidar_scale": "lidar_scale"}
+
+
 def cmd_map_calibrate(args) -> None:
     from topodrake.navigation.plan_methods import plan_calibration_path
     from topodrake.topomap.plan_calibration import fit_from_records, read_trial_records
 
-    name = {"camera": "ours"}.get(args.method, args.method)
+    name = STUDY_METHODS[args.method]
     if args.out is None:
         args.out = str(plan_calibration_path(name))
     check_output(args.out, "json", force=args.force)
@@ -263,7 +268,7 @@ def cmd_map_refit(args) -> None:
     loaded = open_map(args.file)
     house = house_key(loaded.topomap.world)
     records, _ = read_trial_records(args.records)
-    name = {"camera": "ours"}.get(args.method, args.method)
+    name = STUDY_METHODS[args.method]
     mine = [r for r in records if r.get("method") == name and r.get("house") == house]
     if not mine:
         have = sorted({f"{r.get('method')} in {r.get('house')}" for r in records})
@@ -353,7 +358,7 @@ def add_map_parser(sub) -> None:
                                           "of a plan) on a planning study's trials")
     c.add_argument("records", nargs="+",
                    help="the planning study's planning.json files, run on training houses")
-    c.add_argument("--method", required=True, choices=["camera", "lidar", "lidar_reg", "lidar_scale"],
+    c.add_argument("--method", required=True, choices=list(STUDY_METHODS),
                    help="the planning study's method (camera: its 'ours')")
     c.add_argument("--out", help="calibration file to write (default: plan_calibration.json "
                                  "beside the method's shipped RE; lidar_scale: beside its C_WP)")
@@ -365,8 +370,7 @@ def add_map_parser(sub) -> None:
                                        "its edges (passed and failed hops against RE's rating)")
     rf.add_argument("file", help="map file the drives were planned on")
     rf.add_argument("records", nargs="+", help="the planning study's planning.json files")
-    rf.add_argument("--method", required=True, choices=["camera", "lidar", "lidar_reg",
-                                                        "lidar_scale"],
+    rf.add_argument("--method", required=True, choices=list(STUDY_METHODS),
                     help="the planning study's method whose trials to fold in (camera: 'ours')")
     rf.add_argument("--out", required=True, help="map file to write (the same as the input "
                                                  "with --force)")
