@@ -17,7 +17,9 @@ For each new drive, from its observations only:
      (or to next) is below ``p_reuse``, v needs only that hop's RE less the
      slack.
    The largest product wins. Vertices reused from one older drive must keep
-   that drive's order, and no vertex is used twice in a chain.
+   that drive's order, and no vertex is used twice in a chain. On a lidar
+   map with ``scan_match``, v's scan must also register onto the frame's
+   (:mod:`topodrake.topomap.scan_match`): RE passes a look-alike room.
 3. **Link** consecutive chain nodes with trajectory edges (p = RE).
 4. **Cross edges** between every new vertex x and the map, both ways: the
    candidates are the ``retrieval_k`` vertices nearest in the place
@@ -32,7 +34,8 @@ For each new drive, from its observations only:
    links). Sequence matching cannot confirm such a pair: the arrival's
    anchors before the place and the departure's after it diverge. The edge
    keeps RE(arrival, departure) as its p; on a lidar map it carries the
-   departure's pose in the arrival's frame, registered scan to scan.
+   departure's pose in the arrival's frame, registered scan to scan, and
+   with ``scan_match`` the two scans must match.
 
 With ``audit=True`` step 4 also scores every vertex of the map (not only
 the retrieved ones) and records which cross edges the exhaustive pass
@@ -48,6 +51,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.topomap.graph import TopoMap, Trajectory
+from topodrake.topomap.scan_match import checks_scans, scans_match
 from topodrake.topomap.sparsify import sparsify, sparsify_chain
 
 
@@ -177,6 +181,10 @@ def _junctions(m: TopoMap, t: int, score, stats: BuildStats) -> None:
     ahead = score(m.centers(us), m.contexts(xs))
     back = score(m.centers(xs), m.contexts(us))
     keep = np.flatnonzero(np.minimum(ahead, back) > m.config.p_join)
+    if checks_scans(m) and len(keep):
+        obs = m.bank.observations
+        keep = keep[scans_match(obs[m.centers(xs[keep])], obs[m.centers(us[keep])],
+                                m.config.scan_match)]
     legs = _junction_legs(m, us[keep], xs[keep])
     for i, (leg, path) in zip(keep, legs):
         m.add_edge(int(us[i]), int(xs[i]), float(ahead[i]), "junction", leg, path)
@@ -311,10 +319,11 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
             return j
         ahead = start + ctx_local[min(j + 1, n - 1)]
         after = source[1] if isinstance(source, tuple) else None
+        checks = ([lambda v: _leads_on(m, v, start, j, n, score)] if cfg.reuse_ahead else []) \
+            + ([lambda v: _same_place(m, v, obs[j])] if checks_scans(m) else [])
         best = _stand_in(m, m.embedding.embed(obs[j:j + 1])[0], used, after, row(source), ahead,
                          score, stats, lambda: (cfg.p_reuse, cfg.p_reuse),
-                         confirm=(lambda v: _leads_on(m, v, start, j, n, score))
-                         if cfg.reuse_ahead else None)
+                         confirm=(lambda v: all(c(v) for c in checks)) if checks else None)
         return j if best is None else ("v", best)
 
     anchors, sources = sparsify_chain(n, reach, cfg.p_sparsify, cfg.sparsify_window,
@@ -335,6 +344,12 @@ def _leads_on(m: TopoMap, v: int, start: int, j: int, n: int, score) -> bool:
     rows = np.repeat(start + frames, len(nxt))
     ctx = np.tile(m.contexts(nxt), (len(frames), 1))
     return bool((score(rows, ctx) > m.config.p_reuse).any())
+
+
+def _same_place(m: TopoMap, v: int, scan: np.ndarray) -> bool:
+    """Whether vertex v's scan registers onto the drive's ``scan`` (a
+    look-alike room passes RE, rarely the scan match)."""
+    return bool(scans_match(m.bank.observations[m.centers([v])], scan, m.config.scan_match)[0])
 
 
 def _stand_in(m: TopoMap, query: np.ndarray, used: set[int], after: int | None, source_row: int,

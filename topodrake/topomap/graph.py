@@ -41,7 +41,7 @@ REUSE_RULES = ("paper", "resume")
 TEACH_ODOMETRY = ("wheel", "perfect", "none")
 #: settings added after maps were first written whose default builds a map as
 #: before: a stored config without them reads as these values
-LATER_DEFAULTS = {"reuse_ahead": 0}
+LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0}
 
 
 def same_config(stored, config: "MapConfig") -> bool:
@@ -86,6 +86,9 @@ class MapConfig:
                                  # context steps' frames; 0: off)
     reuse_legs: bool = True      # lidar maps: edges into and out of a reused vertex carry the
                                  # drive's odometry too, the vertex placed by registering its scan
+    scan_match: float = 0.0      # lidar maps: a reused vertex, a junction and the plan's start
+                                 # and goal links must match by registering the scans, each
+                                 # scan's points paired at least this share (0: off)
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):
@@ -111,6 +114,8 @@ class MapConfig:
         if self.teach_odometry not in TEACH_ODOMETRY:
             raise TopodrakeError(f"{where}: teach_odometry must be one of "
                                  f"{', '.join(TEACH_ODOMETRY)}, got {self.teach_odometry!r}")
+        if not (isinstance(self.scan_match, (int, float)) and 0.0 <= self.scan_match < 1.0):
+            raise TopodrakeError(f"{where}: scan_match must be in [0, 1), got {self.scan_match!r}")
         if self.reuse_slack > 0 and self.reuse_rule != "paper":
             raise TopodrakeError(f"{where}: reuse_slack applies to reuse_rule 'paper' only")
         for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1),

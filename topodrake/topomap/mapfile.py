@@ -47,7 +47,7 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes
 from topodrake.navigation.route import LEG_POINTS
-from topodrake.topomap.graph import EDGE_KINDS, MapConfig, TopoMap, Trajectory
+from topodrake.topomap.graph import EDGE_KINDS, LATER_DEFAULTS, MapConfig, TopoMap, Trajectory
 
 FORMAT = "topodrake-map"
 VERSION = 3
@@ -202,8 +202,9 @@ def load_map(path, scorer, embedding=None) -> TopoMap:
         if modality != scorer.observation or k != scorer.k:
             raise TopodrakeError(f"{path} is a {modality} map with k={k}; the reachability "
                                  f"given is {scorer.observation} with k={scorer.k}")
-        # (maps written before the slacks existed were built by the paper's rules)
-        config = MapConfig(**{"sparsify_slack": 0.0, "reuse_slack": 0.0, "reuse_rule": "paper",
+        # (maps written before the slacks existed were built by the paper's rules; the
+        # settings a map predates read as LATER_DEFAULTS)
+        config = MapConfig(**{**LATER_DEFAULTS, "sparsify_slack": 0.0, "reuse_slack": 0.0, "reuse_rule": "paper",
                                **meta["config"]}
                            ).validate(f"{path}: config")
         embedding = embedding or default_embedding(modality)

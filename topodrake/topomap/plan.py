@@ -15,7 +15,10 @@ the next most probable link left, ...) and the plan starts from one group
 and ends at one group, the most trusted pair that the map joins. A view
 that also matches a look-alike room links there too, but to fewer or less
 certain anchors than at the place the car is at, and no longer lets the
-plan jump there. Dijkstra on the edge weights -log p gives the most probable path;
+plan jump there. On a lidar map with ``scan_match`` the groups with a
+vertex whose scan registers onto the view come first
+(:func:`matched_first`), and a direct start-goal link needs the two scans
+to match. Dijkstra on the edge weights -log p gives the most probable path;
 its probability is exp(-cost). An unreachable goal is a result
 (:attr:`PlanResult.reachable` False with a reason), never an exception.
 """
@@ -31,6 +34,7 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.navigation.route import Route
 from topodrake.topomap.graph import TopoMap
+from topodrake.topomap.scan_match import checks_scans, scans_match
 
 START, GOAL = -1, -2
 
@@ -75,6 +79,22 @@ def link_groups(topomap: TopoMap, links: list[tuple[int, float]],
         groups.append([link for link in left if link[0] in near])
         left = [link for link in left if link[0] not in near]
     return groups
+
+
+def matched_first(topomap: TopoMap, groups: list[list[tuple[int, float]]],
+                  view: np.ndarray) -> list[list[tuple[int, float]]]:
+    """``groups`` of links with those first where a vertex's scan matches
+    ``view`` (:func:`topodrake.topomap.scan_match.scans_match`), each part
+    in its order: RE links a view to a look-alike room as readily as to its
+    own place, the scans tell them apart."""
+    if len(groups) < 2:
+        return groups
+    vertices = [v for group in groups for v, _ in group]
+    ok = dict(zip(vertices, scans_match(topomap.bank.observations[topomap.centers(vertices)],
+                                        view, topomap.config.scan_match)))
+    matched = [any(ok[v] for v, _ in group) for group in groups]
+    return [g for g, hit in zip(groups, matched) if hit] + \
+        [g for g, hit in zip(groups, matched) if not hit]
 
 
 def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation: np.ndarray,
@@ -122,6 +142,9 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
             p_direct = min(p_direct, float(m.bank.score([g_rows[0]],
                                                         np.full((1, frames), s_row))[0]))
         links_g = [(int(v), float(p)) for v, p in zip(to_goal, p_goal) if p > m.config.p_link]
+        if checks_scans(m) and p_direct > m.config.p_link \
+                and not scans_match(goal_obs, start_obs, m.config.scan_match)[0]:
+            p_direct = 0.0      # a look-alike of the goal, not the goal
         result = PlanResult(False, start_links=len(links_s), goal_links=len(links_g))
         if not links_s and p_direct <= m.config.p_link:
             result.reason = (f"no map vertex is reachable from the start (best RE "
@@ -134,6 +157,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         if m.config.link_consensus:     # one place at each end, the most trusted that joins
             starts = link_groups(m, links_s, m.config.link_hops) or [[]]
             goals = link_groups(m, links_g, m.config.link_hops) or [[]]
+            if checks_scans(m):
+                starts, goals = matched_first(m, starts, start_obs), matched_first(m, goals, goal_obs)
             tries = sorted(((i, j) for i in range(len(starts)) for j in range(len(goals))),
                            key=lambda ij: (ij[0] + ij[1], ij))
             choices = [(starts[i], goals[j]) for i, j in tries]

@@ -1,0 +1,188 @@
+"""Scan matching tells look-alike places apart where RE cannot: lidar maps
+join drives and link plans only where the scans register onto each other."""
+
+import numpy as np
+import pytest
+
+from topodrake.errors import TopodrakeError
+from topodrake.se2 import compose
+from topodrake.sensing.lidar import Lidar
+from topodrake.topomap.build import add_trajectory
+from topodrake.topomap.graph import MapConfig, TopoMap
+from topodrake.topomap.plan import matched_first
+from topodrake.topomap.scan_match import checks_scans, scans_match
+from topodrake.world import load_world
+
+
+@pytest.fixture(scope="module")
+def house():
+    return load_world("test-0")
+
+
+@pytest.fixture(scope="module")
+def lidar(house):
+    return Lidar(house)
+
+
+def _apart(house, rng, n, min_m=5.0):
+    """``n`` pairs of free poses at least ``min_m`` apart."""
+    a, b = [], []
+    while len(a) < n:
+        p, q = house.sample_free_pose(rng), house.sample_free_pose(rng)
+        if np.hypot(*(p[:2] - q[:2])) >= min_m:
+            a.append(p)
+            b.append(q)
+    return np.array(a), np.array(b)
+
+
+def test_scans_of_one_place_match_and_scans_of_places_apart_do_not(house, lidar):
+    rng = np.random.default_rng(0)
+    poses = house.sample_free_pose(rng, 60)
+    moved = compose(poses, np.column_stack([rng.uniform(-0.15, 0.15, (60, 2)),
+                                            rng.uniform(-0.1, 0.1, 60)]))
+    near = scans_match(lidar.scan(moved), lidar.scan(poses), 0.8)
+    a, b = _apart(house, rng, 60)
+    far = scans_match(lidar.scan(a), lidar.scan(b), 0.8)
+    assert near.shape == far.shape == (60,)
+    assert near.mean() >= 0.85
+    assert far.mean() <= 0.05
+    # one scan is shared by the batch; a stricter share passes fewer
+    one = scans_match(lidar.scan(poses[:1]), lidar.scan(moved[:5]), 0.8)
+    assert one.shape == (5,)
+    assert scans_match(lidar.scan(moved), lidar.scan(poses), 0.99).sum() <= near.sum()
+
+
+class ScanScorer:
+    """RE from a rule over (drive, frame), read from which drive frame a
+    lidar scan is (k = 0): RE that cannot tell look-alike rooms apart,
+    over real scans."""
+
+    observation = "lidar"
+    k = 0
+    frame_step = 1
+
+    def __init__(self, rule, frames: dict):
+        self.rule, self.frames = rule, frames
+        self.identity = {"reach": "scan-table"}
+
+    def features(self, observations):
+        obs = np.asarray(observations)
+        return {"x": np.array([self.frames[o.tobytes()] for o in obs], np.int64).reshape(-1, 2)}
+
+    def score(self, feats, source, context_rows):
+        x = feats["x"]
+        a, b = x[np.asarray(source)], x[np.asarray(context_rows)[:, 0]]
+        return np.array([self.rule(tuple(map(int, u)), tuple(map(int, v))) for u, v in zip(a, b)])
+
+
+class FlatLidarEmbedding:
+    observation, dim, name = "lidar", 1, "flat"
+
+    def embed(self, obs):
+        return np.zeros((len(obs), 1), np.float32)
+
+    def fingerprint(self):
+        return self.name
+
+
+def _alike(a, b):
+    """Drives 0 and 2 are one place, drive 1 a look-alike of it: every frame
+    passes for the same frame of another drive, and a drive's own frames reach
+    3 ahead."""
+    if a[0] == b[0] or {a[0], b[0]} <= {0, 1, 2}:
+        return 0.999 if 0 <= b[1] - a[1] <= 3 else 0.1
+    return 0.1
+
+
+@pytest.fixture(scope="module")
+def three_drives(house, lidar):
+    """Scans of 10 frames 0.1 m apart: drive 0 at one place, drive 2 beside
+    it (5 cm to the side), drive 1 at least 5 m away, drive 3 setting off
+    where drive 0 ends."""
+    rng = np.random.default_rng(3)
+    a, b = _apart(house, rng, 1)
+    steps = np.column_stack([np.arange(10) * 0.1, np.zeros(10), np.zeros(10)])
+    poses = [compose(np.repeat(a, 10, 0), steps), compose(np.repeat(b, 10, 0), steps),
+             compose(np.repeat(a, 10, 0), steps + [0.0, 0.05, 0.0])]
+    poses.append(compose(np.repeat(poses[0][-1:], 10, 0), steps + [0.0, 0.05, 0.0]))
+    scans = [lidar.scan(p) for p in poses]
+    frames = {s.tobytes(): (d, f) for d, ss in enumerate(scans) for f, s in enumerate(ss)}
+    return scans, poses, frames
+
+
+def _ends_meet(a, b):
+    """Drive 0's last frame and the first of drives 1 and 3 pass for each
+    other both ways (drive 1 is a look-alike far away); a drive's own
+    frames reach 3 ahead."""
+    if a[0] == b[0]:
+        return 0.999 if 0 <= b[1] - a[1] <= 3 else 0.1
+    return 0.95 if {a, b} in ({(0, 9), (1, 0)}, {(0, 9), (3, 0)}) else 0.1
+
+
+def _scan_map(frames, rule=_alike, **config):
+    return TopoMap(ScanScorer(rule, frames), FlatLidarEmbedding(), MapConfig(**config),
+                   world="test-0")
+
+
+def _traj(m, v):
+    return m.graph.nodes[v]["traj"]
+
+
+def test_reuse_and_junctions_need_the_scans_to_match(three_drives):
+    scans, poses, frames = three_drives
+    plain = _scan_map(frames, scan_match=0.0)
+    for s, p in zip(scans[:3], poses[:3]):
+        add_trajectory(plain, s, p)
+    # RE alone: the look-alike drive 1 stands in drive 0's vertices
+    assert any(_traj(plain, v) == 0 for v in plain.trajectories[1].chain)
+
+    m = _scan_map(frames, scan_match=0.8)
+    assert checks_scans(m) and not checks_scans(plain)
+    for s, p in zip(scans[:3], poses[:3]):
+        add_trajectory(m, s, p)
+    chains = [t.chain for t in m.trajectories]
+    assert all(_traj(m, v) == 1 for v in chains[1])      # the look-alike keeps its own vertices
+    assert any(_traj(m, v) == 0 for v in chains[2])      # the drive beside drive 0 still joins it
+
+
+def _junctions(m):
+    return {(_traj(m, u), _traj(m, v)) for u, v, d in m.graph.edges(data=True)
+            if d["kind"] == "junction"}
+
+
+def test_junctions_need_the_scans_to_match(three_drives):
+    scans, poses, frames = three_drives
+    built = {}
+    for sm in (0.0, 0.8):
+        m = _scan_map(frames, _ends_meet, scan_match=sm, reuse=False)
+        for d in (0, 1, 3):
+            add_trajectory(m, scans[d], poses[d])
+        built[sm] = _junctions(m)
+    # RE alone joins drive 0's end to the look-alike's start too; the scans only to drive 3's
+    assert built[0.0] == {(0, 1), (0, 2)}                # trajectories are numbered as added
+    assert built[0.8] == {(0, 2)}
+
+
+def test_links_that_match_the_view_come_first(three_drives):
+    scans, poses, frames = three_drives
+    m = _scan_map(frames, scan_match=0.8)
+    for s, p in zip(scans[:2], poses[:2]):
+        add_trajectory(m, s, p)
+    own, alike = m.trajectories[0].chain[0], m.trajectories[1].chain[0]
+    groups = [[(alike, 0.99)], [(own, 0.9)]]          # RE trusts the look-alike more
+    assert matched_first(m, groups, scans[0][0]) == [[(own, 0.9)], [(alike, 0.99)]]
+    assert matched_first(m, groups, scans[1][0]) == groups
+    assert matched_first(m, groups[:1], scans[0][0]) == groups[:1]
+
+
+def test_scan_match_is_checked_and_older_maps_read_it_as_off():
+    from dataclasses import asdict
+
+    from topodrake.topomap.graph import same_config
+
+    for bad in (-0.1, 1.0, "high"):
+        with pytest.raises(TopodrakeError, match="scan_match"):
+            MapConfig(scan_match=bad).validate()
+    old = {k: v for k, v in asdict(MapConfig()).items() if k != "scan_match"}
+    assert same_config(old, MapConfig(scan_match=0.0))
+    assert not same_config(old, MapConfig(scan_match=0.8))
