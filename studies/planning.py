@@ -237,6 +237,10 @@ def main(argv=None) -> int:
     ap.add_argument("--experience-prior-weight", type=float, default=PRIOR_WEIGHT,
                     help="drives RE's rating of an edge counts for when earlier drives are "
                          "folded in")
+    ap.add_argument("--map-config", metavar="YAML",
+                    help="map settings (a MapConfig YAML, every key optional) for the maps "
+                         "built from the drives; maps of other settings than the library's "
+                         "defaults are cached under names of their own (default: the defaults)")
     ap.add_argument("--seed", type=at.seed, default=0, help="base seed of the trials")
     ap.add_argument("--data", default="data", help="cache of demonstrations and maps")
     ap.add_argument("--workers", type=at.count, default=1,

@@ -377,7 +377,7 @@ def _options(tmp_path, **changed) -> argparse.Namespace:
                "batch": 32, "pruned_fractions": "0.3,0.6,1", "pruned_house": None,
                "pruned_method": "ours", "pruned_trials": 20, "pruned_seed": 0, "seed": 0,
                "data": "data", "workers": 1, "ray": None, "out": str(tmp_path), "rescore": None,
-               "json": False, "quiet": True}
+               "map_config": None, "json": False, "quiet": True}
     return argparse.Namespace(**{**options, **changed})
 
 
@@ -413,6 +413,33 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
     assert all(r["success_probability"] is not None for r in doc["trials"]
                if r["method"] == "lidar_reg")                     # its calibration ships
     json.dumps(doc)                                                # planning.json holds it
+    assert doc["config"]["map_config"]["scan_match"] == 0.8        # the library's defaults
+
+    # other map settings reach the house jobs and the record
+    seen = []
+    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, cfg, **kw:
+                        seen.append(plan_study.map_config(cfg)) or run_trials(
+                            job, seeds, jobs=jobs, cfg=cfg, **kw))
+    (tmp_path / "off.yaml").write_text("scan_match: 0\n")
+    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none",
+                            map_config=str(tmp_path / "off.yaml")), "python studies/planning.py")
+    assert doc["config"]["map_config"]["scan_match"] == 0
+    assert seen[0].scan_match == 0 and seen[0].p_reuse == 0.99
+
+
+def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
+    from topodrake.topomap.graph import MapConfig
+    from topodrake.topomap.map_cache import config_tag, map_path
+
+    assert config_tag("all", None) == config_tag("all", MapConfig()) == "all"
+    off = config_tag("all", MapConfig(scan_match=0.0))
+    assert off.startswith("all-cfg") and off == config_tag("all", MapConfig(scan_match=0.0))
+    assert off != config_tag("all", MapConfig(scan_match=0.5))
+    assert map_path(tmp_path, "test-0", "lidar", off) != map_path(tmp_path, "test-0", "lidar", "all")
+    (tmp_path / "bad.yaml").write_text("scan_match: 2\n")
+    code, _, err = run_study("planning", "--map-config", str(tmp_path / "bad.yaml"), "--out",
+                             tmp_path)
+    assert code == 2 and "scan_match must be in [0, 1)" in err and err.count("\n") == 1
 
 
 def test_the_lidar_scale_follower_drives_the_scale_c_wp_with_the_lidar_re():

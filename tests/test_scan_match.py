@@ -172,7 +172,11 @@ def test_links_that_match_the_view_come_first(three_drives):
     groups = [[(alike, 0.99)], [(own, 0.9)]]          # RE trusts the look-alike more
     assert matched_first(m, groups, scans[0][0]) == [[(own, 0.9)], [(alike, 0.99)]]
     assert matched_first(m, groups, scans[1][0]) == groups
-    assert matched_first(m, groups[:1], scans[0][0]) == groups[:1]
+    # a group of the right place that holds the look-alike keeps only its own place
+    assert matched_first(m, [[(alike, 0.99), (own, 0.9)]], scans[0][0]) == [[(own, 0.9)]]
+    # no group matches: all stay as they were
+    assert matched_first(m, [[(alike, 0.99)]], scans[0][-1]) == [[(alike, 0.99)]]
+    assert matched_first(m, [], scans[0][0]) == []
 
 
 def test_scan_match_is_checked_and_older_maps_read_it_as_off():

@@ -122,9 +122,12 @@ def planning(args, command: str) -> dict:
     from topodrake.navigation.plan_trials import SUCCESS_M, T_MAX_S, pruned_ratio, summarize
     from topodrake.navigation.replan import ReplanSchedule
 
+    from topodrake.topomap.map_cli import load_map_config
+
     t0 = time.perf_counter()
     code = {"git_revision": git_revision(), "local_changes": local_changes()}   # what runs
     methods, specs, keys, fractions = _check(args)
+    map_config = asdict(load_map_config(getattr(args, "map_config", None)))
     pruned_spec = args.pruned_house or specs[0]
     cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
            "oracle_trials": args.oracle_trials,
@@ -134,7 +137,8 @@ def planning(args, command: str) -> dict:
            "pruned_fractions": fractions, "pruned_method": args.pruned_method,
            "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed,
            "experience_rounds": getattr(args, "experience_rounds", 1),
-           "experience_prior_weight": getattr(args, "experience_prior_weight", PRIOR_WEIGHT)}
+           "experience_prior_weight": getattr(args, "experience_prior_weight", PRIOR_WEIGHT),
+           "map_config": map_config}
     jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
     results = run_trials(house_job, list(jobs), workers=args.workers, ray_address=args.ray,
                          progress=not args.quiet and len(jobs) > 1, desc="houses",

@@ -25,6 +25,14 @@ from topodrake.topomap.map_cache import DEMO_SEED, get_map, house_drives, house_
 SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
 
 
+def map_config(cfg: dict):
+    """The MapConfig of the study's maps (``cfg["map_config"]``, a dict;
+    the library's defaults when absent)."""
+    from topodrake.topomap.graph import MapConfig
+
+    return MapConfig(**cfg.get("map_config", {}))
+
+
 def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
                 cfg: dict, tag: str = "all", experience=None):
     """(plans' routes (None = no plan), plan probabilities, map size dict,
@@ -59,7 +67,8 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
                  for t, g in enumerate(goal_idx)]
     else:
         modality = meth.map
-        m, build_s = get_map(spec, world, modality, drives, indices, data, tag, progress)
+        m, build_s = get_map(spec, world, modality, drives, indices, data, tag, progress,
+                             map_config(cfg))
         if experience is not None:
             from topodrake.topomap.recalibrate import PRIOR_WEIGHT, record_traversals
 
@@ -324,7 +333,7 @@ def unplanned_pairs(spec: str, world, drives, indices, cfg: dict, tag: str) -> l
     from topodrake.topomap.sources import drive_observations
 
     m, _ = get_map(spec, world, "oracle", drives, indices, Path(cfg["data"]), tag,
-                   not cfg["quiet"])
+                   not cfg["quiet"], map_config(cfg))
     places = np.asarray(world.places, np.float64)
     obs = drive_observations(world, m.scorer, places)
     return [[a, b] for a in range(len(places)) for b in range(len(places))

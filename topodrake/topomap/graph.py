@@ -86,7 +86,7 @@ class MapConfig:
                                  # context steps' frames; 0: off)
     reuse_legs: bool = True      # lidar maps: edges into and out of a reused vertex carry the
                                  # drive's odometry too, the vertex placed by registering its scan
-    scan_match: float = 0.0      # lidar maps: a reused vertex, a junction and the plan's start
+    scan_match: float = 0.8      # lidar maps: a reused vertex, a junction and the plan's start
                                  # and goal links must match by registering the scans, each
                                  # scan's points paired at least this share (0: off)
 

@@ -44,6 +44,16 @@ def house_drives(spec: str, data: Path, progress: bool) -> list:
     return drives
 
 
+def config_tag(tag: str, config) -> str:
+    """``tag`` for a map of the default config; with a digest of ``config``
+    appended for any other, so that each config keeps its own maps."""
+    from topodrake.topomap.graph import MapConfig, same_config
+
+    if config is None or same_config(asdict(config), MapConfig()):
+        return tag
+    return f"{tag}-cfg{zlib.crc32(json.dumps(asdict(config), sort_keys=True).encode()):08x}"
+
+
 def map_path(data: Path, key: str, modality: str, tag: str) -> Path:
     if modality == "oracle":        # keyed by the oracle's parameters, which may change
         from topodrake.topomap.scorer import OracleConfig
@@ -70,21 +80,24 @@ def _adoptable(candidate: Path, world: str, modality: str, names: list[str]) -> 
 
 
 def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, tag: str,
-            progress: bool):
-    """The map of ``drives[indices]`` for ``modality`` (cached; built when missing)."""
+            progress: bool, config=None):
+    """The map of ``drives[indices]`` for ``modality`` built with ``config``
+    (a MapConfig; default: the library's defaults), cached: built when
+    missing, each config under its own name (:func:`config_tag`)."""
     from topodrake.topomap.build import build_map
     from topodrake.topomap.graph import MapConfig, TopoMap, same_config
     from topodrake.topomap.mapfile import load_map, read_map_meta, save_map
     from topodrake.topomap.retrieval import default_embedding
     from topodrake.topomap.sources import drive_observations, make_scorer
 
+    config = config or MapConfig()
     key = house_key(spec)
-    path = map_path(data, key, modality, tag)
+    path = map_path(data, key, modality, config_tag(tag, config))
     scorer = make_scorer(modality, world)
     names = [f"pairs-s{DEMO_SEED}/{i}" for i in indices]
     legacy = data / "maps" / f"{key}-{modality}.tdmap"
     if not path.is_file() and modality != "oracle" and legacy.is_file() \
-            and _adoptable(legacy, spec, modality, names):
+            and config_tag(tag, config) == tag and _adoptable(legacy, spec, modality, names):
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp")
         shutil.copyfile(legacy, tmp)
@@ -95,11 +108,11 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
             raise TopodrakeError(f"{path} holds other drives than {len(names)} of "
                                  f"{key}; delete it to rebuild")
         # the config as written (settings a map predates read as LATER_DEFAULTS)
-        if same_config(read_map_meta(path).get("config"), MapConfig()):
+        if same_config(read_map_meta(path).get("config"), config):
             return m, 0.0
         print(f"{path} was built with another map config; rebuilding it", file=sys.stderr)
     t0 = time.perf_counter()
-    m = TopoMap(scorer, default_embedding(scorer.observation), world=spec)
+    m = TopoMap(scorer, default_embedding(scorer.observation), config, world=spec)
     items = [(drive_observations(world, scorer, drives[i].poses), drives[i].poses, n)
              for i, n in zip(indices, names)] if modality == "oracle" else \
         _Lazy(world, scorer, drives, indices, names)
