@@ -423,6 +423,12 @@ def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[in
         if deep:
             edges.update(_passing(m, [xs[i] for i in deep], chain, [positions[i] for i in deep],
                                   [found[xs[i]][first:] for i in deep], score))
+    if checks_scans(m) and m.config.scan_match_cross and edges:
+        pairs = np.array(list(edges), np.int64)
+        obs = m.bank.observations
+        ok = scans_match(obs[m.centers(pairs[:, 1])], obs[m.centers(pairs[:, 0])],
+                         m.config.scan_match)
+        edges = {key: p for (key, p), keep in zip(edges.items(), ok) if keep}
     for (u, v), p in edges.items():
         m.add_edge(u, v, p, "cross")
     stats.cross_edges += len(edges)

@@ -41,7 +41,7 @@ REUSE_RULES = ("paper", "resume")
 TEACH_ODOMETRY = ("wheel", "perfect", "none")
 #: settings added after maps were first written whose default builds a map as
 #: before: a stored config without them reads as these values
-LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0}
+LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False}
 
 
 def same_config(stored, config: "MapConfig") -> bool:
@@ -89,6 +89,7 @@ class MapConfig:
     scan_match: float = 0.8      # lidar maps: a reused vertex, a junction and the plan's start
                                  # and goal links must match by registering the scans, each
                                  # scan's points paired at least this share (0: off)
+    scan_match_cross: bool = False  # ... and cross edges too
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):

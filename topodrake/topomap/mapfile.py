@@ -10,7 +10,10 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
                     oracle), ``embedding`` (name and fingerprint),
                     ``raw_frames``, ``trajectories`` (name and frames each)
 ``observations``    (F, ...) kept frames: camera uint8 (H, W, 3), lidar ranges
-                    in millimetres uint16 (65535 = no hit), oracle poses
+                    float32 in metres as the lidar gave them (inf = no hit;
+                    before version 4 millimetres uint16, 65535 = no hit:
+                    the registration C_WP followed such maps worse), oracle
+                    poses
 ``poses``           (F, 3) where each frame was taken (metadata)
 ``vertex_*``        per vertex: ``id``, ``center`` row, ``context`` rows
                     (V, 2k+1), origin ``traj``, ``frame`` and chain ``pos``
@@ -50,8 +53,8 @@ from topodrake.navigation.route import LEG_POINTS
 from topodrake.topomap.graph import EDGE_KINDS, LATER_DEFAULTS, MapConfig, TopoMap, Trajectory
 
 FORMAT = "topodrake-map"
-VERSION = 3
-READS = (1, 2, 3)      # versions this topodrake reads
+VERSION = 4
+READS = (1, 2, 3, 4)   # versions this topodrake reads
 _NO_HIT_MM = 65535
 
 
@@ -59,13 +62,12 @@ def _encode_observations(modality: str, obs: np.ndarray) -> np.ndarray:
     if modality == "camera":
         return np.asarray(obs, np.uint8)
     if modality == "lidar":
-        mm = np.round(np.asarray(obs, np.float64) * 1000.0)
-        return np.where(np.isfinite(mm) & (mm < _NO_HIT_MM), mm, _NO_HIT_MM).astype(np.uint16)
+        return np.asarray(obs, np.float32)
     return np.asarray(obs, np.float64)
 
 
 def _decode_observations(modality: str, stored: np.ndarray) -> np.ndarray:
-    if modality == "lidar":
+    if modality == "lidar" and stored.dtype == np.uint16:     # millimetres, before version 4
         return np.where(stored == _NO_HIT_MM, np.inf, stored / 1000.0).astype(np.float32)
     return stored
 

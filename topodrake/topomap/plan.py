@@ -16,8 +16,8 @@ and ends at one group, the most trusted pair that the map joins. A view
 that also matches a look-alike room links there too, but to fewer or less
 certain anchors than at the place the car is at, and no longer lets the
 plan jump there. On a lidar map with ``scan_match`` the groups with a
-vertex whose scan registers onto the view come first, holding only those
-vertices (:func:`matched_first`), and a direct start-goal link needs the two scans
+vertex whose scan registers onto the view come first
+(:func:`matched_first`), and a direct start-goal link needs the two scans
 to match. Dijkstra on the edge weights -log p gives the most probable path;
 its probability is exp(-cost). An unreachable goal is a result
 (:attr:`PlanResult.reachable` False with a reason), never an exception.
@@ -84,18 +84,17 @@ def link_groups(topomap: TopoMap, links: list[tuple[int, float]],
 def matched_first(topomap: TopoMap, groups: list[list[tuple[int, float]]],
                   view: np.ndarray) -> list[list[tuple[int, float]]]:
     """``groups`` of links with those first where a vertex's scan matches
-    ``view`` (:func:`topodrake.topomap.scan_match.scans_match`), each
-    keeping only its matching links, then the others as they were: RE links
-    a view to a look-alike room as readily as to its own place, and a group
-    of the right place can hold a vertex of the look-alike through an edge
-    that joined them; the scans tell them apart."""
-    vertices = [v for group in groups for v, _ in group]
-    if not vertices:
+    ``view`` (:func:`topodrake.topomap.scan_match.scans_match`), each part
+    in its order: RE links a view to a look-alike room as readily as to its
+    own place, the scans tell them apart."""
+    if len(groups) < 2:
         return groups
+    vertices = [v for group in groups for v, _ in group]
     ok = dict(zip(vertices, scans_match(topomap.bank.observations[topomap.centers(vertices)],
                                         view, topomap.config.scan_match)))
-    matched = [[link for link in group if ok[link[0]]] for group in groups]
-    return [g for g in matched if g] + [g for g, hit in zip(groups, matched) if not hit]
+    matched = [any(ok[v] for v, _ in group) for group in groups]
+    return [g for g, hit in zip(groups, matched) if hit] + \
+        [g for g, hit in zip(groups, matched) if not hit]
 
 
 def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation: np.ndarray,
