@@ -183,6 +183,8 @@ def test_scan_match_is_checked_and_older_maps_read_it_as_off():
     for bad in (-0.1, 1.0, "high"):
         with pytest.raises(TopodrakeError, match="scan_match"):
             MapConfig(scan_match=bad).validate()
+    with pytest.raises(TopodrakeError, match="scan_match_cross"):
+        MapConfig(scan_match_cross="yes").validate()
     old = {k: v for k, v in asdict(MapConfig()).items() if k != "scan_match"}
     assert same_config(old, MapConfig(scan_match=0.0))
     assert not same_config(old, MapConfig(scan_match=0.8))
@@ -205,3 +207,18 @@ def test_lidar_map_files_keep_the_scans_as_sensed(three_drives, tmp_path):
     assert np.isinf(loaded.bank.observations[0, :3]).all()
     old = _decode_observations("lidar", np.array([[1234, 65535]], np.uint16))
     np.testing.assert_allclose(old, [[1.234, np.inf]], rtol=1e-6)
+
+
+def test_cross_edges_need_the_scans_to_match_where_asked(three_drives):
+    scans, poses, frames = three_drives
+    kinds = {}
+    for cross in (False, True):
+        m = _scan_map(frames, scan_match=0.8, scan_match_cross=cross, reuse=False,
+                      join_ends=False)
+        for d in (0, 1, 2):
+            add_trajectory(m, scans[d], poses[d])
+        kinds[cross] = {tuple(sorted((_traj(m, u), _traj(m, v))))
+                        for u, v, d in m.graph.edges(data=True) if d["kind"] == "cross"}
+    # RE and sequence matching join the look-alike drive 1 to drive 0; its scans do not
+    assert (0, 1) in kinds[False] and (0, 2) in kinds[False]
+    assert (0, 1) not in kinds[True] and (1, 2) not in kinds[True] and (0, 2) in kinds[True]

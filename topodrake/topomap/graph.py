@@ -89,7 +89,8 @@ class MapConfig:
     scan_match: float = 0.8      # lidar maps: a reused vertex, a junction and the plan's start
                                  # and goal links must match by registering the scans, each
                                  # scan's points paired at least this share (0: off)
-    scan_match_cross: bool = False  # ... and cross edges too
+    scan_match_cross: bool = False  # ... and cross edges too (off: the long cross edges it
+                                    # drops in open rooms are true hops, and success did not move)
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):
@@ -109,6 +110,9 @@ class MapConfig:
         if not isinstance(self.join_ends, bool):
             raise TopodrakeError(f"{where}: join_ends must be true or false, got "
                                  f"{self.join_ends!r}")
+        if not isinstance(self.scan_match_cross, bool):
+            raise TopodrakeError(f"{where}: scan_match_cross must be true or false, got "
+                                 f"{self.scan_match_cross!r}")
         if not isinstance(self.reuse_legs, bool):
             raise TopodrakeError(f"{where}: reuse_legs must be true or false, got "
                                  f"{self.reuse_legs!r}")
