@@ -17,6 +17,7 @@ or the time limit.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -145,7 +146,12 @@ class NavigationRunResult(RunResult):
 class NavigationRunner(DiagramRunner):
     """Runs a navigation diagram (:func:`make_navigation_diagram`) from a start pose."""
 
-    def run(self, start, seed: int = 0, t_max_s: float | None = None) -> NavigationRunResult:
+    def run(self, start, seed: int = 0, t_max_s: float | None = None,
+            goal_watch_m: float | None = None) -> NavigationRunResult:
+        """Drive from ``start``; with ``goal_watch_m`` the run also ends,
+        reached, once the car is that close to the route's goal pose (the
+        planning study's goal watch), whether or not the follower has
+        declared arrival yet."""
         from topodrake.navigation.follower import REACHED, REASONS, FAILED
         from topodrake.vehicle import in_collision
 
@@ -162,7 +168,10 @@ class NavigationRunner(DiagramRunner):
         if replanner is not None:
             replanner.reset()
         b.mode_logger.FindMutableLog(context).Clear()
-        r = self._simulate(lambda x: False, b.scenario.t_max_s if t_max_s is None else t_max_s)
+        goal_xy = np.asarray(b.route.goal_pose, np.float64)[:2]
+        watch = (lambda x: False) if goal_watch_m is None else \
+            (lambda x: math.hypot(x[0] - goal_xy[0], x[1] - goal_xy[1]) <= goal_watch_m)
+        r = self._simulate(watch, b.scenario.t_max_s if t_max_s is None else t_max_s)
         r["startup"] = startup
         context = self.simulator.get_context()
         fsm_context = b.follower.GetMyContextFromRoot(context)
@@ -171,7 +180,7 @@ class NavigationRunner(DiagramRunner):
         mode = int(fs.mode[0])
         if r["collision"]:
             result = "collision"
-        elif mode == REACHED:
+        elif mode == REACHED or r["success"]:
             result = "reached"
         elif mode == FAILED:
             result = REASONS[int(fs.reason[0])]

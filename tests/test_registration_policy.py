@@ -319,3 +319,32 @@ def test_the_handover_settings_leave_the_re_fingerprint_alone():
         handover=False, handover_m=5.0)))["sha1"] == base
     assert registration_identity(RegistrationPolicy(RegistrationConfig(confirm=2)))["sha1"] != base
     assert registration_identity()["sha1"] == base
+
+
+def test_a_goal_watch_ends_the_drake_drive_at_the_goal(box_world):
+    """With ``goal_watch_m`` the navigation diagram stops, reached, once the
+    car is that close to the route's goal, as the planning study's trials
+    do; without it the same drive goes on until the follower stops."""
+    from topodrake.navigation.evaluate import GeometricReachability
+    from topodrake.navigation.route import route_from_trajectory
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+
+    drive = ExpertRollout(box_world, RolloutConfig(t_max_s=60.0)).run(
+        np.array([[1.0, 1.5, 0.3]]), np.array([[8.0, 2.0]])).trajectory(0)["poses"]
+    pol = RegistrationPolicy(RegistrationConfig(k=1, frame_step=3))
+    reach = GeometricReachability(box_world, k=1)
+    anchors = np.r_[np.arange(0, len(drive) - 1, 10), len(drive) - 1]
+    route = route_from_trajectory(box_world, drive, anchors, pol)
+    sc = NavigationScenario(world="box", noise_std=0.0, camera_enabled=False, t_max_s=40.0)
+    runner = NavigationRunner(make_navigation_diagram(sc, route, world=box_world, policy=pol,
+                                                      reach=reach))
+    start = [1.0, 1.8, 0.5]
+    plain = runner.run(start, seed=3)
+    watched = runner.run(start, seed=3, goal_watch_m=2.0)
+    gap = np.hypot(*(watched.poses[:, :2] - route.goal_pose[:2]).T)
+    assert watched.outcome == "reached" and gap[-1] <= 2.0
+    assert (gap[:-2] > 2.0).all()            # (the last pose is logged and appended both)
+    assert watched.time_s < plain.time_s
+    assert np.allclose(watched.poses[:-1], plain.poses[:len(watched.poses) - 1])

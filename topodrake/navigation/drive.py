@@ -58,10 +58,12 @@ def make_recorder():
 
 
 def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach=None,
-                record: bool = False, seed: int = 0, replanner=None):
+                record: bool = False, seed: int = 0, replanner=None,
+                goal_watch_m: float | None = None):
     """Follow ``route`` from ``start`` in the Drake navigation diagram
     (replanning while dead reckoning with ``replanner``, a
-    :class:`~topodrake.navigation.replan.Replanner` over ``[route]``);
+    :class:`~topodrake.navigation.replan.Replanner` over ``[route]``; ending
+    within ``goal_watch_m`` of the goal as the planning study's trials do);
     returns the :class:`~topodrake.systems.navigation.NavigationRunResult`
     with ``build_s`` (diagram construction, including the route's features)
     and ``recording`` (with ``record``, the drive as Meshcat HTML; else None)."""
@@ -73,7 +75,7 @@ def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach
                                     reach=reach, replanner=replanner)
     runner = NavigationRunner(built)
     build_s = time.perf_counter() - t0
-    result = runner.run(start, seed=seed)
+    result = runner.run(start, seed=seed, goal_watch_m=goal_watch_m)
     result.build_s = build_s
     result.recording = None
     if viewer is not None:
