@@ -136,22 +136,30 @@ def test_follows_taught_routes_in_the_house(house, drives, policy):
     assert (cover > 0.95).sum() >= len(drives) // 2, cover
 
 
-def test_drake_diagram_and_engine_drive_the_same_path(box_world):
-    """The per-car tracking state rides in the follower state: the Drake
-    navigation diagram and the batched engine drive the same path."""
-    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+def _box_route(box_world):
+    """(route, registration C_WP, geometric RE): an expert drive across the
+    box world as a route of every 10th frame."""
     from topodrake.navigation.evaluate import GeometricReachability
     from topodrake.navigation.route import route_from_trajectory
     from topodrake.rollout import ExpertRollout, RolloutConfig
-    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
-                                              make_navigation_diagram)
 
     drive = ExpertRollout(box_world, RolloutConfig(t_max_s=60.0)).run(
         np.array([[1.0, 1.5, 0.3]]), np.array([[8.0, 2.0]])).trajectory(0)["poses"]
     pol = RegistrationPolicy(RegistrationConfig(k=1, frame_step=3))
-    reach = GeometricReachability(box_world, k=1)
     anchors = np.r_[np.arange(0, len(drive) - 1, 10), len(drive) - 1]
-    route = route_from_trajectory(box_world, drive, anchors, pol)
+    return route_from_trajectory(box_world, drive, anchors, pol), pol, \
+        GeometricReachability(box_world, k=1)
+
+
+def test_drake_diagram_and_engine_drive_the_same_path(box_world):
+    """The per-car tracking state rides in the follower state: the Drake
+    navigation diagram and the batched engine drive the same path."""
+    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+    from topodrake.rollout import RolloutConfig
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+
+    route, pol, reach = _box_route(box_world)
     start = [1.0, 1.8, 0.5]
     sc = NavigationScenario(world="box", noise_std=0.0, camera_enabled=False, t_max_s=40.0)
     built = make_navigation_diagram(sc, route, world=box_world, policy=pol, reach=reach)
@@ -325,18 +333,10 @@ def test_a_goal_watch_ends_the_drake_drive_at_the_goal(box_world):
     """With ``goal_watch_m`` the navigation diagram stops, reached, once the
     car is that close to the route's goal, as the planning study's trials
     do; without it the same drive goes on until the follower stops."""
-    from topodrake.navigation.evaluate import GeometricReachability
-    from topodrake.navigation.route import route_from_trajectory
-    from topodrake.rollout import ExpertRollout, RolloutConfig
     from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
                                               make_navigation_diagram)
 
-    drive = ExpertRollout(box_world, RolloutConfig(t_max_s=60.0)).run(
-        np.array([[1.0, 1.5, 0.3]]), np.array([[8.0, 2.0]])).trajectory(0)["poses"]
-    pol = RegistrationPolicy(RegistrationConfig(k=1, frame_step=3))
-    reach = GeometricReachability(box_world, k=1)
-    anchors = np.r_[np.arange(0, len(drive) - 1, 10), len(drive) - 1]
-    route = route_from_trajectory(box_world, drive, anchors, pol)
+    route, pol, reach = _box_route(box_world)
     sc = NavigationScenario(world="box", noise_std=0.0, camera_enabled=False, t_max_s=40.0)
     runner = NavigationRunner(make_navigation_diagram(sc, route, world=box_world, policy=pol,
                                                       reach=reach))
