@@ -13,6 +13,8 @@ from topodrake.topomap.plan import matched_first
 from topodrake.topomap.scan_match import checks_scans, scans_match
 from topodrake.world import load_world
 
+from test_topomap import FlatEmbedding, TableScorer
+
 
 @pytest.fixture(scope="module")
 def house():
@@ -52,37 +54,24 @@ def test_scans_of_one_place_match_and_scans_of_places_apart_do_not(house, lidar)
     assert scans_match(lidar.scan(moved), lidar.scan(poses), 0.99).sum() <= near.sum()
 
 
-class ScanScorer:
+class ScanScorer(TableScorer):
     """RE from a rule over (drive, frame), read from which drive frame a
     lidar scan is (k = 0): RE that cannot tell look-alike rooms apart,
     over real scans."""
 
     observation = "lidar"
-    k = 0
-    frame_step = 1
 
     def __init__(self, rule, frames: dict):
-        self.rule, self.frames = rule, frames
-        self.identity = {"reach": "scan-table"}
+        super().__init__(rule, "scan-table")
+        self.frames = frames
 
     def features(self, observations):
         obs = np.asarray(observations)
         return {"x": np.array([self.frames[o.tobytes()] for o in obs], np.int64).reshape(-1, 2)}
 
-    def score(self, feats, source, context_rows):
-        x = feats["x"]
-        a, b = x[np.asarray(source)], x[np.asarray(context_rows)[:, 0]]
-        return np.array([self.rule(tuple(map(int, u)), tuple(map(int, v))) for u, v in zip(a, b)])
 
-
-class FlatLidarEmbedding:
-    observation, dim, name = "lidar", 1, "flat"
-
-    def embed(self, obs):
-        return np.zeros((len(obs), 1), np.float32)
-
-    def fingerprint(self):
-        return self.name
+class FlatLidarEmbedding(FlatEmbedding):
+    observation = "lidar"
 
 
 def _alike(a, b):
