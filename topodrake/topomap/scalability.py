@@ -124,18 +124,17 @@ def scalability(args, command: str) -> dict:
     import torch
 
     from topodrake.learning.waypoint.policy import AStarOracle, LearnedWaypointPolicy
-    from topodrake.topomap.graph import MapConfig
+    from topodrake.topomap.map_cache import config_tag
     from topodrake.topomap.map_cli import load_map_config
     from topodrake.topomap.sources import SHIPPED, shipped_checkpoint
 
     torch.set_num_threads(1)
     args.map_config = load_map_config(args.config)
-    changed = asdict(args.map_config) != asdict(MapConfig())
     config_hash = hashlib.sha1(json.dumps(asdict(args.map_config), sort_keys=True)
                                .encode()).hexdigest()[:8]
     # map files: tagged only off the defaults (the planning study adopts the default ones);
     # cached results: always, so a change of the defaults is never served stale figures
-    args.config_tag = "-c" + config_hash if changed else ""
+    args.config_tag = config_tag("", args.map_config)
     worlds = [w for w in args.worlds.split(",") if w]
     if not worlds:
         raise TopodrakeError("--worlds names no house")
