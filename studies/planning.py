@@ -36,6 +36,10 @@ subset; existing maps are reused):
   learned camera RE: RE's share of the follower's errors;
 - ``lidar_oracle_follow``: the lidar map followed by the two oracles: the
   lidar map's share;
+- ``lidar_scale_oracle_re`` and ``lidar_oracle_cwp``: the lidar map
+  followed by ``lidar_scale``'s C_WP with the geometric oracle RE, and by
+  the A* oracle C_WP with the learned lidar RE: which of the follower's two
+  networks loses the routes;
 - ``ours_obstacles``: ``ours`` on the first ``--obstacle-trials`` trials,
   each alone in a copy of its house with ``--obstacles`` boxes (0.3-0.6 m)
   that the map never saw, placed on its planned route away from its start

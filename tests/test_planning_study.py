@@ -346,7 +346,8 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
 
     assert list(METHODS) == ["ours", "lidar", "lidar_reg", "sptm", "oracle", "ours_replan",
                              "ours_obstacles", "oracle_full", "ours_oracle_follow", "oracle_cwp",
-                             "lidar_scale", "lidar_oracle_follow"]
+                             "lidar_scale", "lidar_oracle_follow", "lidar_scale_oracle_re",
+                             "lidar_oracle_cwp"]
     assert ORACLE_METHODS == ("oracle_full", "ours_oracle_follow", "oracle_cwp",
                               "lidar_oracle_follow")
     for name, m in METHODS.items():
@@ -358,6 +359,7 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
     assert [n for n, m in METHODS.items() if m.renders_routes] == ["oracle", "oracle_cwp"]
     assert METHODS["sptm"].map == "sptm" and METHODS["ours_oracle_follow"].map == "camera"
     assert METHODS["lidar_scale"].map == METHODS["lidar_oracle_follow"].map == "lidar"
+    assert METHODS["lidar_scale_oracle_re"].map == METHODS["lidar_oracle_cwp"].map == "lidar"
     with pytest.raises(ValueError, match="map kind"):
         Method("sonar", map="sonar", follower="camera")
     with pytest.raises(ValueError, match="drive"):
@@ -543,3 +545,18 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
     with pytest.raises(ValueError, match=">= 1"):
         plan_study.experience_rounds("lidar", {"experience_rounds": 0})
     assert plan_study.round_bounds(10, 3).tolist() == [0, 3, 7, 10]
+
+
+def test_the_lidar_ablations_swap_one_network_for_its_oracle():
+    from topodrake.learning.waypoint.policy import AStarOracle
+    from topodrake.navigation.evaluate import GeometricReachability
+    from topodrake.navigation.plan_methods import networks
+    from topodrake.world import load_world
+
+    world = load_world("test-0")
+    scale_cwp, scale_re = networks("lidar_scale")
+    cwp, re = networks("lidar_scale_oracle_re", world)
+    assert cwp is scale_cwp and isinstance(re, GeometricReachability)
+    cwp, re = networks("oracle_cwp_lidar", world)
+    assert isinstance(cwp, AStarOracle) and re is networks("lidar")[1]
+    assert re.observation == "lidar"

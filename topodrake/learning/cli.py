@@ -358,6 +358,19 @@ def add_bench_parser(bsub) -> None:
     bf.add_argument("--quiet", action="store_true", help="no progress lines")
     bf.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     bf.set_defaults(func=cmd_bench_follower)
+    bw = bsub.add_parser("waypoint", help="where C_WPs' validation error lies: by target distance, "
+                                          "in the waypoint's length and its direction; paired")
+    bw.add_argument("checkpoints", nargs="+", metavar="CHECKPOINT",
+                    help="C_WP checkpoints (the first is the reference of the paired differences)")
+    bw.add_argument("--worlds", default="test-0..test-4", help="houses the samples come from")
+    bw.add_argument("--samples", type=at.count, default=6000, help="validation samples")
+    bw.add_argument("--distance-max", type=at.positive, default=3.0,
+                    help="farthest target along the drive (m)")
+    bw.add_argument("--seed", type=at.seed, default=1, help="sample seed (1: the configs' validation)")
+    bw.add_argument("--data", default="data", help="cache of demonstrations")
+    bw.add_argument("--threads", type=at.count, default=1, help="torch threads")
+    bw.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    bw.set_defaults(func=cmd_bench_waypoint)
     bp = bsub.add_parser("place", help="place-embedding recall@K against a thumbnail baseline, "
                                        "and search time at 100,000 vertices")
     bp.add_argument("--checkpoint", default="checkpoints/place_camera/checkpoint.pt",
@@ -395,6 +408,33 @@ def cmd_bench_follower(args) -> None:
         for band, b in r["bands"].items():
             print(f"    {band:>6}: {b['share']:.2f} of states, error {b['error_m']} m, "
                   f"angle {b['angle_error_deg']} deg")
+
+
+def cmd_bench_waypoint(args) -> None:
+    import json
+
+    import torch
+
+    from topodrake.learning.waypoint.error_anatomy import bench_waypoint
+
+    torch.set_num_threads(args.threads)
+    result = bench_waypoint(args.checkpoints, expand_worlds(args.worlds), samples=args.samples,
+                            distance_max_m=args.distance_max, seed=args.seed, data=args.data)
+    if args.json:
+        print(json.dumps(result))
+        return
+    for path, r in result["checkpoints"].items():
+        print(f"{path}: error {r['error_m']} m (median {r['median_m']}, p90 {r['p90_m']}, "
+              f"p98 {r['p98_m']}; worst tenth {r['worst_tenth_share']:.0%} of it); direction "
+              f"{r['direction_error_m']} m, length {r['length_error_m']} m, angle "
+              f"{r['angle_error_deg']} deg")
+        for band, b in r["bands"].items():
+            print(f"    {band:>9} m: {b['share']:.2f} of samples, error {b['error_m']} m, "
+                  f"direction {b['direction_error_m']} m, length {b['length_error_m']} m")
+        if "paired_to_first" in r:
+            d = r["paired_to_first"]
+            print(f"    paired to the first: {d['mean_m']:+.4f} m ({d['ci95_m'][0]:+.4f}.."
+                  f"{d['ci95_m'][1]:+.4f})")
 
 
 def cmd_bench_place(args) -> None:

@@ -25,7 +25,9 @@ FOLLOWERS = {"camera": "camera k5 C_WP + learned camera k5 RE",
              "lidar_scale": "lidar k5 C_WP trained at scale + learned lidar k5 RE",
              "lidar_reg": "registration C_WP (lidar teach and repeat) + its learned RE",
              "oracle": "A* oracle C_WP + geometric oracle RE",
-             "oracle_cwp": "A* oracle C_WP + learned camera k5 RE"}
+             "oracle_cwp": "A* oracle C_WP + learned camera k5 RE",
+             "lidar_scale_oracle_re": "lidar k5 C_WP trained at scale + geometric oracle RE",
+             "oracle_cwp_lidar": "A* oracle C_WP + learned lidar k5 RE"}
 #: how a method's plans are driven: followed, followed with replanning in
 #: dead reckoning, or followed one trial at a time past unmapped boxes
 DRIVES = ("plain", "replan", "obstacles")
@@ -77,6 +79,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("oracle_cwp", map="oracle", follower="oracle_cwp", oracle=True),
     Method("lidar_scale", map="lidar", follower="lidar_scale"),
     Method("lidar_oracle_follow", map="lidar", follower="oracle", oracle=True),
+    Method("lidar_scale_oracle_re", map="lidar", follower="lidar_scale_oracle_re"),
+    Method("lidar_oracle_cwp", map="lidar", follower="oracle_cwp_lidar"),
 )}
 #: the perfect-perception ablations (fast: they run ``--oracle-trials`` trials)
 ORACLE_METHODS = tuple(name for name, m in METHODS.items() if m.oracle)
@@ -90,17 +94,24 @@ def networks(modality: str, world=None):
     """(C_WP, RE) of the shipped k=5 follower of ``modality`` (``lidar_reg``:
     the registration C_WP and its RE; loaded once), or of the oracles in
     ``world`` (``"oracle"``: A* C_WP and geometric RE; ``"oracle_cwp"``: A*
-    C_WP and the learned camera RE)."""
+    C_WP and the learned camera RE; ``"oracle_cwp_lidar"``: A* C_WP and the
+    learned lidar RE; ``"lidar_scale_oracle_re"``: the C_WP at scale and the
+    geometric RE)."""
     from topodrake.topomap.sources import (SHIPPED, load_networks, shipped_checkpoint,
                                            shipped_controller)
 
-    if modality in ("oracle", "oracle_cwp"):
+    if modality in ("oracle", "oracle_cwp", "oracle_cwp_lidar"):
         from topodrake.learning.waypoint.policy import AStarOracle
         from topodrake.navigation.evaluate import GeometricReachability
 
         cwp = AStarOracle(world, k=5)
-        return cwp, (GeometricReachability(world, k=5) if modality == "oracle"
-                     else networks("camera")[1])
+        learned_re = {"oracle_cwp": "camera", "oracle_cwp_lidar": "lidar"}
+        return cwp, (networks(learned_re[modality])[1] if modality in learned_re
+                     else GeometricReachability(world, k=5))
+    if modality == "lidar_scale_oracle_re":
+        from topodrake.navigation.evaluate import GeometricReachability
+
+        return networks("lidar_scale")[0], GeometricReachability(world, k=5)
     if modality == "lidar_scale" and modality not in _NETWORKS:
         # the C_WP at scale drives the lidar k5 map's hops, rated by lidar k5's RE
         from topodrake.learning.reachability.controllers import controller_policy
