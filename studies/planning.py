@@ -103,7 +103,7 @@ import numpy as np
 from topodrake import argtypes as at
 from topodrake.fileio import atomic_write_json
 from topodrake.navigation.plan_methods import METHODS, ORACLE_METHODS
-from topodrake.navigation.plan_results import HOUSES, planning, rescore
+from topodrake.navigation.plan_results import HOUSES, paired_runs, planning, rescore
 from topodrake.topomap.recalibrate import PRIOR_WEIGHT
 
 
@@ -245,6 +245,9 @@ def main(argv=None) -> int:
                     help="map settings (a MapConfig YAML, every key optional) for the maps "
                          "built from the drives; maps of other settings than the library's "
                          "defaults are cached under names of their own (default: the defaults)")
+    ap.add_argument("--follower", metavar="JSON",
+                    help="follower settings to change, as JSON (FollowerConfig fields; an "
+                         "ablation), recorded in planning.json's config")
     ap.add_argument("--seed", type=at.seed, default=0, help="base seed of the trials")
     ap.add_argument("--data", default="data", help="cache of demonstrations and maps")
     ap.add_argument("--workers", type=at.count, default=1,
@@ -255,6 +258,10 @@ def main(argv=None) -> int:
                     help="run no trials: set the shipped plan calibrations against the trials "
                          "recorded in these planning.json files and write "
                          "plan_calibration.json and plan_calibration.png into --out")
+    ap.add_argument("--paired", metavar="BEFORE.json[:METHOD],AFTER.json[:METHOD]",
+                    help="run no trials: set two recorded runs side by side on their common "
+                         "trials (each method both ran, or the two named) and print each "
+                         "house's success and the paired difference with its 95 %% interval")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
@@ -280,7 +287,23 @@ def _rescore(args) -> int:
     return 0
 
 
+def _paired(args) -> int:
+    """Two recorded runs compared trial by trial (no new trials)."""
+    doc = paired_runs(args.paired)
+    if args.json:
+        print(json.dumps(doc))
+        return 0
+    for name, p in doc.items():
+        d = p["difference"]
+        print(f"{name}: {p['before']:.3f} -> {p['after']:.3f}, paired {d['mean']:+.3f} "
+              f"({d['ci95'][0]:+.3f}..{d['ci95'][1]:+.3f}) over {d['pairs']} trials; "
+              + ", ".join(f"{h} {a:.2f}->{b:.2f}" for h, (a, b) in p["houses"].items()))
+    return 0
+
+
 def _run(args) -> int:
+    if args.paired:
+        return _paired(args)
     if args.rescore:
         return _rescore(args)
     doc = planning(args, _command(args))

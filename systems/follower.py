@@ -108,7 +108,7 @@ class FollowerFsm(LeafSystem):
         wide = self.policy if self.policy.k >= self.reach.k else self.reach
         base = self._routes[-1].key_base + len(self._routes[-1].route) if self._routes else 0
         self._routes.append(_EncodedRoute(
-            route, encode_routes([route], self.policy, self.reach),
+            route, encode_routes([route], self.policy, self.reach, legs_m=self.config.legs_m),
             network_context(route.contexts, wide.k, wide.frame_step, self.policy), base))
 
     def _initial_state(self) -> FollowerState:

@@ -379,7 +379,7 @@ def _options(tmp_path, **changed) -> argparse.Namespace:
                "batch": 32, "pruned_fractions": "0.3,0.6,1", "pruned_house": None,
                "pruned_method": "ours", "pruned_trials": 20, "pruned_seed": 0, "seed": 0,
                "data": "data", "workers": 1, "ray": None, "out": str(tmp_path), "rescore": None,
-               "map_config": None, "json": False, "quiet": True}
+               "map_config": None, "follower": None, "json": False, "quiet": True}
     return argparse.Namespace(**{**options, **changed})
 
 
@@ -390,6 +390,7 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
     import topodrake.montecarlo as mc
     from topodrake.navigation import plan_study
     from topodrake.navigation.plan_methods import METHODS
+    from topodrake.navigation.follower import FollowerConfig
     from topodrake.navigation.plan_results import planning
 
     jobs_run = []
@@ -427,6 +428,19 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
                             map_config=str(tmp_path / "off.yaml")), "python studies/planning.py")
     assert doc["config"]["map_config"]["scan_match"] == 0
     assert seen[0].scan_match == 0 and seen[0].p_reuse == 0.99
+
+    # follower settings likewise; the engines drive with them
+    seen.clear()
+    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, cfg, **kw:
+                        seen.append(plan_study.navigation_config(cfg)) or run_trials(
+                            job, seeds, jobs=jobs, cfg=cfg, **kw))
+    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none",
+                            follower='{"legs_m": 0}'), "python studies/planning.py")
+    assert doc["config"]["follower"] == {"legs_m": 0}
+    assert seen[0].follower.legs_m == 0 and seen[0].follower.lookahead == 2
+    assert plan_study.navigation_config({}).follower.legs_m == FollowerConfig().legs_m
+    code, _, err = run_study("planning", "--follower", '{"legs_m": -1}', "--out", tmp_path)
+    assert code == 2 and "legs_m must be >= 0" in err and err.count("\n") == 1
 
 
 def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
@@ -560,3 +574,51 @@ def test_the_lidar_ablations_swap_one_network_for_its_oracle():
     cwp, re = networks("oracle_cwp_lidar", world)
     assert isinstance(cwp, AStarOracle) and re is networks("lidar")[1]
     assert re.observation == "lidar"
+
+
+def _recorded(path, method, successes):
+    import json
+
+    trials = [{"house": h, "method": method, "map": "all", "trial": t, "success": ok}
+              for h, row in successes.items() for t, ok in enumerate(row)]
+    path.write_text(json.dumps({"command": "test", "trials": trials}))
+    return str(path)
+
+
+def test_paired_runs_compare_the_same_trials_within_houses(tmp_path):
+    from topodrake.errors import TopodrakeError
+    from topodrake.navigation.plan_results import paired_runs
+
+    before = _recorded(tmp_path / "a.json", "lidar", {"h0": [0] * 40, "h1": [1] * 20 + [0] * 20})
+    after = _recorded(tmp_path / "b.json", "lidar", {"h0": [1] * 30 + [0] * 10,
+                                                     "h1": [1] * 20 + [0] * 20})
+    got = paired_runs(f"{before},{after}")["lidar"]
+    assert got["houses"] == {"h0": [0.0, 0.75], "h1": [0.5, 0.5]}
+    assert got["difference"]["mean"] == 0.375 and got["difference"]["pairs"] == 80
+    lo, hi = got["difference"]["ci95"]
+    assert 0.2 < lo < 0.375 < hi < 0.55
+    # two methods by name, from the one file
+    other = _recorded(tmp_path / "c.json", "lidar_scale", {"h0": [0] * 40, "h1": [0] * 40})
+    named = paired_runs(f"{before}:lidar,{other}:lidar_scale")
+    assert list(named) == ["lidar -> lidar_scale"]
+    assert named["lidar -> lidar_scale"]["difference"]["mean"] == -0.25
+    with pytest.raises(TopodrakeError, match="has no trials of ours"):
+        paired_runs(f"{before}:ours,{after}")
+    with pytest.raises(TopodrakeError, match="BEFORE.json"):
+        paired_runs(before)
+
+
+def test_paired_difference_resamples_within_strata():
+    from topodrake.montecarlo import paired_difference
+
+    same = paired_difference(np.zeros(50), np.zeros(50))
+    assert same == {"mean": 0.0, "ci95": [0.0, 0.0], "pairs": 50}
+    # one house all gained, one all lost: within houses nothing varies, so no spread
+    strata = np.repeat(["a", "b"], 30)
+    split = paired_difference(np.r_[np.zeros(30), np.ones(30)], np.r_[np.ones(30), np.zeros(30)],
+                              strata)
+    assert split["mean"] == 0.0 and split["ci95"] == [0.0, 0.0]
+    pooled = paired_difference(np.r_[np.zeros(30), np.ones(30)], np.r_[np.ones(30), np.zeros(30)])
+    assert pooled["ci95"][0] < -0.1 and pooled["ci95"][1] > 0.1
+    with pytest.raises(ValueError):
+        paired_difference([], [])

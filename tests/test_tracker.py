@@ -223,3 +223,91 @@ def test_reanchoring_turns_the_covariance_with_the_frame():
     old, new = np.zeros((1, 3)), np.array([[1.0, 2.0, np.pi / 2]])
     cov = reanchor_cov(var, old, new).reshape(3, 3)
     np.testing.assert_allclose(np.diag(cov), [0.0, 0.04, 0.0], atol=1e-12)  # now along y
+
+
+class _FixedAnswer:
+    """A stateless lidar C_WP stand-in: target features are the anchors' own
+    centre scans; every answer is ``waypoint`` with ``heading``."""
+
+    observation, k, frame_step = "lidar", 0, 3
+
+    def __init__(self, waypoint, heading):
+        self.waypoint, self.heading = np.asarray(waypoint, float), float(heading)
+
+    def encode_target(self, context):
+        return np.asarray(context, np.float64)
+
+    def predict(self, observation, target):
+        from topodrake.learning.waypoint.policy import WaypointPrediction
+
+        n = len(np.asarray(observation))
+        return WaypointPrediction(np.repeat(self.waypoint[None], n, 0), np.full(n, self.heading),
+                                  np.ones((n, 2)))
+
+
+def _route_with_a_gap(n=5, gap=2):
+    from topodrake.navigation.route import Route, teach_legs
+
+    poses = np.column_stack([np.arange(4 * n) * 0.25, np.zeros(4 * n), np.zeros(4 * n)])
+    anchors = np.arange(0, 4 * n, 4)
+    legs, paths = teach_legs(poses, anchors)
+    legs[gap] = np.nan                      # a hop between drives: no taught leg
+    paths[gap] = np.nan
+    scans = np.ones((n, 1, 8), np.float32)
+    return Route(scans, poses[anchors], modality="lidar", legs=legs, leg_paths=paths)
+
+
+def test_hops_without_a_leg_take_c_wps_answer_as_their_leg():
+    from topodrake.navigation.evaluate import encode_routes
+
+    route = _route_with_a_gap()
+    reach = _FixedAnswer([0.0, 0.0], 0.0)
+    plain = encode_routes([route], reach, reach)
+    assert len(set(plain.segments)) == 2                   # the gap splits the route in two
+    feats = encode_routes([route], _FixedAnswer([0.9, 0.1], 0.2), reach, legs_m=2.0)
+    assert set(feats.segments) == {0}                       # one segment across the gap
+    # anchors after the gap sit where the answer put them, then follow the taught legs
+    gap_end = compose(feats.frames[2][None], np.array([0.9, 0.1, 0.2]))[0]
+    np.testing.assert_allclose(feats.frames[3], gap_end, atol=1e-9)
+    np.testing.assert_allclose(feats.frames[4], compose(gap_end[None], np.array([1.0, 0, 0]))[0],
+                               atol=1e-9)
+    np.testing.assert_allclose(feats.frames[:3], plain.frames[:3], atol=1e-12)
+    # the hop's path is the straight line, ending at the anchor
+    np.testing.assert_allclose(feats.approach[3, -1], gap_end, atol=1e-9)
+    assert np.all(np.isfinite(feats.approach[3]))
+    # an answer as long as the limit or longer is a direction, not a place: no leg
+    far = encode_routes([route], _FixedAnswer([2.5, 0.0], 0.0), reach, legs_m=2.0)
+    assert len(set(far.segments)) == 2
+    assert route.legs[2, 0] != route.legs[2, 0]              # the route itself is left as it was
+
+
+def test_an_a_star_c_wp_estimates_a_missing_leg_where_it_sees_the_anchor():
+    from topodrake.learning.waypoint.policy import AStarOracle
+    from topodrake.navigation.evaluate import encode_routes
+    from topodrake.navigation.route import Route
+    from topodrake.world import load_world
+
+    world = load_world("test-0")
+    rng = np.random.default_rng(0)
+    while True:
+        a = world.sample_free_pose(rng)
+        b = compose(a[None], np.array([1.2, 0.2, 0.3]))[0]
+        along = a[None, :2] + np.linspace(0, 1, 12)[:, None] * (b[:2] - a[:2])[None]
+        if world.grid.clearance_at(along).min() > 0.4:         # in the open: b in plain sight
+            break
+    poses = np.vstack([a, b])
+    route = Route(poses[:, None], poses, modality="pose")
+    oracle = AStarOracle(world, k=0)
+    feats = encode_routes([route], oracle, oracle, legs_m=2.0)
+    assert feats.segments.tolist() == [0, 0]
+    np.testing.assert_allclose(feats.frames[1], relative(a[None], b[None])[0], atol=0.1)
+
+
+def test_legs_m_is_checked_and_off_for_the_paper():
+    import pytest
+
+    from topodrake.errors import TopodrakeError
+
+    assert FollowerConfig().legs_m > 0 and FollowerConfig.paper().legs_m == 0
+    with pytest.raises(TopodrakeError, match="legs_m"):
+        FollowerConfig(legs_m=-1.0).check()

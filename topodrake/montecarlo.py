@@ -120,3 +120,22 @@ def _run_ray(trial, seeds, address, progress, desc, kwargs):
     finally:
         if started_here:
             ray.shutdown()
+
+
+def paired_difference(before, after, strata=None, seed: int = 0, resamples: int = 2000) -> dict:
+    """Mean of ``after - before`` over paired trials, with a bootstrap 95 %
+    interval that resamples trials within each stratum (a house: ``strata``
+    (N,) labels; default one stratum)."""
+    diff = np.asarray(after, np.float64) - np.asarray(before, np.float64)
+    if diff.ndim != 1 or len(diff) == 0:
+        raise ValueError("paired_difference needs two equal, non-empty 1-D series")
+    labels = np.zeros(len(diff), np.int64) if strata is None else np.asarray(strata)
+    groups = [diff[labels == g] for g in np.unique(labels)]
+    rng = np.random.default_rng(seed)
+    means = np.zeros(resamples)
+    for g in groups:
+        means += g[rng.integers(0, len(g), (resamples, len(g)))].sum(axis=1)
+    means /= len(diff)
+    return {"mean": round(float(diff.mean()), 4), "ci95": [round(float(np.percentile(means, 2.5)), 4),
+                                                          round(float(np.percentile(means, 97.5)), 4)],
+            "pairs": int(len(diff))}

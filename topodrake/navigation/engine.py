@@ -134,7 +134,8 @@ class NavigationEngine:
         if len(routes) != n:
             raise ValueError(f"{n} starts and {len(routes)} routes")
         if features is None:
-            features = encode_routes(routes, self.policy, self.reach)
+            features = encode_routes(routes, self.policy, self.reach,
+                                     legs_m=self.config.follower.legs_m)
         n_anchors = features.n_anchors.copy()
         route_of = np.arange(n)
         goals = np.array([r.goal_pose for r in routes]).reshape(n, 3)
@@ -177,8 +178,8 @@ class NavigationEngine:
             if replanner is not None:
                 for i, new in replanner.step(cars, fs, st[:, :3],
                                              self.config.follower.p_search):
-                    features = stack_features(features, encode_routes([new], self.policy,
-                                                                      self.reach))
+                    features = stack_features(features, encode_routes(
+                        [new], self.policy, self.reach, legs_m=self.config.follower.legs_m))
                     route_of[i] = len(features.offsets) - 2
                     n_anchors[i] = len(new)
                     goals[i] = new.goal_pose

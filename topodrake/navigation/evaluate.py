@@ -92,13 +92,14 @@ def _encode(network, contexts: np.ndarray, batch: int = 64):
 
 
 def encode_routes(routes, policy, reach, route_k: int | None = None,
-                  route_step: int | None = None) -> RouteFeatures:
+                  route_step: int | None = None, legs_m: float = 0.0) -> RouteFeatures:
     """Target features of every anchor of ``routes`` for C_WP ``policy`` and
     RE ``reach``. The routes' contexts were rendered with ``route_k`` and
     ``route_step`` (default: the larger k of the two networks, and its frame step).
     A pose oracle (observation ``"pose"``) on a route of images reads the
     anchors' poses (a privileged ablation: the route's own perception is
-    left out, its anchors kept)."""
+    left out, its anchors kept). With ``legs_m`` > 0 the hops without a
+    taught leg take C_WP's (:func:`cwp_legs`)."""
     offsets = np.concatenate([[0], np.cumsum([len(r) for r in routes])]).astype(np.int64)
     sensed = [n for n in (policy, reach) if not _reads_poses(n, routes)]
     if route_k is None and sensed:
@@ -120,9 +121,49 @@ def encode_routes(routes, policy, reach, route_k: int | None = None,
 
     from topodrake.navigation.tracker import route_frames
 
-    frames, segments, approach = route_frames([r.legs for r in routes],
-                                              [r.leg_paths for r in routes])
-    return RouteFeatures(features(policy), features(reach), offsets, frames, segments, approach)
+    cwp = features(policy)
+    legs = [(r.legs, r.leg_paths) for r in routes]
+    if legs_m > 0 and track_size(policy) == 0:
+        legs = cwp_legs(routes, policy, cwp, offsets, route_k, legs_m)
+    frames, segments, approach = route_frames([lg for lg, _ in legs], [p for _, p in legs])
+    return RouteFeatures(cwp, features(reach), offsets, frames, segments, approach)
+
+
+def cwp_legs(routes, policy, features, offsets: np.ndarray, route_k: int | None,
+             max_m: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each route's (legs, leg paths), its hops without a taught leg (a
+    cross edge, a reused vertex, the goal link: NaN) filled with C_WP's
+    answer from the anchor's own view toward the next anchor: the waypoint
+    as the next anchor's position and the heading head as its heading,
+    where that waypoint is shorter than ``max_m`` (farther, C_WP's waypoint
+    is a direction along the way, not the target's place); the leg's path
+    a straight line. ``features``: ``policy``'s target features of every
+    anchor (rows ``offsets``)."""
+    from topodrake.navigation.route import LEG_POINTS
+    from topodrake.navigation.tracker import pad_points
+
+    out = []
+    for i, r in enumerate(routes):
+        legs, paths = np.array(r.legs, np.float64), np.array(r.leg_paths, np.float64)
+        hops = np.flatnonzero(~np.all(np.isfinite(legs), axis=1))
+        if _reads_poses(policy, routes):
+            views = r.poses[hops]
+            hops = hops[np.all(np.isfinite(views), axis=1) &
+                        np.all(np.isfinite(r.poses[hops + 1]), axis=1)]
+            views = r.poses[hops]
+        else:
+            views = r.contexts[hops, route_k if route_k is not None else r.contexts.shape[1] // 2]
+        if len(hops):
+            pred = policy.predict(views, take_rows(features, offsets[i] + hops + 1))
+            wp, hd = np.asarray(pred.waypoint, np.float64), np.asarray(pred.heading_diff, np.float64)
+            near = np.hypot(wp[:, 0], wp[:, 1]) < max_m
+            est = np.column_stack([wp, hd])[near]
+            legs[hops[near]] = est
+            paths = pad_points(paths, LEG_POINTS)
+            frac = (np.arange(1, paths.shape[1] + 1) / paths.shape[1])[None, :, None]
+            paths[hops[near]] = frac * est[:, None, :]
+        out.append((legs, paths))
+    return out
 
 
 def _reads_poses(network, routes) -> bool:

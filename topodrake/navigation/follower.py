@@ -120,6 +120,11 @@ class FollowerConfig:
                                     # answers as fixes, and drive toward the tracked anchor when
                                     # C_WP's waypoint disagrees (routes without legs: no effect)
     check_deg: float = 35.0         # ... by more than this angle
+    legs_m: float = 2.0             # a hop without a taught leg (between drives, into the
+                                    # goal) takes C_WP's answer from the anchor's own view
+                                    # toward the next as its leg, where that waypoint is
+                                    # shorter than this (0: off; the tracker then starts
+                                    # again after such a hop)
     reverse_inside_turn: float = 0.1  # a C_WP waypoint inside the car's turning circle (its
                                     # radius widened by this share) is replaced by a point
                                     # straight behind: the car backs up until it can turn onto
@@ -137,7 +142,7 @@ class FollowerConfig:
         be turned off and stays)."""
         return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65,
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
-                   odometry_check=False, reverse_inside_turn=-1.0)
+                   odometry_check=False, reverse_inside_turn=-1.0, legs_m=0.0)
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
@@ -153,6 +158,8 @@ class FollowerConfig:
             raise TopodrakeError(f"follower turn_radius_m must be > 0, got {self.turn_radius_m}")
         if not 0.0 < self.check_deg <= 180.0:
             raise TopodrakeError(f"follower check_deg must be in (0, 180], got {self.check_deg}")
+        if not (np.isfinite(self.legs_m) and self.legs_m >= 0.0):
+            raise TopodrakeError(f"follower legs_m must be >= 0 (0: off), got {self.legs_m}")
         if self.dr_back_anchors < -1:
             raise TopodrakeError(f"follower dr_back_anchors must be >= -1 (-1: unbounded), got "
                                  f"{self.dr_back_anchors}")

@@ -17,6 +17,8 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
+
 from topodrake.errors import TopodrakeError
 from topodrake.navigation.plan_methods import (METHODS, attach_success_probability,
                                                calibration_houses, calibration_table)
@@ -81,6 +83,73 @@ def rescore(files_text: str, command: str) -> dict:
             "summary": summary, "calibration": cal}
 
 
+def follower_settings(text: str | None) -> dict:
+    """The follower fields a ``--follower`` JSON changes, checked (``{}``: none)."""
+    import json
+
+    from topodrake.navigation.follower import FollowerConfig
+
+    if not text:
+        return {}
+    try:
+        fields = json.loads(text)
+        if not isinstance(fields, dict):
+            raise ValueError("not a JSON object")
+        FollowerConfig(**fields).check()
+    except (ValueError, TypeError) as e:
+        raise TopodrakeError(f"--follower {text!r}: {e}") from None
+    return fields
+
+
+def paired_runs(spec: str) -> dict:
+    """Two recorded runs set side by side on their common trials:
+    ``BEFORE.json[:METHOD],AFTER.json[:METHOD]`` (without METHOD: every
+    method both ran). Per method: each house's success before and after and
+    the paired difference over all common trials, its interval resampled
+    within houses (:func:`topodrake.montecarlo.paired_difference`)."""
+    from topodrake.montecarlo import paired_difference
+    from topodrake.topomap.plan_calibration import read_trial_records
+
+    sides = [part.strip() for part in spec.split(",")]
+    if len(sides) != 2 or not all(sides):
+        raise TopodrakeError(f"--paired {spec!r}: give BEFORE.json[:METHOD],AFTER.json[:METHOD]")
+    runs = []
+    for side in sides:
+        path, _, method = side.partition(":") if not side.endswith(".json") else (side, "", "")
+        try:
+            records, _ = read_trial_records([Path(path)])
+        except TopodrakeError as e:
+            raise TopodrakeError(f"--paired: {e}") from None
+        by = {}
+        for r in records:
+            if r.get("map", "all") == "all":        # the maps built from every drive
+                by.setdefault(r["method"], {})[(r["house"], r["trial"])] = bool(r["success"])
+        if method and method not in by:
+            raise TopodrakeError(f"--paired: {path} has no trials of {method} "
+                                 f"(it has {', '.join(by)})")
+        runs.append((method, by))
+    (m_a, a), (m_b, b) = runs
+    pairs = [(m_a, m_b)] if m_a and m_b else \
+        [(m_a or m, m_b or m) for m in (b if m_a else a) if (m_a or m) in a and (m_b or m) in b]
+    out = {}
+    for ma, mb in pairs:
+        keys = sorted(set(a[ma]) & set(b[mb]))
+        if not keys:
+            raise TopodrakeError(f"--paired: {ma} and {mb} share no trials")
+        before = np.array([a[ma][k] for k in keys], float)
+        after = np.array([b[mb][k] for k in keys], float)
+        houses = np.array([k[0] for k in keys])
+        name = ma if ma == mb else f"{ma} -> {mb}"
+        out[name] = {"houses": {h: [round(float(before[houses == h].mean()), 3),
+                                    round(float(after[houses == h].mean()), 3)]
+                                for h in dict.fromkeys(houses)},
+                     "before": round(float(before.mean()), 4), "after": round(float(after.mean()), 4),
+                     "difference": paired_difference(before, after, houses)}
+    if not out:
+        raise TopodrakeError("--paired: the two runs have no method in common")
+    return out
+
+
 def _check(args) -> tuple[list[str], list[str], list[str], list[float]]:
     """(methods, world specs, their house keys, pruned fractions) of the options, checked."""
     from topodrake.world import load_world
@@ -128,6 +197,7 @@ def planning(args, command: str) -> dict:
     code = {"git_revision": git_revision(), "local_changes": local_changes()}   # what runs
     methods, specs, keys, fractions = _check(args)
     map_config = asdict(load_map_config(getattr(args, "map_config", None)))
+    follower = follower_settings(getattr(args, "follower", None))
     pruned_spec = args.pruned_house or specs[0]
     cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
            "oracle_trials": args.oracle_trials,
@@ -138,7 +208,7 @@ def planning(args, command: str) -> dict:
            "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed,
            "experience_rounds": getattr(args, "experience_rounds", 1),
            "experience_prior_weight": getattr(args, "experience_prior_weight", PRIOR_WEIGHT),
-           "map_config": map_config}
+           "map_config": map_config, "follower": follower}
     jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
     results = run_trials(house_job, list(jobs), workers=args.workers, ray_address=args.ray,
                          progress=not args.quiet and len(jobs) > 1, desc="houses",

@@ -33,6 +33,16 @@ def map_config(cfg: dict):
     return MapConfig(**cfg.get("map_config", {}))
 
 
+def navigation_config(cfg: dict):
+    """The NavigationConfig the study's cars drive with: the follower of
+    ``cfg["follower"]`` (a dict of FollowerConfig fields; the defaults when
+    absent)."""
+    from topodrake.navigation.engine import NavigationConfig
+    from topodrake.navigation.follower import FollowerConfig
+
+    return NavigationConfig(follower=FollowerConfig(**cfg.get("follower", {})).check())
+
+
 def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
                 cfg: dict, tag: str = "all", experience=None):
     """(plans' routes (None = no plan), plan probabilities, map size dict,
@@ -110,7 +120,7 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
 def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cfg: dict,
                tag: str = "all", bar=None) -> tuple[dict, list[dict]]:
     """One method's trials in one house: (stats, per-trial records)."""
-    from topodrake.navigation.engine import NavigationConfig, NavigationEngine
+    from topodrake.navigation.engine import NavigationEngine
     from topodrake.navigation.plan_trials import (SUCCESS_M, T_MAX_S, follow_routes,
                                                   longest_link_m)
 
@@ -132,20 +142,20 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
         seeds = [np.random.SeedSequence([cfg["seed"], zlib.crc32(house_key(spec).encode()), t])
                  for t in range(n)]
         res, boxes = follow_past_obstacles(
-            world, lambda w: NavigationEngine(w, policy, reach, NavigationConfig()), starts,
+            world, lambda w: NavigationEngine(w, policy, reach, navigation_config(cfg)), starts,
             routes, places[pairs[:, 1]], seeds, cfg["obstacles"], T_MAX_S, SUCCESS_M)
         if bar is not None:
             bar.update(n)
     elif meth.drive == "replan":
         from topodrake.navigation.replan import ReplanSchedule
 
-        engine = NavigationEngine(world, policy, reach, NavigationConfig())
+        engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
         res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
                             SUCCESS_M, replan=replan, schedule=ReplanSchedule(**cfg["replan"]))
         if bar is not None:
             bar.update(len(pairs))
     else:
-        engine = NavigationEngine(world, policy, reach, NavigationConfig())
+        engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
         res = follow_routes(engine, starts[:first], routes, places[pairs[:first, 1]], T_MAX_S,
                             cfg["batch"], SUCCESS_M,
                             progress=None if bar is None else bar.update)
