@@ -311,3 +311,18 @@ def test_legs_m_is_checked_and_off_for_the_paper():
     assert FollowerConfig().legs_m > 0 and FollowerConfig.paper().legs_m == 0
     with pytest.raises(TopodrakeError, match="legs_m"):
         FollowerConfig(legs_m=-1.0).check()
+
+
+def test_the_drake_follower_joins_the_legs_as_the_engine_does():
+    from systems.follower import FollowerFsm
+    from topodrake.navigation.evaluate import encode_routes
+
+    route = _route_with_a_gap()
+    policy, reach = _FixedAnswer([0.9, 0.1], 0.2), _FixedAnswer([0.0, 0.0], 0.0)
+    for legs_m in (0.0, 2.0):
+        fsm = FollowerFsm(route, policy, reach, FollowerConfig(legs_m=legs_m))
+        engine = encode_routes([route], policy, reach, legs_m=legs_m)
+        got = fsm._routes[0].features
+        np.testing.assert_array_equal(got.segments, engine.segments)
+        np.testing.assert_allclose(got.frames, engine.frames)
+        assert len(set(got.segments)) == (1 if legs_m else 2)
