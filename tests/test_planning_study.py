@@ -443,6 +443,19 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
     assert code == 2 and "legs_m must be >= 0" in err and err.count("\n") == 1
 
 
+def test_a_camera_map_written_before_the_lidar_settings_is_still_the_default_map():
+    from dataclasses import asdict
+
+    from topodrake.topomap.graph import LATER_DEFAULTS, MapConfig, same_config
+
+    stored = {k: v for k, v in asdict(MapConfig()).items() if k not in LATER_DEFAULTS}
+    stored["reuse_ahead"] = 0
+    assert not same_config(stored, MapConfig())                 # scan_match reads as 0 (off)
+    assert same_config(stored, MapConfig(), lidar=False)        # which a camera map never reads
+    assert not same_config({**stored, "p_join": 0.5}, MapConfig(), lidar=False)
+    assert not same_config(None, MapConfig(), lidar=False)
+
+
 def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
     from topodrake.topomap.graph import MapConfig
     from topodrake.topomap.map_cache import config_tag, map_path
@@ -452,6 +465,11 @@ def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
     assert off.startswith("all-cfg") and off == config_tag("all", MapConfig(scan_match=0.0))
     assert off != config_tag("all", MapConfig(scan_match=0.5))
     assert map_path(tmp_path, "test-0", "lidar", off) != map_path(tmp_path, "test-0", "lidar", "all")
+    # a camera map reads no lidar-only setting: it keeps its name and its file
+    assert config_tag("all", MapConfig(scan_match=0.0), "camera") == "all"
+    assert config_tag("all", MapConfig(scan_match=0.0, p_join=0.5), "camera") == \
+        config_tag("all", MapConfig(p_join=0.5), "camera") != "all"
+    assert config_tag("all", MapConfig(scan_match=0.0), "lidar_reg") == off
     (tmp_path / "bad.yaml").write_text("scan_match: 2\n")
     code, _, err = run_study("planning", "--map-config", str(tmp_path / "bad.yaml"), "--out",
                              tmp_path)

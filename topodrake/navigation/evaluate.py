@@ -155,7 +155,8 @@ def cwp_legs(routes, policy, features, offsets: np.ndarray, route_k: int | None,
             views = r.contexts[hops, route_k if route_k is not None else r.contexts.shape[1] // 2]
         if len(hops):
             pred = policy.predict(views, take_rows(features, offsets[i] + hops + 1))
-            wp, hd = np.asarray(pred.waypoint, np.float64), np.asarray(pred.heading_diff, np.float64)
+            wp = np.asarray(pred.waypoint, np.float64)
+            hd = np.asarray(pred.heading_diff, np.float64)
             near = np.hypot(wp[:, 0], wp[:, 1]) < max_m
             est = np.column_stack([wp, hd])[near]
             legs[hops[near]] = est

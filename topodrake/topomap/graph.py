@@ -44,10 +44,20 @@ TEACH_ODOMETRY = ("wheel", "perfect", "none")
 LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False}
 
 
-def same_config(stored, config: "MapConfig") -> bool:
+#: settings only a lidar map reads (a map of another modality is built alike whatever they say)
+LIDAR_ONLY = ("scan_match", "scan_match_cross")
+
+
+def same_config(stored, config: "MapConfig", lidar: bool = True) -> bool:
     """Whether a map file's stored config is ``config`` (the settings it
-    predates read as :data:`LATER_DEFAULTS`)."""
-    return isinstance(stored, dict) and {**LATER_DEFAULTS, **stored} == asdict(config)
+    predates read as :data:`LATER_DEFAULTS`); for a map that is not a lidar
+    map (``lidar`` False) the :data:`LIDAR_ONLY` settings do not count."""
+    if not isinstance(stored, dict):
+        return False
+    ignore = () if lidar else LIDAR_ONLY
+    a = {k: v for k, v in {**LATER_DEFAULTS, **stored}.items() if k not in ignore}
+    b = {k: v for k, v in asdict(config).items() if k not in ignore}
+    return a == b
 
 
 @dataclass

@@ -44,14 +44,21 @@ def house_drives(spec: str, data: Path, progress: bool) -> list:
     return drives
 
 
-def config_tag(tag: str, config) -> str:
+def config_tag(tag: str, config, modality: str = "lidar") -> str:
     """``tag`` for a map of the default config; with a digest of ``config``
-    appended for any other, so that each config keeps its own maps."""
-    from topodrake.topomap.graph import MapConfig, same_config
+    appended for any other, so that each config keeps its own maps. A map
+    of a ``modality`` other than lidar ignores the lidar-only settings."""
+    from topodrake.topomap.graph import LIDAR_ONLY, MapConfig, same_config
 
-    if config is None or same_config(asdict(config), MapConfig()):
+    lidar = _is_lidar(modality)
+    if config is None or same_config(asdict(config), MapConfig(), lidar):
         return tag
-    return f"{tag}-cfg{zlib.crc32(json.dumps(asdict(config), sort_keys=True).encode()):08x}"
+    settings = {k: v for k, v in asdict(config).items() if lidar or k not in LIDAR_ONLY}
+    return f"{tag}-cfg{zlib.crc32(json.dumps(settings, sort_keys=True).encode()):08x}"
+
+
+def _is_lidar(modality: str) -> bool:
+    return modality in ("lidar", "lidar_reg")
 
 
 def map_path(data: Path, key: str, modality: str, tag: str) -> Path:
@@ -75,7 +82,7 @@ def _adoptable(candidate: Path, world: str, modality: str, names: list[str]) -> 
     except TopodrakeError:
         return False
     return (meta.get("world") == world and meta.get("modality") == modality
-            and same_config(meta.get("config"), MapConfig())
+            and same_config(meta.get("config"), MapConfig(), _is_lidar(modality))
             and [t["name"] for t in meta.get("trajectories", [])] == names)
 
 
@@ -92,12 +99,13 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
 
     config = config or MapConfig()
     key = house_key(spec)
-    path = map_path(data, key, modality, config_tag(tag, config))
+    path = map_path(data, key, modality, config_tag(tag, config, modality))
     scorer = make_scorer(modality, world)
     names = [f"pairs-s{DEMO_SEED}/{i}" for i in indices]
     legacy = data / "maps" / f"{key}-{modality}.tdmap"
     if not path.is_file() and modality != "oracle" and legacy.is_file() \
-            and config_tag(tag, config) == tag and _adoptable(legacy, spec, modality, names):
+            and config_tag(tag, config, modality) == tag \
+            and _adoptable(legacy, spec, modality, names):
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp")
         shutil.copyfile(legacy, tmp)
@@ -108,7 +116,7 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
             raise TopodrakeError(f"{path} holds other drives than {len(names)} of "
                                  f"{key}; delete it to rebuild")
         # the config as written (settings a map predates read as LATER_DEFAULTS)
-        if same_config(read_map_meta(path).get("config"), config):
+        if same_config(read_map_meta(path).get("config"), config, _is_lidar(modality)):
             return m, 0.0
         print(f"{path} was built with another map config; rebuilding it", file=sys.stderr)
     t0 = time.perf_counter()
