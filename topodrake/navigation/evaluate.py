@@ -146,9 +146,8 @@ def cwp_legs(routes, policy, features, offsets: np.ndarray, route_k: int | None,
     for i, r in enumerate(routes):
         legs, paths = np.array(r.legs, np.float64), np.array(r.leg_paths, np.float64)
         hops = np.flatnonzero(~np.all(np.isfinite(legs), axis=1))
-        if _reads_poses(policy, routes):
-            views = r.poses[hops]
-            hops = hops[np.all(np.isfinite(views), axis=1) &
+        if _reads_poses(policy, routes):             # a pose oracle: both anchors' poses known
+            hops = hops[np.all(np.isfinite(r.poses[hops]), axis=1) &
                         np.all(np.isfinite(r.poses[hops + 1]), axis=1)]
             views = r.poses[hops]
         else:
