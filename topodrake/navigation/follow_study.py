@@ -11,7 +11,6 @@ and the sensitivity tables.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -55,7 +54,7 @@ def _p_values(text: str) -> list[float]:
 def _check(args) -> list[float]:
     """The p values; sets ``args.follower_config``, ``args.odometry_config``,
     ``args.runs`` (a set) and ``args.sensitivity`` (parsed)."""
-    from topodrake.navigation.follower import FollowerConfig
+    from topodrake.navigation.follower import FollowerConfig, follower_fields
     from topodrake.odometry import OdometryConfig
 
     if args.trajectories < 1:
@@ -67,11 +66,7 @@ def _check(args) -> list[float]:
     if not (np.isfinite(args.noise) and args.noise >= 0):
         raise TopodrakeError("--noise must be finite and >= 0")
     ps = _p_values(args.p)
-    try:
-        args.follower_config = FollowerConfig(**json.loads(args.follower)).check()
-    except (ValueError, TypeError) as e:
-        raise TopodrakeError(f"--follower is not a JSON object of FollowerConfig fields ({e})") \
-            from None
+    args.follower_config = FollowerConfig(**follower_fields(args.follower)).check()
     args.odometry_config = getattr(OdometryConfig, args.odometry)()
     args.runs = {r for r in args.runs.split(",") if r}
     if not args.runs or args.runs - set(RUNS):

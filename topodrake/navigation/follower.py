@@ -170,6 +170,23 @@ class FollowerConfig:
         return self
 
 
+def follower_fields(text: str | None) -> dict:
+    """The FollowerConfig fields a ``--follower`` JSON object changes,
+    checked (``{}`` for none); a bad one is refused in one line."""
+    import json
+
+    if not text:
+        return {}
+    try:
+        fields = json.loads(text)
+        if not isinstance(fields, dict):
+            raise ValueError("not a JSON object")
+        FollowerConfig(**fields).check()
+    except (ValueError, TypeError) as e:
+        raise TopodrakeError(f"--follower {text!r} is not a JSON object of FollowerConfig "
+                             f"fields ({e})") from None
+    return fields
+
 @dataclass
 class FollowerState:
     """Per-car follower state, arrays over N cars."""

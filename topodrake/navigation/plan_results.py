@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.navigation.follower import follower_fields
 from topodrake.navigation.plan_methods import (METHODS, attach_success_probability,
                                                calibration_houses, calibration_table)
 from topodrake.navigation.plan_study import house_job, house_seed, pruned_job, success_by_round
@@ -81,24 +82,6 @@ def rescore(files_text: str, command: str) -> dict:
     return {"command": command,
             "sources": [{"file": str(f), "command": c} for f, c in zip(files, commands)],
             "summary": summary, "calibration": cal}
-
-
-def follower_settings(text: str | None) -> dict:
-    """The follower fields a ``--follower`` JSON changes, checked (``{}``: none)."""
-    import json
-
-    from topodrake.navigation.follower import FollowerConfig
-
-    if not text:
-        return {}
-    try:
-        fields = json.loads(text)
-        if not isinstance(fields, dict):
-            raise ValueError("not a JSON object")
-        FollowerConfig(**fields).check()
-    except (ValueError, TypeError) as e:
-        raise TopodrakeError(f"--follower {text!r}: {e}") from None
-    return fields
 
 
 def paired_runs(spec: str) -> dict:
@@ -197,7 +180,7 @@ def planning(args, command: str) -> dict:
     code = {"git_revision": git_revision(), "local_changes": local_changes()}   # what runs
     methods, specs, keys, fractions = _check(args)
     map_config = asdict(load_map_config(getattr(args, "map_config", None)))
-    follower = follower_settings(getattr(args, "follower", None))
+    follower = follower_fields(getattr(args, "follower", None))
     pruned_spec = args.pruned_house or specs[0]
     cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
            "oracle_trials": args.oracle_trials,
