@@ -81,9 +81,15 @@ def test_expand_worlds_ranges_keep_width():
         expand_worlds("train-05..train-01")
 
 
-def test_scale_run_needs_lidar_and_matching_variants():
-    with pytest.raises(TopodrakeError, match="lidar"):
-        ScaleRunConfig().validate()
+def test_scale_run_needs_whole_camera_images_and_matching_variants():
+    run = ScaleRunConfig()
+    run.train.network = NetworkConfig(modality="camera", image_size=32)
+    with pytest.raises(TopodrakeError, match="camera's 64x64 images as they are"):
+        run.validate()
+    run.scale.pool_max = -1
+    run.train.network.image_size = 64
+    with pytest.raises(TopodrakeError, match="pool_max must be >= 0"):
+        run.validate()
     run = ScaleRunConfig()
     run.train.network = NetworkConfig(**TINY)
     run.scale.variants = {"w": NetworkConfig(**{**TINY, "k": 2})}
@@ -126,6 +132,64 @@ def test_scale_trainer_trains_resumes_with_new_shards(test0_drives, tmp_path):
         train_at_scale(changed, out, minutes=5, progress=False)
 
 
+def test_camera_scale_run_trains_through_a_ring_pool(test0_drives, tmp_path):
+    """A camera C_WP trains at scale from uint8 images; a pool smaller than
+    the shards made keeps the newest samples."""
+    from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
+
+    _, drives = test0_drives
+    pack = pack_trajectories(drives, tmp_path / "t.npz")
+    run = _tiny_run(pack, 192)
+    run.train.network = NetworkConfig(modality="camera", channels=[4, 8], feature_dim=16,
+                                      combine_channels=16, hidden=16)
+    run.scale.variants, run.scale.pool_max = {}, 50
+    card = train_at_scale(run, tmp_path / "cam", minutes=5, progress=False)
+    assert card["modality"] == "camera" and card["samples_seen"] == 192
+    assert card["call"]["pool"] == 50
+    policy = LearnedWaypointPolicy.from_checkpoint(tmp_path / "cam" / "checkpoint.pt")
+    assert policy.observation == "camera"
+
+
+def test_pool_storage_becomes_the_networks_input():
+    """The device-side conversion equals the CPU batcher's, for both sensors."""
+    import torch
+
+    from topodrake.learning.data import to_network_input
+    from topodrake.learning.waypoint.scale import _as_network_input
+    from topodrake.sensing.config import LidarConfig
+
+    rng = np.random.default_rng(0)
+    images = rng.integers(0, 256, (2, 3, 64, 64, 3), dtype=np.uint8)
+    cam = NetworkConfig(modality="camera")
+    torch.testing.assert_close(_as_network_input(torch.from_numpy(images), "camera"),
+                               to_network_input(images, cam, LidarConfig()))
+    lidar = LidarConfig()
+    ranges = rng.uniform(0.1, 12.0, (2, 3, lidar.beams))
+    from topodrake.learning.waypoint.scale import _normalised
+
+    stored = torch.from_numpy(_normalised(ranges, lidar.range_m))
+    want = to_network_input(ranges, NetworkConfig(**TINY), lidar)
+    torch.testing.assert_close(_as_network_input(stored, "lidar"), want, atol=2e-3, rtol=0)
+
+
+def test_pool_ring_replaces_the_oldest_samples():
+    import torch
+
+    from topodrake.learning.waypoint.scale import Pool
+
+    pool = Pool(5, (2,), torch.float16, 3, "cpu")
+    part = {k: np.zeros((3, 2)) for k in ("waypoint", "overlap")}
+    for first in (0, 3, 6):
+        part["heading_diff"] = np.full(3, 0.1 * first)
+        obs = np.arange(first, first + 3, dtype=np.float16)[:, None].repeat(2, 1)
+        pool.add(part, obs, np.full((3, 3), first, np.int64))
+    # 9 samples made in shards of 3 into 5 places: the oldest four were replaced
+    assert pool.n == 5
+    assert pool.cur[:, 0].tolist() == [5.0, 6.0, 7.0, 8.0, 4.0]
+    assert pool.ctx_rows[:, 0].tolist() == [3, 6, 6, 6, 3]
+    np.testing.assert_allclose(pool.heading[1].tolist(), [np.cos(0.6), np.sin(0.6)], rtol=1e-6)
+
+
 def test_shipped_scale_configs_load():
     from pathlib import Path
 
@@ -134,7 +198,8 @@ def test_shipped_scale_configs_load():
 
     root = Path(__file__).resolve().parents[1] / "configs"
     names = sorted(root.glob("scale_*.yaml"))
-    assert {p.name for p in names} >= {"scale_lidar_k5.yaml", "scale_lidar_k5_wide.yaml"}
+    assert {p.name for p in names} >= {"scale_lidar_k5.yaml", "scale_lidar_k5_wide.yaml",
+                                      "scale_camera_k5.yaml"}
     for path in names:
         run = load_scale_config(path)
         for net in [run.train.network, *run.scale.variants.values()]:

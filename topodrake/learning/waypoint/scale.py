@@ -6,12 +6,14 @@ seen the renderer and the labeller (A* per sample) are the limit, not the
 network. Here
 
 * the expert drives of every house come packed (:mod:`topodrake.learning.trajpack`);
-* the lidar scans of every trajectory frame are rendered once into one
-  tensor on the device (context frames are trajectory frames);
+* the observations (lidar scans, or camera images as uint8) of every
+  trajectory frame are rendered once into one tensor on the device (context
+  frames are trajectory frames);
 * worker processes make *shards* (``shard_samples`` samples of one world,
   seeded by ``(sample_seed, world, shard)``, shards taken round-robin over
-  the worlds) and render their source scans; each shard joins a pool on the
-  device as it arrives;
+  the worlds) and render their source observations; each shard joins a pool
+  on the device as it arrives (a ring of ``pool_max`` samples, the oldest
+  replaced, where memory is short: camera images);
 * batches are drawn uniformly from the pool (a seeded generator on the
   device) and gathered there; the loss, Adam and the step decay are those of
   :func:`topodrake.learning.waypoint.train.train_network`;
@@ -47,9 +49,6 @@ from topodrake.errors import TopodrakeError
 from topodrake.learning.config import TrainConfig
 from topodrake.learning.networks import NetworkConfig
 
-LIDAR_ONLY = "training at scale renders lidar scans; camera C_WPs train with `topodrake train waypoint`"
-
-
 @dataclass
 class ScaleConfig:
     """How samples are made and where the networks train."""
@@ -59,6 +58,7 @@ class ScaleConfig:
     shards_per_world: int = 60      # made per world in each call (a resumed call makes new ones)
     workers: int = 0                # sample-making processes (0: all cores but one)
     min_pool: int = 100000          # samples made before the first step
+    pool_max: int = 0               # samples the device pool holds (0: every shard of the call)
     device: str = "cuda"
     compare: list[str] = field(default_factory=list)    # C_WP checkpoints scored on the same val sets
     variants: dict[str, NetworkConfig] = field(default_factory=dict)
@@ -71,12 +71,17 @@ class ScaleRunConfig:
 
     def validate(self, where: str = "scale config") -> "ScaleRunConfig":
         self.train.validate(where)
-        if self.train.network.modality != "lidar":
-            raise TopodrakeError(f"{where}: {LIDAR_ONLY}")
+        net, cam = self.train.network, self.train.camera
+        if net.modality == "camera" and not net.image_size == cam.width == cam.height:
+            raise TopodrakeError(f"{where}: training at scale feeds the camera's {cam.width}x"
+                                 f"{cam.height} images as they are; set network.image_size to "
+                                 "the camera's side")
         s = self.scale
         for name in ("shard_samples", "shards_per_world", "min_pool"):
             if getattr(s, name) < 1:
                 raise TopodrakeError(f"{where}: scale.{name} must be >= 1, got {getattr(s, name)}")
+        if s.pool_max < 0:
+            raise TopodrakeError(f"{where}: scale.pool_max must be >= 0, got {s.pool_max}")
         if s.workers < 0:
             raise TopodrakeError(f"{where}: scale.workers must be >= 0, got {s.workers}")
         for name, net in s.variants.items():
@@ -109,35 +114,64 @@ def _init_worker(traj_path: str, worlds: list[str], train: dict) -> None:
     from topodrake.learning.trajpack import load_packed_trajectories
 
     from topodrake.learning.samples import SampleConfig
-    from topodrake.sensing.config import LidarConfig
+    from topodrake.sensing.config import CameraConfig, LidarConfig
 
     _W.update(trajs=load_packed_trajectories(traj_path).select_worlds(worlds), worlds=worlds,
               samples=SampleConfig(**train["data"]["samples"]),
+              modality=train["network"]["modality"], camera=CameraConfig(**train["camera"]),
               lidar=LidarConfig(**train["lidar"]), seed=train["data"]["sample_seed"],
               n=train["shard_samples"], cache={})
 
 
 def _make_shard(j: int):
-    """Shard ``j``: (j, sample fields, source scans float16 in [0, 1])."""
+    """Shard ``j``: (j, sample fields, source observations in the pool's storage)."""
     from topodrake.learning.samples import _world_samples
-    from topodrake.sensing.lidar import Lidar
     from topodrake.world import load_world
 
     worlds, trajs = _W["worlds"], _W["trajs"]
     w, s = j % len(worlds), j // len(worlds)
     if w not in _W["cache"]:
         world = load_world(worlds[w])
-        _W["cache"] = {w: (world, Lidar(world, _W["lidar"]))}   # one world per process at a time
-    world, lidar = _W["cache"][w]
+        sensor = _Sensor(world, _W["modality"], _W["camera"], _W["lidar"])
+        _W["cache"] = {w: (world, sensor)}      # one world per process at a time
+    world, sensor = _W["cache"][w]
     ids = np.flatnonzero(trajs.traj_world == w)
     part = _world_samples(world, trajs, ids, _W["n"], np.random.default_rng([_W["seed"], w, s]),
                           _W["samples"], controls=False)
-    scans = _normalised(lidar.scan(part["src_pose"]), _W["lidar"].range_m)
     keep = ("traj", "tgt", "waypoint", "heading_diff", "overlap")
-    return j, {k: np.asarray(part[k]) for k in keep}, scans
+    return j, {k: np.asarray(part[k]) for k in keep}, sensor.observe(part["src_pose"])
 
 
-def _warm_kernels(traj_path: str, world: str) -> None:
+class _Sensor:
+    """A world's sensor, observing in the pool's storage: lidar ranges as
+    float16 in [0, 1], camera images as uint8 (H, W, 3)."""
+
+    def __init__(self, world, modality: str, camera, lidar):
+        self.modality, self.range_m = modality, lidar.range_m
+        if modality == "camera":
+            from topodrake.sensing.camera import Camera
+
+            self.sensor = Camera(world, camera)
+        else:
+            from topodrake.sensing.lidar import Lidar
+
+            self.sensor = Lidar(world, lidar)
+
+    def observe(self, poses: np.ndarray) -> np.ndarray:
+        if self.modality == "camera":
+            return self.sensor.render(poses)
+        return _normalised(self.sensor.scan(poses), self.range_m)
+
+
+def _as_network_input(obs, modality: str):
+    """Pool storage (..., beams) or (..., H, W, 3) -> the network's float input
+    (..., 1, beams) or (..., 3, H, W), as :func:`topodrake.learning.data.to_network_input`."""
+    if modality == "camera":
+        return obs.movedim(-1, -3).float() * (1.0 / 255.0) - 0.5
+    return obs.float().unsqueeze(-2)
+
+
+def _warm_kernels(traj_path: str, world: str, modality: str) -> None:
     """Compile (or load) the labeller's and the renderer's kernels in a child
     process, so the forked workers load them from the disk cache instead of
     compiling them each (numba's thread pool must not exist before a fork)."""
@@ -147,6 +181,7 @@ def _warm_kernels(traj_path: str, world: str) -> None:
             "from topodrake.learning.waypoint.scale import _init_worker, _make_shard, _W; "
             f"from topodrake.learning.config import TrainConfig; t = TrainConfig().to_dict(); "
             f"t['data']['sample_seed'] = 0; t['shard_samples'] = 20; "
+            f"t['network']['modality'] = {modality!r}; "
             f"_init_worker({traj_path!r}, [{world!r}], t); _make_shard(0)")
     subprocess.run([sys.executable, "-c", code], check=True)
 
@@ -161,31 +196,35 @@ def _normalised(ranges: np.ndarray, range_m: float) -> np.ndarray:
 # ---------------------------------------------------------------- the pool (device side)
 
 class Pool:
-    """Samples on the device, grown shard by shard."""
+    """Samples on the device, grown shard by shard; once full, each shard
+    replaces the oldest samples (a ring)."""
 
-    def __init__(self, capacity: int, beams: int, frames: int, device):
+    def __init__(self, capacity: int, obs_shape: tuple, obs_dtype, frames: int, device):
         import torch
 
         self.n = 0
-        self.cur = torch.empty((capacity, beams), dtype=torch.float16, device=device)
+        self.head = 0
+        self.cur = torch.empty((capacity, *obs_shape), dtype=obs_dtype, device=device)
         self.ctx_rows = torch.empty((capacity, frames), dtype=torch.int64, device=device)
         self.waypoint = torch.empty((capacity, 2), device=device)
         self.heading = torch.empty((capacity, 2), device=device)
         self.overlap = torch.empty((capacity, 2), device=device)
 
-    def add(self, part: dict, scans: np.ndarray, ctx_rows: np.ndarray) -> None:
+    def add(self, part: dict, obs: np.ndarray, ctx_rows: np.ndarray) -> None:
         import torch
 
-        m = min(len(scans), len(self.cur) - self.n)
-        sl = slice(self.n, self.n + m)
+        cap = len(self.cur)
+        m = min(len(obs), cap)
         dev = self.cur.device
-        self.cur[sl] = torch.from_numpy(scans[:m]).to(dev)
-        self.ctx_rows[sl] = torch.from_numpy(ctx_rows[:m].astype(np.int64)).to(dev)
-        self.waypoint[sl] = torch.from_numpy(part["waypoint"][:m].astype(np.float32)).to(dev)
+        at = torch.from_numpy((self.head + np.arange(m)) % cap).to(dev)
         hd = part["heading_diff"][:m].astype(np.float32)
-        self.heading[sl] = torch.from_numpy(np.column_stack([np.cos(hd), np.sin(hd)])).to(dev)
-        self.overlap[sl] = torch.from_numpy(part["overlap"][:m].astype(np.float32)).to(dev)
-        self.n += m
+        for dst, src in ((self.cur, obs[:m]), (self.ctx_rows, ctx_rows[:m].astype(np.int64)),
+                         (self.waypoint, part["waypoint"][:m].astype(np.float32)),
+                         (self.heading, np.column_stack([np.cos(hd), np.sin(hd)])),
+                         (self.overlap, part["overlap"][:m].astype(np.float32))):
+            dst[at] = torch.from_numpy(np.ascontiguousarray(src)).to(dev, dst.dtype)
+        self.head = (self.head + m) % cap
+        self.n = min(self.n + m, cap)
 
 
 class DeviceBatcher:
@@ -217,11 +256,11 @@ class _Net:
     metrics: dict
 
 
-def _networks(run: ScaleRunConfig, out_dir: Path, beams: int) -> tuple[list[_Net], dict]:
+def _networks(run: ScaleRunConfig, out_dir: Path, size: int) -> tuple[list[_Net], dict]:
     import torch
 
     from topodrake.learning.checkpoint import RESUME, load_checkpoint, load_resume_state
-    from topodrake.learning.networks import WaypointNetwork, input_size
+    from topodrake.learning.networks import WaypointNetwork
     from topodrake.learning.waypoint.train import CHECKPOINT, config_change
 
     nets, state = [], {"samples_seen": 0, "wall_time_s": 0.0, "next_shard": 0, "shards_used": 0}
@@ -230,7 +269,7 @@ def _networks(run: ScaleRunConfig, out_dir: Path, beams: int) -> tuple[list[_Net
     for name, cfg in specs:
         out = out_dir if name == "main" else out_dir / name
         torch.manual_seed(cfg.seed)
-        model = WaypointNetwork(cfg.network, input_size(cfg.network, beams))
+        model = WaypointNetwork(cfg.network, size)
         opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
         history, metrics = [], {}
         path = out / CHECKPOINT
@@ -286,14 +325,18 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
     device = torch.device(sc.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise TopodrakeError("scale.device is cuda but torch sees no GPU")
-    beams = cfg.lidar.beams
-    nets, state = _networks(run, out_dir, beams)      # on the CPU: CUDA waits until the workers fork
+    from topodrake.learning.networks import input_size
+
+    modality = cfg.network.modality
+    sensor_cfg = cfg.camera if modality == "camera" else cfg.lidar
+    nets, state = _networks(run, out_dir, input_size(cfg.network, cfg.lidar.beams))
+    # (on the CPU: CUDA waits until the workers fork)
     n_worlds = len(cfg.data.train_worlds)
     total = n_worlds * sc.shards_per_world
     first = int(state["next_shard"])
     workers = sc.workers or max(1, (os.cpu_count() or 2) - 1)
     train_dict = {**cfg.to_dict(), "shard_samples": sc.shard_samples}
-    _warm_kernels(sc.trajectories, cfg.data.train_worlds[0])
+    _warm_kernels(sc.trajectories, cfg.data.train_worlds[0], modality)
     ctx = mp.get_context("fork")
     pool_proc = ctx.Pool(workers, initializer=_init_worker,
                          initargs=(sc.trajectories, cfg.data.train_worlds, train_dict))
@@ -304,7 +347,7 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
             net.model.to(device)
             _optimizer_to(net.opt, device)
         torch.backends.cudnn.benchmark = True
-        frames_t = torch.from_numpy(_render_frames(train_trajs, cfg.lidar)).to(device)
+        frames_t = _render_frames(train_trajs, modality, cfg.camera, cfg.lidar, device)
         val_sets = {"val": cfg.data.samples, "val_paper": SampleConfig()}
         val_trajs = packed.select_worlds(cfg.data.val_worlds)
         val = {key: DeviceBatcher(SampleBatcher(make_samples(val_trajs, cfg.data.val_samples,
@@ -312,7 +355,9 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
                                                 cfg.network, cfg.camera, cfg.lidar), device)
                for key, scfg in val_sets.items()}
         compared = _compare(sc.compare, val, device)
-        pool = Pool(total * sc.shard_samples, beams, cfg.network.frames, device)
+        made = total * sc.shard_samples
+        pool = Pool(min(made, sc.pool_max) if sc.pool_max else made, tuple(frames_t.shape[1:]),
+                    frames_t.dtype, cfg.network.frames, device)
         step = cfg.network.frame_step
         k = cfg.network.k
         got = 0
@@ -320,12 +365,12 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
         def take(block: bool) -> bool:
             nonlocal got
             try:
-                j, part, scans = shards.next() if block else shards.next(timeout=0)
+                j, part, obs = shards.next() if block else shards.next(timeout=0)
             except (StopIteration, mp.TimeoutError):
                 return False
             rows = train_trajs.context_rows(part["traj"].astype(np.int64),
                                             part["tgt"].astype(np.int64), k, step)
-            pool.add(part, scans, rows)
+            pool.add(part, obs, rows)
             got += 1
             state["next_shard"] = max(state["next_shard"], j + 1)
             return True
@@ -343,7 +388,7 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
         last_ckpt = time.perf_counter()
         start_seen, start_wall = state["samples_seen"], state["wall_time_s"]
         bar = tqdm(total=cfg.max_samples, initial=state["samples_seen"], unit="sample",
-                   desc=f"train lidar k={k} at scale", disable=not progress, smoothing=0.05,
+                   desc=f"train {modality} k={k} at scale", disable=not progress, smoothing=0.05,
                    mininterval=5.0)
         ema = None
         t_seg = time.perf_counter()
@@ -361,7 +406,7 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
                 cpu = copy.deepcopy(net.model).cpu()
                 save_resume_state(net.out / RESUME, _state_to_cpu(net.opt.state_dict()),
                                   state["samples_seen"])
-                save_checkpoint(net.out / CHECKPOINT, cpu, cfg.lidar, train_config=net.cfg.to_dict(),
+                save_checkpoint(net.out / CHECKPOINT, cpu, sensor_cfg, train_config=net.cfg.to_dict(),
                                 metrics=net.metrics, history=net.history,
                                 samples_seen=state["samples_seen"],
                                 wall_time_s=state["wall_time_s"], train_state=dict(state),
@@ -372,8 +417,8 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
             while take(False):
                 pass
             idx = torch.randint(0, pool.n, (bs,), device=device, generator=gen)
-            cur = pool.cur[idx].float().unsqueeze(1)
-            ctxs = frames_t[pool.ctx_rows[idx]].float().unsqueeze(2)
+            cur = _as_network_input(pool.cur[idx], modality)
+            ctxs = _as_network_input(frames_t[pool.ctx_rows[idx]], modality)
             batch = Batch(cur, ctxs, pool.waypoint[idx], pool.heading[idx], pool.overlap[idx], zero2)
             lr = cfg.lr * cfg.lr_decay ** (state["samples_seen"] // cfg.epoch_samples)
             losses = []
@@ -419,7 +464,7 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
     rate = seen / max(state["wall_time_s"] - start_wall, 1e-9)
     cards = {}
     for net in nets:
-        card = {"checkpoint": CHECKPOINT, "modality": "lidar", "k": k, "output": net.cfg.network.output,
+        card = {"checkpoint": CHECKPOINT, "modality": modality, "k": k, "output": net.cfg.network.output,
                 "samples_seen": state["samples_seen"], "wall_time_s": round(state["wall_time_s"], 1),
                 "train_samples_per_s": round(rate, 1), "git_revision": revision,
                 "data": {"train_worlds": net.cfg.data.train_worlds,
@@ -467,17 +512,23 @@ def _compare(paths: list[str], val: dict, device) -> dict:
     return out
 
 
-def _render_frames(trajs, lidar_cfg) -> np.ndarray:
-    """float16 scans in [0, 1] of every pose of ``trajs`` (P, beams)."""
-    from topodrake.sensing.lidar import Lidar
+def _render_frames(trajs, modality: str, camera_cfg, lidar_cfg, device):
+    """The observation of every pose of ``trajs`` in the pool's storage, on
+    ``device``: (P, beams) float16 or (P, H, W, 3) uint8, filled world by world."""
+    import torch
+
     from topodrake.world import load_world
 
-    out = np.empty((len(trajs.poses), lidar_cfg.beams), np.float16)
+    if modality == "camera":
+        shape, dtype = (camera_cfg.height, camera_cfg.width, 3), torch.uint8
+    else:
+        shape, dtype = (lidar_cfg.beams,), torch.float16
+    out = torch.empty((len(trajs.poses), *shape), dtype=dtype, device=device)
     for w, name in enumerate(trajs.worlds):
-        lidar = Lidar(load_world(name), lidar_cfg)
+        sensor = _Sensor(load_world(name), modality, camera_cfg, lidar_cfg)
         for t in np.flatnonzero(trajs.traj_world == w):
             r = trajs.rows(int(t))
-            out[r] = _normalised(lidar.scan(trajs.poses[r]), lidar_cfg.range_m)
+            out[r.start:r.stop] = torch.from_numpy(sensor.observe(trajs.poses[r])).to(device)
     return out
 
 
@@ -512,7 +563,7 @@ def _scale_meta(sc: ScaleConfig, state: dict, name: str) -> dict:
 def main(argv=None) -> int:
     import argparse
 
-    ap = argparse.ArgumentParser(description="Train C_WP at scale (lidar) on a GPU.")
+    ap = argparse.ArgumentParser(description="Train C_WP at scale (lidar or camera) on a GPU.")
     ap.add_argument("--config", required=True, help="scale run YAML (train: ..., scale: ...)")
     ap.add_argument("--out", required=True, help="output folder (resumed when it holds a checkpoint)")
     ap.add_argument("--minutes", type=float, default=8.0, help="wall-time budget of this call")
