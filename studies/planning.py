@@ -10,6 +10,8 @@ subset; existing maps are reused):
 - ``lidar``: the lidar k=5 map, followed by lidar k=5 C_WP + RE;
 - ``lidar_scale``: the lidar k=5 map, followed by the lidar C_WP trained at
   scale (``checkpoints/lidar_k5_scale``) with the lidar k=5 RE;
+- ``ours_scale``: the camera k=5 map, followed by the camera C_WP trained at
+  scale (``checkpoints/camera_k5_scale``) with the camera k=5 RE;
 - ``lidar_reg``: the map built with the RE of the registration C_WP (lidar
   teach and repeat, no network; ``checkpoints/reach_lidar_reg``), followed
   by that controller and its RE; its short reach keeps denser anchors

@@ -491,6 +491,25 @@ def test_the_lidar_scale_follower_drives_the_scale_c_wp_with_the_lidar_re():
     assert str(shipped_checkpoint("lidar_k5_scale")).endswith("lidar_k5_scale/checkpoint.pt")
 
 
+def test_ours_scale_drives_the_camera_c_wp_at_scale_on_the_camera_map():
+    """``ours_scale`` keeps ``ours``' camera map and RE and swaps in the camera
+    C_WP trained at scale; its plan calibration ships beside that C_WP."""
+    import torch
+
+    from topodrake.navigation.plan_methods import METHODS, networks, plan_calibration_path
+
+    assert METHODS["ours_scale"].map == METHODS["ours"].map == "camera"
+    cwp, reach = networks("camera_scale")
+    base_cwp, base_reach = networks("camera")
+    assert cwp.observation == base_cwp.observation == "camera"
+    same = all(torch.equal(a, b) for a, b in zip(reach.model.state_dict().values(),
+                                                  base_reach.model.state_dict().values()))
+    differ = any(not torch.equal(a, b) for a, b in zip(cwp.model.state_dict().values(),
+                                                        base_cwp.model.state_dict().values()))
+    assert same and differ
+    assert plan_calibration_path("ours_scale").parent.name == "camera_k5_scale"
+
+
 def test_rescore_sets_the_shipped_calibration_against_recorded_trials(tmp_path):
     """``--rescore`` runs no trial: it reads recorded trials, attaches the
     shipped calibration's chance (lidar has one) and writes the table and

@@ -23,6 +23,7 @@ MAP_KINDS = ("camera", "lidar", "lidar_reg", "oracle", "sptm")
 FOLLOWERS = {"camera": "camera k5 C_WP + learned camera k5 RE",
              "lidar": "lidar k5 C_WP + learned lidar k5 RE",
              "lidar_scale": "lidar k5 C_WP trained at scale + learned lidar k5 RE",
+             "camera_scale": "camera k5 C_WP trained at scale + learned camera k5 RE",
              "lidar_reg": "registration C_WP (lidar teach and repeat) + its learned RE",
              "oracle": "A* oracle C_WP + geometric oracle RE",
              "oracle_cwp": "A* oracle C_WP + learned camera k5 RE",
@@ -78,6 +79,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("ours_oracle_follow", map="camera", follower="oracle", oracle=True),
     Method("oracle_cwp", map="oracle", follower="oracle_cwp", oracle=True),
     Method("lidar_scale", map="lidar", follower="lidar_scale"),
+    Method("ours_scale", map="camera", follower="camera_scale"),
     Method("lidar_oracle_follow", map="lidar", follower="oracle", oracle=True),
     Method("lidar_scale_oracle_re", map="lidar", follower="lidar_scale_oracle_re"),
     Method("lidar_oracle_cwp", map="lidar", follower="oracle_cwp_lidar"),
@@ -86,8 +88,10 @@ METHODS: dict[str, Method] = {m.name: m for m in (
 ORACLE_METHODS = tuple(name for name, m in METHODS.items() if m.oracle)
 
 _NETWORKS: dict = {}
-#: the lidar C_WP trained at scale (``lidar_scale``)
-SCALE_CWP = "lidar_k5_scale"
+#: followers with a C_WP trained at scale: (its checkpoint folder, the map
+#: kind whose RE rates the hops it drives)
+SCALE_FOLLOWERS = {"lidar_scale": ("lidar_k5_scale", "lidar"),
+                   "camera_scale": ("camera_k5_scale", "camera")}
 
 
 def networks(modality: str, world=None):
@@ -96,7 +100,8 @@ def networks(modality: str, world=None):
     ``world`` (``"oracle"``: A* C_WP and geometric RE; ``"oracle_cwp"``: A*
     C_WP and the learned camera RE; ``"oracle_cwp_lidar"``: A* C_WP and the
     learned lidar RE; ``"lidar_scale_oracle_re"``: the C_WP at scale and the
-    geometric RE)."""
+    geometric RE; a key of :data:`SCALE_FOLLOWERS`: that C_WP at scale and
+    its map kind's learned RE)."""
     from topodrake.topomap.sources import (SHIPPED, load_networks, shipped_checkpoint,
                                            shipped_controller)
 
@@ -112,14 +117,15 @@ def networks(modality: str, world=None):
         from topodrake.navigation.evaluate import GeometricReachability
 
         return networks("lidar_scale")[0], GeometricReachability(world, k=5)
-    if modality == "lidar_scale" and modality not in _NETWORKS:
-        # the C_WP at scale drives the lidar k5 map's hops, rated by lidar k5's RE
+    if modality in SCALE_FOLLOWERS and modality not in _NETWORKS:
+        # the C_WP at scale drives the map's hops, rated by the RE the map was built with
         from topodrake.learning.reachability.controllers import controller_policy
         from topodrake.learning.reachability.estimator import Reachability
 
-        _NETWORKS[modality] = (controller_policy(shipped_checkpoint(SCALE_CWP)),
-                               Reachability.from_checkpoint(shipped_checkpoint(SHIPPED["lidar"][0]),
-                                                            shipped_checkpoint(SHIPPED["lidar"][1])))
+        cwp, kind = SCALE_FOLLOWERS[modality]
+        _NETWORKS[modality] = (controller_policy(shipped_checkpoint(cwp)),
+                               Reachability.from_checkpoint(shipped_checkpoint(SHIPPED[kind][0]),
+                                                            shipped_checkpoint(SHIPPED[kind][1])))
     if modality not in _NETWORKS:
         _NETWORKS[modality] = load_networks(shipped_controller(modality),
                                             shipped_checkpoint(SHIPPED[modality][0]))
@@ -128,7 +134,8 @@ def networks(modality: str, world=None):
 
 #: methods whose follower is not their map kind's own: their plan calibration
 #: ships beside the follower's C_WP (the map's RE is another follower's)
-CALIBRATED_BESIDE_CWP = {"lidar_scale": SCALE_CWP}
+CALIBRATED_BESIDE_CWP = {"lidar_scale": SCALE_FOLLOWERS["lidar_scale"][0],
+                         "ours_scale": SCALE_FOLLOWERS["camera_scale"][0]}
 
 
 def plan_calibration_path(method: str):

@@ -230,7 +230,7 @@ def cmd_map_plan(args) -> None:
 
 #: the planning study's methods as ``--method`` names them (camera: the study's "ours")
 STUDY_METHODS = {"camera": "ours", "lidar": "lidar", "lidar_reg": "lidar_reg",
-                 "lidar_scale": "lidar_scale"}
+                 "lidar_scale": "lidar_scale", "camera_scale": "ours_scale"}
 
 
 def cmd_map_calibrate(args) -> None:
@@ -361,7 +361,8 @@ def add_map_parser(sub) -> None:
     c.add_argument("--method", required=True, choices=list(STUDY_METHODS),
                    help="the planning study's method (camera: its 'ours')")
     c.add_argument("--out", help="calibration file to write (default: plan_calibration.json "
-                                 "beside the method's shipped RE; lidar_scale: beside its C_WP)")
+                                 "beside the method's shipped RE; lidar_scale, camera_scale: beside "
+                                 "their C_WP)")
     c.add_argument("--json", action="store_true", help="print the fit as one JSON object")
     add_force_option(c)
     c.set_defaults(func=cmd_map_calibrate)

@@ -48,6 +48,8 @@ CONTROLLERS = {
     # the C_WP trained at scale, with the RE of the C_WP its chains were made for
     "lidar_k5_scale": ("checkpoints/lidar_k5_scale/checkpoint.pt",
                        "checkpoints/reach_lidar_k5/checkpoint.pt", "checkpoints/lidar_k5/checkpoint.pt"),
+    "camera_k5_scale": ("checkpoints/camera_k5_scale/checkpoint.pt",
+                        "checkpoints/reach_camera_k5/checkpoint.pt", "checkpoints/camera_k5/checkpoint.pt"),
 }
 TEST_WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
 BANDS_M = (0.0, 1.0, 2.0, 3.0, np.inf)
