@@ -205,3 +205,22 @@ def test_shipped_scale_configs_load():
         for net in [run.train.network, *run.scale.variants.values()]:
             WaypointNetwork(net, input_size(net, run.train.lidar.beams))
     assert len(load_scale_config(root / "scale_lidar_k5.yaml").train.data.train_worlds) == 96
+
+
+def test_frames_are_rendered_row_for_row(test0_drives):
+    """Every trajectory frame's observation lands in its own row, for both sensors."""
+    from topodrake.learning.waypoint.scale import _normalised, _render_frames
+    from topodrake.sensing.camera import Camera
+    from topodrake.sensing.config import CameraConfig, LidarConfig
+    from topodrake.sensing.lidar import Lidar
+
+    world, drives = test0_drives
+    cam_cfg, lidar_cfg = CameraConfig(), LidarConfig()
+    rows = np.random.default_rng(0).choice(len(drives.poses), 7, replace=False)
+    images = _render_frames(drives, "camera", cam_cfg, lidar_cfg, "cpu")
+    assert images.shape == (len(drives.poses), 64, 64, 3)
+    np.testing.assert_array_equal(images[rows].numpy(),
+                                  Camera(world, cam_cfg).render(drives.poses[rows]))
+    scans = _render_frames(drives, "lidar", cam_cfg, lidar_cfg, "cpu")
+    want = _normalised(Lidar(world, lidar_cfg).scan(drives.poses[rows]), lidar_cfg.range_m)
+    np.testing.assert_array_equal(scans[rows].numpy(), want)

@@ -526,9 +526,11 @@ def _render_frames(trajs, modality: str, camera_cfg, lidar_cfg, device):
     out = torch.empty((len(trajs.poses), *shape), dtype=dtype, device=device)
     for w, name in enumerate(trajs.worlds):
         sensor = _Sensor(load_world(name), modality, camera_cfg, lidar_cfg)
-        for t in np.flatnonzero(trajs.traj_world == w):
-            r = trajs.rows(int(t))
-            out[r.start:r.stop] = torch.from_numpy(sensor.observe(trajs.poses[r])).to(device)
+        rows = np.concatenate([np.arange(trajs.traj_offsets[t], trajs.traj_offsets[t + 1])
+                               for t in np.flatnonzero(trajs.traj_world == w)] or [np.zeros(0, int)])
+        for chunk in np.array_split(rows, max(1, len(rows) // 20000)):     # few large calls
+            obs = torch.from_numpy(sensor.observe(trajs.poses[chunk]))
+            out[torch.from_numpy(chunk).to(device)] = obs.to(device)
     return out
 
 
