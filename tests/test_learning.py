@@ -381,13 +381,15 @@ def _tiny_config(**kw):
     return cfg
 
 
-def test_tiny_training_reduces_loss_and_resumes(samples, tmp_path):
+def test_tiny_training_reduces_loss_and_resumes(samples, tmp_path, capsys):
     from topodrake.learning.waypoint.train import train_waypoint
 
     train, val = samples.subset(np.arange(240)), samples.subset(np.arange(240, 300))
     first = train_waypoint(_tiny_config(max_samples=32), tmp_path, samples=(train, val),
-                           progress=False)
+                           progress=True)
     assert first.samples_seen == 32
+    out, err = capsys.readouterr()      # progress goes to stderr: stdout stays the --json's
+    assert out == "" and "trained camera k=1 waypoint" in err
     more = train_waypoint(_tiny_config(max_samples=1280), tmp_path, samples=(train, val),
                           progress=False, command="topodrake train waypoint --config c.yaml --out x")
     assert more.samples_seen == 1280

@@ -29,6 +29,7 @@ localization rely on.
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -200,7 +201,7 @@ def build_frames(cfg: RetrievalTrainConfig, data_dir, progress: bool = True
         train += [(img, p, h) for img, p in got]
         if progress:
             print(f"retrieval data {name}: {len(got)} drives, {sum(len(p) for _, p in got)} "
-                  f"frames ({time.time() - t0:.0f} s)", flush=True)
+                  f"frames ({time.time() - t0:.0f} s)", flush=True, file=sys.stderr)
     got = load_drives(d.eval_world, data_dir, d, d.eval_drives, rng, cfg.camera, progress)
     evals = [(img, p, 0) for img, p in got]
     size = cfg.network.image_size
@@ -350,5 +351,6 @@ def train_retrieval(cfg: RetrievalTrainConfig, out_dir, data_dir="data", *, prog
             "history": history, "metrics": metrics, "command": command, "config": asdict(cfg)}
     atomic_write_json(out_dir / CARD, card)
     if progress:
-        print(f"trained SPTM retrieval: {steps} steps in {wall / 60:.1f} min -> {ckpt}", flush=True)
+        print(f"trained SPTM retrieval: {steps} steps in {wall / 60:.1f} min -> {ckpt}",
+              flush=True, file=sys.stderr)
     return RetrievalResult(ckpt, steps, wall, metrics)

@@ -33,6 +33,7 @@ stop after ``max_steps`` or ``max_minutes``. Everything is seeded.
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -213,7 +214,7 @@ def build_data(cfg: PlaceTrainConfig, data_dir, progress: bool = True) -> PlaceD
         if progress:
             print(f"place data {name}: {len(p)} frames, {len(pr)} pairs, "
                   f"{(lab > 0.5).mean():.3f} with overlap > 0.5 ({time.time() - t0:.0f} s)",
-                  flush=True)
+                  flush=True, file=sys.stderr)
     return PlaceData(torch.cat(inputs), np.concatenate(poses), np.concatenate(house),
                      np.concatenate(pairs), np.concatenate(labels).astype(np.float32))
 
@@ -348,5 +349,5 @@ def train_place(cfg: PlaceTrainConfig, out_dir, data_dir="data", *, progress: bo
     atomic_write_json(out_dir / CARD, card)
     if progress:
         print(f"trained place {cfg.network.modality}: {steps} steps in {wall / 60:.1f} min "
-              f"-> {ckpt}", flush=True)
+              f"-> {ckpt}", flush=True, file=sys.stderr)
     return PlaceResult(ckpt, steps, wall, metrics)

@@ -32,6 +32,7 @@ prints ``{"camera_k5": {"onpolicy_error_m": e, "val_error_m": e, "re_ece": e,
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -145,7 +146,7 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
             oracle_covers.extend(ov.cover.tolist())
         if progress:
             print(f"follower bench {Path(cwp_path).parent.name}: {name}: {len(visited)} states, "
-                  f"cover {visited.cover.mean():.3f}", flush=True)
+                  f"cover {visited.cover.mean():.3f}", flush=True, file=sys.stderr)
         # RE on the follower's own states: roll out C_WP alone toward the anchor
         re_labels = re_labels.extend(label_visited_reach(world, trajs, visited, policy, reach,
                                                          per_world_re, rng, seed * 100 + w))

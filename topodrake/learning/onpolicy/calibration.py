@@ -35,6 +35,7 @@ The same state labels score RE in ``topodrake bench follower``
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -135,7 +136,7 @@ def collect_state_labels(policy, reach, config: FollowerCalibrationConfig, data=
         covers[name] = round(float(visited.cover.mean()), 4)
         if progress:
             print(f"follower calibration: {name}: {len(visited)} states, {len(labels.label)} "
-                  f"labels, success {labels.label.mean():.3f}", flush=True)
+                  f"labels, success {labels.label.mean():.3f}", flush=True, file=sys.stderr)
     return labels, covers
 
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 import shutil
 import time
 from dataclasses import asdict, dataclass, field
@@ -156,7 +157,8 @@ def collect_round(cfg: DaggerConfig, r: int, controller: Path, data_dir: Path, p
         states += len(visited)
         if progress:
             print(f"dagger round {r}: {name}: {len(visited)} states, cover "
-                  f"{visited.cover.mean():.3f}, {len(parts[-1]['traj'])} samples", flush=True)
+                  f"{visited.cover.mean():.3f}, {len(parts[-1]['traj'])} samples",
+                  flush=True, file=sys.stderr)
     meta = {"round": r, "worlds": worlds, "controller": str(controller),
             "cover": float(np.mean(covers)), "states": states}
     return samples_from_fields(trajs, parts, meta), meta
@@ -219,7 +221,7 @@ def run_dagger(cfg: DaggerConfig, out_dir, data_dir="data", *, progress: bool = 
         if progress:
             print(f"dagger round {r} done: followed cover {samples.meta.get('cover'):.3f}, val "
                   f"error {res.metrics.get('waypoint_error_m'):.3f} m "
-                  f"({(time.perf_counter() - t0) / 60:.1f} min)", flush=True)
+                  f"({(time.perf_counter() - t0) / 60:.1f} min)", flush=True, file=sys.stderr)
     return state
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -396,5 +397,5 @@ def train_network(cfg: TrainConfig, task: Task, out_dir, *, resume: bool = True,
         print(f"trained {cfg.network.modality} k={cfg.network.k} {cfg.network.output}: "
               f"{state['samples_seen']} samples in {state['wall_time_s'] / 60:.1f} min "
               f"({rate:.0f}/s); val {task.metric} {metrics.get(task.metric, float('nan')):.3f} "
-              f"-> {ckpt_path}")
+              f"-> {ckpt_path}", file=sys.stderr)
     return TrainResult(ckpt_path, metrics, state["samples_seen"], state["wall_time_s"], rate)
