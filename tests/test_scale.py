@@ -207,20 +207,29 @@ def test_shipped_scale_configs_load():
     assert len(load_scale_config(root / "scale_lidar_k5.yaml").train.data.train_worlds) == 96
 
 
-def test_frames_are_rendered_row_for_row(test0_drives):
-    """Every trajectory frame's observation lands in its own row, for both sensors."""
-    from topodrake.learning.waypoint.scale import _normalised, _render_frames
+def test_frames_are_rendered_row_for_row(test0_drives, tmp_path):
+    """Every trajectory frame's observation, rendered by the workers, lands in
+    its own row on the device, for both sensors."""
+    from topodrake.learning.config import TrainConfig
+    from topodrake.learning.waypoint.scale import (_gather_frames, _init_worker, _normalised,
+                                                   _render_world)
     from topodrake.sensing.camera import Camera
-    from topodrake.sensing.config import CameraConfig, LidarConfig
     from topodrake.sensing.lidar import Lidar
 
     world, drives = test0_drives
-    cam_cfg, lidar_cfg = CameraConfig(), LidarConfig()
-    rows = np.random.default_rng(0).choice(len(drives.poses), 7, replace=False)
-    images = _render_frames(drives, "camera", cam_cfg, lidar_cfg, "cpu")
-    assert images.shape == (len(drives.poses), 64, 64, 3)
-    np.testing.assert_array_equal(images[rows].numpy(),
-                                  Camera(world, cam_cfg).render(drives.poses[rows]))
-    scans = _render_frames(drives, "lidar", cam_cfg, lidar_cfg, "cpu")
-    want = _normalised(Lidar(world, lidar_cfg).scan(drives.poses[rows]), lidar_cfg.range_m)
-    np.testing.assert_array_equal(scans[rows].numpy(), want)
+    pack = pack_trajectories(drives, tmp_path / "t.npz")
+    packed = load_packed_trajectories(pack)
+    rows = np.random.default_rng(0).choice(len(packed.poses), 7, replace=False)
+    for modality in ("camera", "lidar"):
+        train = TrainConfig().to_dict()
+        train["network"]["modality"], train["shard_samples"] = modality, 10
+        _init_worker(str(pack), ["test-0"], train)
+        cfg = TrainConfig()
+        frames = _gather_frames(map(_render_world, [0]), packed, modality, cfg.camera,
+                                cfg.lidar, "cpu")
+        assert len(frames) == len(packed.poses)
+        if modality == "camera":
+            want = Camera(world, cfg.camera).render(packed.poses[rows])
+        else:
+            want = _normalised(Lidar(world, cfg.lidar).scan(packed.poses[rows]), cfg.lidar.range_m)
+        np.testing.assert_array_equal(frames[rows].numpy(), want)

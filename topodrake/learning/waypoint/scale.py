@@ -340,6 +340,8 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
     ctx = mp.get_context("fork")
     pool_proc = ctx.Pool(workers, initializer=_init_worker,
                          initargs=(sc.trajectories, cfg.data.train_worlds, train_dict))
+    # the workers render every house's frames first (tasks run in the order given), then shards
+    rendered = pool_proc.imap(_render_world, range(n_worlds), chunksize=1)
     shards = pool_proc.imap_unordered(_make_shard, range(first, first + total), chunksize=1)
     try:
         # everything below may use CUDA: the workers exist already
@@ -347,7 +349,7 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
             net.model.to(device)
             _optimizer_to(net.opt, device)
         torch.backends.cudnn.benchmark = True
-        frames_t = _render_frames(train_trajs, modality, cfg.camera, cfg.lidar, device)
+        frames_t = _gather_frames(rendered, train_trajs, modality, cfg.camera, cfg.lidar, device)
         val_sets = {"val": cfg.data.samples, "val_paper": SampleConfig()}
         val_trajs = packed.select_worlds(cfg.data.val_worlds)
         val = {key: DeviceBatcher(SampleBatcher(make_samples(val_trajs, cfg.data.val_samples,
@@ -512,25 +514,40 @@ def _compare(paths: list[str], val: dict, device) -> dict:
     return out
 
 
-def _render_frames(trajs, modality: str, camera_cfg, lidar_cfg, device):
-    """The observation of every pose of ``trajs`` in the pool's storage, on
-    ``device``: (P, beams) float16 or (P, H, W, 3) uint8, filled world by world."""
-    import torch
+def _frame_rows(trajs, w: int) -> np.ndarray:
+    """Rows of ``trajs.poses`` that belong to world ``w``."""
+    ids = np.flatnonzero(trajs.traj_world == w)
+    return np.concatenate([np.arange(trajs.traj_offsets[t], trajs.traj_offsets[t + 1]) for t in ids]
+                          or [np.zeros(0, np.int64)]).astype(np.int64)
 
+
+def _render_world(w: int):
+    """Worker side: (w, rows, observations) of every trajectory frame of world ``w``."""
     from topodrake.world import load_world
 
+    trajs = _W["trajs"]
+    rows = _frame_rows(trajs, w)
+    sensor = _Sensor(load_world(_W["worlds"][w]), _W["modality"], _W["camera"], _W["lidar"])
+    return w, rows, sensor.observe(trajs.poses[rows])
+
+
+def _frames_tensor(n: int, modality: str, camera_cfg, lidar_cfg, device):
+    import torch
+
     if modality == "camera":
-        shape, dtype = (camera_cfg.height, camera_cfg.width, 3), torch.uint8
-    else:
-        shape, dtype = (lidar_cfg.beams,), torch.float16
-    out = torch.empty((len(trajs.poses), *shape), dtype=dtype, device=device)
-    for w, name in enumerate(trajs.worlds):
-        sensor = _Sensor(load_world(name), modality, camera_cfg, lidar_cfg)
-        rows = np.concatenate([np.arange(trajs.traj_offsets[t], trajs.traj_offsets[t + 1])
-                               for t in np.flatnonzero(trajs.traj_world == w)] or [np.zeros(0, int)])
-        for chunk in np.array_split(rows, max(1, len(rows) // 20000)):     # few large calls
-            obs = torch.from_numpy(sensor.observe(trajs.poses[chunk]))
-            out[torch.from_numpy(chunk).to(device)] = obs.to(device)
+        return torch.empty((n, camera_cfg.height, camera_cfg.width, 3), dtype=torch.uint8,
+                           device=device)
+    return torch.empty((n, lidar_cfg.beams), dtype=torch.float16, device=device)
+
+
+def _gather_frames(rendered, trajs, modality: str, camera_cfg, lidar_cfg, device):
+    """The observation of every pose of ``trajs`` in the pool's storage, on
+    ``device``, from the workers' :func:`_render_world` results."""
+    import torch
+
+    out = _frames_tensor(len(trajs.poses), modality, camera_cfg, lidar_cfg, device)
+    for _, rows, obs in rendered:
+        out[torch.from_numpy(rows).to(device)] = torch.from_numpy(obs).to(device)
     return out
 
 
