@@ -346,8 +346,8 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
 
     assert list(METHODS) == ["ours", "lidar", "lidar_reg", "sptm", "oracle", "ours_replan",
                              "ours_obstacles", "oracle_full", "ours_oracle_follow", "oracle_cwp",
-                             "lidar_scale", "lidar_oracle_follow", "lidar_scale_oracle_re",
-                             "lidar_oracle_cwp"]
+                             "lidar_scale", "ours_scale", "lidar_oracle_follow",
+                             "lidar_scale_oracle_re", "lidar_oracle_cwp"]
     assert ORACLE_METHODS == ("oracle_full", "ours_oracle_follow", "oracle_cwp",
                               "lidar_oracle_follow")
     for name, m in METHODS.items():
