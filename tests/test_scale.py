@@ -155,27 +155,27 @@ def test_pool_storage_becomes_the_networks_input():
     import torch
 
     from topodrake.learning.data import to_network_input
-    from topodrake.learning.waypoint.scale import _as_network_input
+    from topodrake.learning.waypoint.scale_data import as_network_input
     from topodrake.sensing.config import LidarConfig
 
     rng = np.random.default_rng(0)
     images = rng.integers(0, 256, (2, 3, 64, 64, 3), dtype=np.uint8)
     cam = NetworkConfig(modality="camera")
-    torch.testing.assert_close(_as_network_input(torch.from_numpy(images), "camera"),
+    torch.testing.assert_close(as_network_input(torch.from_numpy(images), "camera"),
                                to_network_input(images, cam, LidarConfig()))
     lidar = LidarConfig()
     ranges = rng.uniform(0.1, 12.0, (2, 3, lidar.beams))
-    from topodrake.learning.waypoint.scale import _normalised
+    from topodrake.learning.waypoint.scale_data import normalised
 
-    stored = torch.from_numpy(_normalised(ranges, lidar.range_m))
+    stored = torch.from_numpy(normalised(ranges, lidar.range_m))
     want = to_network_input(ranges, NetworkConfig(**TINY), lidar)
-    torch.testing.assert_close(_as_network_input(stored, "lidar"), want, atol=2e-3, rtol=0)
+    torch.testing.assert_close(as_network_input(stored, "lidar"), want, atol=2e-3, rtol=0)
 
 
 def test_pool_ring_replaces_the_oldest_samples():
     import torch
 
-    from topodrake.learning.waypoint.scale import Pool
+    from topodrake.learning.waypoint.scale_data import Pool
 
     pool = Pool(5, (2,), torch.float16, 3, "cpu")
     part = {k: np.zeros((3, 2)) for k in ("waypoint", "overlap")}
@@ -211,8 +211,8 @@ def test_frames_are_rendered_row_for_row(test0_drives, tmp_path):
     """Every trajectory frame's observation, rendered by the workers, lands in
     its own row on the device, for both sensors."""
     from topodrake.learning.config import TrainConfig
-    from topodrake.learning.waypoint.scale import (_gather_frames, _init_worker, _normalised,
-                                                   _render_world)
+    from topodrake.learning.waypoint.scale_data import (gather_frames, init_worker, normalised,
+                                                        render_world)
     from topodrake.sensing.camera import Camera
     from topodrake.sensing.lidar import Lidar
 
@@ -223,13 +223,13 @@ def test_frames_are_rendered_row_for_row(test0_drives, tmp_path):
     for modality in ("camera", "lidar"):
         train = TrainConfig().to_dict()
         train["network"]["modality"], train["shard_samples"] = modality, 10
-        _init_worker(str(pack), ["test-0"], train)
+        init_worker(str(pack), ["test-0"], train)
         cfg = TrainConfig()
-        frames = _gather_frames(map(_render_world, [0]), packed, modality, cfg.camera,
+        frames = gather_frames(map(render_world, [0]), packed, modality, cfg.camera,
                                 cfg.lidar, "cpu")
         assert len(frames) == len(packed.poses)
         if modality == "camera":
             want = Camera(world, cfg.camera).render(packed.poses[rows])
         else:
-            want = _normalised(Lidar(world, cfg.lidar).scan(packed.poses[rows]), cfg.lidar.range_m)
+            want = normalised(Lidar(world, cfg.lidar).scan(packed.poses[rows]), cfg.lidar.range_m)
         np.testing.assert_array_equal(frames[rows].numpy(), want)

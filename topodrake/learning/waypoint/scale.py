@@ -48,6 +48,10 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.learning.config import TrainConfig
 from topodrake.learning.networks import NetworkConfig
+from topodrake.learning.waypoint.scale_data import (DeviceBatcher, Pool, as_network_input,
+                                                    gather_frames, init_worker, make_shard,
+                                                    render_world, warm_kernels)
+
 
 @dataclass
 class ScaleConfig:
@@ -98,149 +102,6 @@ def load_scale_config(path) -> ScaleRunConfig:
     from topodrake.typed_yaml import load_typed
 
     return load_typed(ScaleRunConfig, path, "config").validate(f"config {path}")
-
-
-# ---------------------------------------------------------------- shards (worker side)
-
-_W: dict = {}
-
-
-def _init_worker(traj_path: str, worlds: list[str], train: dict) -> None:
-    import numba
-    import torch
-
-    numba.set_num_threads(1)
-    torch.set_num_threads(1)
-    from topodrake.learning.trajpack import load_packed_trajectories
-
-    from topodrake.learning.samples import SampleConfig
-    from topodrake.sensing.config import CameraConfig, LidarConfig
-
-    _W.update(trajs=load_packed_trajectories(traj_path).select_worlds(worlds), worlds=worlds,
-              samples=SampleConfig(**train["data"]["samples"]),
-              modality=train["network"]["modality"], camera=CameraConfig(**train["camera"]),
-              lidar=LidarConfig(**train["lidar"]), seed=train["data"]["sample_seed"],
-              n=train["shard_samples"], cache={})
-
-
-def _make_shard(j: int):
-    """Shard ``j``: (j, sample fields, source observations in the pool's storage)."""
-    from topodrake.learning.samples import _world_samples
-    from topodrake.world import load_world
-
-    worlds, trajs = _W["worlds"], _W["trajs"]
-    w, s = j % len(worlds), j // len(worlds)
-    if w not in _W["cache"]:
-        world = load_world(worlds[w])
-        sensor = _Sensor(world, _W["modality"], _W["camera"], _W["lidar"])
-        _W["cache"] = {w: (world, sensor)}      # one world per process at a time
-    world, sensor = _W["cache"][w]
-    ids = np.flatnonzero(trajs.traj_world == w)
-    part = _world_samples(world, trajs, ids, _W["n"], np.random.default_rng([_W["seed"], w, s]),
-                          _W["samples"], controls=False)
-    keep = ("traj", "tgt", "waypoint", "heading_diff", "overlap")
-    return j, {k: np.asarray(part[k]) for k in keep}, sensor.observe(part["src_pose"])
-
-
-class _Sensor:
-    """A world's sensor, observing in the pool's storage: lidar ranges as
-    float16 in [0, 1], camera images as uint8 (H, W, 3)."""
-
-    def __init__(self, world, modality: str, camera, lidar):
-        self.modality, self.range_m = modality, lidar.range_m
-        if modality == "camera":
-            from topodrake.sensing.camera import Camera
-
-            self.sensor = Camera(world, camera)
-        else:
-            from topodrake.sensing.lidar import Lidar
-
-            self.sensor = Lidar(world, lidar)
-
-    def observe(self, poses: np.ndarray) -> np.ndarray:
-        if self.modality == "camera":
-            return self.sensor.render(poses)
-        return _normalised(self.sensor.scan(poses), self.range_m)
-
-
-def _as_network_input(obs, modality: str):
-    """Pool storage (..., beams) or (..., H, W, 3) -> the network's float input
-    (..., 1, beams) or (..., 3, H, W), as :func:`topodrake.learning.data.to_network_input`."""
-    if modality == "camera":
-        return obs.movedim(-1, -3).float() * (1.0 / 255.0) - 0.5
-    return obs.float().unsqueeze(-2)
-
-
-def _warm_kernels(traj_path: str, world: str, modality: str) -> None:
-    """Compile (or load) the labeller's and the renderer's kernels in a child
-    process, so the forked workers load them from the disk cache instead of
-    compiling them each (numba's thread pool must not exist before a fork)."""
-    import subprocess
-
-    code = ("import numpy as np; "
-            "from topodrake.learning.waypoint.scale import _init_worker, _make_shard, _W; "
-            f"from topodrake.learning.config import TrainConfig; t = TrainConfig().to_dict(); "
-            f"t['data']['sample_seed'] = 0; t['shard_samples'] = 20; "
-            f"t['network']['modality'] = {modality!r}; "
-            f"_init_worker({traj_path!r}, [{world!r}], t); _make_shard(0)")
-    subprocess.run([sys.executable, "-c", code], check=True)
-
-
-def _normalised(ranges: np.ndarray, range_m: float) -> np.ndarray:
-    """The network's lidar input, float16 (the pool's storage)."""
-    from topodrake.learning.networks import lidar_unit_ranges
-
-    return lidar_unit_ranges(ranges, range_m).astype(np.float16)
-
-
-# ---------------------------------------------------------------- the pool (device side)
-
-class Pool:
-    """Samples on the device, grown shard by shard; once full, each shard
-    replaces the oldest samples (a ring)."""
-
-    def __init__(self, capacity: int, obs_shape: tuple, obs_dtype, frames: int, device):
-        import torch
-
-        self.n = 0
-        self.head = 0
-        self.cur = torch.empty((capacity, *obs_shape), dtype=obs_dtype, device=device)
-        self.ctx_rows = torch.empty((capacity, frames), dtype=torch.int64, device=device)
-        self.waypoint = torch.empty((capacity, 2), device=device)
-        self.heading = torch.empty((capacity, 2), device=device)
-        self.overlap = torch.empty((capacity, 2), device=device)
-
-    def add(self, part: dict, obs: np.ndarray, ctx_rows: np.ndarray) -> None:
-        import torch
-
-        cap = len(self.cur)
-        m = min(len(obs), cap)
-        dev = self.cur.device
-        at = torch.from_numpy((self.head + np.arange(m)) % cap).to(dev)
-        hd = part["heading_diff"][:m].astype(np.float32)
-        for dst, src in ((self.cur, obs[:m]), (self.ctx_rows, ctx_rows[:m].astype(np.int64)),
-                         (self.waypoint, part["waypoint"][:m].astype(np.float32)),
-                         (self.heading, np.column_stack([np.cos(hd), np.sin(hd)])),
-                         (self.overlap, part["overlap"][:m].astype(np.float32))):
-            dst[at] = torch.from_numpy(np.ascontiguousarray(src)).to(dev, dst.dtype)
-        self.head = (self.head + m) % cap
-        self.n = min(self.n + m, cap)
-
-
-class DeviceBatcher:
-    """A CPU batcher (validation) whose batches land on the device."""
-
-    def __init__(self, batcher, device):
-        self.batcher, self.device = batcher, device
-
-    def __len__(self) -> int:
-        return len(self.batcher)
-
-    def batch(self, idx):
-        from dataclasses import fields, replace
-
-        b = self.batcher.batch(idx)
-        return replace(b, **{f.name: getattr(b, f.name).to(self.device) for f in fields(b)})
 
 
 # ---------------------------------------------------------------- training
@@ -336,20 +197,20 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
     first = int(state["next_shard"])
     workers = sc.workers or max(1, (os.cpu_count() or 2) - 1)
     train_dict = {**cfg.to_dict(), "shard_samples": sc.shard_samples}
-    _warm_kernels(sc.trajectories, cfg.data.train_worlds[0], modality)
+    warm_kernels(sc.trajectories, cfg.data.train_worlds[0], modality)
     ctx = mp.get_context("fork")
-    pool_proc = ctx.Pool(workers, initializer=_init_worker,
+    pool_proc = ctx.Pool(workers, initializer=init_worker,
                          initargs=(sc.trajectories, cfg.data.train_worlds, train_dict))
     # the workers render every house's frames first (tasks run in the order given), then shards
-    rendered = pool_proc.imap(_render_world, range(n_worlds), chunksize=1)
-    shards = pool_proc.imap_unordered(_make_shard, range(first, first + total), chunksize=1)
+    rendered = pool_proc.imap(render_world, range(n_worlds), chunksize=1)
+    shards = pool_proc.imap_unordered(make_shard, range(first, first + total), chunksize=1)
     try:
         # everything below may use CUDA: the workers exist already
         for net in nets:
             net.model.to(device)
             _optimizer_to(net.opt, device)
         torch.backends.cudnn.benchmark = True
-        frames_t = _gather_frames(rendered, train_trajs, modality, cfg.camera, cfg.lidar, device)
+        frames_t = gather_frames(rendered, train_trajs, modality, cfg.camera, cfg.lidar, device)
         val_sets = {"val": cfg.data.samples, "val_paper": SampleConfig()}
         val_trajs = packed.select_worlds(cfg.data.val_worlds)
         val = {key: DeviceBatcher(SampleBatcher(make_samples(val_trajs, cfg.data.val_samples,
@@ -419,8 +280,8 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
             while take(False):
                 pass
             idx = torch.randint(0, pool.n, (bs,), device=device, generator=gen)
-            cur = _as_network_input(pool.cur[idx], modality)
-            ctxs = _as_network_input(frames_t[pool.ctx_rows[idx]], modality)
+            cur = as_network_input(pool.cur[idx], modality)
+            ctxs = as_network_input(frames_t[pool.ctx_rows[idx]], modality)
             batch = Batch(cur, ctxs, pool.waypoint[idx], pool.heading[idx], pool.overlap[idx], zero2)
             lr = cfg.lr * cfg.lr_decay ** (state["samples_seen"] // cfg.epoch_samples)
             losses = []
@@ -511,43 +372,6 @@ def _compare(paths: list[str], val: dict, device) -> dict:
         model = ck.model.to(device)
         out[p] = {key: evaluate(model, b) for key, b in val.items()
                   if b.batcher.cfg.k == ck.network.k}
-    return out
-
-
-def _frame_rows(trajs, w: int) -> np.ndarray:
-    """Rows of ``trajs.poses`` that belong to world ``w``."""
-    ids = np.flatnonzero(trajs.traj_world == w)
-    return np.concatenate([np.arange(trajs.traj_offsets[t], trajs.traj_offsets[t + 1]) for t in ids]
-                          or [np.zeros(0, np.int64)]).astype(np.int64)
-
-
-def _render_world(w: int):
-    """Worker side: (w, rows, observations) of every trajectory frame of world ``w``."""
-    from topodrake.world import load_world
-
-    trajs = _W["trajs"]
-    rows = _frame_rows(trajs, w)
-    sensor = _Sensor(load_world(_W["worlds"][w]), _W["modality"], _W["camera"], _W["lidar"])
-    return w, rows, sensor.observe(trajs.poses[rows])
-
-
-def _frames_tensor(n: int, modality: str, camera_cfg, lidar_cfg, device):
-    import torch
-
-    if modality == "camera":
-        return torch.empty((n, camera_cfg.height, camera_cfg.width, 3), dtype=torch.uint8,
-                           device=device)
-    return torch.empty((n, lidar_cfg.beams), dtype=torch.float16, device=device)
-
-
-def _gather_frames(rendered, trajs, modality: str, camera_cfg, lidar_cfg, device):
-    """The observation of every pose of ``trajs`` in the pool's storage, on
-    ``device``, from the workers' :func:`_render_world` results."""
-    import torch
-
-    out = _frames_tensor(len(trajs.poses), modality, camera_cfg, lidar_cfg, device)
-    for _, rows, obs in rendered:
-        out[torch.from_numpy(rows).to(device)] = torch.from_numpy(obs).to(device)
     return out
 
 
