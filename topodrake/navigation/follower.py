@@ -187,6 +187,7 @@ def follower_fields(text: str | None) -> dict:
                              f"fields ({e})") from None
     return fields
 
+
 @dataclass
 class FollowerState:
     """Per-car follower state, arrays over N cars."""

@@ -54,10 +54,13 @@ def same_config(stored, config: "MapConfig", lidar: bool = True) -> bool:
     map (``lidar`` False) the :data:`LIDAR_ONLY` settings do not count."""
     if not isinstance(stored, dict):
         return False
-    ignore = () if lidar else LIDAR_ONLY
-    a = {k: v for k, v in {**LATER_DEFAULTS, **stored}.items() if k not in ignore}
-    b = {k: v for k, v in asdict(config).items() if k not in ignore}
-    return a == b
+    return map_settings({**LATER_DEFAULTS, **stored}, lidar) == map_settings(asdict(config), lidar)
+
+
+def map_settings(config: dict, lidar: bool = True) -> dict:
+    """The settings of a map config (as a dict) that a map of its kind reads:
+    without the :data:`LIDAR_ONLY` ones where it is not a lidar map."""
+    return {k: v for k, v in config.items() if lidar or k not in LIDAR_ONLY}
 
 
 @dataclass

@@ -48,12 +48,12 @@ def config_tag(tag: str, config, modality: str = "lidar") -> str:
     """``tag`` for a map of the default config; with a digest of ``config``
     appended for any other, so that each config keeps its own maps. A map
     of a ``modality`` other than lidar ignores the lidar-only settings."""
-    from topodrake.topomap.graph import LIDAR_ONLY, MapConfig, same_config
+    from topodrake.topomap.graph import MapConfig, map_settings, same_config
 
     lidar = _is_lidar(modality)
     if config is None or same_config(asdict(config), MapConfig(), lidar):
         return tag
-    settings = {k: v for k, v in asdict(config).items() if lidar or k not in LIDAR_ONLY}
+    settings = map_settings(asdict(config), lidar)
     return f"{tag}-cfg{zlib.crc32(json.dumps(settings, sort_keys=True).encode()):08x}"
 
 
