@@ -139,6 +139,50 @@ def test_when_the_most_trusted_place_leads_nowhere_the_plan_starts_at_the_next()
     assert r.reachable and m.graph.nodes[r.vertices[0]]["traj"] == 0
 
 
+def direct_look_alike(start_sees):
+    """The start view (5, 0) reaches drive 0's frames ``start_sees`` and
+    looks just like the goal view (0, 29) (both ways); the goal is reached
+    from frames 24 and 27."""
+    def rule(a, b):
+        if a == (5, 0):
+            return 0.999 if b in (*start_sees, (0, 29)) else 0.1
+        if a == (0, 29):
+            return 0.999 if b in ((5, 0), (0, 24), (0, 27)) else 0.1
+        return same_drive_hops(a, b)
+    return rule
+
+
+def test_a_direct_start_goal_link_needs_the_ends_links_to_be_one_place():
+    start, goal = np.array([5, 0]), np.array([0, 29])
+    far = table_map(direct_look_alike(((0, 0), (0, 3))), direct_check=False)
+    add_trajectory(far, drive(0, 30))
+    r = plan_path(far, start, goal)
+    assert r.reachable and r.vertices == []           # the look-alike: straight to the goal
+    far.config = MapConfig(direct_check=True)
+    r = plan_path(far, start, goal)
+    assert r.reachable and [far.graph.nodes[v]["frame"] for v in r.vertices][0] in (0, 3)
+    assert far.graph.nodes[r.vertices[-1]]["frame"] in (24, 27)
+    # where the start's links are the goal's place, the direct link stays
+    near = table_map(direct_look_alike(((0, 24),)), direct_check=True)
+    add_trajectory(near, drive(0, 30))
+    assert plan_path(near, start, goal).vertices == []
+    with pytest.raises(TopodrakeError, match="direct_check"):
+        MapConfig(direct_check="yes").validate()
+
+
+def test_link_groups_by_support_put_a_place_seen_from_several_anchors_first():
+    m = table_map(same_drive_hops)
+    add_trajectory(m, drive(0, 30))                   # ten anchors, frames 0, 3, ..., 27
+    v = m.trajectories[0].chain
+    links = [(v[0], 0.8), (v[1], 0.75), (v[2], 0.7), (v[8], 0.85)]
+    by_p = link_groups(m, links, hops=3)
+    by_support = link_groups(m, links, hops=3, order="support")
+    assert [[u for u, _ in g] for g in by_p] == [[v[8]], [v[0], v[1], v[2]]]
+    assert [[u for u, _ in g] for g in by_support] == [[v[0], v[1], v[2]], [v[8]]]
+    with pytest.raises(TopodrakeError, match="link_order"):
+        MapConfig(link_order="nearest").validate()
+
+
 # ---------------------------------------------------------------- the joining study
 
 def test_joining_triples_are_distinct_seeded_and_a_prefix_of_a_longer_study():

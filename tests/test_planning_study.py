@@ -470,6 +470,8 @@ def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
     assert config_tag("all", MapConfig(scan_match=0.0, p_join=0.5), "camera") == \
         config_tag("all", MapConfig(p_join=0.5), "camera") != "all"
     assert config_tag("all", MapConfig(scan_match=0.0), "lidar_reg") == off
+    # settings only planning reads share the default map's file
+    assert config_tag("all", MapConfig(direct_check=False, link_order="support")) == "all"
     (tmp_path / "bad.yaml").write_text("scan_match: 2\n")
     code, _, err = run_study("planning", "--map-config", str(tmp_path / "bad.yaml"), "--out",
                              tmp_path)
@@ -659,3 +661,23 @@ def test_paired_difference_resamples_within_strata():
     assert pooled["ci95"][0] < -0.1 and pooled["ci95"][1] > 0.1
     with pytest.raises(ValueError):
         paired_difference([], [])
+
+
+def test_a_cached_map_plans_with_the_callers_planning_settings(tmp_path, monkeypatch):
+    """A map cached under one config is reused for a config that differs only
+    in planning settings, and plans with the caller's."""
+    from types import SimpleNamespace
+
+    from topodrake.topomap import map_cache
+    from topodrake.topomap.graph import MapConfig
+    from topodrake.world import load_world
+
+    world = load_world("test-0")
+    drive = SimpleNamespace(poses=np.array([[1.0, 1.0, 0.0], [1.3, 1.0, 0.0], [1.6, 1.0, 0.0]]))
+    monkeypatch.setattr(map_cache, "DEMO_SEED", 0)
+    built, _ = map_cache.get_map("test-0", world, "oracle", [drive], [0], tmp_path, "all", False,
+                                 MapConfig(direct_check=True))
+    again, build_s = map_cache.get_map("test-0", world, "oracle", [drive], [0], tmp_path, "all",
+                                       False, MapConfig(direct_check=False, link_order="support"))
+    assert build_s == 0.0 and len(again) == len(built)
+    assert not again.config.direct_check and again.config.link_order == "support"

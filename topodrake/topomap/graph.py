@@ -46,6 +46,9 @@ LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False
 
 #: settings only a lidar map reads (a map of another modality is built alike whatever they say)
 LIDAR_ONLY = ("scan_match", "scan_match_cross")
+#: settings only planning reads, not building (a map is built alike whatever they say)
+PLAN_ONLY = ("link_order", "direct_check")
+LINK_ORDERS = ("probability", "support")
 
 
 def same_config(stored, config: "MapConfig", lidar: bool = True) -> bool:
@@ -58,9 +61,11 @@ def same_config(stored, config: "MapConfig", lidar: bool = True) -> bool:
 
 
 def map_settings(config: dict, lidar: bool = True) -> dict:
-    """The settings of a map config (as a dict) that a map of its kind reads:
-    without the :data:`LIDAR_ONLY` ones where it is not a lidar map."""
-    return {k: v for k, v in config.items() if lidar or k not in LIDAR_ONLY}
+    """The settings of a map config (as a dict) that building a map of its
+    kind reads: without the :data:`PLAN_ONLY` ones, nor the
+    :data:`LIDAR_ONLY` ones where it is not a lidar map."""
+    return {k: v for k, v in config.items()
+            if k not in PLAN_ONLY and (lidar or k not in LIDAR_ONLY)}
 
 
 @dataclass
@@ -87,6 +92,12 @@ class MapConfig:
                                  # for the start and goal links
     link_consensus: bool = True  # planning: keep the start's (goal's) links of one place only:
     link_hops: int = 3           # ... links within this many edges of each other are one place
+    link_order: str = "probability"  # ... the groups tried first: "probability" (the most
+                                 # probable link's), "support" (the most links' probability in
+                                 # all: a place seen from several anchors before a lone look-alike)
+    direct_check: bool = True    # planning: a direct start-goal link only where the start's
+                                 # and the goal's links are one place (within link_hops; a
+                                 # look-alike room otherwise joins them in one step)
     goal_mutual: bool = True     # planning: a goal link's p is min(RE(v, goal), RE(goal, v))
     sparsify_window: int = 4     # first window of candidates in the greedy scan
     reuse: bool = True
@@ -120,6 +131,12 @@ class MapConfig:
         if not isinstance(self.link_consensus, bool):
             raise TopodrakeError(f"{where}: link_consensus must be true or false, got "
                                  f"{self.link_consensus!r}")
+        if self.link_order not in LINK_ORDERS:
+            raise TopodrakeError(f"{where}: link_order must be one of {', '.join(LINK_ORDERS)}, "
+                                 f"got {self.link_order!r}")
+        if not isinstance(self.direct_check, bool):
+            raise TopodrakeError(f"{where}: direct_check must be true or false, got "
+                                 f"{self.direct_check!r}")
         if not isinstance(self.join_ends, bool):
             raise TopodrakeError(f"{where}: join_ends must be true or false, got "
                                  f"{self.join_ends!r}")

@@ -16,7 +16,7 @@ import shutil
 import sys
 import time
 import zlib
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from topodrake.errors import TopodrakeError
@@ -92,7 +92,7 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
     (a MapConfig; default: the library's defaults), cached: built when
     missing, each config under its own name (:func:`config_tag`)."""
     from topodrake.topomap.build import build_map
-    from topodrake.topomap.graph import MapConfig, TopoMap, same_config
+    from topodrake.topomap.graph import PLAN_ONLY, MapConfig, TopoMap, same_config
     from topodrake.topomap.mapfile import load_map, read_map_meta, save_map
     from topodrake.topomap.retrieval import default_embedding
     from topodrake.topomap.sources import drive_observations, make_scorer
@@ -117,6 +117,8 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
                                  f"{key}; delete it to rebuild")
         # the config as written (settings a map predates read as LATER_DEFAULTS)
         if same_config(read_map_meta(path).get("config"), config, _is_lidar(modality)):
+            # planning settings are the caller's, not the file's
+            m.config = replace(m.config, **{k: getattr(config, k) for k in PLAN_ONLY})
             return m, 0.0
         print(f"{path} was built with another map config; rebuilding it", file=sys.stderr)
     t0 = time.perf_counter()

@@ -18,7 +18,8 @@ certain anchors than at the place the car is at, and no longer lets the
 plan jump there. On a lidar map with ``scan_match`` the groups with a
 vertex whose scan registers onto the view come first
 (:func:`matched_first`), and a direct start-goal link needs the two scans
-to match. Dijkstra on the edge weights -log p gives the most probable path;
+to match. With ``direct_check`` a direct start-goal link also needs the
+start's and the goal's links to be one place (:func:`one_place`). Dijkstra on the edge weights -log p gives the most probable path;
 its probability is exp(-cost). An unreachable goal is a result
 (:attr:`PlanResult.reachable` False with a reason), never an exception.
 """
@@ -64,13 +65,16 @@ def _check_observation(topomap: TopoMap, obs: np.ndarray, what: str) -> np.ndarr
     return obs
 
 
-def link_groups(topomap: TopoMap, links: list[tuple[int, float]],
-                hops: int) -> list[list[tuple[int, float]]]:
+def link_groups(topomap: TopoMap, links: list[tuple[int, float]], hops: int,
+                order: str = "probability") -> list[list[tuple[int, float]]]:
     """``links`` ((vertex, p)) in groups, the most trusted first: the most
     probable link left leads a group of the links within ``hops`` edges of
     it (edges taken either way), and so on. A group is one place: a chain
     of links along a corridor that looks alike for metres does not merge
-    into one group."""
+    into one group. ``order`` "probability" puts the group of the most
+    probable link first; "support" the group whose links' probabilities add
+    up to most (the place several anchors confirm, before a lone anchor of
+    a look-alike room that RE rates a little higher)."""
     undirected = topomap.graph.to_undirected(as_view=True)
     left = sorted(links, key=lambda link: -link[1])
     groups = []
@@ -78,7 +82,22 @@ def link_groups(topomap: TopoMap, links: list[tuple[int, float]],
         near = nx.single_source_shortest_path_length(undirected, left[0][0], cutoff=hops)
         groups.append([link for link in left if link[0] in near])
         left = [link for link in left if link[0] not in near]
+    if order == "support":
+        groups.sort(key=lambda group: -sum(p for _, p in group))     # stable: ties keep p order
     return groups
+
+
+def one_place(topomap: TopoMap, a: list[tuple[int, float]], b: list[tuple[int, float]],
+              hops: int) -> bool:
+    """Whether two groups of links reach one place: a vertex of ``a`` within
+    ``hops`` edges (either way) of a vertex of ``b``; an empty group agrees
+    with anything."""
+    if not a or not b:
+        return True
+    undirected = topomap.graph.to_undirected(as_view=True)
+    near = nx.multi_source_dijkstra_path_length(undirected, {v for v, _ in a}, cutoff=hops,
+                                                weight=lambda u, v, d: 1)
+    return any(v in near for v, _ in b)
 
 
 def matched_first(topomap: TopoMap, groups: list[list[tuple[int, float]]],
@@ -155,8 +174,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
                              f"{max(p_goal, default=0.0):.2f} <= {m.config.p_link})")
             return result
         if m.config.link_consensus:     # one place at each end, the most trusted that joins
-            starts = link_groups(m, links_s, m.config.link_hops) or [[]]
-            goals = link_groups(m, links_g, m.config.link_hops) or [[]]
+            starts = link_groups(m, links_s, m.config.link_hops, m.config.link_order) or [[]]
+            goals = link_groups(m, links_g, m.config.link_hops, m.config.link_order) or [[]]
             if checks_scans(m):
                 starts, goals = matched_first(m, starts, start_obs), matched_first(m, goals, goal_obs)
             tries = sorted(((i, j) for i in range(len(starts)) for j in range(len(goals))),
@@ -174,7 +193,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
                 g.add_edge(START, v, p=p, weight=-math.log(p), kind="start")
             for v, p in into_goal:
                 g.add_edge(v, GOAL, p=p, weight=-math.log(p), kind="goal")
-            if p_direct > m.config.p_link:
+            if p_direct > m.config.p_link and (not m.config.direct_check or one_place(
+                    m, from_start, into_goal, m.config.link_hops)):
                 g.add_edge(START, GOAL, p=p_direct, weight=-math.log(p_direct), kind="direct")
             try:
                 cost, path = nx.single_source_dijkstra(g, START, GOAL, weight=weight)
