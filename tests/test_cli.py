@@ -28,7 +28,7 @@ def assert_one_line_error(code, err, *words):
 def test_world_list(capsys):
     code, out, _ = run(capsys, "world", "list", "--json")
     names = json.loads(out)
-    assert code == 0 and len(names) == 101
+    assert code == 0 and len(names) == 106 and names[-1] == "calib-4"
     assert names[:2] == ["train-00", "train-01"] and "test-4" in names
 
 

@@ -39,6 +39,7 @@ PINNED_AREA_M2 = {
     "train-88": 339.4, "train-89": 244.3, "train-90": 366.3, "train-91": 228.6,
     "train-92": 214.7, "train-93": 378.3, "train-94": 373.4, "train-95": 315.1,
     "test-0": 337.1, "test-1": 304.7, "test-2": 400.7, "test-3": 279.8, "test-4": 358.9,
+    "calib-0": 312.3, "calib-1": 410.7, "calib-2": 245.7, "calib-3": 228.1, "calib-4": 397.3,
 }
 
 
@@ -53,8 +54,9 @@ def houses():
 
 
 def test_catalogue_names_and_seeds():
-    assert NAMES == [f"train-{i:02d}" for i in range(96)] + [f"test-{i}" for i in range(5)]
-    assert len(set(CATALOGUE.values())) == 101
+    assert NAMES == ([f"train-{i:02d}" for i in range(96)] + [f"test-{i}" for i in range(5)]
+                     + [f"calib-{i}" for i in range(5)])
+    assert len(set(CATALOGUE.values())) == 106
     assert set(PINNED_AREA_M2) == set(NAMES)
 
 

@@ -2,12 +2,15 @@
 
 ``load_world(spec)`` takes
 
-* a catalogue name: 96 training houses ``train-00`` .. ``train-95`` and 5
-  test houses ``test-0`` .. ``test-4``, procedural houses with fixed seeds
-  (the training and test houses are different floor plans, like the paper's
-  training and test scenes). The controllers learn in the first 12 (the
-  configs' default ``data.train_worlds``); the others give RE labels in
-  houses its controller never saw;
+* a catalogue name: 96 training houses ``train-00`` .. ``train-95``, 5
+  test houses ``test-0`` .. ``test-4`` and 5 calibration houses
+  ``calib-0`` .. ``calib-4``, procedural houses with fixed seeds (different
+  floor plans, like the paper's training and test scenes). The controllers
+  learn in the first 12 training houses (the configs' default
+  ``data.train_worlds``; the C_WPs trained at scale in all 96); the others
+  give RE labels in houses its controller never saw. No network trains in
+  the calibration houses: plan calibrations are fitted there, on outcomes
+  of houses as new to the follower as the test houses;
 * a ROS map_server map, a path ending ``.yaml`` / ``.yml``;
 * a HouseExpo floor plan, a path ending ``.json``.
 
@@ -28,11 +31,14 @@ from topodrake.world.world import World
 CATALOGUE: dict[str, int] = {
     **{f"train-{i:02d}": 1000 + i for i in range(96)},
     **{f"test-{i}": 2000 + i for i in range(5)},
+    **{f"calib-{i}": 3000 + i for i in range(5)},
 }
+#: held-out houses no network trains in, where plan calibrations are fitted
+CALIBRATION_HOUSES = tuple(f"calib-{i}" for i in range(5))
 
 
 def catalogue_names() -> list[str]:
-    """The catalogue's names: training houses, then test houses."""
+    """The catalogue's names: training houses, test houses, then calibration houses."""
     return list(CATALOGUE)
 
 
