@@ -125,30 +125,16 @@ class MapConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0.0 <= v < 1.0):
                 raise TopodrakeError(f"{where}: {name} must be in [0, 1), got {v}")
-        if self.reuse_rule not in REUSE_RULES:
-            raise TopodrakeError(f"{where}: reuse_rule must be one of {', '.join(REUSE_RULES)}, "
-                                 f"got {self.reuse_rule!r}")
-        if not isinstance(self.link_consensus, bool):
-            raise TopodrakeError(f"{where}: link_consensus must be true or false, got "
-                                 f"{self.link_consensus!r}")
-        if self.link_order not in LINK_ORDERS:
-            raise TopodrakeError(f"{where}: link_order must be one of {', '.join(LINK_ORDERS)}, "
-                                 f"got {self.link_order!r}")
-        if not isinstance(self.direct_check, bool):
-            raise TopodrakeError(f"{where}: direct_check must be true or false, got "
-                                 f"{self.direct_check!r}")
-        if not isinstance(self.join_ends, bool):
-            raise TopodrakeError(f"{where}: join_ends must be true or false, got "
-                                 f"{self.join_ends!r}")
-        if not isinstance(self.scan_match_cross, bool):
-            raise TopodrakeError(f"{where}: scan_match_cross must be true or false, got "
-                                 f"{self.scan_match_cross!r}")
-        if not isinstance(self.reuse_legs, bool):
-            raise TopodrakeError(f"{where}: reuse_legs must be true or false, got "
-                                 f"{self.reuse_legs!r}")
-        if self.teach_odometry not in TEACH_ODOMETRY:
-            raise TopodrakeError(f"{where}: teach_odometry must be one of "
-                                 f"{', '.join(TEACH_ODOMETRY)}, got {self.teach_odometry!r}")
+        for name, choices in (("reuse_rule", REUSE_RULES), ("link_order", LINK_ORDERS),
+                              ("teach_odometry", TEACH_ODOMETRY)):
+            if getattr(self, name) not in choices:
+                raise TopodrakeError(f"{where}: {name} must be one of {', '.join(choices)}, "
+                                     f"got {getattr(self, name)!r}")
+        for name in ("link_consensus", "direct_check", "join_ends", "scan_match_cross",
+                     "reuse_legs"):
+            if not isinstance(getattr(self, name), bool):
+                raise TopodrakeError(f"{where}: {name} must be true or false, got "
+                                     f"{getattr(self, name)!r}")
         if not (isinstance(self.scan_match, (int, float)) and 0.0 <= self.scan_match < 1.0):
             raise TopodrakeError(f"{where}: scan_match must be in [0, 1), got {self.scan_match!r}")
         if self.reuse_slack > 0 and self.reuse_rule != "paper":
