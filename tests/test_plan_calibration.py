@@ -100,7 +100,7 @@ def test_fitting_from_records_takes_planned_trials_of_training_houses_only():
     cal = fit_from_records(recs, "lidar", source="x.json")
     assert cal.fitted_on["trials"] == 108 and cal.fitted_on["houses"] == ["train-60", "train-61"]
     assert cal.fitted_on["ece_fitted"] <= cal.fitted_on["ece_raw"]
-    with pytest.raises(TopodrakeError, match="training houses only"):
+    with pytest.raises(TopodrakeError, match="calibration houses"):
         fit_from_records(recs + _records(["test-2"]), "lidar")
     with pytest.raises(TopodrakeError, match="lidar, lidar_reg"):
         fit_from_records(recs, "ours")
@@ -127,7 +127,7 @@ def test_map_calibrate_cli_writes_the_file_and_refuses_test_houses(capsys, tmp_p
     study.write_text(json.dumps({"trials": _records(["test-0"])}))
     code, _, err = run(capsys, "map", "calibrate", study, "--method", "lidar", "--out",
                        tmp_path / "c2.json")
-    one_line(code, err, "training houses only")
+    one_line(code, err, "calibration houses")
     assert not (tmp_path / "c2.json").exists()
     study.write_text(json.dumps({"houses": {}}))
     code, _, err = run(capsys, "map", "calibrate", study, "--method", "lidar", "--out",

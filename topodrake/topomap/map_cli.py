@@ -357,7 +357,8 @@ def add_map_parser(sub) -> None:
     c = msub.add_parser("calibrate", help="fit a method's plan calibration (chance of success "
                                           "of a plan) on a planning study's trials")
     c.add_argument("records", nargs="+",
-                   help="the planning study's planning.json files, run on training houses")
+                   help="the planning study's planning.json files, run on the calibration "
+                        "houses calib-0..4 (or training houses the follower never saw)")
     c.add_argument("--method", required=True, choices=list(STUDY_METHODS),
                    help="the planning study's method (camera: its 'ours')")
     c.add_argument("--out", help="calibration file to write (default: plan_calibration.json "

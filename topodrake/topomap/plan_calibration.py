@@ -1,11 +1,14 @@
-"""A plan's chance of success, calibrated on trials in training houses.
+"""A plan's chance of success, calibrated on trials in houses other than the test houses.
 
 A plan's probability is the product of its edges' RE, each rated from the
 anchor itself and not from where the car will be after the hops before it,
 so it says little about whether the car arrives. A :class:`PlanCalibration`
 maps what the planner knows of a plan (its log probability and its number of
 anchors) to a chance of success by logistic regression, fitted on planning
-trials of one method (map and follower) in training houses only. It ships
+trials of one method (map and follower) outside the test houses: the
+calibration houses ``calib-0..4``, which no network trains in (a follower
+succeeds more often in the houses it was trained in), or training houses
+its networks never saw. It ships
 beside the RE it was fitted for (``checkpoints/<reach>/plan_calibration.json``)
 and the planner reports its answer as ``success_probability``.
 """
@@ -160,7 +163,7 @@ def fit_from_records(records: list[dict], method: str, source: str = "",
     test = sorted({r["house"] for r in mine if str(r.get("house", "")).startswith("test-")})
     if test:
         raise TopodrakeError(f"the records hold test houses ({', '.join(test)}); fit the plan "
-                             f"calibration on training houses only")
+                             f"calibration on calibration houses (calib-0..4) or training houses")
     planned = [r for r in mine if r.get("planned")]
     try:
         p = [float(r["plan_probability"]) for r in planned]
