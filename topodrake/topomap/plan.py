@@ -19,8 +19,9 @@ plan jump there. On a lidar map with ``scan_match`` the groups with a
 vertex whose scan registers onto the view come first
 (:func:`matched_first`), and a direct start-goal link needs the two scans
 to match. With ``direct_check`` a direct start-goal link also needs the
-start's and the goal's links to be one place (:func:`one_place`). Dijkstra on the edge weights -log p gives the most probable path;
-its probability is exp(-cost). An unreachable goal is a result
+start's and the goal's links to be one place (:func:`one_place`).
+Dijkstra on the edge weights -log p gives the most probable path; its
+probability is exp(-cost). An unreachable goal is a result
 (:attr:`PlanResult.reachable` False with a reason), never an exception.
 """
 
