@@ -53,8 +53,9 @@ LINK_ORDERS = ("probability", "support")
 
 def same_config(stored, config: "MapConfig", lidar: bool = True) -> bool:
     """Whether a map file's stored config is ``config`` (the settings it
-    predates read as :data:`LATER_DEFAULTS`); for a map that is not a lidar
-    map (``lidar`` False) the :data:`LIDAR_ONLY` settings do not count."""
+    predates read as :data:`LATER_DEFAULTS`), as far as building reads them
+    (:func:`map_settings`: neither the :data:`PLAN_ONLY` settings count nor,
+    for a map that is not a lidar map, the :data:`LIDAR_ONLY` ones)."""
     if not isinstance(stored, dict):
         return False
     return map_settings({**LATER_DEFAULTS, **stored}, lidar) == map_settings(asdict(config), lidar)

@@ -33,8 +33,6 @@ CATALOGUE: dict[str, int] = {
     **{f"test-{i}": 2000 + i for i in range(5)},
     **{f"calib-{i}": 3000 + i for i in range(5)},
 }
-#: held-out houses no network trains in, where plan calibrations are fitted
-CALIBRATION_HOUSES = tuple(f"calib-{i}" for i in range(5))
 
 
 def catalogue_names() -> list[str]:

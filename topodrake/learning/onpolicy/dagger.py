@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import hashlib
 import json
-import sys
 import shutil
+import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
