@@ -69,13 +69,14 @@ class FollowerFsm(LeafSystem):
         if reach.observation not in (kind, "pose"):
             raise ValueError(f"C_WP observes {kind}, RE {reach.observation}")
         self.kind = kind
+        self.lidar = (lidar or getattr(policy, "sensor", None) or LidarConfig()) \
+            if kind == "lidar" else LidarConfig()
         if kind == "camera":
             c = camera or getattr(policy, "sensor", None) or CameraConfig()
             self.observation_port = self.DeclareAbstractInputPort(
                 "observation", AbstractValue.Make(np.zeros((c.height, c.width, 3), np.uint8)))
         elif kind == "lidar":
-            beams = (lidar or getattr(policy, "sensor", None) or LidarConfig()).beams
-            self.observation_port = self.DeclareVectorInputPort("observation", beams)
+            self.observation_port = self.DeclareVectorInputPort("observation", self.lidar.beams)
         else:
             self.observation_port = None
         self.state_port = self.DeclareVectorInputPort("state", 5)
@@ -136,7 +137,8 @@ class FollowerFsm(LeafSystem):
             np.asarray(self.observation_port.Eval(context))[None]
         feats = self._routes[self._route_of(context)].features
         ev = Evaluator(self.policy, self.reach, feats, np.zeros(1, np.int64), obs,
-                       poses=car[:, :3], track=state.track, odometry=car[:, :3])
+                       poses=car[:, :3], track=state.track, odometry=car[:, :3],
+                       lidar=self.lidar)
         fs, out = follower_step(state, feats.n_anchors, car, ev, self.config)
         fs.track = ev.track
         value.set_value((fs, out))

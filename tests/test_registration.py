@@ -162,3 +162,26 @@ def test_throughput_one_core(house):
     if len(drive) < 10:
         pytest.skip("a very short A* path")
     assert registration_rate(house, drive, batch=128, min_seconds=0.3) > 1000
+
+
+def test_the_evaluator_registers_scans_onto_the_routes_anchor_scans(house):
+    """The route tracker's scan fixes: each car's scan onto its anchor's
+    taught scan, from a guess near the truth, gives the car's pose in the
+    anchor's frame."""
+    from types import SimpleNamespace
+
+    from topodrake.navigation.evaluate import Evaluator, RouteFeatures
+
+    src, tgt, delta = _pairs(house, 40, seed=5, shift=0.4, turn=0.2)
+    feats = RouteFeatures(None, None, np.array([0, len(tgt)]), scans=tgt)
+    net = SimpleNamespace(observation="lidar")
+    ev = Evaluator(net, net, feats, np.zeros(len(src), np.int64), src)
+    assert ev.scan_fixes is not None
+    guess = delta + np.random.default_rng(0).normal(0, [0.1, 0.1, 0.05], delta.shape)
+    pose, pinned = ev.register_anchors(np.arange(len(src)), np.arange(len(src)), guess)
+    e, a = _errors(pose, delta)
+    assert pinned.mean() > 0.7
+    assert np.mean(((e < 0.05) & (a < np.radians(2.0)))[pinned]) > 0.95
+    # camera observations, or routes without scans: no scan fixes
+    assert Evaluator(net, net, RouteFeatures(None, None, np.array([0, 1])), np.zeros(1),
+                     src[:1]).scan_fixes is None

@@ -6,8 +6,8 @@ import numpy as np
 
 from topodrake.navigation.follower import (DEAD_RECKONING, FOLLOW, Answers, FollowerConfig,
                                            FollowerState, follower_step)
-from topodrake.navigation.tracker import (TrackerConfig, anchor_in_car, diagonal_cov, fix, propagate,
-                                          pursuit_point, reanchor, reanchor_cov, route_frames,
+from topodrake.navigation.tracker import (TrackerConfig, anchor_in_car, diagonal_cov, fix, fix_pose,
+                                          propagate, pursuit_point, reanchor, reanchor_cov, route_frames,
                                           start_from_answer)
 from topodrake.se2 import compose, relative
 
@@ -326,3 +326,51 @@ def test_the_drake_follower_joins_the_legs_as_the_engine_does():
         np.testing.assert_array_equal(got.segments, engine.segments)
         np.testing.assert_allclose(got.frames, engine.frames)
         assert len(set(got.segments)) == (1 if legs_m else 2)
+
+
+def test_a_scan_fix_pulls_the_tracked_pose_to_it_and_outvotes_a_far_one():
+    truth = np.array([[0.4, -0.1, 0.2]])
+    rel, var = truth + [[0.25, 0.2, -0.1]], diagonal_cov(0.2 ** 2, 0.1 ** 2)
+    rel2, var2, ok = fix_pose(rel, var, truth, CFG)
+    assert ok[0]
+    assert np.hypot(*(rel2 - truth)[0, :2]) < 0.1 * np.hypot(0.25, 0.2)   # a sharp measurement
+    assert (np.diag(var2.reshape(3, 3)) < np.diag(var.reshape(3, 3))).all()
+    far, _, ok_far = fix_pose(truth, diagonal_cov(0.05 ** 2, 0.03 ** 2), truth + [[1.0, 0, 0]], CFG)
+    assert not ok_far[0]
+    np.testing.assert_array_equal(far, truth)
+    nan, _, ok_nan = fix_pose(rel, var, np.full((1, 3), np.nan), CFG)
+    assert not ok_nan[0] and np.array_equal(nan, rel)
+
+
+class Scanned(Straight):
+    """:class:`Straight` whose anchors keep scans: a registration returns the
+    car's true pose in the anchor's frame, pinned unless ``slides``."""
+
+    slides = False
+
+    def scan_fixes(self, cars, anchors, guess):
+        truth = relative(self.frames[anchors], np.repeat(self.car, len(anchors), 0))
+        return truth, np.full(len(anchors), not self.slides)
+
+
+def test_scan_fixes_correct_a_track_that_drifted():
+    ev = Scanned(6)
+    car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+    s = FollowerState.initial(1)
+    for x in (0.0, 0.6, 1.2):
+        car[0] = x
+        s, _ = drive(ev, s, car)
+    assert s.ref[0] >= 0
+    truth = relative(ev.frames[s.ref], car[None, :3])
+    drifted = s.copy()
+    drifted.rel[:] = truth + [[0.0, 0.4, 0.1]]           # odometry drifted sideways
+    drifted.misses[:] = 3
+    fixed, _ = drive(ev, drifted, car)
+    ref_truth = relative(ev.frames[fixed.ref], car[None, :3])
+    assert np.hypot(*(fixed.rel - ref_truth)[0, :2]) < 0.1 and fixed.misses[0] == 0
+    unfixed, _ = drive(ev, drifted, car, scan_fix=False)
+    assert np.hypot(*(unfixed.rel - ref_truth)[0, :2]) > 0.2
+    ev.slides = True                                     # a corridor: the fit is not used
+    slid, _ = drive(ev, drifted, car)
+    assert np.hypot(*(slid.rel - ref_truth)[0, :2]) > 0.2
+    assert not FollowerConfig.paper().scan_fix

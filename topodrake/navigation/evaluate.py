@@ -31,6 +31,13 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.learning.frames import centre_pose
 from topodrake.navigation.follower import Answers
+from topodrake.registration.icp import IcpConfig, register_points, scan_points
+from topodrake.sensing.config import LidarConfig
+
+# the tracker's scan fixes: a fit from the tracked pose (close to the truth: a looser
+# overlap than a search), and the weakest translation constraint that pins it
+SCAN_ICP = IcpConfig(min_inlier=0.45, max_shift_m=0.5, max_turn_rad=0.35)
+SCAN_PINNED = 0.05
 
 
 def network_context(route_contexts: np.ndarray, route_k: int, route_step: int, network) -> np.ndarray:
@@ -58,6 +65,8 @@ class RouteFeatures:
     frames: np.ndarray | None = None
     segments: np.ndarray | None = None
     approach: np.ndarray | None = None
+    scans: np.ndarray | None = None       # (A, beams) each anchor's taught lidar scan
+                                          # (lidar routes), for the tracker's scan fixes
 
     @property
     def n_anchors(self) -> np.ndarray:
@@ -126,7 +135,10 @@ def encode_routes(routes, policy, reach, route_k: int | None = None,
     if legs_m > 0 and track_size(policy) == 0:
         legs = cwp_legs(routes, policy, cwp, offsets, route_k, legs_m)
     frames, segments, approach = route_frames([lg for lg, _ in legs], [p for _, p in legs])
-    return RouteFeatures(cwp, features(reach), offsets, frames, segments, approach)
+    scans = None
+    if ctx is not None and routes and all(r.modality == "lidar" for r in routes):
+        scans = np.asarray(ctx[:, route_k], np.float64)
+    return RouteFeatures(cwp, features(reach), offsets, frames, segments, approach, scans)
 
 
 def cwp_legs(routes, policy, features, offsets: np.ndarray, route_k: int | None,
@@ -175,7 +187,9 @@ def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:
     """The features of ``a``'s routes followed by ``b``'s."""
     from topodrake.navigation.tracker import pad_points
 
-    frames = segments = approach = None
+    frames = segments = approach = scans = None
+    if a.scans is not None and b.scans is not None:
+        scans = np.concatenate([a.scans, b.scans])
     if a.frames is not None and b.frames is not None:
         frames = np.concatenate([a.frames, b.frames])
         shift = a.segments.max(initial=-1) + 1
@@ -184,7 +198,7 @@ def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:
         approach = np.concatenate([pad_points(a.approach, k), pad_points(b.approach, k)])
     return RouteFeatures(_concat([a.cwp, b.cwp]), _concat([a.re, b.re]),
                          np.concatenate([a.offsets, a.offsets[-1] + b.offsets[1:]]),
-                         frames, segments, approach)
+                         frames, segments, approach, scans)
 
 
 
@@ -219,11 +233,14 @@ class Evaluator:
     pose oracles), ``route_of`` (B,) the route of each car in ``features``;
     for a stateful C_WP, ``track`` (B, S), the cars' state, updated in place
     (read it back from :attr:`track`), and ``odometry`` (B, 3), the cars'
-    odometry poses (default: ``poses``)."""
+    odometry poses (default: ``poses``). With lidar observations (``lidar``'s
+    beams) on routes that keep their anchors' scans, :attr:`scan_fixes`
+    registers them for the route tracker (:meth:`register_anchors`)."""
 
     def __init__(self, policy, reach, features: RouteFeatures, route_of: np.ndarray,
                  observations: np.ndarray, poses: np.ndarray | None = None,
-                 track: np.ndarray | None = None, odometry: np.ndarray | None = None):
+                 track: np.ndarray | None = None, odometry: np.ndarray | None = None,
+                 lidar: LidarConfig | None = None):
         self.policy = policy
         self.reach = reach
         self.features = features
@@ -238,6 +255,14 @@ class Evaluator:
         # a stateful C_WP (registration) localizes itself along the legs: the route
         # tracker stays out
         self.anchor_frames = None if self.stateful else self.leg_frames
+        # the tracker's scan fixes: lidar routes followed on lidar observations
+        lidar = lidar or LidarConfig()
+        self.lidar = lidar
+        self.scan_fixes = None
+        if not self.stateful and features.scans is not None and observations is not None \
+                and np.ndim(observations) == 2 and np.shape(observations)[1] == lidar.beams \
+                and features.scans.shape[1] == lidar.beams:
+            self.scan_fixes = self.register_anchors
 
     def leg_frames(self, cars: np.ndarray, anchors: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -250,6 +275,18 @@ class Evaluator:
             return np.zeros((len(rows), 3)), np.full(len(rows), -1), np.full((len(rows), 1, 3),
                                                                           np.nan)
         return f.frames[rows], f.segments[rows], f.approach[rows]
+
+    def register_anchors(self, cars: np.ndarray, anchors: np.ndarray, guess: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """Each car's scan registered onto its anchor's taught scan from
+        ``guess`` (M, 3), the car's predicted pose in the anchor's frame: the
+        fitted poses (M, 3) and whether each fit passed and pins the
+        translation (M,; a corridor leaves it free to slide)."""
+        rows = self.start[np.asarray(cars, np.int64)] + np.asarray(anchors, np.int64)
+        sp, sv = scan_points(self.observations[cars], self.lidar)
+        tp, tv = scan_points(self.features.scans[rows], self.lidar)
+        fit = register_points(sp, sv, tp, tv, np.asarray(guess, np.float64), len(rows), SCAN_ICP)
+        return fit.pose, fit.accepted & (fit.constraint >= SCAN_PINNED)
 
     def _obs(self, network, cars: np.ndarray) -> np.ndarray:
         if network.observation == "pose":

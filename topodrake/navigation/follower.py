@@ -120,6 +120,9 @@ class FollowerConfig:
                                     # answers as fixes, and drive toward the tracked anchor when
                                     # C_WP's waypoint disagrees (routes without legs: no effect)
     check_deg: float = 35.0         # ... by more than this angle
+    scan_fix: bool = True           # ... and, on lidar routes, register the scan onto the
+                                    # active and last visited anchors' taught scans from the
+                                    # tracked pose as fixes that share none of C_WP's errors
     legs_m: float = 2.0             # a hop without a taught leg (between drives, into the
                                     # goal) takes C_WP's answer from the anchor's own view
                                     # toward the next as its leg, where that waypoint is
@@ -142,7 +145,8 @@ class FollowerConfig:
         be turned off and stays)."""
         return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65,
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
-                   odometry_check=False, reverse_inside_turn=-1.0, legs_m=0.0)
+                   odometry_check=False, scan_fix=False, reverse_inside_turn=-1.0,
+                   legs_m=0.0)
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
@@ -559,6 +563,11 @@ def _drive(per: _Period) -> StepOutput:
         new.waypoint[fresh] = car_to_world(local[fresh, None], car_state[fresh])[:, 0]
     follow = np.flatnonzero(new.mode == FOLLOW)
     if frames is not None:
+        scans = getattr(evaluate, "scan_fixes", None) if cfg.scan_fix else None
+        if scans is not None:
+            moving_cars = np.flatnonzero(moving)
+            tracker.follow_visits(new, moving_cars, frames)
+            tracker.apply_scans(new, moving_cars, frames, scans, TRACKER)
         tracked = _check_waypoints(new, follow, np.flatnonzero(new.mode == DEAD_RECKONING),
                                    local, car_state, n_anchors, frames, cfg)
         follow = np.setdiff1d(follow, tracked)

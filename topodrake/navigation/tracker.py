@@ -20,6 +20,12 @@ route (``ref``) with its covariance (x, y, heading). Each period:
   the variances held above a floor; one outside is outvoted;
   ``reset_after`` outvoted answers in a row mean the prior is wrong, and
   the next answer starts it again;
+* :func:`fix_pose`: where the route's anchors keep their taught lidar
+  scans, the car's scan registered onto the active and the last visited
+  anchor's scan from the tracked pose (VT&R's localization against the
+  taught submap with the odometry prior) measures ``rel`` directly; such a
+  fix shares none of C_WP's errors, so it is weighed as one measurement
+  (fits a corridor leaves free to slide are not used);
 * :func:`reanchor`: ``ref`` follows the car's last visited anchor.
 
 :func:`anchor_in_car` is what the follower checks C_WP's waypoint with.
@@ -55,6 +61,9 @@ class TrackerConfig:
     floor_m: float = 0.15             # fixes never take the position sigma below this ...
     floor_rad: float = 0.07           # ... nor the heading sigma below this (C_WP's errors
                                       # repeat from one period to the next: they do not average out)
+    scan_m: float = 0.05              # a scan fix's position sigma (the scan registered onto
+    scan_rad: float = 0.03            # an anchor's taught scan) and heading sigma
+    scan_range_m: float = 2.5         # anchors predicted farther are not registered against
 
 
 def pad_points(paths: np.ndarray, k: int) -> np.ndarray:
@@ -191,6 +200,30 @@ def fix(rel: np.ndarray, var: np.ndarray, anchor: np.ndarray, waypoint: np.ndarr
     return rel, _flat(cov), ok
 
 
+def fix_pose(rel: np.ndarray, var: np.ndarray, measured: np.ndarray, cfg: TrackerConfig
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Direct measurements ``measured`` (N, 3) of ``rel`` (a scan fix), as a
+    Kalman update with sigmas ``scan_m`` / ``scan_rad``, gated at
+    ``gate_sigma``. Returns the corrected ``rel``, ``var`` and which were
+    accepted (N,)."""
+    rel = rel.copy()
+    cov = _cov(var)
+    err = measured - rel
+    err[:, 2] = wrap(err[:, 2])
+    noise = np.diag([cfg.scan_m ** 2, cfg.scan_m ** 2, cfg.scan_rad ** 2])
+    ok = np.isfinite(err).all(axis=1)
+    if ok.any():
+        innov = cov[ok] + noise
+        m2 = np.einsum("ni,nij,nj->n", err[ok], np.linalg.inv(innov), err[ok])
+        ok[np.flatnonzero(ok)] = m2 < cfg.gate_sigma ** 2
+    if ok.any():
+        gain = cov[ok] @ np.linalg.inv(cov[ok] + noise)
+        rel[ok] += np.einsum("nij,nj->ni", gain, err[ok])
+        rel[ok, 2] = wrap(rel[ok, 2])
+        cov[ok] = (np.eye(3) - gain) @ cov[ok]
+    return rel, _flat(cov), ok
+
+
 def start_from_answer(waypoint: np.ndarray, heading: np.ndarray, cfg: TrackerConfig
                       ) -> tuple[np.ndarray, np.ndarray]:
     """The car's pose (N, 3) in the frame of the anchor C_WP answered about
@@ -271,6 +304,37 @@ def apply_answers(state, cars: np.ndarray, anchors: np.ndarray, waypoint: np.nda
         state.misses[c] = np.where(ok, 0, state.misses[c] + asked)
         lost = c[state.misses[c] >= cfg.reset_after]
         state.ref[lost] = -1
+
+
+def apply_scans(state, cars: np.ndarray, frames, register, cfg: TrackerConfig) -> None:
+    """Scan fixes (:func:`fix_pose`) for the tracked cars among ``cars``
+    against their active and last visited anchors within ``scan_range_m``
+    of the tracked pose. ``register(cars, anchors, guess)`` registers each
+    car's scan onto the anchor's taught scan from ``guess`` (M, 3), the
+    car's predicted pose in the anchor's frame, and returns the fitted poses
+    (M, 3) and whether each fit pins the pose (M,). An accepted fix also
+    clears the count of outvoted C_WP answers."""
+    c = cars[state.ref[cars] >= 0]
+    if c.size == 0:
+        return
+    for anchors in (state.active[c], state.visited[c]):
+        q = c[anchors >= 0]
+        a = anchors[anchors >= 0]
+        if q.size == 0:
+            continue
+        ref_pose, ref_seg, _ = frames(q, state.ref[q])
+        pose, seg, _ = frames(q, a)
+        anchor = relative(ref_pose, pose)
+        guess = relative(anchor, state.rel[q])
+        near = (ref_seg == seg) & (seg >= 0) & (np.hypot(guess[:, 0], guess[:, 1])
+                                                < cfg.scan_range_m)
+        if not near.any():
+            continue
+        q, a, anchor = q[near], a[near], anchor[near]
+        fitted, pinned = register(q, a, guess[near])
+        measured = np.where(pinned[:, None], compose(anchor, fitted), np.nan)
+        state.rel[q], state.var[q], ok = fix_pose(state.rel[q], state.var[q], measured, cfg)
+        state.misses[q[ok]] = 0
 
 
 def follow_visits(state, cars: np.ndarray, frames) -> None:
