@@ -374,3 +374,33 @@ def test_scan_fixes_correct_a_track_that_drifted():
     slid, _ = drive(ev, drifted, car)
     assert np.hypot(*(slid.rel - ref_truth)[0, :2]) > 0.2
     assert not FollowerConfig.paper().scan_fix
+
+
+def test_dead_reckoning_refuses_an_anchor_a_sure_tracker_puts_far_away():
+    """RE in Dead reckoning rates a look-alike anchor 4 m on above p_follow;
+    a tracker the scans pin says it is 4 m away, so the car stays in Dead
+    reckoning rather than skipping the anchors between."""
+
+    class LookAlike(Scanned):
+        lost = False
+
+        def __call__(self, cars, anchors, cwp, re):
+            a = super().__call__(cars, anchors, cwp, re)
+            if self.lost:
+                a.probability[:] = np.where(np.asarray(anchors) == 5, 0.99, 0.1)
+            return a
+
+    ev = LookAlike(7)
+    car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+    s = FollowerState.initial(1)
+    for x in (0.0, 0.6):
+        car[0] = x
+        s, _ = drive(ev, s, car)
+    assert s.mode[0] == FOLLOW and s.visited[0] == 0 and s.ref[0] >= 0
+    ev.lost = True
+    s.mode[:], s.dr_count[:] = DEAD_RECKONING, 30       # the window now reaches anchor 5
+    car[0] = 0.8
+    sure, _ = drive(ev, s, car)
+    assert sure.mode[0] == DEAD_RECKONING and sure.active[0] < 5
+    jumped, _ = drive(ev, s, car, tracked_reach_m=0.0)
+    assert jumped.mode[0] == FOLLOW and jumped.active[0] == 5

@@ -120,6 +120,10 @@ class FollowerConfig:
                                     # answers as fixes, and drive toward the tracked anchor when
                                     # C_WP's waypoint disagrees (routes without legs: no effect)
     check_deg: float = 35.0         # ... by more than this angle
+    tracked_reach_m: float = 2.5    # Dead reckoning takes no anchor that a sure tracker
+                                    # (position sigma under tracked_sure_m) puts farther than
+                                    # this (0: off): RE's look-alike anchors further on
+    tracked_sure_m: float = 0.1
     scan_fix: bool = True           # ... and, on lidar routes, register the scan onto the
                                     # active and last visited anchors' taught scans from the
                                     # tracked pose as fixes that share none of C_WP's errors
@@ -145,7 +149,8 @@ class FollowerConfig:
         be turned off and stays)."""
         return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65,
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
-                   odometry_check=False, scan_fix=False, reverse_inside_turn=-1.0,
+                   odometry_check=False, scan_fix=False, tracked_reach_m=0.0,
+                   reverse_inside_turn=-1.0,
                    legs_m=0.0)
 
     def check(self) -> "FollowerConfig":
@@ -162,6 +167,10 @@ class FollowerConfig:
             raise TopodrakeError(f"follower turn_radius_m must be > 0, got {self.turn_radius_m}")
         if not 0.0 < self.check_deg <= 180.0:
             raise TopodrakeError(f"follower check_deg must be in (0, 180], got {self.check_deg}")
+        if not (self.tracked_reach_m >= 0.0 and self.tracked_sure_m > 0.0):
+            raise TopodrakeError(f"follower tracked_reach_m must be >= 0 (0: off) and "
+                                 f"tracked_sure_m > 0, got {self.tracked_reach_m} and "
+                                 f"{self.tracked_sure_m}")
         if not (np.isfinite(self.legs_m) and self.legs_m >= 0.0):
             raise TopodrakeError(f"follower legs_m must be >= 0 (0: off), got {self.legs_m}")
         if self.dr_back_anchors < -1:
@@ -502,6 +511,8 @@ def _dead_reckoning(per: _Period, d: np.ndarray) -> None:
     lo = np.maximum(lo, hi - cfg.dr_max_window + 1)
     rows, anchors = _windows(lo, hi)
     p = evaluate(d[rows], anchors, False, True).probability
+    if per.frames is not None and cfg.tracked_reach_m > 0:
+        p = np.where(_tracked_far(new, d[rows], anchors, per.frames, cfg), 0.0, p)
     arg, best = _best_per_row(rows, p, d.size, prefer_last=True)
     new.best_p[d] = np.where(np.isfinite(best), best, 0.0)
     back = best > cfg.p_follow
@@ -655,6 +666,15 @@ def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, l
 
 
 TRACKED_PASS_M = 1.0    # an anchor the tracker puts behind the car and this close is passed
+
+
+def _tracked_far(new: FollowerState, cars: np.ndarray, anchors: np.ndarray, frames,
+                 cfg: FollowerConfig) -> np.ndarray:
+    """(M,) whether a sure tracker (position sigma under ``tracked_sure_m``)
+    puts each car's anchor farther than ``tracked_reach_m``."""
+    q, known, _ = tracker.tracked_anchor(new, cars, anchors, frames)
+    sigma = np.sqrt(np.maximum(new.var[cars, 0], new.var[cars, 4]))
+    return known & (sigma < cfg.tracked_sure_m) & (np.hypot(q[:, 0], q[:, 1]) > cfg.tracked_reach_m)
 
 
 def outcome_of(state: FollowerState) -> list[str]:
