@@ -404,3 +404,21 @@ def test_dead_reckoning_refuses_an_anchor_a_sure_tracker_puts_far_away():
     assert sure.mode[0] == DEAD_RECKONING and sure.active[0] < 5
     jumped, _ = drive(ev, s, car, tracked_reach_m=0.0)
     assert jumped.mode[0] == FOLLOW and jumped.active[0] == 5
+
+
+def test_a_sure_tracker_ends_the_route_at_the_goal():
+    """C_WP's overlaps toward the goal (0.7) stay below p_goal: only the
+    tracker, pinned by the scans, can tell the car stands on the goal."""
+    from topodrake.navigation.follower import REACHED
+
+    outcomes = {}
+    for sure in (0.1, 0.0):
+        ev = Scanned(4)
+        car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+        s = FollowerState.initial(1)
+        for x in np.arange(0.0, 3.0, 0.2):
+            car[0] = x
+            s, _ = drive(ev, s, car, tracked_sure_m=sure)
+        assert s.active[0] == 3
+        outcomes[sure] = s.mode[0]
+    assert outcomes[0.1] == REACHED and outcomes[0.0] == FOLLOW

@@ -120,10 +120,10 @@ class FollowerConfig:
                                     # answers as fixes, and drive toward the tracked anchor when
                                     # C_WP's waypoint disagrees (routes without legs: no effect)
     check_deg: float = 35.0         # ... by more than this angle
-    tracked_reach_m: float = 2.5    # Dead reckoning takes no anchor that a sure tracker
-                                    # (position sigma under tracked_sure_m) puts farther than
-                                    # this (0: off): RE's look-alike anchors further on
-    tracked_sure_m: float = 0.1
+    tracked_sure_m: float = 0.1     # a tracker this sure (position sigma; the scans pin it)
+                                    # ends the route within goal_m of the goal and ...
+    tracked_reach_m: float = 2.5    # ... refuses Dead reckoning an anchor it puts farther than
+                                    # this (RE's look-alike anchors further on; 0: off)
     scan_fix: bool = True           # ... and, on lidar routes, register the scan onto the
                                     # active and last visited anchors' taught scans from the
                                     # tracked pose as fixes that share none of C_WP's errors
@@ -149,7 +149,7 @@ class FollowerConfig:
         be turned off and stays)."""
         return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65,
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
-                   odometry_check=False, scan_fix=False, tracked_reach_m=0.0,
+                   odometry_check=False, scan_fix=False, tracked_sure_m=0.0,
                    reverse_inside_turn=-1.0,
                    legs_m=0.0)
 
@@ -167,9 +167,9 @@ class FollowerConfig:
             raise TopodrakeError(f"follower turn_radius_m must be > 0, got {self.turn_radius_m}")
         if not 0.0 < self.check_deg <= 180.0:
             raise TopodrakeError(f"follower check_deg must be in (0, 180], got {self.check_deg}")
-        if not (self.tracked_reach_m >= 0.0 and self.tracked_sure_m > 0.0):
-            raise TopodrakeError(f"follower tracked_reach_m must be >= 0 (0: off) and "
-                                 f"tracked_sure_m > 0, got {self.tracked_reach_m} and "
+        if not (self.tracked_reach_m >= 0.0 and self.tracked_sure_m >= 0.0):
+            raise TopodrakeError(f"follower tracked_reach_m and tracked_sure_m must be >= 0 "
+                                 f"(0: off), got {self.tracked_reach_m} and "
                                  f"{self.tracked_sure_m}")
         if not (np.isfinite(self.legs_m) and self.legs_m >= 0.0):
             raise TopodrakeError(f"follower legs_m must be >= 0 (0: off), got {self.legs_m}")
@@ -511,7 +511,7 @@ def _dead_reckoning(per: _Period, d: np.ndarray) -> None:
     lo = np.maximum(lo, hi - cfg.dr_max_window + 1)
     rows, anchors = _windows(lo, hi)
     p = evaluate(d[rows], anchors, False, True).probability
-    if per.frames is not None and cfg.tracked_reach_m > 0:
+    if per.frames is not None and cfg.tracked_reach_m > 0 and cfg.tracked_sure_m > 0:
         p = np.where(_tracked_far(new, d[rows], anchors, per.frames, cfg), 0.0, p)
     arg, best = _best_per_row(rows, p, d.size, prefer_last=True)
     new.best_p[d] = np.where(np.isfinite(best), best, 0.0)
@@ -638,7 +638,9 @@ def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, l
     becomes active; in Follow, a C_WP waypoint more than ``check_deg`` off
     the tracked pursuit point (on the taught poses into the active anchor)
     is replaced by that point; in Dead reckoning the car drives to the
-    pursuit point instead of the held waypoint."""
+    pursuit point instead of the held waypoint. A sure tracker (position
+    sigma under ``tracked_sure_m``) within ``goal_m`` of the goal ends the
+    route (``reached``)."""
     moving = np.concatenate([follow, dead])
     tracker.follow_visits(new, moving, frames)
     q, known, aim = tracker.tracked_anchor(new, moving, new.active[moving], frames)
@@ -654,15 +656,22 @@ def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, l
         q[passed], known[passed], aim[passed] = tracker.tracked_anchor(new, c, new.active[c],
                                                                        frames)
         dist = np.hypot(q[:, 0], q[:, 1])
+    # the goal: a sure tracker within goal_m of it ends the route
+    sure = known & (np.sqrt(np.maximum(new.var[moving, 0], new.var[moving, 4])) < cfg.tracked_sure_m)
+    home = sure & (dist < cfg.goal_m) & (new.active[moving] == n_anchors[moving] - 1)
+    if home.any():
+        c = moving[home]
+        new.visited[c] = new.active[c]
+        new.mode[c] = REACHED
     w = local[moving]
     cos = (w * aim).sum(axis=1) / np.maximum(np.hypot(*w.T) * np.hypot(*aim.T), 1e-9)
     off = ~(cos >= np.cos(np.radians(cfg.check_deg)))          # NaN answers count as off
     in_follow = np.arange(len(moving)) < len(follow)
-    use = known & (dist > 0.3) & (off | ~in_follow | passed)
+    use = known & (dist > 0.3) & (off | ~in_follow | passed) & ~home
     if use.any():
         c = moving[use]
         new.waypoint[c] = car_to_world(aim[use, None], car_state[c])[:, 0]
-    return moving[(use | passed) & in_follow]
+    return moving[(use | passed | home) & in_follow]
 
 
 TRACKED_PASS_M = 1.0    # an anchor the tracker puts behind the car and this close is passed
