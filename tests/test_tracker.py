@@ -363,7 +363,8 @@ def test_scan_fixes_correct_a_track_that_drifted():
     assert s.ref[0] >= 0
     truth = relative(ev.frames[s.ref], car[None, :3])
     drifted = s.copy()
-    drifted.rel[:] = truth + [[0.0, 0.4, 0.1]]           # odometry drifted sideways
+    drifted.rel[:] = truth + [[0.0, 0.4, 0.1]]           # odometry drifted sideways ...
+    drifted.var[:] = diagonal_cov(0.3 ** 2, 0.1 ** 2)    # ... as far as it could
     drifted.misses[:] = 3
     fixed, _ = drive(ev, drifted, car)
     ref_truth = relative(ev.frames[fixed.ref], car[None, :3])
@@ -422,3 +423,24 @@ def test_a_sure_tracker_ends_the_route_at_the_goal():
         assert s.active[0] == 3
         outcomes[sure] = s.mode[0]
     assert outcomes[0.1] == REACHED and outcomes[0.0] == FOLLOW
+
+
+
+def test_a_sure_tracker_outvotes_a_here_toward_an_anchor_far_away():
+    class Here(Scanned):
+        def __call__(self, cars, anchors, cwp, re):
+            a = super().__call__(cars, anchors, cwp, re)
+            far = np.asarray(anchors) == 2
+            a.waypoint[far], a.overlap[far] = [0.1, 0.0], 0.9      # "here", 1.4 m short of it
+            return a
+
+    visited = {}
+    for sure in (0.1, 0.0):
+        ev = Here(6)
+        car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+        s = FollowerState.initial(1)
+        for x in (0.0, 0.3, 0.6):
+            car[0] = x
+            s, _ = drive(ev, s, car, tracked_sure_m=sure)
+        visited[sure] = s.visited[0]
+    assert visited[0.1] < 2 and visited[0.0] == 2

@@ -11,7 +11,7 @@ A stateful C_WP (one with ``track_size`` > 0, e.g. the registration
 controller of :mod:`topodrake.registration.policy`) keeps (N, S) floats per
 car, ``FollowerState.track`` (:func:`initial_track` makes them). The
 executor hands the Evaluator a copy of the batch's rows and the cars'
-odometry poses (the integrated pose; in simulation the car's state), and
+odometry poses (the integrated pose, :mod:`topodrake.odometry`), and
 stores the rows back after the period (:attr:`Evaluator.track`). Each C_WP
 query then goes to ``policy.predict_tracked(observations, target features,
 track, cars, keys, odometry)``, which answers like ``predict`` and updates
@@ -252,14 +252,14 @@ class Evaluator:
         self.odometry = poses if odometry is None else np.asarray(odometry, np.float64)
         if self.stateful and (self.track is None or self.odometry is None):
             raise TopodrakeError("a stateful C_WP needs the cars' track state and odometry")
-        # a stateful C_WP (registration) localizes itself along the legs: the route
-        # tracker stays out
-        self.anchor_frames = None if self.stateful else self.leg_frames
+        # the route tracker's frames (a stateful C_WP, the registration one, keeps its
+        # own estimates too: its answers are fixes like any C_WP's)
+        self.anchor_frames = self.leg_frames
         # the tracker's scan fixes: lidar routes followed on lidar observations
         lidar = lidar or LidarConfig()
         self.lidar = lidar
         self.scan_fixes = None
-        if not self.stateful and features.scans is not None and observations is not None \
+        if features.scans is not None and observations is not None \
                 and np.ndim(observations) == 2 and np.shape(observations)[1] == lidar.beams \
                 and features.scans.shape[1] == lidar.beams:
             self.scan_fixes = self.register_anchors

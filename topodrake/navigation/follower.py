@@ -38,8 +38,8 @@ Per period, with the current observation:
   as visited (ours: an obstacle the map never saw may stand on it, and the
   RMP keeps the car out of its visiting distance), unless it is the last.
 * **Dead reckoning**: the car drives to the last Follow waypoint, held in
-  the odometry frame (the car's integrated pose, which is the world frame
-  here: odometry has no drift in this simulator). Each period RE is asked
+  the odometry frame (the car's integrated pose, which drifts:
+  :mod:`topodrake.odometry`). Each period RE is asked
   about a window of anchors around the next unvisited one, which widens by
   one anchor each way every ``dr_widen_every`` periods, as the paper's
   does, but reaches back ``dr_back_anchors`` (1) anchors at most (ours: a
@@ -65,6 +65,14 @@ car: driving forward at full lock the car would circle it (an anchor
 beside the car), and a near answer far off the heading (C_WP's typical
 large error) would swing the car round; backing up brings the target
 where the car can turn onto it, and the next answer comes from farther.
+
+Along routes with the teach drives' legs a route tracker
+(:mod:`topodrake.navigation.tracker`; ``odometry_check``) keeps each car's
+pose by odometry, corrected by C_WP's answers and, on lidar routes, by the
+scan registered onto the anchors' taught scans (``scan_fix``); it replaces
+C_WP's waypoints that disagree with it, counts anchors it puts behind the
+car as passed, and where the scans pin it (``tracked_sure_m``) refuses Dead
+reckoning anchors it puts far away and ends the route at the goal.
 
 The state is a handful of numbers per car (:class:`FollowerState`): mode,
 active anchor, last visited anchor, the held waypoint and counters, and
@@ -439,6 +447,9 @@ def _follow(per: _Period, f: np.ndarray) -> None:
     there = (((prox > cfg.p_visited) & ((length < cfg.visit_m) | passed))
              | ((prox > cfg.p_visited_close) & (length < cfg.visit_m) & nearest))
     there = np.where(last, _at_goal(prox, length, cfg), there)
+    if per.frames is not None and cfg.tracked_sure_m > 0:
+        # (not where a sure tracker puts the anchor a metre or more away: C_WP's wrong "here")
+        there &= ~_tracked_far(per, f[rows], anchors, TRACKED_PASS_M)
     visited = start.copy()
     for m in np.flatnonzero(there):
         visited[rows[m]] = max(visited[rows[m]], anchors[m])
@@ -512,7 +523,7 @@ def _dead_reckoning(per: _Period, d: np.ndarray) -> None:
     rows, anchors = _windows(lo, hi)
     p = evaluate(d[rows], anchors, False, True).probability
     if per.frames is not None and cfg.tracked_reach_m > 0 and cfg.tracked_sure_m > 0:
-        p = np.where(_tracked_far(new, d[rows], anchors, per.frames, cfg), 0.0, p)
+        p = np.where(_tracked_far(per, d[rows], anchors, cfg.tracked_reach_m), 0.0, p)
     arg, best = _best_per_row(rows, p, d.size, prefer_last=True)
     new.best_p[d] = np.where(np.isfinite(best), best, 0.0)
     back = best > cfg.p_follow
@@ -544,8 +555,10 @@ def _dead_reckoning(per: _Period, d: np.ndarray) -> None:
         leg = evaluate(arrived, new.active[arrived], True, False).waypoint
         # standing on the active anchor (a junction overshot): it counts as visited and
         # the leg goes to the next one, which RE may not see from this heading
-        on = np.flatnonzero((np.hypot(*leg.T) < cfg.visit_m)
-                            & (new.active[arrived] < n_anchors[arrived] - 1))
+        on = (np.hypot(*leg.T) < cfg.visit_m) & (new.active[arrived] < n_anchors[arrived] - 1)
+        if per.frames is not None and cfg.tracked_sure_m > 0:
+            on &= ~_tracked_far(per, arrived, new.active[arrived], TRACKED_PASS_M)
+        on = np.flatnonzero(on)
         if on.size:
             cars_on = arrived[on]
             new.visited[cars_on] = new.active[cars_on]
@@ -677,13 +690,14 @@ def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, l
 TRACKED_PASS_M = 1.0    # an anchor the tracker puts behind the car and this close is passed
 
 
-def _tracked_far(new: FollowerState, cars: np.ndarray, anchors: np.ndarray, frames,
-                 cfg: FollowerConfig) -> np.ndarray:
-    """(M,) whether a sure tracker (position sigma under ``tracked_sure_m``)
-    puts each car's anchor farther than ``tracked_reach_m``."""
-    q, known, _ = tracker.tracked_anchor(new, cars, anchors, frames)
-    sigma = np.sqrt(np.maximum(new.var[cars, 0], new.var[cars, 4]))
-    return known & (sigma < cfg.tracked_sure_m) & (np.hypot(q[:, 0], q[:, 1]) > cfg.tracked_reach_m)
+def _tracked_far(per: _Period, cars: np.ndarray, anchors: np.ndarray, reach_m: float
+                 ) -> np.ndarray:
+    """(M,) whether a sure tracker (position sigma under ``tracked_sure_m``
+    after the last period's scan fixes: C_WP's answers hold it at their
+    floor) puts each car's anchor farther than ``reach_m``."""
+    q, known, _ = tracker.tracked_anchor(per.new, cars, anchors, per.frames)
+    sigma = np.sqrt(np.maximum(per.state.var[cars, 0], per.state.var[cars, 4]))
+    return known & (sigma < per.cfg.tracked_sure_m) & (np.hypot(q[:, 0], q[:, 1]) > reach_m)
 
 
 def outcome_of(state: FollowerState) -> list[str]:
