@@ -128,13 +128,14 @@ class FollowerConfig:
                                     # answers as fixes, and drive toward the tracked anchor when
                                     # C_WP's waypoint disagrees (routes without legs: no effect)
     check_deg: float = 35.0         # ... by more than this angle
+    scan_fix: bool = True           # the tracker also registers the scan onto the active and
+                                    # last visited anchors' taught scans (lidar routes) from
+                                    # the tracked pose: fixes that share none of C_WP's errors
     tracked_sure_m: float = 0.1     # a tracker this sure (position sigma; the scans pin it)
-                                    # ends the route within goal_m of the goal and ...
+                                    # ends the route within goal_m of the goal, outvotes
+                                    # C_WP's "here" toward an anchor a metre away and ...
     tracked_reach_m: float = 2.5    # ... refuses Dead reckoning an anchor it puts farther than
                                     # this (RE's look-alike anchors further on; 0: off)
-    scan_fix: bool = True           # ... and, on lidar routes, register the scan onto the
-                                    # active and last visited anchors' taught scans from the
-                                    # tracked pose as fixes that share none of C_WP's errors
     legs_m: float = 2.0             # a hop without a taught leg (between drives, into the
                                     # goal) takes C_WP's answer from the anchor's own view
                                     # toward the next as its leg, where that waypoint is
@@ -158,8 +159,7 @@ class FollowerConfig:
         return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65,
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
                    odometry_check=False, scan_fix=False, tracked_sure_m=0.0,
-                   reverse_inside_turn=-1.0,
-                   legs_m=0.0)
+                   reverse_inside_turn=-1.0, legs_m=0.0)
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
@@ -670,7 +670,7 @@ def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, l
                                                                        frames)
         dist = np.hypot(q[:, 0], q[:, 1])
     # the goal: a sure tracker within goal_m of it ends the route
-    sure = known & (np.sqrt(np.maximum(new.var[moving, 0], new.var[moving, 4])) < cfg.tracked_sure_m)
+    sure = known & (_position_sigma(new.var[moving]) < cfg.tracked_sure_m)
     home = sure & (dist < cfg.goal_m) & (new.active[moving] == n_anchors[moving] - 1)
     if home.any():
         c = moving[home]
@@ -696,8 +696,13 @@ def _tracked_far(per: _Period, cars: np.ndarray, anchors: np.ndarray, reach_m: f
     after the last period's scan fixes: C_WP's answers hold it at their
     floor) puts each car's anchor farther than ``reach_m``."""
     q, known, _ = tracker.tracked_anchor(per.new, cars, anchors, per.frames)
-    sigma = np.sqrt(np.maximum(per.state.var[cars, 0], per.state.var[cars, 4]))
-    return known & (sigma < per.cfg.tracked_sure_m) & (np.hypot(q[:, 0], q[:, 1]) > reach_m)
+    sure = _position_sigma(per.state.var[cars]) < per.cfg.tracked_sure_m
+    return known & sure & (np.hypot(q[:, 0], q[:, 1]) > reach_m)
+
+
+def _position_sigma(var: np.ndarray) -> np.ndarray:
+    """The larger position sigma (M,) of tracker covariances ``var`` (M, 9)."""
+    return np.sqrt(np.maximum(var[:, 0], var[:, 4]))
 
 
 def outcome_of(state: FollowerState) -> list[str]:
