@@ -256,12 +256,12 @@ class Evaluator:
         # own estimates too: its answers are fixes like any C_WP's)
         self.anchor_frames = self.leg_frames
         # the tracker's scan fixes: lidar routes followed on lidar observations
-        lidar = lidar or LidarConfig()
-        self.lidar = lidar
+        self.lidar = lidar or LidarConfig()
+        beams = self.lidar.beams
         self.scan_fixes = None
         if features.scans is not None and observations is not None \
-                and np.ndim(observations) == 2 and np.shape(observations)[1] == lidar.beams \
-                and features.scans.shape[1] == lidar.beams:
+                and np.ndim(observations) == 2 and np.shape(observations)[1] == beams \
+                and features.scans.shape[1] == beams:
             self.scan_fixes = self.register_anchors
 
     def leg_frames(self, cars: np.ndarray, anchors: np.ndarray

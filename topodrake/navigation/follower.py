@@ -588,12 +588,8 @@ def _drive(per: _Period) -> StepOutput:
     follow = np.flatnonzero(new.mode == FOLLOW)
     if frames is not None:
         scans = getattr(evaluate, "scan_fixes", None) if cfg.scan_fix else None
-        if scans is not None:
-            moving_cars = np.flatnonzero(moving)
-            tracker.follow_visits(new, moving_cars, frames)
-            tracker.apply_scans(new, moving_cars, frames, scans, TRACKER)
         tracked = _check_waypoints(new, follow, np.flatnonzero(new.mode == DEAD_RECKONING),
-                                   local, car_state, n_anchors, frames, cfg)
+                                   local, car_state, n_anchors, frames, cfg, scans)
         follow = np.setdiff1d(follow, tracked)
     target[follow] = new.active[follow]
     drive = np.full((n, 2), np.nan)
@@ -645,17 +641,20 @@ TRACKER = tracker.TrackerConfig()
 
 def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, local: np.ndarray,
                      car_state: np.ndarray, n_anchors: np.ndarray, frames,
-                     cfg: FollowerConfig) -> np.ndarray:
+                     cfg: FollowerConfig, scans=None) -> np.ndarray:
     """Returns the Follow cars that drive the tracker's waypoint. Tracked cars: an active anchor (but the goal) that the tracker puts
     behind the car or within ``visit_m`` counts as visited and the next one
     becomes active; in Follow, a C_WP waypoint more than ``check_deg`` off
     the tracked pursuit point (on the taught poses into the active anchor)
     is replaced by that point; in Dead reckoning the car drives to the
-    pursuit point instead of the held waypoint. A sure tracker (position
+    pursuit point instead of the held waypoint. ``scans``: the Evaluator's
+    scan fixes (:func:`tracker.apply_scans`), applied first. A sure tracker (position
     sigma under ``tracked_sure_m``) within ``goal_m`` of the goal ends the
     route (``reached``)."""
     moving = np.concatenate([follow, dead])
     tracker.follow_visits(new, moving, frames)
+    if scans is not None:
+        tracker.apply_scans(new, moving, frames, scans, TRACKER)
     q, known, aim = tracker.tracked_anchor(new, moving, new.active[moving], frames)
     dist = np.hypot(q[:, 0], q[:, 1])
     passed = known & ((dist < cfg.visit_m) | ((q[:, 0] < 0.0) & (dist < TRACKED_PASS_M))) \
