@@ -50,7 +50,8 @@ from topodrake.navigation.follower import (FAILED, MODES, REACHED, REASONS,
 
 class FollowerFsm(LeafSystem):
     """Inputs ``observation`` (camera image / lidar ranges; absent for pose
-    oracles) and ``state`` (held car state, 5)."""
+    oracles), ``state`` (held car state, 5) and, for a camera C_WP,
+    ``ranges`` (the car's lidar scan, optional)."""
 
     def __init__(self, route, policy, reach, config: FollowerConfig | None = None,
                  period: float = 0.1, camera=None, lidar=None, replanner=None):
@@ -70,7 +71,7 @@ class FollowerFsm(LeafSystem):
             raise ValueError(f"C_WP observes {kind}, RE {reach.observation}")
         self.kind = kind
         self.lidar = (lidar or getattr(policy, "sensor", None) or LidarConfig()) \
-            if kind == "lidar" else LidarConfig()
+            if kind == "lidar" else (lidar or LidarConfig())
         if kind == "camera":
             c = camera or getattr(policy, "sensor", None) or CameraConfig()
             self.observation_port = self.DeclareAbstractInputPort(
@@ -79,11 +80,16 @@ class FollowerFsm(LeafSystem):
             self.observation_port = self.DeclareVectorInputPort("observation", self.lidar.beams)
         else:
             self.observation_port = None
+        # a camera car's lidar scan, for the route tracker's scan fixes on routes that keep
+        # their anchors' scans (optional: unconnected, no fixes)
+        self.ranges_port = self.DeclareVectorInputPort("ranges", self.lidar.beams) \
+            if kind == "camera" else None
         self.state_port = self.DeclareVectorInputPort("state", 5)
         self.fsm_index = self.DeclareAbstractState(AbstractValue.Make(self._initial_state()))
         self.route_index = self.DeclareAbstractState(AbstractValue.Make(0))
         prereq = {self.input_port_ticket(p.get_index())
-                  for p in (self.state_port, self.observation_port) if p is not None}
+                  for p in (self.state_port, self.observation_port, self.ranges_port)
+                  if p is not None}
         prereq.add(self.abstract_state_ticket(self.fsm_index))
         prereq.add(self.abstract_state_ticket(self.route_index))
         self._decision = self.DeclareCacheEntry(
@@ -135,10 +141,13 @@ class FollowerFsm(LeafSystem):
         car = np.asarray(self.state_port.Eval(context))[None]
         obs = None if self.observation_port is None else \
             np.asarray(self.observation_port.Eval(context))[None]
+        ranges = None
+        if self.ranges_port is not None and self.ranges_port.HasValue(context):
+            ranges = np.asarray(self.ranges_port.Eval(context))[None]
         feats = self._routes[self._route_of(context)].features
         ev = Evaluator(self.policy, self.reach, feats, np.zeros(1, np.int64), obs,
                        poses=car[:, :3], track=state.track, odometry=car[:, :3],
-                       lidar=self.lidar)
+                       lidar=self.lidar, ranges=ranges)
         fs, out = follower_step(state, feats.n_anchors, car, ev, self.config)
         fs.track = ev.track
         value.set_value((fs, out))

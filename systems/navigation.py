@@ -101,6 +101,8 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     if obs is not None:
         b.Connect(obs, fsm.observation_port)
         b.Connect(obs, net.observation_port)
+    if fsm.ranges_port is not None:
+        b.Connect(c.lidar.ranges_port, fsm.ranges_port)
     b.Connect(fsm.target_port, net.target_port)
     b.Connect(net.waypoint_port, select.net_port)
     b.Connect(fsm.held_waypoint_port, select.held_port)

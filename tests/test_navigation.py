@@ -311,3 +311,56 @@ def test_a_run_passes_the_hops_before_its_last_visited_anchor_and_fails_the_next
     # skipped ahead: the hops between count as passed, the failure is the hop it was on
     assert route_traversals(r, visited=3, active=4, reached=False) == (
         [(7, 3), (3, 9), (9, 4)], [])
+
+
+def test_a_camera_follower_fsm_hands_the_car_s_lidar_scan_to_the_evaluator(box_world, drive,
+                                                                          oracles, monkeypatch):
+    """FollowerFsm of a camera C_WP takes the car's lidar scan on its
+    ``ranges`` port (the diagram connects the lidar) and gives it to the
+    Evaluator for the tracker's scan fixes; unconnected, it gives none."""
+    import topodrake.systems.follower as follower_system
+    from topodrake.navigation.route import Route, route_from_trajectory
+    from topodrake.sensing.config import LidarConfig
+    from topodrake.sensing.lidar import Lidar
+
+    class CameraOracle:
+        """The A* oracle that says it observes images (it ignores them)."""
+        observation, k, frame_step = "camera", 0, 1
+
+        def encode_target(self, ctx):
+            return np.zeros((len(ctx), 1))
+
+        def predict(self, observation, target):
+            from topodrake.learning.waypoint.policy import WaypointPrediction
+
+            n = len(observation)
+            return WaypointPrediction(np.tile([[1.0, 0.0]], (n, 1)), np.zeros(n),
+                                      np.full((n, 2), 0.5))
+
+    anchors = np.r_[np.arange(0, len(drive) - 1, 10), len(drive) - 1]
+    pose_route = route_from_trajectory(box_world, drive, anchors, oracles[0])
+    scans = Lidar(box_world).scan(drive[anchors])
+    route = Route(np.zeros((len(anchors), 1, 4, 4, 3), np.uint8), pose_route.poses,
+                  modality="camera", legs=pose_route.legs, leg_paths=pose_route.leg_paths,
+                  scans=scans)
+    seen = []
+
+    class Spy(follower_system.Evaluator):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            seen.append(self.scan_fixes is not None and self.ranges is not None)
+
+    monkeypatch.setattr(follower_system, "Evaluator", Spy)
+    fsm = follower_system.FollowerFsm(route, CameraOracle(), oracles[1])
+    assert fsm.ranges_port.size() == LidarConfig().beams
+    ctx = fsm.CreateDefaultContext()
+    fsm.state_port.FixValue(ctx, np.array([*drive[0], 0.0, 0.0]))
+    fsm.observation_port.FixValue(ctx, np.zeros((64, 64, 3), np.uint8))
+    fsm.decision(ctx)
+    assert seen == [False]                     # no scan on the port: no fixes
+    ctx = fsm.CreateDefaultContext()
+    fsm.state_port.FixValue(ctx, np.array([*drive[0], 0.0, 0.0]))
+    fsm.observation_port.FixValue(ctx, np.zeros((64, 64, 3), np.uint8))
+    fsm.ranges_port.FixValue(ctx, Lidar(box_world).scan(drive[:1])[0])
+    fsm.decision(ctx)
+    assert seen == [False, True]

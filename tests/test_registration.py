@@ -185,3 +185,61 @@ def test_the_evaluator_registers_scans_onto_the_routes_anchor_scans(house):
     # camera observations, or routes without scans: no scan fixes
     assert Evaluator(net, net, RouteFeatures(None, None, np.array([0, 1])), np.zeros(1),
                      src[:1]).scan_fixes is None
+
+
+def test_a_camera_car_registers_its_lidar_scan_onto_the_scans_its_route_keeps(house):
+    """A camera route keeps each anchor's lidar scan: the Evaluator takes the
+    car's scan beside its images and registers it like a lidar car's, and
+    without the car's scan there are no fixes."""
+    from types import SimpleNamespace
+
+    from topodrake.navigation.evaluate import Evaluator, RouteFeatures
+
+    src, tgt, delta = _pairs(house, 20, seed=7, shift=0.3, turn=0.15)
+    feats = RouteFeatures(None, None, np.array([0, len(tgt)]), scans=tgt)
+    camera = SimpleNamespace(observation="camera")
+    images = np.zeros((len(src), 4, 4, 3), np.uint8)
+    ev = Evaluator(camera, camera, feats, np.zeros(len(src), np.int64), images, ranges=src)
+    assert ev.scan_fixes is not None
+    pose, pinned = ev.register_anchors(np.arange(len(src)), np.arange(len(src)), delta * 0.7)
+    e, _ = _errors(pose, delta)
+    assert pinned.mean() > 0.6 and np.median(e[pinned]) < 0.05
+    assert Evaluator(camera, camera, feats, np.zeros(len(src), np.int64), images
+                     ).scan_fixes is None
+    # a scan of another lidar's beam count is not registered
+    assert Evaluator(camera, camera, feats, np.zeros(len(src), np.int64), images,
+                     ranges=src[:, :10]).scan_fixes is None
+
+
+def test_camera_routes_keep_their_anchors_lidar_scans(house):
+    """route_from_trajectory keeps a camera route's anchor scans as the car's
+    lidar takes them there; encode_routes stacks them only when every route
+    has them; a scan array of the wrong shape is refused."""
+    from types import SimpleNamespace
+
+    from topodrake.navigation.evaluate import encode_routes
+    from topodrake.navigation.route import Route, route_from_trajectory
+
+    rng = np.random.default_rng(3)
+    poses = np.array([house.sample_free_pose(rng) for _ in range(6)])
+    anchors = np.array([0, 2, 5])
+    pose_net = SimpleNamespace(observation="pose", k=0, frame_step=1)
+    assert route_from_trajectory(house, poses, anchors, pose_net).scans is None
+    camera_net = SimpleNamespace(observation="camera", k=0, frame_step=1, sensor=None)
+    route = route_from_trajectory(house, poses, anchors, camera_net)
+    assert route.scans.shape == (3, LidarConfig().beams)
+    np.testing.assert_allclose(route.scans, Lidar(house).scan(poses[anchors]))
+
+    class Encoder:
+        observation, k, frame_step = "camera", 0, 1
+
+        def encode_target(self, ctx):
+            return np.zeros((len(ctx), 1))
+
+    net = Encoder()
+    kept = encode_routes([route, route], net, net)
+    assert kept.scans.shape == (6, LidarConfig().beams)
+    bare = Route(route.contexts, route.poses, modality="camera")
+    assert encode_routes([route, bare], net, net).scans is None
+    with pytest.raises(TopodrakeError, match="scans"):
+        Route(route.contexts, route.poses, modality="camera", scans=route.scans[:2])

@@ -87,9 +87,12 @@ def follow_chains_once(engine, references: list[np.ndarray], observations: list,
     # the legs as the teach drive's odometry measured them (seed + 2), the repeat's own
     # odometry errors from seed + 3
     odometry = engine.config.odometry
-    routes = [route_from_observations(obs, ref, chain, k, frame_step, modality, odometry,
-                                      int(s) + 2)
-              for obs, ref, chain, s in zip(observations, references, chains, seeds)]
+    # a camera route keeps its anchors' lidar scans, as the teach drive's lidar took them
+    routes = [route_from_observations(
+        obs, ref, chain, k, frame_step, modality, odometry, int(s) + 2,
+        scans=engine.lidar.scan(np.asarray(ref)[np.asarray(chain), :3])
+        if modality == "camera" else None)
+        for obs, ref, chain, s in zip(observations, references, chains, seeds)]
     starts = np.array([jittered_start(engine.world, ref[0], np.random.default_rng(s))
                        for ref, s in zip(references, seeds)])
     limits = np.array([(2 * len(ref) + 100) * 0.1 for ref in references])

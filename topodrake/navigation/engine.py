@@ -168,7 +168,7 @@ class NavigationEngine:
             odo[:, :3] = odometry.poses[cars]
             ev = Evaluator(self.policy, self.reach, features, route_of[cars],
                            self.observe(st, ranges), poses=st[:, :3], track=fs.track,
-                           odometry=odo[:, :3], lidar=cfg.lidar)
+                           odometry=odo[:, :3], lidar=cfg.lidar, ranges=ranges)
             fs, out = follower_step(fs, n_anchors[cars], odo, ev, self.config.follower)
             if not odometry.perfect:        # the waypoint, given in the odometry frame
                 out.waypoint = car_to_world(world_to_car(out.waypoint[:, None], odo),

@@ -138,6 +138,9 @@ def encode_routes(routes, policy, reach, route_k: int | None = None,
     scans = None
     if ctx is not None and routes and all(r.modality == "lidar" for r in routes):
         scans = np.asarray(ctx[:, route_k], np.float64)
+    elif routes and all(r.scans is not None for r in routes) \
+            and len({r.scans.shape[1] for r in routes}) == 1:
+        scans = np.concatenate([r.scans for r in routes])
     return RouteFeatures(cwp, features(reach), offsets, frames, segments, approach, scans)
 
 
@@ -233,14 +236,15 @@ class Evaluator:
     pose oracles), ``route_of`` (B,) the route of each car in ``features``;
     for a stateful C_WP, ``track`` (B, S), the cars' state, updated in place
     (read it back from :attr:`track`), and ``odometry`` (B, 3), the cars'
-    odometry poses (default: ``poses``). With lidar observations (``lidar``'s
-    beams) on routes that keep their anchors' scans, :attr:`scan_fixes`
-    registers them for the route tracker (:meth:`register_anchors`)."""
+    odometry poses (default: ``poses``). With the cars' lidar scans
+    (``ranges`` (B, beams) of ``lidar``; lidar observations serve) on routes
+    that keep their anchors' scans, :attr:`scan_fixes` registers them for
+    the route tracker (:meth:`register_anchors`)."""
 
     def __init__(self, policy, reach, features: RouteFeatures, route_of: np.ndarray,
                  observations: np.ndarray, poses: np.ndarray | None = None,
                  track: np.ndarray | None = None, odometry: np.ndarray | None = None,
-                 lidar: LidarConfig | None = None):
+                 lidar: LidarConfig | None = None, ranges: np.ndarray | None = None):
         self.policy = policy
         self.reach = reach
         self.features = features
@@ -258,10 +262,13 @@ class Evaluator:
         # the tracker's scan fixes: lidar routes followed on lidar observations
         self.lidar = lidar or LidarConfig()
         beams = self.lidar.beams
+        if ranges is None and observations is not None and np.ndim(observations) == 2 \
+                and np.shape(observations)[1] == beams:
+            ranges = observations
+        self.ranges = ranges
         self.scan_fixes = None
-        if features.scans is not None and observations is not None \
-                and np.ndim(observations) == 2 and np.shape(observations)[1] == beams \
-                and features.scans.shape[1] == beams:
+        if features.scans is not None and ranges is not None \
+                and np.shape(ranges)[1] == beams and features.scans.shape[1] == beams:
             self.scan_fixes = self.register_anchors
 
     def leg_frames(self, cars: np.ndarray, anchors: np.ndarray
@@ -283,7 +290,7 @@ class Evaluator:
         fitted poses (M, 3) and whether each fit passed and pins the
         translation (M,; a corridor leaves it free to slide)."""
         rows = self.start[np.asarray(cars, np.int64)] + np.asarray(anchors, np.int64)
-        sp, sv = scan_points(self.observations[cars], self.lidar)
+        sp, sv = scan_points(np.asarray(self.ranges, np.float64)[cars], self.lidar)
         tp, tv = scan_points(self.features.scans[rows], self.lidar)
         fit = register_points(sp, sv, tp, tv, np.asarray(guess, np.float64), len(rows), SCAN_ICP)
         return fit.pose, fit.accepted & (fit.constraint >= SCAN_PINNED)

@@ -29,7 +29,10 @@ class Route:
     ``probability``: the whole route's (the product of its hops, and of the
     start and goal links when planned); ``start_probability``: RE of the
     start link that the planner made from the car's observation (1 when
-    not planned)."""
+    not planned). ``scans`` (A, beams): each anchor's lidar scan as the
+    teach drive took it, where a camera route keeps one (a lidar route's
+    are its contexts' centre frames); the route tracker registers the
+    car's scan onto them."""
 
     contexts: np.ndarray
     poses: np.ndarray
@@ -40,6 +43,7 @@ class Route:
     start_probability: float = 1.0
     legs: np.ndarray | None = None
     leg_paths: np.ndarray | None = None
+    scans: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.contexts = np.asarray(self.contexts)
@@ -67,6 +71,11 @@ class Route:
                 self.leg_paths.shape[2] != 3:
             raise TopodrakeError(f"a route of {n} anchors needs ({n - 1}, K, 3) leg paths, got "
                                  f"{self.leg_paths.shape}")
+        if self.scans is not None:
+            self.scans = np.asarray(self.scans, np.float64)
+            if self.scans.ndim != 2 or len(self.scans) != n:
+                raise TopodrakeError(f"a route of {n} anchors needs ({n}, beams) scans, got "
+                                     f"{self.scans.shape}")
         if len(self.vertices) != n or len(self.edge_probability) != n - 1:
             raise TopodrakeError(f"a route of {n} anchors needs {n} vertices and {n - 1} edge "
                                  f"probabilities, got {len(self.vertices)} and "
@@ -104,11 +113,12 @@ def teach_legs(poses: np.ndarray, anchors: np.ndarray, odometry=None, seed: int 
 
 
 def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network,
-                          odometry=None, seed: int = 0) -> Route:
+                          odometry=None, seed: int = 0, lidar=None) -> Route:
     """The route along frames ``anchors`` of one trajectory (``poses`` (T, 3)),
     with each anchor's context rendered for ``network`` (its ``observation``,
     ``k``, ``frame_step`` and ``sensor``; a pose oracle gets the poses) and
-    its legs from the drive's odometry (:func:`teach_legs`)."""
+    its legs from the drive's odometry (:func:`teach_legs`). A camera
+    route keeps each anchor's lidar scan (``lidar``'s, default the car's)."""
     from topodrake.learning.frames import context_frames
 
     poses = np.asarray(poses, np.float64)
@@ -126,17 +136,23 @@ def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network
                       getattr(network, "sensor", None))
         contexts = obs.reshape(*rows.shape, *obs.shape[1:])
     legs, paths = teach_legs(poses, anchors, odometry, seed)
+    scans = None
+    if network.observation == "camera":
+        from topodrake.sensing.lidar import Lidar
+
+        scans = Lidar(world, lidar).scan(poses[anchors])
     return Route(contexts, poses[anchors], modality=network.observation, legs=legs,
-                 leg_paths=paths)
+                 leg_paths=paths, scans=scans)
 
 
 def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors: np.ndarray,
                             k: int, frame_step: int, modality: str, odometry=None,
-                            seed: int = 0) -> Route:
+                            seed: int = 0, scans: np.ndarray | None = None) -> Route:
     """The route along frames ``anchors`` of one trajectory whose
     observations (T, ...) are already rendered (no rendering again):
     each anchor's 2k + 1 context frames, clamped to the trajectory; legs as
-    in :func:`route_from_trajectory`."""
+    in :func:`route_from_trajectory`; ``scans``: the anchors' lidar scans
+    a camera route keeps (A, beams)."""
     from topodrake.learning.frames import context_frames
 
     poses = np.asarray(poses, np.float64)
@@ -148,4 +164,4 @@ def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors
     rows = context_frames(len(poses), anchors, k, frame_step)
     legs, paths = teach_legs(poses, anchors, odometry, seed)
     return Route(np.asarray(observations)[rows], poses[anchors], modality=modality, legs=legs,
-                 leg_paths=paths)
+                 leg_paths=paths, scans=scans)
