@@ -768,3 +768,42 @@ def _with_meta(path, out, edit):
         for n, b in files.items():
             z.writestr(n, b)
     return out
+
+
+def test_a_map_keeps_the_scans_taken_with_its_frames_and_plans_hand_them_on(tmp_path):
+    """A camera drive's lidar scans ride along: the bank keeps those of the
+    frames it keeps (rows aligned with the observations), a drive without
+    them gets none (NaN), a plan's route carries its vertices' scans and
+    none for the goal view, and the map file keeps them."""
+    m = table_map(same_drive_hops)
+    scans = np.arange(40, dtype=np.float64).reshape(10, 4)
+    add_trajectory(m, drive(0, 10), scans=scans)
+    kept = m.bank.observations[:, 1].astype(int)
+    np.testing.assert_array_equal(m.bank.scans, scans[kept])
+    r = plan_path(m, np.array([0, 0]), np.array([0, 9]))
+    frames = [m.graph.nodes[v]["frame"] for v in r.vertices]
+    np.testing.assert_array_equal(r.route.scans[:-1], scans[frames])
+    assert np.isnan(r.route.scans[-1]).all() and len(r.route.scans) == len(r.route)
+    assert len(m.bank.scans) == len(m.bank)           # the plan's temporary rows are gone
+    add_trajectory(m, drive(1, 4))
+    assert np.isnan(m.bank.scans[len(kept):]).all()
+    with pytest.raises(TopodrakeError, match="beams"):
+        add_trajectory(m, drive(2, 3), scans=np.zeros((3, 5)))
+    plain = table_map(same_drive_hops)
+    add_trajectory(plain, drive(0, 10))
+    assert plain.bank.scans is None
+    assert plan_path(plain, np.array([0, 0]), np.array([0, 9])).route.scans is None
+
+
+def test_a_camera_map_file_keeps_its_scans(oracle_map, tmp_path):
+    world, m, _ = oracle_map
+    from topodrake.topomap.graph import TopoMap
+
+    copy = TopoMap(m.scorer, m.embedding, m.config, world=m.world, identity=m.identity)
+    poses = np.array([world.places[0], world.places[1]], np.float64)
+    scans = np.array([[1.0, np.inf, 2.0], [3.0, 4.0, np.inf]])
+    add_trajectory(copy, poses, poses, scans=scans)
+    path = save_map(copy, tmp_path / "scans.tdmap")
+    back = load_map(path, m.scorer)
+    np.testing.assert_array_equal(back.bank.scans, copy.bank.scans)
+    assert load_map(save_map(m, tmp_path / "none.tdmap"), m.scorer).bank.scans is None

@@ -56,6 +56,7 @@ class FrameBank:
         self.scorer = scorer
         self._obs = _Growable()
         self._poses = _Growable()
+        self._scans = _Growable()
         self._feats: dict[str, _Growable] = {}
         self._have = np.zeros(0, bool)
         if observations is not None and len(observations):
@@ -72,10 +73,17 @@ class FrameBank:
     def poses(self) -> np.ndarray:
         return self._poses.view()
 
+    @property
+    def scans(self) -> np.ndarray | None:
+        """(F, beams) the lidar scan taken with each frame, where a camera
+        map keeps them (NaN rows: none; None: the bank keeps no scans)."""
+        return self._scans.view() if self._scans.size else None
+
     def append(self, observations: np.ndarray, poses: np.ndarray | None = None,
-               features: dict | None = None) -> np.ndarray:
+               features: dict | None = None, scans: np.ndarray | None = None) -> np.ndarray:
         """Add frames; returns their rows. ``features`` (if already computed
-        for exactly these frames) are kept instead of being recomputed."""
+        for exactly these frames) are kept instead of being recomputed;
+        ``scans`` (N, beams): the lidar scans taken with them."""
         observations = np.asarray(observations)
         n = len(observations)
         if poses is None:
@@ -84,8 +92,21 @@ class FrameBank:
         if len(poses) != n:
             raise TopodrakeError(f"{n} observations but {len(poses)} poses")
         start = len(self)
+        if scans is not None:
+            scans = np.asarray(scans, np.float64)
+            if scans.ndim != 2 or len(scans) != n:
+                raise TopodrakeError(f"{n} observations but scans of shape {scans.shape}")
+            if self._scans.size and scans.shape[1] != self._scans.buf.shape[1]:
+                raise TopodrakeError(f"scans of {scans.shape[1]} beams for a map of "
+                                     f"{self._scans.buf.shape[1]}")
+            if start and not self._scans.size:          # frames before kept none
+                self._scans.set_rows(0, np.full((start, scans.shape[1]), np.nan))
+        elif self._scans.size:
+            scans = np.full((n, self._scans.buf.shape[1]), np.nan)
         self._obs.set_rows(start, observations)
         self._poses.set_rows(start, poses)
+        if scans is not None:
+            self._scans.set_rows(start, scans)
         self._have = np.concatenate([self._have, np.zeros(n, bool)])
         if features is not None:
             self._store(np.arange(start, start + n), features)
@@ -128,7 +149,7 @@ class FrameBank:
             raise ValueError("keep must be increasing rows of the tail")
         n_tail = len(self) - start
         new = np.arange(start, start + len(keep))
-        for g in (self._obs, self._poses, *self._feats.values()):
+        for g in (self._obs, self._poses, self._scans, *self._feats.values()):
             if g.buf is not None and g.size > start:
                 g.buf[new] = g.buf[keep]
                 g.size = start + len(keep)

@@ -96,11 +96,13 @@ class _Scored:
 
 def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray | None = None,
                    name: str = "", stats: BuildStats | None = None,
-                   audit: bool = False) -> BuildStats:
+                   audit: bool = False, scans: np.ndarray | None = None) -> BuildStats:
     """Add one drive (its observations (T, ...) in time order; ``poses``
     (T, 3) ride along as metadata, and the odometry the drive recorded,
     simulated from them as :attr:`MapConfig.teach_odometry` says, goes on its
-    trajectory edges) to ``topomap``."""
+    trajectory edges) to ``topomap``. ``scans`` (T, beams): the lidar scans a
+    camera drive took with its frames, which the map keeps for the route
+    tracker."""
     m, cfg = topomap, topomap.config
     stats = stats or BuildStats()
     obs = np.asarray(observations)
@@ -110,7 +112,7 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     score = _Scored(m, stats)
     k, step = m.k, m.frame_step
     start = len(m.bank)
-    rows = m.bank.append(obs, poses)
+    rows = m.bank.append(obs, poses, scans=scans)
     m.bank.ensure(rows)
     ctx_local = context_rows(n, np.arange(n), k, step)
     if cfg.reuse and cfg.reuse_rule == "resume":
@@ -528,13 +530,14 @@ def _passing(m: TopoMap, xs: list[int], chain: list[int], positions: list[int],
 
 def build_map(topomap: TopoMap, trajectories, progress: bool = True, audit: bool = False,
               desc: str = "map build") -> BuildStats:
-    """Add ``trajectories`` (an iterable of (observations, poses, name)) one by one."""
+    """Add ``trajectories`` (an iterable of (observations, poses, name) or
+    (observations, poses, name, scans)) one by one."""
     from tqdm import tqdm
 
     items = list(trajectories) if not hasattr(trajectories, "__len__") else trajectories
     stats = BuildStats()
     bar = tqdm(items, desc=desc, disable=not progress, unit="traj")
-    for obs, poses, name in bar:
-        add_trajectory(topomap, obs, poses, name, stats, audit)
+    for obs, poses, name, *scans in bar:
+        add_trajectory(topomap, obs, poses, name, stats, audit, scans=scans[0] if scans else None)
         bar.set_postfix(vertices=len(topomap), edges=topomap.n_edges)
     return stats

@@ -141,8 +141,10 @@ class _Lazy:
         return len(self.args[3])
 
     def __iter__(self):
-        from topodrake.topomap.sources import drive_observations
+        from topodrake.topomap.sources import drive_observations, drive_scans
 
         world, scorer, drives, indices, names = self.args
         for i, n in zip(indices, names):
-            yield drive_observations(world, scorer, drives[i].poses), drives[i].poses, n
+            poses = drives[i].poses
+            yield (drive_observations(world, scorer, poses), poses, n,
+                   drive_scans(world, scorer, poses))

@@ -15,6 +15,9 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
                     the registration C_WP followed such maps worse), oracle
                     poses
 ``poses``           (F, 3) where each frame was taken (metadata)
+``scans``           (F, beams) float32, optional: the lidar scan taken with
+                    each frame of a camera map (inf = no hit, NaN = none),
+                    for the route tracker's scan fixes
 ``vertex_*``        per vertex: ``id``, ``center`` row, ``context`` rows
                     (V, 2k+1), origin ``traj``, ``frame`` and chain ``pos``
 ``edge_*``          per edge: ``src``, ``dst``, ``p``, ``kind`` (0 trajectory,
@@ -95,6 +98,7 @@ def save_map(topomap: TopoMap, path) -> Path:
         buf, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8),
         observations=_encode_observations(m.modality, m.bank.observations),
         poses=m.bank.poses,
+        **({} if m.bank.scans is None else {"scans": m.bank.scans.astype(np.float32)}),
         vertex_id=verts, vertex_center=np.array([n["center"] for n in nodes], np.int64),
         vertex_context=np.array([n["context"] for n in nodes], np.int64).reshape(len(verts), -1),
         vertex_traj=np.array([n["traj"] for n in nodes], np.int64),
@@ -212,7 +216,10 @@ def load_map(path, scorer, embedding=None) -> TopoMap:
         embedding = embedding or default_embedding(modality)
         m = TopoMap(scorer, embedding, config, meta.get("world", ""), meta["identity"])
         obs = _decode_observations(modality, z["observations"])
-        m.bank.append(obs, z["poses"])
+        scans = z.get("scans")
+        if scans is not None and (scans.ndim != 2 or len(scans) != len(obs)):
+            raise TopodrakeError(f"{path}: {len(scans)} scans for {len(obs)} frames")
+        m.bank.append(obs, z["poses"], scans=scans)
         n_rows = len(obs)
         for v, c, ctx, t, f, p in zip(z["vertex_id"], z["vertex_center"], z["vertex_context"],
                                       z["vertex_traj"], z["vertex_frame"], z["vertex_pos"]):

@@ -117,6 +117,16 @@ def matched_first(topomap: TopoMap, groups: list[list[tuple[int, float]]],
         [g for g, hit in zip(groups, matched) if not hit]
 
 
+def _route_scans(topomap: TopoMap, vertices: list[int]) -> np.ndarray | None:
+    """The lidar scans a camera map keeps for a route through ``vertices``
+    and into the goal view (which has none: NaN); None where it keeps none."""
+    scans = topomap.bank.scans
+    if scans is None or topomap.modality == "lidar":
+        return None
+    rows = scans[topomap.centers(vertices)] if vertices else np.zeros((0, scans.shape[1]))
+    return np.vstack([rows, np.full((1, scans.shape[1]), np.nan)])
+
+
 def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation: np.ndarray,
               goal_context: np.ndarray | None = None, start_pose=None, goal_pose=None,
               excluded_edges=(), retrieval_k: int | None = None) -> PlanResult:
@@ -218,7 +228,7 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
             vertices=np.array(vertices + [-1], np.int64),
             edge_probability=np.array(probs[1:]),
             probability=math.exp(-cost), modality=m.modality, start_probability=probs[0],
-            legs=legs, leg_paths=leg_paths)
+            legs=legs, leg_paths=leg_paths, scans=_route_scans(m, vertices))
         result.reachable, result.probability = True, math.exp(-cost)
         result.vertices, result.route = vertices, route
         return result

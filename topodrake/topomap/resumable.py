@@ -59,13 +59,15 @@ class MapBuild:
         save_map(self.topomap, path)
 
     def _items(self):
-        from topodrake.topomap.sources import drive_observations
+        from topodrake.topomap.sources import drive_observations, drive_scans
 
         saved = time.perf_counter()
+        scorer = self.topomap.scorer
         for i in self.todo:
             t = time.perf_counter()
             poses = self.drives[i].poses
-            yield drive_observations(self.world, self.topomap.scorer, poses), poses, self.names[i]
+            yield (drive_observations(self.world, scorer, poses), poses, self.names[i],
+                   drive_scans(self.world, scorer, poses))
             self.drive_s.append(time.perf_counter() - t)    # resumed once the drive is added
             if time.perf_counter() - saved >= self.save_every_s and i != self.todo[-1]:
                 try:
