@@ -68,8 +68,9 @@ where the car can turn onto it, and the next answer comes from farther.
 
 Along routes with the teach drives' legs a route tracker
 (:mod:`topodrake.navigation.tracker`; ``odometry_check``) keeps each car's
-pose by odometry, corrected by C_WP's answers and, on lidar routes, by the
-scan registered onto the anchors' taught scans (``scan_fix``); it replaces
+pose by odometry, corrected by C_WP's answers and, on routes that keep
+their anchors' lidar scans, by the car's scan registered onto them
+(``scan_fix``); it replaces
 C_WP's waypoints that disagree with it, counts anchors it puts behind the
 car as passed, and where the scans pin it (``tracked_sure_m``) refuses Dead
 reckoning anchors it puts far away and ends the route at the goal.
@@ -128,9 +129,10 @@ class FollowerConfig:
                                     # answers as fixes, and drive toward the tracked anchor when
                                     # C_WP's waypoint disagrees (routes without legs: no effect)
     check_deg: float = 35.0         # ... by more than this angle
-    scan_fix: bool = True           # the tracker also registers the scan onto the active and
-                                    # last visited anchors' taught scans (lidar routes) from
-                                    # the tracked pose: fixes that share none of C_WP's errors
+    scan_fix: bool = True           # the tracker also registers the car's lidar scan onto the
+                                    # active and last visited anchors' taught scans (routes
+                                    # that keep them: lidar, camera) from the tracked pose:
+                                    # fixes that share none of C_WP's errors
     tracked_sure_m: float = 0.1     # a tracker this sure (position sigma; the scans pin it)
                                     # ends the route within goal_m of the goal, outvotes
                                     # C_WP's "here" toward an anchor a metre away and ...
