@@ -681,3 +681,28 @@ def test_a_cached_map_plans_with_the_callers_planning_settings(tmp_path, monkeyp
                                        False, MapConfig(direct_check=False, link_order="support"))
     assert build_s == 0.0 and len(again) == len(built)
     assert not again.config.direct_check and again.config.link_order == "support"
+
+
+def test_a_camera_map_keeps_its_drives_lidar_scans_and_one_cached_without_is_rebuilt(
+        tmp_path, monkeypatch):
+    """A camera map built for a study keeps each kept frame's lidar scan as
+    the drive's lidar took it; a cached camera map without scans is built
+    again rather than planned without scan fixes."""
+    from types import SimpleNamespace
+
+    from topodrake.sensing.lidar import Lidar
+    from topodrake.topomap import map_cache
+    from topodrake.topomap.mapfile import save_map
+    from topodrake.world import load_world
+
+    world = load_world("test-0")
+    drive = SimpleNamespace(poses=np.array([[1.0, 1.0, 0.0], [1.3, 1.0, 0.0], [1.6, 1.0, 0.0]]))
+    monkeypatch.setattr(map_cache, "DEMO_SEED", 0)
+    built, _ = map_cache.get_map("test-0", world, "camera", [drive], [0], tmp_path, "all", False)
+    np.testing.assert_allclose(built.bank.scans, Lidar(world).scan(built.bank.poses))
+    path = next(tmp_path.rglob("*.tdmap"))
+    built.bank._scans = type(built.bank._scans)()             # as written before scans were kept
+    save_map(built, path)
+    again, build_s = map_cache.get_map("test-0", world, "camera", [drive], [0], tmp_path, "all",
+                                       False)
+    assert build_s > 0 and again.bank.scans is not None

@@ -116,11 +116,15 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
             raise TopodrakeError(f"{path} holds other drives than {len(names)} of "
                                  f"{key}; delete it to rebuild")
         # the config as written (settings a map predates read as LATER_DEFAULTS)
-        if same_config(read_map_meta(path).get("config"), config, _is_lidar(modality)):
+        same = same_config(read_map_meta(path).get("config"), config, _is_lidar(modality))
+        scanned = m.modality != "camera" or m.bank.scans is not None
+        if same and scanned:
             # planning settings are the caller's, not the file's
             m.config = replace(m.config, **{k: getattr(config, k) for k in PLAN_ONLY})
             return m, 0.0
-        print(f"{path} was built with another map config; rebuilding it", file=sys.stderr)
+        why = "with another map config" if not same else \
+            "before camera maps kept their lidar scans"
+        print(f"{path} was built {why}; rebuilding it", file=sys.stderr)
     t0 = time.perf_counter()
     m = TopoMap(scorer, default_embedding(scorer.observation), config, world=spec)
     items = [(drive_observations(world, scorer, drives[i].poses), drives[i].poses, n)
