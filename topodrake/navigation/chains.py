@@ -82,16 +82,17 @@ def follow_chains_once(engine, references: list[np.ndarray], observations: list,
     :class:`PathWatch` (its ``cover(m)``)."""
     from topodrake.navigation.route import route_from_observations
     from topodrake.rollout import standard_normal_noise
+    from topodrake.sensing.observe import camera_scans
 
     modality = engine.kind         # a pose oracle beside a sensor network reads the anchors' poses
     # the legs as the teach drive's odometry measured them (seed + 2), the repeat's own
     # odometry errors from seed + 3
     odometry = engine.config.odometry
     # a camera route keeps its anchors' lidar scans, as the teach drive's lidar took them
+    lidar = engine.config.rollout.lidar
     routes = [route_from_observations(
         obs, ref, chain, k, frame_step, modality, odometry, int(s) + 2,
-        scans=engine.lidar.scan(np.asarray(ref)[np.asarray(chain), :3])
-        if modality == "camera" else None)
+        scans=camera_scans(engine.world, modality, np.asarray(ref)[np.asarray(chain), :3], lidar))
         for obs, ref, chain, s in zip(observations, references, chains, seeds)]
     starts = np.array([jittered_start(engine.world, ref[0], np.random.default_rng(s))
                        for ref, s in zip(references, seeds)])

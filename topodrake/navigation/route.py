@@ -136,13 +136,11 @@ def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network
                       getattr(network, "sensor", None))
         contexts = obs.reshape(*rows.shape, *obs.shape[1:])
     legs, paths = teach_legs(poses, anchors, odometry, seed)
-    scans = None
-    if network.observation == "camera":
-        from topodrake.sensing.lidar import Lidar
+    from topodrake.sensing.observe import camera_scans
 
-        scans = Lidar(world, lidar).scan(poses[anchors])
     return Route(contexts, poses[anchors], modality=network.observation, legs=legs,
-                 leg_paths=paths, scans=scans)
+                 leg_paths=paths,
+                 scans=camera_scans(world, network.observation, poses[anchors], lidar))
 
 
 def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors: np.ndarray,

@@ -15,3 +15,16 @@ def observe(world, modality: str, poses: np.ndarray, sensor=None) -> np.ndarray:
         from topodrake.sensing.lidar import Lidar
         return Lidar(world, sensor).scan(poses)
     raise ValueError(f"no observations of modality {modality!r}")
+
+
+def camera_scans(world, modality: str, poses: np.ndarray, lidar=None) -> np.ndarray | None:
+    """The lidar scans (N, beams) a ``modality`` car takes beside its
+    observations at ``poses`` (N, 3), which camera routes and maps keep for
+    the route tracker (``lidar``: the car's LidarConfig, default the
+    default); None for other modalities (a lidar car's observations are its
+    scans, a pose oracle takes none)."""
+    if modality != "camera":
+        return None
+    from topodrake.sensing.lidar import Lidar
+
+    return Lidar(world, lidar).scan(np.asarray(poses, np.float64).reshape(-1, 3))

@@ -145,10 +145,11 @@ class _Lazy:
         return len(self.args[3])
 
     def __iter__(self):
-        from topodrake.topomap.sources import drive_observations, drive_scans
+        from topodrake.sensing.observe import camera_scans
+        from topodrake.topomap.sources import drive_observations
 
         world, scorer, drives, indices, names = self.args
         for i, n in zip(indices, names):
             poses = drives[i].poses
             yield (drive_observations(world, scorer, poses), poses, n,
-                   drive_scans(world, scorer, poses))
+                   camera_scans(world, scorer.observation, poses))

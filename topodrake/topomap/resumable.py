@@ -59,7 +59,8 @@ class MapBuild:
         save_map(self.topomap, path)
 
     def _items(self):
-        from topodrake.topomap.sources import drive_observations, drive_scans
+        from topodrake.sensing.observe import camera_scans
+        from topodrake.topomap.sources import drive_observations
 
         saved = time.perf_counter()
         scorer = self.topomap.scorer
@@ -67,7 +68,7 @@ class MapBuild:
             t = time.perf_counter()
             poses = self.drives[i].poses
             yield (drive_observations(self.world, scorer, poses), poses, self.names[i],
-                   drive_scans(self.world, scorer, poses))
+                   camera_scans(self.world, scorer.observation, poses))
             self.drive_s.append(time.perf_counter() - t)    # resumed once the drive is added
             if time.perf_counter() - saved >= self.save_every_s and i != self.todo[-1]:
                 try:

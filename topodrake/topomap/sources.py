@@ -270,17 +270,6 @@ def drives_between(world, drives: list, places) -> list[int]:
             if place_of(world, d.poses[0]) in wanted and place_of(world, d.poses[-1]) in wanted]
 
 
-def drive_scans(world, scorer, poses: np.ndarray) -> np.ndarray | None:
-    """The lidar scans a camera drive takes beside its images (the car's
-    lidar), which a camera map keeps for the route tracker; None for other
-    maps (a lidar map's observations are its scans)."""
-    if scorer.observation != "camera":
-        return None
-    from topodrake.sensing.lidar import Lidar
-
-    return Lidar(world).scan(np.asarray(poses, np.float64))
-
-
 def drive_observations(world, scorer, poses: np.ndarray) -> np.ndarray:
     """What ``scorer`` observes along a drive (poses for the oracle)."""
     if scorer.observation == "pose":
