@@ -449,9 +449,8 @@ def _follow(per: _Period, f: np.ndarray) -> None:
     there = (((prox > cfg.p_visited) & ((length < cfg.visit_m) | passed))
              | ((prox > cfg.p_visited_close) & (length < cfg.visit_m) & nearest))
     there = np.where(last, _at_goal(prox, length, cfg), there)
-    if per.frames is not None and cfg.tracked_sure_m > 0:
-        # (not where a sure tracker puts the anchor a metre or more away: C_WP's wrong "here")
-        there &= ~_tracked_far(per, f[rows], anchors, TRACKED_PASS_M)
+    # (not where a sure tracker puts the anchor a metre or more away: C_WP's wrong "here")
+    there &= ~_tracked_far(per, f[rows], anchors, TRACKED_PASS_M)
     visited = start.copy()
     for m in np.flatnonzero(there):
         visited[rows[m]] = max(visited[rows[m]], anchors[m])
@@ -524,8 +523,7 @@ def _dead_reckoning(per: _Period, d: np.ndarray) -> None:
     lo = np.maximum(lo, hi - cfg.dr_max_window + 1)
     rows, anchors = _windows(lo, hi)
     p = evaluate(d[rows], anchors, False, True).probability
-    if per.frames is not None and cfg.tracked_reach_m > 0 and cfg.tracked_sure_m > 0:
-        p = np.where(_tracked_far(per, d[rows], anchors, cfg.tracked_reach_m), 0.0, p)
+    p = np.where(_tracked_far(per, d[rows], anchors, cfg.tracked_reach_m), 0.0, p)
     arg, best = _best_per_row(rows, p, d.size, prefer_last=True)
     new.best_p[d] = np.where(np.isfinite(best), best, 0.0)
     back = best > cfg.p_follow
@@ -557,10 +555,9 @@ def _dead_reckoning(per: _Period, d: np.ndarray) -> None:
         leg = evaluate(arrived, new.active[arrived], True, False).waypoint
         # standing on the active anchor (a junction overshot): it counts as visited and
         # the leg goes to the next one, which RE may not see from this heading
-        on = (np.hypot(*leg.T) < cfg.visit_m) & (new.active[arrived] < n_anchors[arrived] - 1)
-        if per.frames is not None and cfg.tracked_sure_m > 0:
-            on &= ~_tracked_far(per, arrived, new.active[arrived], TRACKED_PASS_M)
-        on = np.flatnonzero(on)
+        on = np.flatnonzero((np.hypot(*leg.T) < cfg.visit_m)
+                            & (new.active[arrived] < n_anchors[arrived] - 1)
+                            & ~_tracked_far(per, arrived, new.active[arrived], TRACKED_PASS_M))
         if on.size:
             cars_on = arrived[on]
             new.visited[cars_on] = new.active[cars_on]
@@ -695,7 +692,10 @@ def _tracked_far(per: _Period, cars: np.ndarray, anchors: np.ndarray, reach_m: f
                  ) -> np.ndarray:
     """(M,) whether a sure tracker (position sigma under ``tracked_sure_m``
     after the last period's scan fixes: C_WP's answers hold it at their
-    floor) puts each car's anchor farther than ``reach_m``."""
+    floor) puts each car's anchor farther than ``reach_m``; none where the
+    route has no legs or the rule is off (``tracked_sure_m`` or ``reach_m`` 0)."""
+    if per.frames is None or per.cfg.tracked_sure_m <= 0 or reach_m <= 0:
+        return np.zeros(len(cars), bool)
     q, known, _ = tracker.tracked_anchor(per.new, cars, anchors, per.frames)
     sure = _position_sigma(per.state.var[cars]) < per.cfg.tracked_sure_m
     return known & sure & (np.hypot(q[:, 0], q[:, 1]) > reach_m)
