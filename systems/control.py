@@ -104,3 +104,65 @@ class ExpertWaypoints(LeafSystem):
 
     def _output(self, context, output):
         output.SetFromVector(context.get_discrete_state(self.wp_index).get_value()[1:3])
+
+
+class ManoeuvreGuard(LeafSystem):
+    """Between the follower's waypoint and the RmpController: the expert's
+    closed-loop check and manoeuvre search on the map the car has sensed
+    (:class:`topodrake.navigation.manoeuvre.Manoeuvres`, the object the
+    batched engine steps, here for one car). Inputs ``state`` (held),
+    ``waypoint`` (the follower's, world xy), ``ranges`` (held lidar);
+    output ``waypoint``.
+
+    Timing as FollowerFsm's: the period's decision is a cache entry of the
+    held inputs and the abstract state (the car's kept scans and expert
+    memory), committed by a periodic unrestricted update at the start of
+    the next period."""
+
+    def __init__(self, lidar: LidarConfig | None = None, rmp: RmpConfig | None = None,
+                 vehicle: VehicleConfig | None = None, period: float = 0.1):
+        from pydrake.systems.framework import ValueProducer
+
+        super().__init__()
+        self.lidar = lidar or LidarConfig()
+        self.rmp = rmp or RmpConfig()
+        self.vehicle = vehicle or VehicleConfig()
+        self.period = float(period)
+        self.state_port = self.DeclareVectorInputPort("state", 5)
+        self.waypoint_in_port = self.DeclareVectorInputPort("waypoint", 2)
+        self.ranges_port = self.DeclareVectorInputPort("ranges", self.lidar.beams)
+        self.memory_index = self.DeclareAbstractState(AbstractValue.Make(None))
+        prereq = {self.input_port_ticket(p.get_index())
+                  for p in (self.state_port, self.waypoint_in_port, self.ranges_port)}
+        prereq.add(self.abstract_state_ticket(self.memory_index))
+        self._decision = self.DeclareCacheEntry(
+            "decision", ValueProducer(allocate=lambda: AbstractValue.Make((None, None)),
+                                      calc=self._decide), prereq)
+        self.waypoint_port = self.DeclareVectorOutputPort(
+            "waypoint", 2, lambda c, o: o.SetFromVector(self.decision(c)[1]),
+            prerequisites_of_calc={self._decision.ticket()})
+        self.DeclarePeriodicUnrestrictedUpdateEvent(self.period, 0.0, self._commit)
+
+    def decision(self, context):
+        return self._decision.Eval(context)
+
+    def _decide(self, context, value):
+        import copy
+
+        from topodrake.navigation.manoeuvre import Manoeuvres
+
+        pose = np.asarray(self.state_port.Eval(context))[None, :3]
+        held = context.get_abstract_state(self.memory_index).get_value()
+        man = copy.deepcopy(held) if held is not None else \
+            Manoeuvres(1, pose, self.lidar, rmp=self.rmp, vehicle=self.vehicle)
+        wp = man.step(np.zeros(1, np.int64), pose, self.waypoint_in_port.Eval(context)[None],
+                      np.asarray(self.ranges_port.Eval(context))[None])
+        value.set_value((man, wp[0]))
+
+    def _commit(self, context, state):
+        from pydrake.systems.framework import EventStatus
+
+        if context.get_time() < 0.5 * self.period:
+            return EventStatus.DidNothing()      # nothing decided before the first period
+        state.get_mutable_abstract_state(self.memory_index).set_value(self.decision(context)[0])
+        return EventStatus.Succeeded()

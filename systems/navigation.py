@@ -74,7 +74,7 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput
 
-    from topodrake.systems.control import RmpController
+    from topodrake.systems.control import ManoeuvreGuard, RmpController
     from topodrake.systems.diagram import add_chassis
     from topodrake.systems.follower import FollowerFsm, WaypointSelect
     from topodrake.systems.waypoint_net import WaypointNet
@@ -106,10 +106,18 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     b.Connect(fsm.target_port, net.target_port)
     b.Connect(net.waypoint_port, select.net_port)
     b.Connect(fsm.held_waypoint_port, select.held_port)
-    b.Connect(select.waypoint_port, rmp.waypoint_port)
+    waypoint = select.waypoint_port
+    if scenario.follower.manoeuvres:
+        guard = b.AddNamedSystem("manoeuvres", ManoeuvreGuard(scenario.lidar, scenario.rmp,
+                                                              scenario.vehicle, dt))
+        b.Connect(c.hold.get_output_port(), guard.state_port)
+        b.Connect(select.waypoint_port, guard.waypoint_in_port)
+        b.Connect(c.lidar.ranges_port, guard.ranges_port)
+        waypoint = guard.waypoint_port
+    b.Connect(waypoint, rmp.waypoint_port)
     b.Connect(c.lidar.ranges_port, rmp.ranges_port)
     b.Connect(rmp.controls_port, c.noise.controls_port)
-    b.ExportOutput(select.waypoint_port, "waypoint")
+    b.ExportOutput(waypoint, "waypoint")
     b.ExportOutput(fsm.mode_port, "mode")
     mode_logger = LogVectorOutput(fsm.mode_port, b, dt)
     mode_logger.set_name("mode_log")

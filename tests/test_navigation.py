@@ -138,15 +138,20 @@ def test_waypoint_select_prefers_the_held_waypoint():
     np.testing.assert_array_equal(sel.waypoint_port.Eval(ctx), [5.0, 6.0])
 
 
-@pytest.mark.parametrize("noise_std", [0.0, 0.33])
-def test_drake_diagram_and_engine_drive_the_same_path(box_world, route, oracles, noise_std):
+@pytest.mark.parametrize("noise_std,manoeuvres,start", [
+    (0.0, False, [1.0, 1.8, 0.5]), (0.33, False, [1.0, 1.8, 0.5]),
+    (0.33, True, [1.88, 1.92, -0.31])])     # a start from which the car makes a manoeuvre
+def test_drake_diagram_and_engine_drive_the_same_path(box_world, route, oracles, noise_std,
+                                                      manoeuvres, start):
     from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+    from topodrake.navigation.follower import FollowerConfig
     from topodrake.rollout import RolloutConfig
     from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
                                               make_navigation_diagram)
 
-    start = [1.0, 1.8, 0.5]
-    sc = NavigationScenario(world="box", noise_std=noise_std, camera_enabled=False, t_max_s=40.0)
+    follower = FollowerConfig(manoeuvres=manoeuvres)
+    sc = NavigationScenario(world="box", noise_std=noise_std, camera_enabled=False, t_max_s=40.0,
+                            follower=follower)
     built = make_navigation_diagram(sc, route, world=box_world, policy=oracles[0],
                                     reach=oracles[1])
     asked = []
@@ -157,7 +162,7 @@ def test_drake_diagram_and_engine_drive_the_same_path(box_world, route, oracles,
     noise = np.zeros((1, 400, 2))
     noise[0, :len(drake.noise)] = drake.noise
     engine = NavigationEngine(box_world, *oracles, NavigationConfig(
-        rollout=RolloutConfig(noise_std=noise_std, t_max_s=40.0)))
+        follower=follower, rollout=RolloutConfig(noise_std=noise_std, t_max_s=40.0)))
     res = engine.run(np.array([start]), [route], noise=noise)
     k = int(res.steps[0])
     assert k == round(drake.time_s / 0.1) and k > 100     # same periods, a real drive
@@ -165,6 +170,8 @@ def test_drake_diagram_and_engine_drive_the_same_path(box_world, route, oracles,
     assert dev.max() <= 1e-6
     assert drake.outcome == NAV_OUTCOMES[int(res.outcome[0])] == "reached"
     np.testing.assert_array_equal(drake.modes[:k], res.modes[0, :k])
+    assert (res.manoeuvres is not None) == manoeuvres
+    assert not manoeuvres or res.manoeuvres[0] >= 1
 
 
 def test_runner_refuses_a_start_in_a_wall(box_world, route, oracles):

@@ -33,6 +33,7 @@ import numpy as np
 from topodrake.control import controls_toward
 from topodrake.navigation.evaluate import (Evaluator, RouteFeatures, encode_routes,
                                            initial_track, stack_features)
+from topodrake.navigation.manoeuvre import Manoeuvres
 from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, SEARCH_FAILED,
                                            FollowerConfig, FollowerState, follower_step)
 from topodrake.odometry import Odometry, OdometryConfig
@@ -66,6 +67,7 @@ class NavigationResult:
     outcome: np.ndarray      # (N,) NAV_* codes
     follower: FollowerState  # final follower states
     distance_to_goal_m: np.ndarray   # (N,) to each route's goal pose (its last anchor's)
+    manoeuvres: np.ndarray | None = None   # (N,) manoeuvres started (None: the search was off)
 
     def outcome_name(self, i: int) -> str:
         return NAV_OUTCOMES[int(self.outcome[i])]
@@ -156,6 +158,8 @@ class NavigationEngine:
         odometry = Odometry(self.config.odometry,
                             np.arange(n) if odometry_seeds is None else odometry_seeds, starts)
         clearance = self.world.grid.clearance_at
+        manoeuvres = Manoeuvres(n, odometry.poses, cfg.lidar, rmp=cfg.rmp, vehicle=veh) \
+            if self.config.follower.manoeuvres else None
         for k in range(t_steps):
             outcome[(outcome == RUNNING) & (limit <= k)] = NAV_TIMEOUT
             cars = np.flatnonzero(outcome == RUNNING)
@@ -170,6 +174,8 @@ class NavigationEngine:
                            self.observe(st, ranges), poses=st[:, :3], track=fs.track,
                            odometry=odo[:, :3], lidar=cfg.lidar, ranges=ranges)
             fs, out = follower_step(fs, n_anchors[cars], odo, ev, self.config.follower)
+            if manoeuvres is not None:
+                out.waypoint = manoeuvres.step(cars, odo[:, :3], out.waypoint, ranges)
             if not odometry.perfect:        # the waypoint, given in the odometry frame
                 out.waypoint = car_to_world(world_to_car(out.waypoint[:, None], odo),
                                             st)[:, 0]
@@ -207,7 +213,8 @@ class NavigationEngine:
                 progress(k, int((outcome == RUNNING).sum()))
         outcome[outcome == RUNNING] = NAV_TIMEOUT
         dist = np.hypot(*(state[:, :2] - goals[:, :2]).T)
-        return NavigationResult(poses, modes, active_log, steps, outcome, follower, dist)
+        return NavigationResult(poses, modes, active_log, steps, outcome, follower, dist,
+                                None if manoeuvres is None else manoeuvres.started.copy())
 
 
 __all__ = ["NavigationConfig", "NavigationEngine", "NavigationResult", "NAV_OUTCOMES",

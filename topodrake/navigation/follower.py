@@ -149,6 +149,9 @@ class FollowerConfig:
                                     # it (negative: off)
     turn_radius_m: float = field(default_factory=lambda: VehicleConfig().turn_radius())
                                     # the car's smallest turning radius
+    manoeuvres: bool = False        # the expert's closed-loop check and manoeuvre search run
+                                    # toward the waypoint on the map the car has sensed
+                                    # (:mod:`topodrake.navigation.manoeuvre`)
 
     @classmethod
     def paper(cls) -> "FollowerConfig":

@@ -1,0 +1,202 @@
+"""Manoeuvres on the map the car has sensed: the expert's closed-loop check
+and manoeuvre search, run toward the follower's waypoint.
+
+The RMP alone cannot drive some turns a route contains (a 90 deg turn from
+a corridor into a doorway: its obstacle terms swing the nose away from the
+jamb, the car overshoots, then reverses its blind tail into the jamb). The
+expert drives them because it predicts the RMP and the car a few seconds
+ahead and, where the prediction collides or stalls, commits to a short
+manoeuvre leg (a three-point turn) that it predicted to do better
+(:mod:`topodrake.expert`). The follower has no map, but the car has seen
+the walls around it: each car keeps its recent lidar scans in its odometry
+frame, and the expert's kernel is run on a clearance grid built from them,
+with the "path" a ray from the car through the follower's waypoint. Where
+the prediction passes (nearly everywhere) the follower's waypoint goes to
+the RMP unchanged; during a manoeuvre the leg's auxiliary waypoint does.
+
+Everything is in the odometry frame, as on a robot: the scans are placed
+by the odometry pose they were taken at, and the waypoint goes out in the
+frame it came in. Walls behind the car are known only as far as it has
+seen them, and the lidar's beams are joined into wall segments where
+neighbouring hits lie close.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+
+from topodrake.expert import ExpertConfig, MEMORY_SIZE, PackedPaths, expert_waypoints, initial_memory
+from topodrake.expert.config import (_M_LEFT, _M_MODE, _M_PT, _M_PX, _M_PY, _M_STEER,
+                                     _M_TRUST)
+from topodrake.expert.kernel import lidar_world_points
+from topodrake.rmp import RmpConfig
+from topodrake.sensing.config import LidarConfig
+from topodrake.vehicle import VehicleConfig
+from topodrake.world.grid import CAR_RADIUS
+
+
+@dataclass
+class ManoeuvreConfig:
+    """The sensed map and the prediction."""
+
+    scans: int = 30               # scans kept per car ...
+    every: int = 3                # ... one every this many periods
+    half_m: float = 3.5           # the local grid reaches this far from the car each way
+    resolution_m: float = 0.05
+    join_m: float = 0.3           # neighbouring beams' hits closer than this are one wall
+    ray_m: float = 3.0            # the predicted "path" runs this far through the waypoint
+    expert: ExpertConfig = field(default_factory=ExpertConfig)
+
+
+@dataclass
+class LocalGrid:
+    """A clearance grid in the shape :func:`expert_waypoints` reads."""
+
+    clearance: np.ndarray
+    origin: tuple[float, float]
+    resolution: float
+    car_radius: float = CAR_RADIUS
+    _cache: dict = field(default_factory=dict)
+
+
+def wall_points(points: np.ndarray, mask: np.ndarray, join_m: float, step_m: float) -> np.ndarray:
+    """Hit points (S, B, 2) of S scans with their mask, and points every
+    ``step_m`` along the segment between neighbouring beams' hits that lie
+    closer than ``join_m``: (P, 2)."""
+    a, b = points[:, :-1], points[:, 1:]
+    pair = mask[:, :-1] & mask[:, 1:] & (np.linalg.norm(b - a, axis=-1) < join_m)
+    out = [points[mask]]
+    if pair.any():
+        a, b = a[pair], b[pair]
+        m = max(2, int(np.ceil(join_m / step_m)) + 1)
+        t = np.linspace(0.0, 1.0, m)[None, :, None]
+        out.append((a[:, None] + t * (b - a)[:, None]).reshape(-1, 2))
+    return np.concatenate(out) if out else np.zeros((0, 2))
+
+
+def local_grid(points: np.ndarray, centre: np.ndarray, half_m: float, resolution_m: float
+               ) -> LocalGrid:
+    """Clearance (m) to the nearest of ``points`` (P, 2) on a square grid
+    around ``centre``; outside the grid counts as a wall (the kernel's rule)."""
+    n = int(np.ceil(2 * half_m / resolution_m))
+    ox, oy = float(centre[0] - half_m), float(centre[1] - half_m)
+    occ = np.zeros((n, n), bool)
+    c = np.floor((points[:, 0] - ox) / resolution_m).astype(np.int64)
+    r = np.floor((points[:, 1] - oy) / resolution_m).astype(np.int64)
+    inside = (c >= 0) & (c < n) & (r >= 0) & (r < n)
+    occ[r[inside], c[inside]] = True
+    clear = distance_transform_edt(~occ) * resolution_m if occ.any() else np.full((n, n), 1e3)
+    return LocalGrid(np.ascontiguousarray(clear, np.float64), (ox, oy), resolution_m)
+
+
+def ray_path(pose: np.ndarray, waypoint: np.ndarray, ray_m: float, step_m: float = 0.1
+             ) -> np.ndarray:
+    """Points (K, 2) from the car's position through ``waypoint`` to at least ``ray_m``."""
+    d = waypoint - pose[:2]
+    length = float(np.hypot(*d))
+    if length < 1e-6:
+        d, length = np.array([np.cos(pose[2]), np.sin(pose[2])]), 1.0
+    total = max(length, ray_m)
+    s = np.linspace(0.0, total, max(2, int(np.ceil(total / step_m)) + 1))
+    return pose[:2] + s[:, None] * (d / length)
+
+
+class Manoeuvres:
+    """Per-car sensed scans and expert memory for N cars; :meth:`step`
+    turns the follower's waypoints into the ones the RMP drives toward."""
+
+    def __init__(self, n: int, starts_odo: np.ndarray, lidar: LidarConfig,
+                 config: ManoeuvreConfig | None = None, rmp: RmpConfig | None = None,
+                 vehicle: VehicleConfig | None = None):
+        self.config = config or ManoeuvreConfig()
+        self.lidar, self.rmp, self.vehicle = lidar, rmp or RmpConfig(), vehicle or VehicleConfig()
+        s, b = self.config.scans, lidar.beams
+        self.points = np.zeros((n, s, b, 2))
+        self.mask = np.zeros((n, s, b), bool)
+        self.periods = np.zeros(n, np.int64)
+        self.memory = initial_memory(starts_odo)
+        self.started = np.zeros(n, np.int64)   # manoeuvre legs started, per car
+
+    def remember(self, cars: np.ndarray, poses_odo: np.ndarray, ranges: np.ndarray) -> None:
+        """Keep every ``every``-th scan of ``cars``, placed at their odometry poses."""
+        keep = self.periods[cars] % self.config.every == 0
+        if keep.any():
+            c = cars[keep]
+            pts, hit = lidar_world_points(poses_odo[keep], ranges[keep], self.lidar)
+            slot = (self.periods[c] // self.config.every) % self.config.scans
+            self.points[c, slot] = pts
+            self.mask[c, slot] = hit
+        self.periods[cars] += 1
+
+    def step(self, cars: np.ndarray, poses_odo: np.ndarray, waypoints: np.ndarray,
+             ranges: np.ndarray) -> np.ndarray:
+        """Waypoints (M, 2) for ``cars`` (M,) at odometry poses (M, 3) with
+        the follower's waypoints (M, 2; NaN rows pass through) and current
+        scans (M, B), all in the odometry frame."""
+        cars = np.asarray(cars, np.int64)
+        poses_odo = np.asarray(poses_odo, np.float64).reshape(-1, 3)
+        self.remember(cars, poses_odo, ranges)
+        out = np.array(waypoints, np.float64).reshape(-1, 2)
+        cfg = self.config
+        skip = self._unchecked(cars, poses_odo, out)
+        for i, car in enumerate(cars):
+            if not np.isfinite(out[i]).all():
+                continue
+            row = self.memory[car:car + 1].copy()
+            if skip[i]:
+                _note_pose(row[0], poses_odo[i], self.vehicle)
+                row[0, _M_TRUST] = max(row[0, _M_TRUST] - 1, 0)
+                self.memory[car] = row[0]
+                continue
+            grid = local_grid(wall_points(self.points[car], self.mask[car], cfg.join_m,
+                                          0.5 * cfg.resolution_m),
+                              poses_odo[i], cfg.half_m, cfg.resolution_m)
+            paths = PackedPaths.pack([ray_path(poses_odo[i], out[i], cfg.ray_m)])
+            was = row[0, _M_MODE] == 1.0 and row[0, _M_LEFT] > 0
+            wp, _ = expert_waypoints(grid, paths, np.zeros(1, np.int64), poses_odo[i:i + 1],
+                                     cfg.expert, memory=row, ranges=ranges[i:i + 1],
+                                     lidar=self.lidar, rmp=self.rmp, vehicle=self.vehicle)
+            self.memory[car] = row[0]
+            if row[0, _M_MODE] == 1.0:
+                out[i] = wp[0]
+                self.started[car] += int(not was)
+        return out
+
+    def _unchecked(self, cars, poses, waypoints) -> np.ndarray:
+        """Cars the kernel would not check this period (M,): no manoeuvre
+        under way and a passed check still trusted, or the car in the open
+        (clear of what it has seen, moving, its waypoint ahead), as the
+        kernel's own test; the grid is built only for the others."""
+        e = self.config.expert
+        mem = self.memory[cars]
+        idle = mem[:, _M_MODE] != 1.0
+        trusted = mem[:, _M_TRUST] > 0
+        d = self.points[cars] - poses[:, None, None, :2]
+        dist = np.where(self.mask[cars], np.hypot(d[..., 0], d[..., 1]), np.inf)
+        clear = dist.reshape(len(cars), -1).min(axis=1) - self.config.join_m / 2
+        th = 0.5 * (poses[:, 2] + mem[:, _M_PT])
+        v = ((poses[:, 0] - mem[:, _M_PX]) * np.cos(th)
+             + (poses[:, 1] - mem[:, _M_PY]) * np.sin(th)) / self.vehicle.dt
+        w = waypoints - poses[:, :2]
+        ahead = (w[:, 0] * np.cos(poses[:, 2]) + w[:, 1] * np.sin(poses[:, 2])
+                 > np.cos(np.radians(e.open_bearing_deg)) * np.hypot(w[:, 0], w[:, 1]))
+        opened = (clear > e.open_clearance_m) & (v > e.open_speed) & ahead
+        return idle & (trusted | opened)
+
+
+def _note_pose(mem: np.ndarray, pose: np.ndarray, vehicle: VehicleConfig) -> None:
+    """The expert memory's previous pose and steering estimate, updated as
+    the kernel does on each call (its speed estimate reads them)."""
+    ds = (pose[0] - mem[_M_PX]) * np.cos(0.5 * (pose[2] + mem[_M_PT])) + \
+        (pose[1] - mem[_M_PY]) * np.sin(0.5 * (pose[2] + mem[_M_PT]))
+    if abs(ds) > 0.005:
+        mem[_M_STEER] = np.clip(np.arctan(vehicle.wheelbase * (pose[2] - mem[_M_PT]) / ds),
+                                -vehicle.steer_limit, vehicle.steer_limit)
+    mem[_M_PX], mem[_M_PY], mem[_M_PT] = pose
+
+
+__all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "local_grid", "ray_path",
+           "wall_points", "MEMORY_SIZE"]
