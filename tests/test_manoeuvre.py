@@ -87,3 +87,10 @@ def test_in_the_open_the_waypoint_passes_unchanged(box_world):
     assert man.started[0] == 0
     nan = man.step(np.array([0]), pose, np.full((1, 2), np.nan), lidar.scan(pose))
     assert np.isnan(nan).all()
+
+
+def test_manoeuvres_are_on_by_default_and_off_for_the_paper():
+    from topodrake.navigation.follower import FollowerConfig
+
+    assert FollowerConfig().manoeuvres
+    assert not FollowerConfig.paper().manoeuvres

@@ -70,12 +70,15 @@ def test_labels_are_the_experts_waypoints_toward_the_active_and_next_anchor(driv
     cfg = OnPolicyConfig()
     cfg = replace(cfg, samples=replace(cfg.samples, min_overlap=-1.0))   # keep every state
     fields = label_visited(world, trajs, visited, cfg)
-    n_next = int((visited.next_anchor >= 0).sum())
-    # every state gets a label toward its anchor unless A* has no path from it
+    has = visited.next_anchor >= 0
+    # every state gets a label toward its anchor and the one after it,
+    # unless A* has no path from it there
     anchor_pose = trajs.poses[trajs.traj_offsets[visited.traj] + visited.anchor]
     _, reachable = expert_waypoint_labels(world, visited.state[:, :3], anchor_pose[:, :2])
+    next_pose = trajs.poses[trajs.traj_offsets[visited.traj[has]] + visited.next_anchor[has]]
+    _, reachable_next = expert_waypoint_labels(world, visited.state[has, :3], next_pose[:, :2])
     assert reachable.mean() > 0.9
-    assert int(reachable.sum()) <= len(fields["traj"]) - n_next <= len(visited) + n_next
+    assert len(fields["traj"]) == int(reachable.sum()) + int(reachable_next.sum())
     tgt = trajs.poses[trajs.traj_offsets[fields["traj"]] + fields["tgt"]]
     wp, valid = expert_waypoint_labels(world, fields["src_pose"], tgt[:, :2])
     assert valid.all()

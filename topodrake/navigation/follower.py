@@ -149,7 +149,7 @@ class FollowerConfig:
                                     # it (negative: off)
     turn_radius_m: float = field(default_factory=lambda: VehicleConfig().turn_radius())
                                     # the car's smallest turning radius
-    manoeuvres: bool = False        # the expert's closed-loop check and manoeuvre search run
+    manoeuvres: bool = True         # the expert's closed-loop check and manoeuvre search run
                                     # toward the waypoint on the map the car has sensed
                                     # (:mod:`topodrake.navigation.manoeuvre`)
 
@@ -164,7 +164,7 @@ class FollowerConfig:
         return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65,
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
                    odometry_check=False, scan_fix=False, tracked_sure_m=0.0,
-                   reverse_inside_turn=-1.0, legs_m=0.0)
+                   reverse_inside_turn=-1.0, legs_m=0.0, manoeuvres=False)
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
