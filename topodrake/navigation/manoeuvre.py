@@ -143,10 +143,8 @@ class Manoeuvres:
         cfg = self.config
         skip = self._unchecked(cars, poses_odo, out)
         for i, car in enumerate(cars):
-            if not np.isfinite(out[i]).all():
-                continue
             row = self.memory[car:car + 1].copy()
-            if skip[i]:
+            if skip[i] or not np.isfinite(out[i]).all():
                 _note_pose(row[0], poses_odo[i], self.vehicle)
                 row[0, _M_TRUST] = max(row[0, _M_TRUST] - 1, 0)
                 self.memory[car] = row[0]
