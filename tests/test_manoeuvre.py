@@ -94,3 +94,30 @@ def test_manoeuvres_are_on_by_default_and_off_for_the_paper():
 
     assert FollowerConfig().manoeuvres
     assert not FollowerConfig.paper().manoeuvres
+
+
+def test_cars_in_one_batch_keep_their_own_scans_and_memory(box_world):
+    """Two cars stepped together (and one of them left out of some periods,
+    as the engine does once a car stops) get the waypoints each gets alone."""
+    lidar_cfg, veh, rmp = LidarConfig(), VehicleConfig(), RmpConfig()
+    lidar = Lidar(box_world, lidar_cfg)
+    starts = np.array([[4.5, 7.0, 0.0], [2.5, 5.0, 0.0]])
+    goals = np.array([[5.5, 5.2], [4.0, 5.1]])
+
+    def run(rows, periods=150):
+        st = np.zeros((len(rows), 5))
+        st[:, :3] = starts[rows]
+        man = Manoeuvres(len(rows), st[:, :3], lidar_cfg)
+        for k in range(periods):
+            cars = np.arange(len(rows)) if k % 7 else np.arange(len(rows))[-1:]
+            ranges = lidar.scan(st[cars, :3])
+            wp = man.step(cars, st[cars, :3], goals[rows][cars], ranges)
+            st[cars] = vehicle_step(st[cars], controls_toward(st[cars], wp, ranges, lidar_cfg,
+                                                              rmp, veh), veh)
+        return st, man
+
+    both, man = run(np.array([0, 1]))
+    alone1, man1 = run(np.array([1]))
+    np.testing.assert_allclose(both[1], alone1[0])
+    assert man.started[1] == man1.started[0]
+    assert man.started[0] >= 1
