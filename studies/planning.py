@@ -227,6 +227,9 @@ def main(argv=None) -> int:
     ap.add_argument("--obstacles", type=at.count, default=3,
                     help="unmapped boxes per ours_obstacles trial")
     ap.add_argument("--batch", type=at.count, default=32, help="cars per navigation-engine batch")
+    ap.add_argument("--time-limit", type=at.positive, default=150.0, metavar="S",
+                    help="seconds a trial may drive before it times out (long plans in a "
+                         "large building need more)")
     ap.add_argument("--pruned-fractions", default="0.3,0.6,1",
                     help="fractions of the drives for the pruned maps, or 'none' "
                          "(paper: 0.1,0.2,...,1)")

@@ -379,7 +379,8 @@ def _options(tmp_path, **changed) -> argparse.Namespace:
                "batch": 32, "pruned_fractions": "0.3,0.6,1", "pruned_house": None,
                "pruned_method": "ours", "pruned_trials": 20, "pruned_seed": 0, "seed": 0,
                "data": "data", "workers": 1, "ray": None, "out": str(tmp_path), "rescore": None,
-               "map_config": None, "follower": None, "json": False, "quiet": True}
+               "map_config": None, "follower": None, "time_limit": 150.0, "json": False,
+               "quiet": True}
     return argparse.Namespace(**{**options, **changed})
 
 
@@ -441,6 +442,18 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
     assert plan_study.navigation_config({}).follower.legs_m == FollowerConfig().legs_m
     code, _, err = run_study("planning", "--follower", '{"legs_m": -1}', "--out", tmp_path)
     assert code == 2 and "legs_m must be >= 0" in err and err.count("\n") == 1
+
+    # the time limit likewise
+    seen.clear()
+    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, cfg, **kw:
+                        seen.append(plan_study.time_limit(cfg)) or run_trials(
+                            job, seeds, jobs=jobs, cfg=cfg, **kw))
+    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none",
+                            time_limit=300.0), "python studies/planning.py")
+    assert seen == [300.0] and doc["config"]["t_max_s"] == 300.0
+    assert plan_study.time_limit({}) == 150.0                   # configs recorded before it
+    code, _, err = run_study("planning", "--time-limit", "0", "--out", tmp_path)
+    assert code == 2 and "time" in err and err.count("\n") == 1
 
 
 def test_a_camera_map_written_before_the_lidar_settings_is_still_the_default_map():

@@ -191,7 +191,8 @@ def planning(args, command: str) -> dict:
            "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed,
            "experience_rounds": getattr(args, "experience_rounds", 1),
            "experience_prior_weight": getattr(args, "experience_prior_weight", PRIOR_WEIGHT),
-           "map_config": map_config, "follower": follower}
+           "map_config": map_config, "follower": follower,
+           "t_max_s": getattr(args, "time_limit", None) or T_MAX_S}
     jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
     results = run_trials(house_job, list(jobs), workers=args.workers, ray_address=args.ray,
                          progress=not args.quiet and len(jobs) > 1, desc="houses",
@@ -226,7 +227,7 @@ def planning(args, command: str) -> dict:
     return {
         "command": command, **code, "seed": args.seed,
         "config": {**{k: v for k, v in cfg.items() if k != "quiet"}, "houses": specs,
-                   "success_m": SUCCESS_M, "t_max_s": T_MAX_S, "speed_cap_mps": 0.5,
+                   "success_m": SUCCESS_M, "speed_cap_mps": 0.5,
                    "jitter": "0.3 m to a random side, 9 deg to a random side",
                    "demo_seed": DEMO_SEED, "workers": args.workers,
                    "followers": {m: METHODS[m].followed_by for m in methods},

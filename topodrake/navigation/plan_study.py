@@ -117,12 +117,19 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     return routes, prob, size, replan, links
 
 
+def time_limit(cfg: dict) -> float:
+    """Seconds a trial may drive (the study's ``--time-limit``; configs
+    recorded before it existed used the default)."""
+    from topodrake.navigation.plan_trials import T_MAX_S
+
+    return float(cfg.get("t_max_s") or T_MAX_S)
+
+
 def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cfg: dict,
                tag: str = "all", bar=None) -> tuple[dict, list[dict]]:
     """One method's trials in one house: (stats, per-trial records)."""
     from topodrake.navigation.engine import NavigationEngine
-    from topodrake.navigation.plan_trials import (SUCCESS_M, T_MAX_S, follow_routes,
-                                                  longest_link_m)
+    from topodrake.navigation.plan_trials import SUCCESS_M, follow_routes, longest_link_m
 
     places = np.asarray(world.places, np.float64)
     meth = METHODS[method]
@@ -143,21 +150,21 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                  for t in range(n)]
         res, boxes = follow_past_obstacles(
             world, lambda w: NavigationEngine(w, policy, reach, navigation_config(cfg)), starts,
-            routes, places[pairs[:, 1]], seeds, cfg["obstacles"], T_MAX_S, SUCCESS_M)
+            routes, places[pairs[:, 1]], seeds, cfg["obstacles"], time_limit(cfg), SUCCESS_M)
         if bar is not None:
             bar.update(n)
     elif meth.drive == "replan":
         from topodrake.navigation.replan import ReplanSchedule
 
         engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
-        res = follow_routes(engine, starts, routes, places[pairs[:, 1]], T_MAX_S, cfg["batch"],
-                            SUCCESS_M, replan=replan, schedule=ReplanSchedule(**cfg["replan"]))
+        res = follow_routes(engine, starts, routes, places[pairs[:, 1]], time_limit(cfg),
+                            cfg["batch"], SUCCESS_M, replan=replan, schedule=ReplanSchedule(**cfg["replan"]))
         if bar is not None:
             bar.update(len(pairs))
     else:
         engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
-        res = follow_routes(engine, starts[:first], routes, places[pairs[:first, 1]], T_MAX_S,
-                            cfg["batch"], SUCCESS_M,
+        res = follow_routes(engine, starts[:first], routes, places[pairs[:first, 1]],
+                            time_limit(cfg), cfg["batch"], SUCCESS_M,
                             progress=None if bar is None else bar.update)
         if rounds > 1:
             routes, prob, false_links, res, round_of = _later_rounds(
@@ -213,7 +220,7 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, c
     """Rounds 2.. of a method's trials: each planned with every earlier
     round's drives folded into the map's edges. Returns the whole run's
     routes, probabilities, false links, follow result and each trial's round."""
-    from topodrake.navigation.plan_trials import SUCCESS_M, T_MAX_S, FollowResult, follow_routes
+    from topodrake.navigation.plan_trials import SUCCESS_M, FollowResult, follow_routes
     from topodrake.navigation.replan import route_traversals
 
     bounds = round_bounds(len(pairs), rounds)
@@ -235,7 +242,7 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, c
         rs, pr, _, _, links = plan_routes(method, spec, world, drives, indices, starts[sl],
                                           places, pairs[sl, 1], cfg, tag,
                                           experience=(passed, failed))
-        out = follow_routes(engine, starts[sl], rs, places[pairs[sl, 1]], T_MAX_S, cfg["batch"],
+        out = follow_routes(engine, starts[sl], rs, places[pairs[sl, 1]], time_limit(cfg), cfg["batch"],
                             SUCCESS_M, progress=None if bar is None else bar.update)
         learn(rs, out)
         routes += rs
