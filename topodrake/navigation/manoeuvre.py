@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
-from topodrake.expert import ExpertConfig, MEMORY_SIZE, PackedPaths, expert_waypoints, initial_memory
+from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints, initial_memory
 from topodrake.expert.config import (_M_LEFT, _M_MODE, _M_PT, _M_PX, _M_PY, _M_STEER,
                                      _M_TRUST)
 from topodrake.expert.kernel import lidar_world_points
@@ -118,7 +118,7 @@ class Manoeuvres:
         self.mask = np.zeros((n, s, b), bool)
         self.periods = np.zeros(n, np.int64)
         self.memory = initial_memory(starts_odo)
-        self.started = np.zeros(n, np.int64)   # manoeuvre legs started, per car
+        self.started = np.zeros(n, np.int64)   # manoeuvres started, per car
 
     def remember(self, cars: np.ndarray, poses_odo: np.ndarray, ranges: np.ndarray) -> None:
         """Keep every ``every``-th scan of ``cars``, placed at their odometry poses."""
@@ -197,4 +197,4 @@ def _note_pose(mem: np.ndarray, pose: np.ndarray, vehicle: VehicleConfig) -> Non
 
 
 __all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "local_grid", "ray_path",
-           "wall_points", "MEMORY_SIZE"]
+           "wall_points"]
