@@ -6,7 +6,9 @@
     CarPlant --state--> ZeroOrderHold --> FollowerFsm, WaypointNet, RmpController
     CameraSensor (or LidarSensor) --observation--> FollowerFsm, WaypointNet
     FollowerFsm --target--> WaypointNet --waypoint--> WaypointSelect <--held_waypoint-- FollowerFsm
-    WaypointSelect --> RmpController <--ranges-- LidarSensor
+    WaypointSelect --> ManoeuvreGuard --> RmpController <--ranges-- LidarSensor
+    (ManoeuvreGuard: the expert's manoeuvres on the car's recent scans; left
+    out when the follower's ``manoeuvres`` is off)
     RmpController --> ActuationNoise <-- RandomSource; ActuationNoise --> CarPlant
 
 FollowerFsm runs RE itself (on the route's cached anchor features), so no

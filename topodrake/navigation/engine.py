@@ -9,7 +9,10 @@ Drake navigation diagram (``topodrake.systems.navigation``)::
                                                             odometry frame: odo_k, which
                                                             drifts from state_k when
                                                             config.odometry says so)
-    u_k              = rmp(state_k, out.waypoint, ranges_k) * (1 + noise_std * w_k)
+    waypoint_k       = manoeuvres(out.waypoint, ranges_k)  (the expert's check and three-point
+                                                            turns on the car's own recent
+                                                            scans; FollowerConfig.manoeuvres)
+    u_k              = rmp(state_k, waypoint_k, ranges_k) * (1 + noise_std * w_k)
     state_k+1        = vehicle_step(state_k, u_k)
     stop: collision; the follower reached the last anchor or gave up (its
     decision of period k ends the run after that period, as FollowerFsm's
@@ -33,9 +36,9 @@ import numpy as np
 from topodrake.control import controls_toward
 from topodrake.navigation.evaluate import (Evaluator, RouteFeatures, encode_routes,
                                            initial_track, stack_features)
-from topodrake.navigation.manoeuvre import Manoeuvres
 from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, SEARCH_FAILED,
                                            FollowerConfig, FollowerState, follower_step)
+from topodrake.navigation.manoeuvre import Manoeuvres
 from topodrake.odometry import Odometry, OdometryConfig
 from topodrake.rollout import RolloutConfig, standard_normal_noise
 from topodrake.vehicle import car_to_world, in_collision, vehicle_step, world_to_car
