@@ -106,6 +106,7 @@ from topodrake import argtypes as at
 from topodrake.fileio import atomic_write_json
 from topodrake.navigation.plan_methods import METHODS, ORACLE_METHODS
 from topodrake.navigation.plan_results import HOUSES, paired_runs, planning, rescore
+from topodrake.navigation.plan_trials import T_MAX_S
 from topodrake.topomap.recalibrate import PRIOR_WEIGHT
 
 
@@ -227,7 +228,7 @@ def main(argv=None) -> int:
     ap.add_argument("--obstacles", type=at.count, default=3,
                     help="unmapped boxes per ours_obstacles trial")
     ap.add_argument("--batch", type=at.count, default=32, help="cars per navigation-engine batch")
-    ap.add_argument("--time-limit", type=at.positive, default=150.0, metavar="S",
+    ap.add_argument("--time-limit", type=at.positive, default=T_MAX_S, metavar="S",
                     help="seconds a trial may drive before it times out (long plans in a "
                          "large building need more)")
     ap.add_argument("--pruned-fractions", default="0.3,0.6,1",

@@ -68,13 +68,10 @@ def wall_points(points: np.ndarray, mask: np.ndarray, join_m: float, step_m: flo
     closer than ``join_m``: (P, 2)."""
     a, b = points[:, :-1], points[:, 1:]
     pair = mask[:, :-1] & mask[:, 1:] & (np.linalg.norm(b - a, axis=-1) < join_m)
-    out = [points[mask]]
-    if pair.any():
-        a, b = a[pair], b[pair]
-        m = max(2, int(np.ceil(join_m / step_m)) + 1)
-        t = np.linspace(0.0, 1.0, m)[None, :, None]
-        out.append((a[:, None] + t * (b - a)[:, None]).reshape(-1, 2))
-    return np.concatenate(out) if out else np.zeros((0, 2))
+    m = max(2, int(np.ceil(join_m / step_m)) + 1)
+    t = np.linspace(0.0, 1.0, m)[None, :, None]
+    a, b = a[pair], b[pair]
+    return np.concatenate([points[mask], (a[:, None] + t * (b - a)[:, None]).reshape(-1, 2)])
 
 
 def local_grid(points: np.ndarray, centre: np.ndarray, half_m: float, resolution_m: float
@@ -143,11 +140,10 @@ class Manoeuvres:
         cfg = self.config
         skip = self._unchecked(cars, poses_odo, out)
         for i, car in enumerate(cars):
-            row = self.memory[car:car + 1].copy()
+            row = self.memory[car:car + 1]          # a view: the kernel updates it in place
             if skip[i] or not np.isfinite(out[i]).all():
                 _note_pose(row[0], poses_odo[i], self.vehicle)
                 row[0, _M_TRUST] = max(row[0, _M_TRUST] - 1, 0)
-                self.memory[car] = row[0]
                 continue
             grid = local_grid(wall_points(self.points[car], self.mask[car], cfg.join_m,
                                           0.5 * cfg.resolution_m),
@@ -157,7 +153,6 @@ class Manoeuvres:
             wp, _ = expert_waypoints(grid, paths, np.zeros(1, np.int64), poses_odo[i:i + 1],
                                      cfg.expert, memory=row, ranges=ranges[i:i + 1],
                                      lidar=self.lidar, rmp=self.rmp, vehicle=self.vehicle)
-            self.memory[car] = row[0]
             if row[0, _M_MODE] == 1.0:
                 out[i] = wp[0]
                 self.started[car] += int(not was)
@@ -175,9 +170,7 @@ class Manoeuvres:
         d = self.points[cars] - poses[:, None, None, :2]
         dist = np.where(self.mask[cars], np.hypot(d[..., 0], d[..., 1]), np.inf)
         clear = dist.reshape(len(cars), -1).min(axis=1) - self.config.join_m / 2
-        th = 0.5 * (poses[:, 2] + mem[:, _M_PT])
-        v = ((poses[:, 0] - mem[:, _M_PX]) * np.cos(th)
-             + (poses[:, 1] - mem[:, _M_PY]) * np.sin(th)) / self.vehicle.dt
+        v = _driven(mem, poses) / self.vehicle.dt
         w = waypoints - poses[:, :2]
         ahead = (w[:, 0] * np.cos(poses[:, 2]) + w[:, 1] * np.sin(poses[:, 2])
                  > np.cos(np.radians(e.open_bearing_deg)) * np.hypot(w[:, 0], w[:, 1]))
@@ -185,11 +178,18 @@ class Manoeuvres:
         return idle & (trusted | opened)
 
 
+def _driven(mem: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Distance driven since the expert memory's previous pose, along the
+    mean heading, as the kernel estimates it (rows of ``mem`` and ``pose``)."""
+    th = 0.5 * (pose[..., 2] + mem[..., _M_PT])
+    return (pose[..., 0] - mem[..., _M_PX]) * np.cos(th) + \
+        (pose[..., 1] - mem[..., _M_PY]) * np.sin(th)
+
+
 def _note_pose(mem: np.ndarray, pose: np.ndarray, vehicle: VehicleConfig) -> None:
     """The expert memory's previous pose and steering estimate, updated as
     the kernel does on each call (its speed estimate reads them)."""
-    ds = (pose[0] - mem[_M_PX]) * np.cos(0.5 * (pose[2] + mem[_M_PT])) + \
-        (pose[1] - mem[_M_PY]) * np.sin(0.5 * (pose[2] + mem[_M_PT]))
+    ds = float(_driven(mem, pose))
     if abs(ds) > 0.005:
         mem[_M_STEER] = np.clip(np.arctan(vehicle.wheelbase * (pose[2] - mem[_M_PT]) / ds),
                                 -vehicle.steer_limit, vehicle.steer_limit)
