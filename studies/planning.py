@@ -231,6 +231,9 @@ def main(argv=None) -> int:
     ap.add_argument("--time-limit", type=at.positive, default=T_MAX_S, metavar="S",
                     help="seconds a trial may drive before it times out (long plans in a "
                          "large building need more)")
+    ap.add_argument("--paper-plans", action="store_true",
+                    help="plan the most probable path as the paper does, not the path most "
+                         "likely to be driven within the time limit")
     ap.add_argument("--pruned-fractions", default="0.3,0.6,1",
                     help="fractions of the drives for the pruned maps, or 'none' "
                          "(paper: 0.1,0.2,...,1)")
@@ -268,6 +271,10 @@ def main(argv=None) -> int:
                     help="run no trials: set two recorded runs side by side on their common "
                          "trials (each method both ran, or the two named) and print each "
                          "house's success and the paired difference with its 95 %% interval")
+    ap.add_argument("--fit-driving-time", metavar="PLANNING_JSON[,...]",
+                    help="run no trials: fit the follower's driving time (the planner's model "
+                         "of how long a plan takes) to the trials recorded in these files, "
+                         "per method and over all, and print it")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
@@ -307,7 +314,24 @@ def _paired(args) -> int:
     return 0
 
 
+def _fit_driving_time(args) -> int:
+    """The planner's driving-time model fitted to recorded trials (no new trials)."""
+    from topodrake.navigation.plan_timing import driving_time_fit
+
+    doc = driving_time_fit(args.fit_driving_time, _command(args))
+    if args.json:
+        print(json.dumps(doc))
+        return 0
+    for name, f in doc["fits"].items():
+        print(f"{name:<20} {f['start_s']:.1f} s + {f['per_m_s']:.2f} s/m + {f['per_hop_s']:.2f} "
+              f"s/hop, spread {f['spread']:.2f}; {f['timeouts']} time-outs of {f['trials']} "
+              f"trials, {f['predicted_timeouts']} predicted")
+    return 0
+
+
 def _run(args) -> int:
+    if args.fit_driving_time:
+        return _fit_driving_time(args)
     if args.paired:
         return _paired(args)
     if args.rescore:

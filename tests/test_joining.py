@@ -243,6 +243,32 @@ def test_a_start_link_to_a_look_alike_far_along_the_map_is_a_false_step():
     assert r.record()["false_step"] and summarize([r])["false_steps"] == 1.0
 
 
+def test_a_hop_through_a_vertex_reused_in_a_look_alike_place_is_a_false_step():
+    """A drive's own hop is false where its vertex lies far from where the
+    drive's odometry (the hop's leg) puts it, or, without a leg, far away."""
+    import networkx as nx
+
+    from topodrake.topomap.joining import plan_links
+
+    poses = {0: [0.0, 0.0, 0.0], 1: [1.0, 0.0, 0.0], 2: [20.0, 5.0, 0.0], 3: [21.0, 5.0, 0.0]}
+    g = nx.DiGraph()
+    g.add_edge(0, 1, kind="trajectory", leg=np.array([1.0, 0.0, 0.0]))
+    g.add_edge(1, 2, kind="trajectory", leg=np.array([1.0, 0.0, 0.0]))   # the drive went 1 m
+    g.add_edge(2, 3, kind="trajectory", leg=np.array([1.0, 0.0, 0.0]))
+    m = SimpleNamespace(graph=g, pose=lambda vs: np.array([poses[v] for v in vs]))
+    links = plan_links(m, SimpleNamespace(vertices=[0, 1, 2, 3]), [0, 0, 0], [21.0, 5.0, 0.0])
+    assert links["false_link_kind"] == "reuse"
+    assert links["false_link_m"] == pytest.approx(np.hypot(18.0, 5.0))
+    assert links["longest_link_m"] == pytest.approx(0.0)        # the start and goal links are true
+    del g.edges[1, 2]["leg"]                                     # no leg: the hop's own length
+    links = plan_links(m, SimpleNamespace(vertices=[0, 1, 2, 3]), [0, 0, 0], [21.0, 5.0, 0.0])
+    assert links["false_link_m"] == pytest.approx(np.hypot(19.0, 5.0))
+    poses[2], poses[3] = [2.0, 0.0, 0.0], [3.0, 0.0, 0.0]      # where the drive went: no false step
+    g.edges[1, 2]["leg"] = np.array([1.0, 0.0, 0.0])
+    assert plan_links(m, SimpleNamespace(vertices=[0, 1, 2, 3]), [0, 0, 0],
+                      [3.0, 0.0, 0.0])["false_link_m"] == 0.0
+
+
 def test_a_lidar_junction_carries_the_departure_s_pose_registered_in_the_arrival_s_frame():
     from topodrake.se2 import relative
     from topodrake.topomap.build import _junction_legs

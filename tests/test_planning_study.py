@@ -452,11 +452,18 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
                             time_limit=300.0), "python studies/planning.py")
     assert seen == [300.0] and doc["config"]["t_max_s"] == 300.0
     assert plan_study.time_limit({}) == 150.0                   # configs recorded before it
+    # plans are made for that limit, unless the paper's most probable paths are asked for
+    assert doc["config"]["plan_within_time"] is True
+    assert plan_study.plan_time_limit(doc["config"]) == 300.0
+    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none",
+                            paper_plans=True), "python studies/planning.py")
+    assert plan_study.plan_time_limit(doc["config"]) is None
+    assert plan_study.plan_time_limit({"t_max_s": 150.0}) is None   # recorded before it
     code, _, err = run_study("planning", "--time-limit", "0", "--out", tmp_path)
     assert code == 2 and "time" in err and err.count("\n") == 1
 
 
-def test_a_camera_map_written_before_the_lidar_settings_is_still_the_default_map():
+def test_a_map_written_before_a_setting_it_reads_is_not_the_default_map():
     from dataclasses import asdict
 
     from topodrake.topomap.graph import LATER_DEFAULTS, MapConfig, same_config
@@ -464,8 +471,12 @@ def test_a_camera_map_written_before_the_lidar_settings_is_still_the_default_map
     stored = {k: v for k, v in asdict(MapConfig()).items() if k not in LATER_DEFAULTS}
     stored["reuse_ahead"] = 0
     assert not same_config(stored, MapConfig())                 # scan_match reads as 0 (off)
-    assert same_config(stored, MapConfig(), lidar=False)        # which a camera map never reads
-    assert not same_config({**stored, "p_join": 0.5}, MapConfig(), lidar=False)
+    assert not same_config(stored, MapConfig(), lidar=False)    # camera_scans as off
+    # a camera map written with both reads as the default map; a lidar map ignores camera_scans
+    camera = {**stored, "scan_match": 0.8, "camera_scans": True}
+    assert same_config(camera, MapConfig(), lidar=False)
+    assert same_config({**stored, "scan_match": 0.8}, MapConfig())
+    assert not same_config({**camera, "p_join": 0.5}, MapConfig(), lidar=False)
     assert not same_config(None, MapConfig(), lidar=False)
 
 
@@ -478,10 +489,14 @@ def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
     assert off.startswith("all-cfg") and off == config_tag("all", MapConfig(scan_match=0.0))
     assert off != config_tag("all", MapConfig(scan_match=0.5))
     assert map_path(tmp_path, "test-0", "lidar", off) != map_path(tmp_path, "test-0", "lidar", "all")
-    # a camera map reads no lidar-only setting: it keeps its name and its file
-    assert config_tag("all", MapConfig(scan_match=0.0), "camera") == "all"
-    assert config_tag("all", MapConfig(scan_match=0.0, p_join=0.5), "camera") == \
+    # a camera map reads no lidar-only setting, a lidar map no camera-only one: each keeps
+    # its name and its file
+    assert config_tag("all", MapConfig(scan_match_cross=True), "camera") == "all"
+    assert config_tag("all", MapConfig(scan_match_cross=True, p_join=0.5), "camera") == \
         config_tag("all", MapConfig(p_join=0.5), "camera") != "all"
+    assert config_tag("all", MapConfig(camera_scans=False), "lidar") == "all"
+    assert config_tag("all", MapConfig(camera_scans=False), "camera") != "all"
+    assert config_tag("all", MapConfig(scan_match=0.0), "camera") != "all"   # camera reads it too
     assert config_tag("all", MapConfig(scan_match=0.0), "lidar_reg") == off
     # settings only planning reads share the default map's file
     assert config_tag("all", MapConfig(direct_check=False, link_order="support")) == "all"

@@ -134,6 +134,40 @@ def test_reuse_and_junctions_need_the_scans_to_match(three_drives):
     assert any(_traj(m, v) == 0 for v in chains[2])      # the drive beside drive 0 still joins it
 
 
+class CameraTable(TableScorer):
+    observation = "camera"
+
+
+class FlatCameraEmbedding(FlatEmbedding):
+    observation = "camera"
+
+
+def test_a_camera_map_that_keeps_scans_checks_its_joins_by_them(three_drives):
+    """Textures repeat where walls do not: a camera map reuses a vertex only
+    where the scans taken with the two frames match."""
+    from test_topomap import drive
+
+    from topodrake.topomap.scan_match import joins_by_scans
+
+    scans, poses, _ = three_drives
+
+    def build(**config):
+        m = TopoMap(CameraTable(_alike), FlatCameraEmbedding(), MapConfig(**config),
+                    world="test-0")
+        for d in range(3):
+            add_trajectory(m, drive(d, 10), poses[d], scans=scans[d])
+        return m
+
+    on, off = build(), build(camera_scans=False)
+    assert joins_by_scans(on) and not joins_by_scans(off) and not checks_scans(on)
+    assert any(_traj(off, v) == 0 for v in off.trajectories[1].chain)   # RE alone joins them
+    assert all(_traj(on, v) == 1 for v in on.trajectories[1].chain)     # the look-alike apart
+    assert any(_traj(on, v) == 0 for v in on.trajectories[2].chain)     # the same place joins
+    bare = TopoMap(CameraTable(_alike), FlatCameraEmbedding(), MapConfig(), world="test-0")
+    add_trajectory(bare, drive(0, 10), poses[0])
+    assert not joins_by_scans(bare)                                     # no scans, no check
+
+
 def _junctions(m):
     return {(_traj(m, u), _traj(m, v)) for u, v, d in m.graph.edges(data=True)
             if d["kind"] == "junction"}

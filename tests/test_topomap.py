@@ -626,14 +626,17 @@ def test_legs_across_a_reused_vertex_carry_its_registered_offset():
     odometry between its frames there, with the vertex's pose in the drive's
     frame (registered) at that end; without that pose the hop has no leg."""
     from topodrake.se2 import compose, invert, relative
-    from topodrake.topomap.build import _teach_legs
+    from topodrake.topomap.build import _teach_legs, drive_odometry
 
     t = np.arange(12) * 0.25
     poses = np.column_stack([1.0 + t, np.full(12, 2.0), np.zeros(12)])
     chain = [("a", 0), ("v", 40), ("v", 41), ("a", 3)]
     anchors = np.array([0, 4, 8, 11])
     off = {1: np.array([0.1, -0.05, 0.02]), 2: np.array([-0.2, 0.1, -0.03])}
-    legs = _teach_legs("perfect", poses, chain, anchors, [0, 1, 2], seed=0, offsets=off)
+    odo = drive_odometry("perfect", poses, seed=0)
+    np.testing.assert_array_equal(odo, poses)
+    assert drive_odometry("none", poses, 0) is None and drive_odometry("wheel", None, 0) is None
+    legs = _teach_legs(odo, chain, anchors, [0, 1, 2], offsets=off)
     drive = relative(poses[anchors[:-1]], poses[anchors[1:]])
     np.testing.assert_allclose(legs[0][0], compose(drive[:1], off[1][None])[0], atol=1e-12)
     np.testing.assert_allclose(legs[1][0], compose(compose(invert(off[1][None]), drive[1:2]),
@@ -641,8 +644,7 @@ def test_legs_across_a_reused_vertex_carry_its_registered_offset():
     np.testing.assert_allclose(legs[2][0], compose(invert(off[2][None]), drive[2:3])[0], atol=1e-12)
     for leg, path in legs:
         np.testing.assert_allclose(path[-1], leg)           # the taught poses end at the vertex
-    assert _teach_legs("perfect", poses, chain, anchors, [0, 2], seed=0, offsets={1: off[1]})[1] \
-        == (None, None)
+    assert _teach_legs(odo, chain, anchors, [0, 2], offsets={1: off[1]})[1] == (None, None)
 
 
 def test_the_shipped_lidar_map_s_legs_agree_with_where_its_anchors_were_taken():
@@ -807,3 +809,55 @@ def test_a_camera_map_file_keeps_its_scans(oracle_map, tmp_path):
     back = load_map(path, m.scorer)
     np.testing.assert_array_equal(back.bank.scans, copy.bank.scans)
     assert load_map(save_map(m, tmp_path / "none.tdmap"), m.scorer).bank.scans is None
+
+
+def test_a_reuse_must_lie_where_the_drive_s_odometry_puts_it():
+    """Drive 2 looks like drive 0 frame for frame but goes elsewhere: after
+    reusing drive 0's first vertex, RE would let it reuse the rest, but
+    the map's legs put them where drive 2's odometry does not go."""
+    from types import SimpleNamespace
+
+    import networkx as nx
+
+    from topodrake.topomap.build import loop_consistent
+
+    def canonical(a):
+        return (0, a[1]) if a[0] in (1, 2) else a
+
+    def copies(a, b):
+        ca, cb = canonical(a), canonical(b)
+        return 0.999 if ca[0] == cb[0] and 0 <= cb[1] - ca[1] <= 3 else 0.1
+
+    steps = np.arange(10.0)
+    poses = [np.column_stack([steps, np.zeros(10), np.zeros(10)]),
+             np.column_stack([steps, np.full(10, 0.05), np.zeros(10)]),
+             np.column_stack([np.zeros(10), steps, np.zeros(10)])]
+
+    def build(**config):
+        m = table_map(copies, teach_odometry="perfect", **config)
+        for d in range(3):
+            add_trajectory(m, drive(d, 10), poses[d])
+        return m
+
+    def foreign(m, d):
+        return [v for v in m.trajectories[d].chain if m.graph.nodes[v]["traj"] != d]
+
+    off, on = build(loop_check_m=0.0), build()
+    assert len(foreign(off, 1)) == len(off.trajectories[1].chain)   # drive 1 is drive 0 again
+    assert len(foreign(on, 1)) == len(on.trajectories[1].chain)     # ... and checks out
+    assert len(foreign(off, 2)) == len(off.trajectories[2].chain)   # RE alone: all of drive 0
+    assert foreign(on, 2) == [on.trajectories[0].chain[0]]          # only the shared start
+
+    # the check itself, on legs w -> a -> v along x
+    g = nx.DiGraph()
+    g.add_edge(0, 1, leg=np.array([1.0, 0.0, 0.0]))
+    g.add_edge(2, 1, leg=np.array([-1.0, 0.0, 0.0]))                # read backwards
+    g.add_node(3)
+    m = SimpleNamespace(graph=g, config=MapConfig())
+    assert loop_consistent(m, 0, 2, np.array([2.0, 0.3, 0.0]))
+    assert not loop_consistent(m, 0, 2, np.array([2.0, 3.0, 0.0]))  # 3 m > 1.5 + 0.1 * 4.0
+    assert loop_consistent(m, 0, 2, np.array([2.0, 1.8, 0.0]))      # 1.8 m < 1.5 + 0.1 * 4.7
+    assert loop_consistent(m, 0, 3, np.array([50.0, 0.0, 0.0]))     # no legs join them
+    assert loop_consistent(m, 0, 0, np.zeros(3)) and not loop_consistent(m, 0, 0, np.ones(3) * 2)
+    with pytest.raises(TopodrakeError, match="loop_check_m"):
+        MapConfig(loop_check_m=-1.0).validate()

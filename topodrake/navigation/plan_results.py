@@ -192,7 +192,8 @@ def planning(args, command: str) -> dict:
            "experience_rounds": getattr(args, "experience_rounds", 1),
            "experience_prior_weight": getattr(args, "experience_prior_weight", PRIOR_WEIGHT),
            "map_config": map_config, "follower": follower,
-           "t_max_s": getattr(args, "time_limit", None) or T_MAX_S}
+           "t_max_s": getattr(args, "time_limit", None) or T_MAX_S,
+           "plan_within_time": not getattr(args, "paper_plans", False)}
     jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
     results = run_trials(house_job, list(jobs), workers=args.workers, ray_address=args.ray,
                          progress=not args.quiet and len(jobs) > 1, desc="houses",

@@ -91,12 +91,15 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         so = drive_observations(world, m.scorer, starts)
         go = drive_observations(world, m.scorer, places)
 
+        limit = plan_time_limit(cfg)
+
         def replan(t, pose, excluded):
             obs = drive_observations(world, m.scorer, np.asarray(pose)[None])[0]
             p = plan_path(m, obs, go[goal_idx[t]], start_pose=pose, goal_pose=places[goal_idx[t]],
-                          excluded_edges=excluded)
+                          excluded_edges=excluded, time_limit_s=limit)
             return p.route if p.reachable else None
-        plans = [plan_path(m, so[t], go[g], start_pose=starts[t], goal_pose=places[g])
+        plans = [plan_path(m, so[t], go[g], start_pose=starts[t], goal_pose=places[g],
+                           time_limit_s=limit)
                  for t, g in enumerate(goal_idx)]
     routes = [p.route if p.reachable else None for p in plans]
     if meth.map != "sptm":        # each plan's links (not the drives' own hops), judged in truth
@@ -123,6 +126,13 @@ def time_limit(cfg: dict) -> float:
     from topodrake.navigation.plan_trials import T_MAX_S
 
     return float(cfg.get("t_max_s") or T_MAX_S)
+
+
+def plan_time_limit(cfg: dict) -> float | None:
+    """The time limit the plans are made for: the trials' own
+    (:func:`time_limit`), or None for the paper's most probable paths
+    (``--paper-plans``; configs recorded before the option planned so)."""
+    return time_limit(cfg) if cfg.get("plan_within_time", False) else None
 
 
 def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cfg: dict,
@@ -176,6 +186,8 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                 "start_pose": [round(float(v), 4) for v in starts[t]],
                 "planned": routes[t] is not None,
                 "plan_probability": None if not np.isfinite(prob[t]) else round(float(prob[t]), 5),
+                "on_time_probability": None if routes[t] is None else
+                round(float(getattr(routes[t], "on_time", 1.0)), 5),
                 "plan_anchors": 0 if routes[t] is None else len(routes[t]),
                 "longest_link_m": None if routes[t] is None else
                 round(longest_link_m(starts[t], routes[t], places[b]), 3),

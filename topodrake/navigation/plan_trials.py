@@ -230,7 +230,7 @@ def render_pose_route(world, route, sensor=None):
                  vertices=route.vertices, edge_probability=route.edge_probability,
                  probability=route.probability, modality="camera",
                  start_probability=route.start_probability, legs=route.legs,
-                 leg_paths=route.leg_paths)
+                 leg_paths=route.leg_paths, on_time=route.on_time)
 
 
 # ---------------------------------------------------------------- analysis

@@ -29,7 +29,9 @@ class Route:
     ``probability``: the whole route's (the product of its hops, and of the
     start and goal links when planned); ``start_probability``: RE of the
     start link that the planner made from the car's observation (1 when
-    not planned). ``scans`` (A, beams): each anchor's lidar scan as the
+    not planned); ``on_time``: the probability that the follower drives it
+    within the time limit it was planned for (1 when planned without one).
+    ``scans`` (A, beams): each anchor's lidar scan as the
     teach drive took it, where a camera route keeps one (a lidar route's
     are its contexts' centre frames); the route tracker registers the
     car's scan onto them."""
@@ -44,6 +46,7 @@ class Route:
     legs: np.ndarray | None = None
     leg_paths: np.ndarray | None = None
     scans: np.ndarray | None = None
+    on_time: float = 1.0
 
     def __post_init__(self) -> None:
         self.contexts = np.asarray(self.contexts)

@@ -18,8 +18,10 @@ For each new drive, from its observations only:
      slack.
    The largest product wins. Vertices reused from one older drive must keep
    that drive's order, and no vertex is used twice in a chain. On a lidar
-   map with ``scan_match``, v's scan must also register onto the frame's
-   (:mod:`topodrake.topomap.scan_match`): RE passes a look-alike room.
+   map with ``scan_match`` (and a camera map that keeps its drives' lidar
+   scans, with ``camera_scans``), v's scan must also register onto the
+   frame's (:mod:`topodrake.topomap.scan_match`): RE passes a look-alike
+   room.
 3. **Link** consecutive chain nodes with trajectory edges (p = RE).
 4. **Cross edges** between every new vertex x and the map, both ways: the
    candidates are the ``retrieval_k`` vertices nearest in the place
@@ -35,7 +37,8 @@ For each new drive, from its observations only:
    anchors before the place and the departure's after it diverge. The edge
    keeps RE(arrival, departure) as its p; on a lidar map it carries the
    departure's pose in the arrival's frame, registered scan to scan, and
-   with ``scan_match`` the two scans must match.
+   with ``scan_match`` the two scans must match (on a camera map with
+   ``camera_scans``, the scans it keeps).
 
 With ``audit=True`` step 4 also scores every vertex of the map (not only
 the retrieved ones) and records which cross edges the exhaustive pass
@@ -47,11 +50,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import networkx as nx
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.se2 import compose, invert, relative
 from topodrake.topomap.graph import TopoMap, Trajectory
-from topodrake.topomap.scan_match import checks_scans, scans_match
+from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
 from topodrake.topomap.sparsify import sparsify, sparsify_chain
 
 
@@ -112,11 +117,13 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     score = _Scored(m, stats)
     k, step = m.k, m.frame_step
     start = len(m.bank)
+    t = len(m.trajectories)
+    odo = drive_odometry(cfg.teach_odometry, poses, t)
     rows = m.bank.append(obs, poses, scans=scans)
     m.bank.ensure(rows)
     ctx_local = context_rows(n, np.arange(n), k, step)
     if cfg.reuse and cfg.reuse_rule == "resume":
-        anchors, chain = _resume_chain(m, obs, start, ctx_local, score, stats)
+        anchors, chain = _resume_chain(m, obs, start, ctx_local, score, stats, odo)
         emb = m.embedding.embed(obs[anchors])
     else:
         anchors = sparsify(n, lambda i, js: score(np.full(len(js), start + i), start + ctx_local[js]),
@@ -128,7 +135,6 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     new_idx = [node[1] for node in chain if node[0] == "a"]
     keep = np.unique(start + ctx_local[anchors[new_idx]]) if new_idx else np.zeros(0, np.int64)
     remap = m.bank.keep_tail(start, keep)
-    t = len(m.trajectories)
     traj = Trajectory(name or f"trajectory-{t}", n)
     m.trajectories.append(traj)
     ids: list[int] = []
@@ -153,8 +159,7 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     if pairs:
         offsets = _reuse_offsets(m, obs, chain, anchors) \
             if cfg.reuse_legs and cfg.teach_odometry != "none" else {}
-        legs = _teach_legs(cfg.teach_odometry, poses, chain, anchors, [i for i, _, _ in pairs], t,
-                           offsets)
+        legs = _teach_legs(odo, chain, anchors, [i for i, _, _ in pairs], offsets)
         _, us, vs = np.array(pairs).T
         for u, v, p, (leg, path) in zip(us, vs, score(m.centers(us), m.contexts(vs)), legs):
             m.add_edge(int(u), int(v), float(p), "trajectory", leg, path)
@@ -183,9 +188,8 @@ def _junctions(m: TopoMap, t: int, score, stats: BuildStats) -> None:
     ahead = score(m.centers(us), m.contexts(xs))
     back = score(m.centers(xs), m.contexts(us))
     keep = np.flatnonzero(np.minimum(ahead, back) > m.config.p_join)
-    if checks_scans(m) and len(keep):
-        obs = m.bank.observations
-        keep = keep[scans_match(obs[m.centers(xs[keep])], obs[m.centers(us[keep])],
+    if joins_by_scans(m) and len(keep):
+        keep = keep[scans_match(vertex_scans(m, xs[keep]), vertex_scans(m, us[keep]),
                                 m.config.scan_match)]
     legs = _junction_legs(m, us[keep], xs[keep])
     for i, (leg, path) in zip(keep, legs):
@@ -207,23 +211,29 @@ def _junction_legs(m: TopoMap, us: np.ndarray, xs: np.ndarray) -> list:
             (leg, np.linspace(0.0, 1.0, LEG_POINTS)[:, None] * leg[None]) for leg in poses]
 
 
-def _teach_legs(kind: str, poses, chain, anchors, positions, seed: int,
-                offsets: dict | None = None) -> list:
-    """(leg, leg path) of the hop from chain node ``i`` to ``i + 1`` for each
-    ``i`` in ``positions``: the drive's odometry (``kind``:
-    :attr:`MapConfig.teach_odometry`, its errors drawn from ``seed``) between
-    its frames at the two nodes; a reused vertex at node ``j`` needs its pose
-    in the drive's frame there (``offsets[j]``, from :func:`_reuse_offsets`),
-    else (None, None)."""
-    from topodrake.navigation.route import teach_legs
+def drive_odometry(kind: str, poses, seed: int) -> np.ndarray | None:
+    """The odometry a drive recorded (T, 3) as :attr:`MapConfig.teach_odometry`
+    says (``kind``; wheel odometry's errors drawn from ``seed``), simulated
+    from its ``poses``; None for "none" or where the poses are unknown."""
     from topodrake.odometry import OdometryConfig, odometry_along
-    from topodrake.se2 import compose, invert
+
+    if kind == "none" or poses is None or not np.all(np.isfinite(poses)):
+        return None
+    poses = np.asarray(poses, np.float64)
+    return poses if kind == "perfect" else odometry_along(poses, OdometryConfig.wheel(), seed)
+
+
+def _teach_legs(odo, chain, anchors, positions, offsets: dict | None = None) -> list:
+    """(leg, leg path) of the hop from chain node ``i`` to ``i + 1`` for each
+    ``i`` in ``positions``: the drive's odometry ``odo`` (:func:`drive_odometry`)
+    between its frames at the two nodes; a reused vertex at node ``j`` needs
+    its pose in the drive's frame there (``offsets[j]``, from
+    :func:`_reuse_offsets`), else (None, None)."""
+    from topodrake.navigation.route import teach_legs
 
     offsets = offsets or {}
-    if kind == "none" or poses is None or not np.all(np.isfinite(poses)):
+    if odo is None:
         return [(None, None)] * len(positions)
-    poses = np.asarray(poses, np.float64)
-    odo = poses if kind == "perfect" else odometry_along(poses, OdometryConfig.wheel(), seed)
     legs, paths = teach_legs(odo, anchors)          # between the drive's frames at the nodes
     out = []
     for i in positions:
@@ -297,7 +307,8 @@ def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,
 
 
 def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray, score,
-                  stats: BuildStats) -> tuple[np.ndarray, list[tuple[str, int]]]:
+                  stats: BuildStats, odo: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, list[tuple[str, int]]]:
     """Reuse as the scan goes (ours): at each anchor frame j an existing vertex
     v stands in for it when RE(source, v) and RE(v, frame j + 1) pass
     p_reuse (the drive's end: RE(v, frame j)), and the scan resumes from v.
@@ -305,13 +316,19 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
     The paper's rule asks v to reach the next anchor, which the greedy scan
     put at the edge of what anchor j itself reaches, so v has to sit almost
     exactly on anchor j; here v needs only to be trusted from where the
-    scan stands and to lead on along the drive."""
+    scan stands and to lead on along the drive. With ``loop_check_m`` and
+    the drive's odometry ``odo``, v must also lie where that odometry puts
+    it, seen from the vertex the drive reused last (:func:`loop_consistent`)."""
     cfg = m.config
     n = len(obs)
     used: set[int] = set()
+    reused: list[tuple[int, int]] = []         # (frame, vertex) of the drive's reuses so far
 
     def row(source) -> int:
         return m.graph.nodes[source[1]]["center"] if isinstance(source, tuple) else start + source
+
+    def frame_scan(j: int) -> np.ndarray:       # the lidar scan the drive took at frame j
+        return obs[j] if m.modality == "lidar" else m.bank.scans[start + j]
 
     def reach(source, js):
         return score(np.full(len(js), row(source)), start + ctx_local[js])
@@ -322,11 +339,18 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
         ahead = start + ctx_local[min(j + 1, n - 1)]
         after = source[1] if isinstance(source, tuple) else None
         checks = ([lambda v: _leads_on(m, v, start, j, n, score)] if cfg.reuse_ahead else []) \
-            + ([lambda v: _same_place(m, v, obs[j])] if checks_scans(m) else [])
+            + ([lambda v: _same_place(m, v, frame_scan(j))] if joins_by_scans(m) else [])
+        if cfg.loop_check_m > 0 and odo is not None and reused:
+            i_w, w = reused[-1]
+            moved = relative(odo[i_w][None], odo[j][None])[0]
+            checks.append(lambda v: loop_consistent(m, w, v, moved))
         best = _stand_in(m, m.embedding.embed(obs[j:j + 1])[0], used, after, row(source), ahead,
                          score, stats, lambda: (cfg.p_reuse, cfg.p_reuse),
                          confirm=(lambda v: all(c(v) for c in checks)) if checks else None)
-        return j if best is None else ("v", best)
+        if best is None:
+            return j
+        reused.append((j, best))
+        return ("v", best)
 
     anchors, sources = sparsify_chain(n, reach, cfg.p_sparsify, cfg.sparsify_window,
                                       slack=cfg.sparsify_slack, snap=snap)
@@ -348,10 +372,51 @@ def _leads_on(m: TopoMap, v: int, start: int, j: int, n: int, score) -> bool:
     return bool((score(rows, ctx) > m.config.p_reuse).any())
 
 
+def leg_of(m: TopoMap, u: int, x: int) -> np.ndarray | None:
+    """x's pose in u's frame by the drives' odometry on the edge between them
+    (either way round), or None where neither edge keeps a leg."""
+    g = m.graph
+    if g.has_edge(u, x) and "leg" in g.edges[u, x]:
+        return g.edges[u, x]["leg"]
+    if g.has_edge(x, u) and "leg" in g.edges[x, u]:
+        return invert(g.edges[x, u]["leg"][None])[0]
+    return None
+
+
+def loop_consistent(m: TopoMap, w: int, v: int, moved: np.ndarray) -> bool:
+    """Whether vertex v lies where a drive's odometry puts it: ``moved`` is
+    the drive's motion since it stood at vertex w, and the map's legs,
+    composed along the shortest path of edges that keep one from w to v,
+    put v somewhere too. The two must agree within ``loop_check_m`` plus
+    ``loop_check_per_m`` of the metres both measured (odometry drifts);
+    where no such path joins them there is nothing to check. A look-alike
+    room passes RE, and its scans may match, but it lies elsewhere."""
+    cfg = m.config
+    if w == v:
+        return bool(np.hypot(*moved[:2]) <= cfg.loop_check_m)
+
+    def metres(u, x, _):
+        leg = leg_of(m, u, x)
+        return None if leg is None else float(np.hypot(*leg[:2])) + 1e-6
+
+    try:
+        path = nx.bidirectional_dijkstra(m.graph.to_undirected(as_view=True), w, v,
+                                         weight=metres)[1]
+    except nx.NetworkXNoPath:
+        return True
+    pose, along = np.zeros((1, 3)), 0.0
+    for u, x in zip(path[:-1], path[1:]):
+        leg = leg_of(m, u, x)
+        pose = compose(pose, leg[None])
+        along += float(np.hypot(*leg[:2]))
+    off = float(np.hypot(*(pose[0, :2] - moved[:2])))
+    return off <= cfg.loop_check_m + cfg.loop_check_per_m * (along + float(np.hypot(*moved[:2])))
+
+
 def _same_place(m: TopoMap, v: int, scan: np.ndarray) -> bool:
     """Whether vertex v's scan registers onto the drive's ``scan`` (a
     look-alike room passes RE, rarely the scan match)."""
-    return bool(scans_match(m.bank.observations[m.centers([v])], scan, m.config.scan_match)[0])
+    return bool(scans_match(vertex_scans(m, [v]), scan, m.config.scan_match)[0])
 
 
 def _stand_in(m: TopoMap, query: np.ndarray, used: set[int], after: int | None, source_row: int,

@@ -41,11 +41,14 @@ REUSE_RULES = ("paper", "resume")
 TEACH_ODOMETRY = ("wheel", "perfect", "none")
 #: settings added after maps were first written whose default builds a map as
 #: before: a stored config without them reads as these values
-LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False}
+LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False,
+                  "camera_scans": False, "loop_check_m": 0.0, "loop_check_per_m": 0.1}
 
 
 #: settings only a lidar map reads (a map of another modality is built alike whatever they say)
-LIDAR_ONLY = ("scan_match", "scan_match_cross")
+LIDAR_ONLY = ("scan_match_cross",)
+#: settings only a camera map reads
+CAMERA_ONLY = ("camera_scans",)
 #: settings only planning reads, not building (a map is built alike whatever they say)
 PLAN_ONLY = ("link_order", "direct_check")
 LINK_ORDERS = ("probability", "support")
@@ -54,8 +57,8 @@ LINK_ORDERS = ("probability", "support")
 def same_config(stored, config: "MapConfig", lidar: bool = True) -> bool:
     """Whether a map file's stored config is ``config`` (the settings it
     predates read as :data:`LATER_DEFAULTS`), as far as building reads them
-    (:func:`map_settings`: neither the :data:`PLAN_ONLY` settings count nor,
-    for a map that is not a lidar map, the :data:`LIDAR_ONLY` ones)."""
+    (:func:`map_settings`: neither the :data:`PLAN_ONLY` settings count nor
+    those of the other kind of map)."""
     if not isinstance(stored, dict):
         return False
     return map_settings({**LATER_DEFAULTS, **stored}, lidar) == map_settings(asdict(config), lidar)
@@ -64,9 +67,11 @@ def same_config(stored, config: "MapConfig", lidar: bool = True) -> bool:
 def map_settings(config: dict, lidar: bool = True) -> dict:
     """The settings of a map config (as a dict) that building a map of its
     kind reads: without the :data:`PLAN_ONLY` ones, nor the
-    :data:`LIDAR_ONLY` ones where it is not a lidar map."""
-    return {k: v for k, v in config.items()
-            if k not in PLAN_ONLY and (lidar or k not in LIDAR_ONLY)}
+    :data:`LIDAR_ONLY` ones where it is not a lidar map, nor the
+    :data:`CAMERA_ONLY` ones where it is one. (A scan_match set for a pose
+    oracle map counts too: harmless, it only names another cached map.)"""
+    other = CAMERA_ONLY if lidar else LIDAR_ONLY
+    return {k: v for k, v in config.items() if k not in PLAN_ONLY and k not in other}
 
 
 @dataclass
@@ -116,6 +121,12 @@ class MapConfig:
                                  # scan's points paired at least this share (0: off)
     scan_match_cross: bool = False  # ... and cross edges too (off: the long cross edges it
                                     # drops in open rooms are true hops, and success did not move)
+    camera_scans: bool = True    # camera maps that keep their drives' lidar scans check a reused
+                                 # vertex and a junction by scan_match too (textures repeat)
+    loop_check_m: float = 1.5    # a reused vertex must lie where the drive's odometry puts it,
+                                 # from the vertex it reused last along the map's legs, within
+                                 # this (0: off) ...
+    loop_check_per_m: float = 0.1  # ... plus this share of the metres measured
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):
@@ -132,10 +143,14 @@ class MapConfig:
                 raise TopodrakeError(f"{where}: {name} must be one of {', '.join(choices)}, "
                                      f"got {getattr(self, name)!r}")
         for name in ("link_consensus", "direct_check", "join_ends", "scan_match_cross",
-                     "reuse_legs"):
+                     "reuse_legs", "camera_scans"):
             if not isinstance(getattr(self, name), bool):
                 raise TopodrakeError(f"{where}: {name} must be true or false, got "
                                      f"{getattr(self, name)!r}")
+        for name in ("loop_check_m", "loop_check_per_m"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise TopodrakeError(f"{where}: {name} must be a number >= 0, got {v!r}")
         if not (isinstance(self.scan_match, (int, float)) and 0.0 <= self.scan_match < 1.0):
             raise TopodrakeError(f"{where}: scan_match must be in [0, 1), got {self.scan_match!r}")
         if self.reuse_slack > 0 and self.reuse_rule != "paper":

@@ -13,7 +13,11 @@ A plan's steps are judged in truth (privileged poses, evaluation only).
 Every step that is not one of the drives' own hops (a start, goal or
 direct link, a cross or junction edge) is a link. A link longer than
 :data:`~topodrake.navigation.plan_trials.FALSE_LINK_M` (5 m, the planning
-study's rule) joins places that only look alike: a ``false step``.
+study's rule) joins places that only look alike: a ``false step``. So
+does a drive's own hop into or out of a vertex that the drive reused in a
+look-alike place: the vertex lies more than that from where the hop's leg
+(the drive's odometry) puts it, or, for a hop without a leg, the hop is
+longer than that (kind ``reuse``).
 ``strict`` figures count every link longer than :data:`JOIN_STEP_M` (2 m)
 instead; they also count a start link to an anchor one clear hop along
 its drive (3-6 m on a lidar map, whose RE trusts long hops in the open),
@@ -93,15 +97,24 @@ def plan_links(topomap, result, start_pose, goal_pose) -> dict:
     "" for none)."""
     from topodrake.navigation.plan_trials import FALSE_LINK_M
 
+    from topodrake.se2 import compose
+
     vs = list(result.vertices)
-    xy = np.vstack([np.asarray(start_pose, np.float64)[None, :2],
-                    topomap.pose(vs).reshape(-1, 3)[:, :2] if vs else np.zeros((0, 2)),
+    poses = topomap.pose(vs).reshape(-1, 3)
+    xy = np.vstack([np.asarray(start_pose, np.float64)[None, :2], poses[:, :2],
                     np.asarray(goal_pose, np.float64)[None, :2]])
     steps = np.hypot(*np.diff(xy, axis=0).T)
-    kinds = (["start"] + [topomap.graph.edges[u, v]["kind"] for u, v in zip(vs[:-1], vs[1:])]
-             + ["goal"]) if vs else ["direct"]
+    edges = [topomap.graph.edges[u, v] for u, v in zip(vs[:-1], vs[1:])]
+    kinds = (["start"] + [e["kind"] for e in edges] + ["goal"]) if vs else ["direct"]
     links = [(float(d), kind) for d, kind in zip(steps, kinds) if kind != "trajectory"]
     false = [(d, kind) for d, kind in links if d > FALSE_LINK_M]
+    for i, e in enumerate(edges):      # a drive's own hop, through a vertex reused elsewhere
+        if e["kind"] != "trajectory":
+            continue
+        off = (float(np.hypot(*(compose(poses[i], e["leg"])[0, :2] - poses[i + 1, :2])))
+               if "leg" in e else float(steps[i + 1]))
+        if off > FALSE_LINK_M:
+            false.append((off, "reuse"))
     link_m, link_kind = max(links)
     false_m, false_kind = max(false, default=(0.0, ""))
     return {"longest_step_m": float(steps.max()), "longest_link_m": link_m,

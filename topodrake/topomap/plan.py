@@ -21,7 +21,10 @@ vertex whose scan registers onto the view come first
 to match. With ``direct_check`` a direct start-goal link also needs the
 start's and the goal's links to be one place (:func:`one_place`).
 Dijkstra on the edge weights -log p gives the most probable path; its
-probability is exp(-cost). An unreachable goal is a result
+probability is exp(-cost). Given a time limit, the plan is the path most
+likely to be driven within it: the most probable path, or where that one
+would likely run out of time, a shorter one found by pricing each metre
+(:mod:`topodrake.topomap.route_time`). An unreachable goal is a result
 (:attr:`PlanResult.reachable` False with a reason), never an exception.
 """
 
@@ -36,9 +39,14 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.navigation.route import Route
 from topodrake.topomap.graph import TopoMap
+from topodrake.topomap.route_time import DrivingTime, edge_metres, path_metres
 from topodrake.topomap.scan_match import checks_scans, scans_match
 
 START, GOAL = -1, -2
+#: prices of a metre (added to -log p) tried for a path that fits the time limit
+METRE_PRICES = (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)
+#: a path this likely to be driven in time is kept without looking for shorter ones
+ON_TIME_ENOUGH = 0.999
 
 
 @dataclass
@@ -50,11 +58,13 @@ class PlanResult:
     reason: str = ""
     start_links: int = 0
     goal_links: int = 0
+    on_time: float = 1.0          # probability of driving it within the time limit (1: no limit)
 
     def summary(self) -> dict:
         return {"reachable": self.reachable, "path": [int(v) for v in self.vertices],
                 "probability": round(self.probability, 6), "start_links": self.start_links,
-                "goal_links": self.goal_links, **({"reason": self.reason} if self.reason else {})}
+                "goal_links": self.goal_links, "on_time": round(self.on_time, 6),
+                **({"reason": self.reason} if self.reason else {})}
 
 
 def _check_observation(topomap: TopoMap, obs: np.ndarray, what: str) -> np.ndarray:
@@ -127,15 +137,48 @@ def _route_scans(topomap: TopoMap, vertices: list[int]) -> np.ndarray | None:
     return np.vstack([rows, np.full((1, scans.shape[1]), np.nan)])
 
 
+def within_time(g, cost: float, path: list, weight, limit_s: float,
+                driving: DrivingTime) -> tuple[float, list, float]:
+    """(cost, path, on-time probability) of the path from START to GOAL of
+    ``g`` most likely to succeed within ``limit_s``: the most probable path
+    (``cost``, ``path``) or one found with each metre priced at one of
+    :data:`METRE_PRICES` (``weight``: Dijkstra's weight, a function or key),
+    whichever has the largest product of probability and on-time probability."""
+    metres, typical = edge_metres(g)
+
+    def on_time(p: list) -> float:
+        return driving.on_time(path_metres(p, metres, typical), len(p) - 1, limit_s)
+
+    best = (cost, path, on_time(path))
+    if best[2] >= ON_TIME_ENOUGH:
+        return best
+    base = weight if callable(weight) else (lambda u, v, d: d[weight])
+    for price in METRE_PRICES:
+        def priced(u, v, d, price=price):
+            w = base(u, v, d)
+            return None if w is None else w + price * metres.get((u, v), typical)
+        p = nx.dijkstra_path(g, START, GOAL, weight=priced)
+        c = float(sum(g.edges[u, v]["weight"] for u, v in zip(p[:-1], p[1:])))
+        cand = (c, p, on_time(p))
+        if math.exp(-cand[0]) * cand[2] > math.exp(-best[0]) * best[2]:
+            best = cand
+    return best
+
+
 def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation: np.ndarray,
               goal_context: np.ndarray | None = None, start_pose=None, goal_pose=None,
-              excluded_edges=(), retrieval_k: int | None = None) -> PlanResult:
-    """The most probable path from ``start_observation`` to the goal.
+              excluded_edges=(), retrieval_k: int | None = None, time_limit_s: float | None = None,
+              driving: DrivingTime | None = None) -> PlanResult:
+    """The most probable path from ``start_observation`` to the goal, or
+    with ``time_limit_s`` the path most likely to be driven within it
+    (:func:`within_time`, the follower's pace ``driving``).
 
     ``goal_context`` (2k+1, ...) replaces the repeated goal observation as
     the goal's target; ``start_pose``/``goal_pose`` are metadata for the
     route (plots, evaluation); ``excluded_edges``: (u, v) map edges to
     ignore (a replanning follower's failed ones)."""
+    if time_limit_s is not None and not (math.isfinite(time_limit_s) and time_limit_s > 0):
+        raise TopodrakeError(f"the time limit must be a number of seconds > 0, not {time_limit_s}")
     m = topomap
     if len(m) == 0:
         raise TopodrakeError("the map has no vertices")
@@ -216,6 +259,9 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         if path is None:
             result.reason = "no path of the map joins the start's links to the goal's"
             return result
+        if time_limit_s is not None:
+            cost, path, result.on_time = within_time(g, cost, path, weight, time_limit_s,
+                                                     driving or DrivingTime())
         probs = [g.edges[u, v]["p"] for u, v in zip(path[:-1], path[1:])]
         vertices = [int(v) for v in path[1:-1]]
         # the drives' odometry between the map's anchors; none into the goal view
@@ -228,7 +274,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
             vertices=np.array(vertices + [-1], np.int64),
             edge_probability=np.array(probs[1:]),
             probability=math.exp(-cost), modality=m.modality, start_probability=probs[0],
-            legs=legs, leg_paths=leg_paths, scans=_route_scans(m, vertices))
+            legs=legs, leg_paths=leg_paths, scans=_route_scans(m, vertices),
+            on_time=result.on_time)
         result.reachable, result.probability = True, math.exp(-cost)
         result.vertices, result.route = vertices, route
         return result
