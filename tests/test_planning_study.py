@@ -472,10 +472,13 @@ def test_a_map_written_before_a_setting_it_reads_is_not_the_default_map():
     stored["reuse_ahead"] = 0
     assert not same_config(stored, MapConfig())                 # scan_match reads as 0 (off)
     assert not same_config(stored, MapConfig(), lidar=False)    # camera_scans as off
-    # a camera map written with both reads as the default map; a lidar map ignores camera_scans
-    camera = {**stored, "scan_match": 0.8, "camera_scans": True}
+    # written with every later setting it reads at today's default, a map is the default map;
+    # a lidar map ignores the camera-only ones
+    today = {k: getattr(MapConfig(), k) for k in LATER_DEFAULTS}
+    camera = {**stored, **today}
     assert same_config(camera, MapConfig(), lidar=False)
-    assert same_config({**stored, "scan_match": 0.8}, MapConfig())
+    assert same_config({**camera, "camera_legs": False}, MapConfig())
+    assert not same_config({**camera, "camera_legs": False}, MapConfig(), lidar=False)
     assert not same_config({**camera, "p_join": 0.5}, MapConfig(), lidar=False)
     assert not same_config(None, MapConfig(), lidar=False)
 

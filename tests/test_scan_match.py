@@ -168,6 +168,44 @@ def test_a_camera_map_that_keeps_scans_checks_its_joins_by_them(three_drives):
     assert not joins_by_scans(bare)                                     # no scans, no check
 
 
+def _leaves_drive_0(a, b):
+    """Drive 2 runs beside drive 0 and reuses its vertices up to frame 4:
+    past it RE trusts drive 2's own frames only."""
+    if a[0] != b[0] and ({a[0], b[0]} != {0, 2} or max(a[1], b[1]) >= 5):
+        return 0.1
+    return 0.999 if 0 <= b[1] - a[1] <= 3 else 0.1
+
+
+def test_a_camera_map_places_the_vertices_it_reuses_by_the_scans(three_drives):
+    """Hops between a drive and the vertices it reused keep the drive's
+    odometry, the vertices placed by registering the kept scans."""
+    from test_topomap import drive
+
+    from topodrake.se2 import relative
+
+    scans, poses, _ = three_drives
+
+    def build(**config):
+        m = TopoMap(CameraTable(_leaves_drive_0), FlatCameraEmbedding(),
+                    MapConfig(teach_odometry="perfect", **config), world="test-0")
+        for d in (0, 2):
+            add_trajectory(m, drive(d, 10), poses[d], scans=scans[d])
+        return m
+
+    def joins(m):
+        return [(u, v, d) for u, v, d in m.graph.edges(data=True) if d["kind"] == "trajectory"
+                and {_traj(m, u), _traj(m, v)} == {0, 1}]      # trajectories numbered as added
+
+    placed = joins(build())
+    assert placed and all("leg" in d for _, _, d in placed)
+    m = build()
+    for u, v, d in joins(m):                       # where the vertices were taken, to 5 cm
+        truth = relative(m.pose([u]), m.pose([v]))[0]
+        assert np.hypot(*(d["leg"][:2] - truth[:2])) < 0.05
+    assert joins(build(camera_legs=False)) and \
+        not any("leg" in d for _, _, d in joins(build(camera_legs=False)))
+
+
 def _junctions(m):
     return {(_traj(m, u), _traj(m, v)) for u, v, d in m.graph.edges(data=True)
             if d["kind"] == "junction"}

@@ -157,7 +157,7 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     # -- trajectory edges between consecutive chain nodes, with the drive's odometry
     pairs = [(i, u, v) for i, (u, v) in enumerate(zip(ids[:-1], ids[1:])) if u != v]
     if pairs:
-        offsets = _reuse_offsets(m, obs, chain, anchors) \
+        offsets = _reuse_offsets(m, obs if m.modality == "lidar" else scans, chain, anchors) \
             if cfg.reuse_legs and cfg.teach_odometry != "none" else {}
         legs = _teach_legs(odo, chain, anchors, [i for i, _, _ in pairs], offsets)
         _, us, vs = np.array(pairs).T
@@ -198,15 +198,15 @@ def _junctions(m: TopoMap, t: int, score, stats: BuildStats) -> None:
 
 
 def _junction_legs(m: TopoMap, us: np.ndarray, xs: np.ndarray) -> list:
-    """(leg, leg path) of each junction u -> x: on a lidar map, x's pose in
-    u's frame from registering x's scan onto u's (kept when the fit pins
-    the translation; the path a straight line), else (None, None)."""
-    if m.modality != "lidar" or not len(us) or m.config.teach_odometry == "none":
+    """(leg, leg path) of each junction u -> x: on a lidar map (or a camera
+    map that places its joins by its kept scans, :func:`places_by_scans`),
+    x's pose in u's frame from registering x's scan onto u's (kept when the
+    fit pins the translation; the path a straight line), else (None, None)."""
+    if not places_by_scans(m) or not len(us) or m.config.teach_odometry == "none":
         return [(None, None)] * len(us)
     from topodrake.navigation.route import LEG_POINTS
 
-    obs = m.bank.observations
-    poses = _pinned_poses(obs[m.centers(xs)], obs[m.centers(us)])
+    poses = _pinned_poses(vertex_scans(m, xs), vertex_scans(m, us))
     return [(None, None) if leg is None else
             (leg, np.linspace(0.0, 1.0, LEG_POINTS)[:, None] * leg[None]) for leg in poses]
 
@@ -249,16 +249,25 @@ def _teach_legs(odo, chain, anchors, positions, offsets: dict | None = None) -> 
     return out
 
 
-def _reuse_offsets(m: TopoMap, obs: np.ndarray, chain, anchors) -> dict:
-    """For a lidar map, each reused vertex's pose in the drive's frame where it
-    stood in (chain position -> (3,)): its anchor scan registered onto the
-    drive's scan there, kept when the fit pins the translation; none for
-    other modalities."""
-    if m.modality != "lidar":
+def places_by_scans(m: TopoMap) -> bool:
+    """Whether ``m`` places a reused vertex and a junction's far end by
+    registering scans: a lidar map, or a camera map that keeps its drives'
+    scans, with ``camera_legs``."""
+    return m.modality == "lidar" or (m.modality == "camera" and m.config.camera_legs
+                                     and m.bank.scans is not None)
+
+
+def _reuse_offsets(m: TopoMap, scans, chain, anchors) -> dict:
+    """Each reused vertex's pose in the drive's frame where it stood in
+    (chain position -> (3,)) on a map that places them by scans
+    (:func:`places_by_scans`): the vertex's scan registered onto the drive's
+    (``scans``, (T, beams)) there, kept when the fit pins the translation;
+    none for other maps."""
+    if not places_by_scans(m) or scans is None:
         return {}
     pos = [i for i, node in enumerate(chain) if node[0] == "v"]
-    source = m.bank.observations[m.centers([chain[i][1] for i in pos])]
-    poses = _pinned_poses(source, np.asarray(obs)[anchors[pos]]) if pos else []
+    source = vertex_scans(m, [chain[i][1] for i in pos]) if pos else None
+    poses = _pinned_poses(source, np.asarray(scans)[anchors[pos]]) if pos else []
     return {i: pose for i, pose in zip(pos, poses) if pose is not None}
 
 

@@ -17,7 +17,8 @@ odometry of the drive that made it from u to v (``leg``: v's pose in u's
 frame; ``leg_path``: ``LEG_POINTS`` poses along the hop), a relative
 transform as a real robot measures it, never an absolute pose; at a vertex
 another drive placed (reuse), a lidar map registers that vertex's scan onto
-the drive's to place it, and other maps leave the hop without. A planned
+the drive's to place it, as does a camera map that keeps its drives' lidar
+scans (``camera_legs``), and other maps leave the hop without. A planned
 route hands the legs to the follower.
 """
 
@@ -42,13 +43,14 @@ TEACH_ODOMETRY = ("wheel", "perfect", "none")
 #: settings added after maps were first written whose default builds a map as
 #: before: a stored config without them reads as these values
 LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False,
-                  "camera_scans": False, "loop_check_m": 0.0, "loop_check_per_m": 0.1}
+                  "camera_scans": False, "camera_legs": False, "loop_check_m": 0.0,
+                  "loop_check_per_m": 0.1}
 
 
 #: settings only a lidar map reads (a map of another modality is built alike whatever they say)
 LIDAR_ONLY = ("scan_match_cross",)
 #: settings only a camera map reads
-CAMERA_ONLY = ("camera_scans",)
+CAMERA_ONLY = ("camera_scans", "camera_legs")
 #: settings only planning reads, not building (a map is built alike whatever they say)
 PLAN_ONLY = ("link_order", "direct_check")
 LINK_ORDERS = ("probability", "support")
@@ -123,6 +125,8 @@ class MapConfig:
                                     # drops in open rooms are true hops, and success did not move)
     camera_scans: bool = True    # camera maps that keep their drives' lidar scans check a reused
                                  # vertex and a junction by scan_match too (textures repeat)
+    camera_legs: bool = True     # ... and place them by registering those scans, as lidar maps
+                                 # do: hops into and out of them keep the drive's odometry
     loop_check_m: float = 1.5    # a reused vertex must lie where the drive's odometry puts it,
                                  # from the vertex it reused last along the map's legs, within
                                  # this (0: off) ...
@@ -143,7 +147,7 @@ class MapConfig:
                 raise TopodrakeError(f"{where}: {name} must be one of {', '.join(choices)}, "
                                      f"got {getattr(self, name)!r}")
         for name in ("link_consensus", "direct_check", "join_ends", "scan_match_cross",
-                     "reuse_legs", "camera_scans"):
+                     "reuse_legs", "camera_scans", "camera_legs"):
             if not isinstance(getattr(self, name), bool):
                 raise TopodrakeError(f"{where}: {name} must be true or false, got "
                                      f"{getattr(self, name)!r}")
