@@ -155,7 +155,8 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
     t0 = time.perf_counter()
     layers = planner = None
     if map_path is not None:
-        planner, route = plan_on_map(map_path, start, goal)
+        planner, route = plan_on_map(map_path, start, goal,
+                                     time_limit_s=NavigationScenario().t_max_s)
         world, policy, reach_net, layers = (planner.world, planner.policy, planner.reach,
                                             planner.layers)
     else:

@@ -91,14 +91,15 @@ class MapPlanner:
         self.reach = self.scorer.reach
         self.layers = _map_layers(self.topomap)
 
-    def plan(self, start, goal, excluded_edges=()):
-        """The PlanResult from pose ``start`` to pose ``goal``."""
+    def plan(self, start, goal, excluded_edges=(), time_limit_s: float | None = None):
+        """The PlanResult from pose ``start`` to pose ``goal``, made for
+        ``time_limit_s`` seconds of driving where given."""
         from topodrake.topomap.plan import plan_path
         from topodrake.topomap.sources import drive_observations
 
         obs = drive_observations(self.world, self.scorer, np.stack([start, goal]))
         return plan_path(self.topomap, obs[0], obs[1], start_pose=start, goal_pose=goal,
-                         excluded_edges=excluded_edges)
+                         excluded_edges=excluded_edges, time_limit_s=time_limit_s)
 
 
 def success_chance(planner: MapPlanner | None, route) -> float | None:
@@ -109,12 +110,14 @@ def success_chance(planner: MapPlanner | None, route) -> float | None:
     return round(float(planner.calibration.predict(route.probability, len(route))[0]), 4)
 
 
-def plan_on_map(path: Path, start, goal, reach_path=None, controller_path=None):
-    """(the map's MapPlanner, route) of a plan on a map file."""
+def plan_on_map(path: Path, start, goal, reach_path=None, controller_path=None,
+                time_limit_s: float | None = None):
+    """(the map's MapPlanner, route) of a plan on a map file, made for
+    ``time_limit_s`` seconds of driving where given."""
     planner = MapPlanner(path, reach_path, controller_path)
     planner.world.check_pose(start, "start")
     planner.world.check_pose(goal, "goal")
-    route = _plan_or_refuse(planner.plan(start, goal), path)
+    route = _plan_or_refuse(planner.plan(start, goal, time_limit_s=time_limit_s), path)
     return planner, route
 
 
@@ -211,7 +214,7 @@ def cmd_navigate(args) -> int:
         world, policy, reach, layers = planner.world, planner.policy, planner.reach, planner.layers
         world.check_pose(start, "start")
         world.check_pose(goal, "goal")
-        route = _plan_or_refuse(planner.plan(start, goal), source)
+        route = _plan_or_refuse(planner.plan(start, goal, time_limit_s=args.t_max), source)
     else:
         if args.replan:
             raise TopodrakeError("--replan needs a map file (.tdmap) as MAP")
@@ -235,7 +238,8 @@ def cmd_navigate(args) -> int:
         from topodrake.navigation.replan import ReplanSchedule, Replanner
 
         replanner = Replanner(lambda _, pose, excluded: _route_or_none(planner.plan(
-            pose, goal, excluded)), [route], ReplanSchedule(max_replans=args.replan))
+            pose, goal, excluded, time_limit_s=args.t_max)), [route],
+            ReplanSchedule(max_replans=args.replan))
     result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
                          record=bool(args.meshcat), seed=args.seed, replanner=replanner)
     first_p, anchors = float(route.probability), len(route)
@@ -332,7 +336,8 @@ def add_navigate_parser(sub) -> None:
                     help="actuation noise std, 0 = off (default: 0)")
     nv.add_argument("--seed", type=int, default=0, help="seed of the actuation noise (default: 0)")
     nv.add_argument("--t-max", type=float, default=150.0,
-                    help="time limit of the drive in s (default: 150)")
+                    help="time limit of the drive in s; on a map the plan is the path most "
+                         "likely to be driven within it (default: 150)")
     nv.add_argument("--controller", help=f"C_WP checkpoint, or 'registration' for the lidar "
                                          f"teach-and-repeat C_WP (default: the map's, else "
                                          f"{DEFAULT_CONTROLLER})")
