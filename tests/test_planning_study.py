@@ -477,8 +477,9 @@ def test_a_map_written_before_a_setting_it_reads_is_not_the_default_map():
     today = {k: getattr(MapConfig(), k) for k in LATER_DEFAULTS}
     camera = {**stored, **today}
     assert same_config(camera, MapConfig(), lidar=False)
-    assert same_config({**camera, "camera_legs": False}, MapConfig())
-    assert not same_config({**camera, "camera_legs": False}, MapConfig(), lidar=False)
+    other_legs = {**camera, "camera_legs": not MapConfig().camera_legs}
+    assert same_config(other_legs, MapConfig())
+    assert not same_config(other_legs, MapConfig(), lidar=False)
     assert not same_config({**camera, "p_join": 0.5}, MapConfig(), lidar=False)
     assert not same_config(None, MapConfig(), lidar=False)
 
@@ -497,8 +498,9 @@ def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
     assert config_tag("all", MapConfig(scan_match_cross=True), "camera") == "all"
     assert config_tag("all", MapConfig(scan_match_cross=True, p_join=0.5), "camera") == \
         config_tag("all", MapConfig(p_join=0.5), "camera") != "all"
-    assert config_tag("all", MapConfig(camera_scans=False), "lidar") == "all"
-    assert config_tag("all", MapConfig(camera_scans=False), "camera") != "all"
+    flipped = MapConfig(camera_scans=not MapConfig().camera_scans)
+    assert config_tag("all", flipped, "lidar") == "all"
+    assert config_tag("all", flipped, "camera") != "all"
     assert config_tag("all", MapConfig(scan_match=0.0), "camera") != "all"   # camera reads it too
     assert config_tag("all", MapConfig(scan_match=0.0), "lidar_reg") == off
     # settings only planning reads share the default map's file

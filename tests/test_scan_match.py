@@ -158,7 +158,7 @@ def test_a_camera_map_that_keeps_scans_checks_its_joins_by_them(three_drives):
             add_trajectory(m, drive(d, 10), poses[d], scans=scans[d])
         return m
 
-    on, off = build(), build(camera_scans=False)
+    on, off = build(camera_scans=True), build(camera_scans=False)
     assert joins_by_scans(on) and not joins_by_scans(off) and not checks_scans(on)
     assert any(_traj(off, v) == 0 for v in off.trajectories[1].chain)   # RE alone joins them
     assert all(_traj(on, v) == 1 for v in on.trajectories[1].chain)     # the look-alike apart
@@ -196,9 +196,9 @@ def test_a_camera_map_places_the_vertices_it_reuses_by_the_scans(three_drives):
         return [(u, v, d) for u, v, d in m.graph.edges(data=True) if d["kind"] == "trajectory"
                 and {_traj(m, u), _traj(m, v)} == {0, 1}]      # trajectories numbered as added
 
-    placed = joins(build())
+    placed = joins(build(camera_legs=True))
     assert placed and all("leg" in d for _, _, d in placed)
-    m = build()
+    m = build(camera_legs=True)
     for u, v, d in joins(m):                       # where the vertices were taken, to 5 cm
         truth = relative(m.pose([u]), m.pose([v]))[0]
         assert np.hypot(*(d["leg"][:2] - truth[:2])) < 0.05
