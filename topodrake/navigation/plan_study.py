@@ -102,7 +102,7 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
                            time_limit_s=limit)
                  for t, g in enumerate(goal_idx)]
     routes = [p.route if p.reachable else None for p in plans]
-    if meth.map != "sptm":        # each plan's links (not the drives' own hops), judged in truth
+    if meth.map != "sptm":        # each plan's false steps (links, hops into look-alikes), in truth
         from topodrake.topomap.joining import plan_links
 
         links = [plan_links(m, p, starts[t], places[g])["false_link_m"] if p.reachable else None

@@ -25,7 +25,9 @@ def _route_sizes(doc: dict) -> list[tuple[str, float, int, float, bool]]:
     from topodrake.topomap.map_cache import get_map
     from topodrake.topomap.plan import GOAL, START
     from topodrake.topomap.route_time import edge_metres, path_metres
+    from topodrake.vehicle import VehicleConfig
 
+    period_s = VehicleConfig().dt          # a trial's steps are the car's control periods
     cfg = {**doc["config"], "quiet": True}
     out = []
     for house, h in doc["houses"].items():
@@ -45,7 +47,7 @@ def _route_sizes(doc: dict) -> list[tuple[str, float, int, float, bool]]:
                     continue
                 path = [START, *(v for v in r["plan_vertices"] if v >= 0), GOAL]
                 out.append((r["method"], path_metres(path, metres, typical), len(path) - 1,
-                            r["steps"] * 0.1, r["outcome"] == "timeout"))
+                            r["steps"] * period_s, r["outcome"] == "timeout"))
     return out
 
 

@@ -32,6 +32,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.se2 import compose
 
 JOIN_STEP_M = 2.0     # a link or edge between drives longer than this in truth is false
 #: the map kinds a joining study builds
@@ -96,8 +97,6 @@ def plan_links(topomap, result, start_pose, goal_pose) -> dict:
     ``false_link_m`` and ``false_link_kind`` (the longest false link; 0 and
     "" for none)."""
     from topodrake.navigation.plan_trials import FALSE_LINK_M
-
-    from topodrake.se2 import compose
 
     vs = list(result.vertices)
     poses = topomap.pose(vs).reshape(-1, 3)
