@@ -119,7 +119,7 @@ def _traj(m, v):
 
 def test_reuse_and_junctions_need_the_scans_to_match(three_drives):
     scans, poses, frames = three_drives
-    plain = _scan_map(frames, scan_match=0.0)
+    plain = _scan_map(frames, scan_match=0.0, reuse_pinned=False)
     for s, p in zip(scans[:3], poses[:3]):
         add_trajectory(plain, s, p)
     # RE alone: the look-alike drive 1 stands in drive 0's vertices
@@ -206,6 +206,37 @@ def test_a_camera_map_places_the_vertices_it_reuses_by_the_scans(three_drives):
         not any("leg" in d for _, _, d in joins(build(camera_legs=False)))
 
 
+def test_a_lidar_map_reuses_only_vertices_its_scans_place(three_drives, monkeypatch):
+    """A reused vertex whose scan does not pin the translation (a corridor
+    slides) would leave its hops without the drive's odometry, out of the
+    loop check's sight: a lidar map with ``reuse_pinned`` does not reuse it."""
+    import topodrake.topomap.build as build_module
+
+    scans, poses, frames = three_drives
+
+    def build(**config):
+        m = _scan_map(frames, teach_odometry="perfect", **config)
+        for d in (0, 2):
+            add_trajectory(m, scans[d], poses[d])
+        return m
+
+    def joins(m):
+        return [d for u, v, d in m.graph.edges(data=True) if d["kind"] == "trajectory"
+                and _traj(m, u) != _traj(m, v)]
+
+    placed = build()
+    assert MapConfig().reuse_pinned and joins(placed)         # beside drive 0: pinned, reused
+    assert all("leg" in d for d in joins(placed))
+    monkeypatch.setattr(build_module, "_pinned_poses", lambda source, target: [None] * len(source))
+    sliding = build()
+    assert not joins(sliding)                                 # nothing pins: nothing reused
+    assert all(_traj(sliding, v) == 1 for v in sliding.trajectories[1].chain)
+    loose = build(reuse_pinned=False)
+    assert joins(loose) and not any("leg" in d for d in joins(loose))
+    with pytest.raises(TopodrakeError, match="reuse_pinned"):
+        MapConfig(reuse_pinned="yes").validate()
+
+
 def _junctions(m):
     return {(_traj(m, u), _traj(m, v)) for u, v, d in m.graph.edges(data=True)
             if d["kind"] == "junction"}
@@ -234,6 +265,37 @@ def test_links_that_match_the_view_come_first(three_drives):
     assert matched_first(m, groups, scans[0][0]) == [[(own, 0.9)], [(alike, 0.99)]]
     assert matched_first(m, groups, scans[1][0]) == groups
     assert matched_first(m, groups[:1], scans[0][0]) == groups[:1]
+
+
+def _alike_first(a, b):
+    """As :func:`_alike`, but RE trusts the look-alike drive 1 a little more
+    than drive 0's own frames."""
+    if a[0] != b[0] and {a[0], b[0]} == {0, 1}:
+        return 0.9995 if 0 <= b[1] - a[1] <= 3 else 0.1
+    return _alike(a, b)
+
+
+def test_a_camera_map_links_a_plan_where_the_view_s_scan_matches(three_drives):
+    """Given the lidar scans taken with the start and goal views, a camera
+    map that keeps its drives' scans links the plan at the place itself,
+    not at the room that copies its textures; without them RE decides."""
+    from test_topomap import drive
+
+    from topodrake.topomap.plan import plan_path
+
+    scans, poses, _ = three_drives
+    m = TopoMap(CameraTable(_alike_first), FlatCameraEmbedding(), MapConfig(p_edge=0.9999),
+                world="test-0")          # no cross edges: two places apart
+    for d in range(2):
+        add_trajectory(m, drive(d, 10), poses[d], scans=scans[d])
+    start, goal = drive(0, 10)[0], drive(0, 10)[9]
+    blind = plan_path(m, start, goal)
+    seen = plan_path(m, start, goal, view_scans=(scans[0][0], scans[0][9]))
+    assert blind.reachable and seen.reachable
+    assert {_traj(m, v) for v in blind.vertices} == {1}           # the look-alike
+    assert {_traj(m, v) for v in seen.vertices} == {0}            # the place itself
+    with pytest.raises(TopodrakeError, match="start's scan"):
+        plan_path(m, start, goal, view_scans=(scans[0][0][:5], scans[0][9]))
 
 
 def test_scan_match_is_checked_and_older_maps_read_it_as_off():

@@ -95,11 +95,14 @@ class MapPlanner:
         """The PlanResult from pose ``start`` to pose ``goal``, made for
         ``time_limit_s`` seconds of driving where given."""
         from topodrake.topomap.plan import plan_path
-        from topodrake.topomap.sources import drive_observations
+        from topodrake.topomap.sources import drive_observations, view_scans
 
-        obs = drive_observations(self.world, self.scorer, np.stack([start, goal]))
+        poses = np.stack([start, goal])
+        obs = drive_observations(self.world, self.scorer, poses)
+        scans = view_scans(self.world, self.topomap, poses)
         return plan_path(self.topomap, obs[0], obs[1], start_pose=start, goal_pose=goal,
-                         excluded_edges=excluded_edges, time_limit_s=time_limit_s)
+                         excluded_edges=excluded_edges, time_limit_s=time_limit_s,
+                         view_scans=None if scans is None else (scans[0], scans[1]))
 
 
 def success_chance(planner: MapPlanner | None, route) -> float | None:

@@ -52,7 +52,7 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     (:func:`topodrake.topomap.recalibrate.record_traversals`)."""
     from topodrake.navigation.plan_trials import render_pose_route
     from topodrake.topomap.plan import plan_path
-    from topodrake.topomap.sources import drive_observations
+    from topodrake.topomap.sources import drive_observations, view_scans
 
     data, progress = Path(cfg["data"]), not cfg["quiet"]
     meth = METHODS[method]
@@ -90,16 +90,22 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
                 "anchors_per_m": round(len(m) / max(metres, 1e-9), 4)}
         so = drive_observations(world, m.scorer, starts)
         go = drive_observations(world, m.scorer, places)
+        s_scans, g_scans = view_scans(world, m, starts), view_scans(world, m, places)
 
         limit = plan_time_limit(cfg)
 
         def replan(t, pose, excluded):
-            obs = drive_observations(world, m.scorer, np.asarray(pose)[None])[0]
-            p = plan_path(m, obs, go[goal_idx[t]], start_pose=pose, goal_pose=places[goal_idx[t]],
-                          excluded_edges=excluded, time_limit_s=limit)
+            pose = np.asarray(pose)[None]
+            obs = drive_observations(world, m.scorer, pose)[0]
+            here = view_scans(world, m, pose)
+            p = plan_path(m, obs, go[goal_idx[t]], start_pose=pose[0],
+                          goal_pose=places[goal_idx[t]], excluded_edges=excluded,
+                          time_limit_s=limit, view_scans=None if here is None else
+                          (here[0], g_scans[goal_idx[t]]))
             return p.route if p.reachable else None
         plans = [plan_path(m, so[t], go[g], start_pose=starts[t], goal_pose=places[g],
-                           time_limit_s=limit)
+                           time_limit_s=limit, view_scans=None if s_scans is None else
+                           (s_scans[t], g_scans[g]))
                  for t, g in enumerate(goal_idx)]
     routes = [p.route if p.reachable else None for p in plans]
     if meth.map != "sptm":        # each plan's false steps (links, hops into look-alikes), in truth

@@ -327,7 +327,9 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
     exactly on anchor j; here v needs only to be trusted from where the
     scan stands and to lead on along the drive. With ``loop_check_m`` and
     the drive's odometry ``odo``, v must also lie where that odometry puts
-    it, seen from the vertex the drive reused last (:func:`loop_consistent`)."""
+    it, seen from the vertex the drive reused last (:func:`loop_consistent`).
+    With ``reuse_pinned`` a lidar map's v must register onto frame j's scan,
+    pinning the translation, so its hops keep the drive's odometry."""
     cfg = m.config
     n = len(obs)
     used: set[int] = set()
@@ -342,13 +344,18 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
     def reach(source, js):
         return score(np.full(len(js), row(source)), start + ctx_local[js])
 
+    pin = (m.modality == "lidar" and cfg.reuse_pinned and cfg.reuse_legs
+           and cfg.teach_odometry != "none")
+
     def snap(j: int, source):
         if not len(m.index):
             return j
         ahead = start + ctx_local[min(j + 1, n - 1)]
         after = source[1] if isinstance(source, tuple) else None
         checks = ([lambda v: _leads_on(m, v, start, j, n, score)] if cfg.reuse_ahead else []) \
-            + ([lambda v: _same_place(m, v, frame_scan(j))] if joins_by_scans(m) else [])
+            + ([lambda v: _same_place(m, v, frame_scan(j))] if joins_by_scans(m) else []) \
+            + ([lambda v: _pinned_poses(vertex_scans(m, [v]), frame_scan(j)[None])[0] is not None]
+               if pin else [])
         if cfg.loop_check_m > 0 and odo is not None and reused:
             i_w, w = reused[-1]
             moved = relative(odo[i_w][None], odo[j][None])[0]

@@ -44,11 +44,11 @@ TEACH_ODOMETRY = ("wheel", "perfect", "none")
 #: before: a stored config without them reads as these values
 LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False,
                   "camera_scans": False, "camera_legs": False, "loop_check_m": 0.0,
-                  "loop_check_per_m": 0.1}
+                  "loop_check_per_m": 0.1, "reuse_pinned": False}
 
 
 #: settings only a lidar map reads (a map of another modality is built alike whatever they say)
-LIDAR_ONLY = ("scan_match_cross",)
+LIDAR_ONLY = ("scan_match_cross", "reuse_pinned")
 #: settings only a camera map reads
 CAMERA_ONLY = ("camera_scans", "camera_legs")
 #: settings only planning reads, not building (a map is built alike whatever they say)
@@ -131,6 +131,9 @@ class MapConfig:
                                  # from the vertex it reused last along the map's legs, within
                                  # this (0: off) ...
     loop_check_per_m: float = 0.1  # ... plus this share of the metres measured
+    reuse_pinned: bool = True    # lidar maps: reuse only a vertex whose scan registers onto the
+                                 # drive's pinning the translation, so every hop into and out of
+                                 # it keeps a leg (and the loop check can see it)
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):
@@ -147,7 +150,7 @@ class MapConfig:
                 raise TopodrakeError(f"{where}: {name} must be one of {', '.join(choices)}, "
                                      f"got {getattr(self, name)!r}")
         for name in ("link_consensus", "direct_check", "join_ends", "scan_match_cross",
-                     "reuse_legs", "camera_scans", "camera_legs"):
+                     "reuse_legs", "camera_scans", "camera_legs", "reuse_pinned"):
             if not isinstance(getattr(self, name), bool):
                 raise TopodrakeError(f"{where}: {name} must be true or false, got "
                                      f"{getattr(self, name)!r}")

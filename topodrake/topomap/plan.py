@@ -40,7 +40,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.navigation.route import Route
 from topodrake.topomap.graph import TopoMap
 from topodrake.topomap.route_time import DrivingTime, edge_metres, path_metres
-from topodrake.topomap.scan_match import checks_scans, scans_match
+from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
 
 START, GOAL = -1, -2
 #: prices of a metre (added to -log p) tried for a path that fits the time limit
@@ -120,11 +120,32 @@ def matched_first(topomap: TopoMap, groups: list[list[tuple[int, float]]],
     if len(groups) < 2:
         return groups
     vertices = [v for group in groups for v, _ in group]
-    ok = dict(zip(vertices, scans_match(topomap.bank.observations[topomap.centers(vertices)],
-                                        view, topomap.config.scan_match)))
+    ok = dict(zip(vertices, scans_match(vertex_scans(topomap, vertices), view,
+                                        topomap.config.scan_match)))
     matched = [any(ok[v] for v, _ in group) for group in groups]
     return [g for g, hit in zip(groups, matched) if hit] + \
         [g for g, hit in zip(groups, matched) if not hit]
+
+
+def link_scans(topomap: TopoMap, start_obs: np.ndarray, goal_obs: np.ndarray,
+               view_scans=None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The lidar scans (start's, goal's) a plan checks its links by: a lidar
+    map's own views (:func:`checks_scans`); on a camera map that checks its
+    joins by its kept scans (:func:`joins_by_scans`) the ``view_scans`` taken
+    with the two views, where given; None otherwise."""
+    if checks_scans(topomap):
+        return start_obs, goal_obs
+    if view_scans is None or not joins_by_scans(topomap):
+        return None
+    beams = topomap.bank.scans.shape[1]
+    out = []
+    for name, scan in zip(("start", "goal"), view_scans):
+        scan = np.asarray(scan, np.float64)
+        if scan.shape != (beams,):
+            raise TopodrakeError(f"the {name}'s scan must hold {beams} ranges, as the map's "
+                                 f"scans do (got shape {scan.shape})")
+        out.append(scan)
+    return out[0], out[1]
 
 
 def _route_scans(topomap: TopoMap, vertices: list[int]) -> np.ndarray | None:
@@ -168,7 +189,7 @@ def within_time(g, cost: float, path: list, weight, limit_s: float,
 def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation: np.ndarray,
               goal_context: np.ndarray | None = None, start_pose=None, goal_pose=None,
               excluded_edges=(), retrieval_k: int | None = None, time_limit_s: float | None = None,
-              driving: DrivingTime | None = None) -> PlanResult:
+              driving: DrivingTime | None = None, view_scans=None) -> PlanResult:
     """The most probable path from ``start_observation`` to the goal, or
     with ``time_limit_s`` the path most likely to be driven within it
     (:func:`within_time`, the follower's pace ``driving``).
@@ -176,7 +197,10 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
     ``goal_context`` (2k+1, ...) replaces the repeated goal observation as
     the goal's target; ``start_pose``/``goal_pose`` are metadata for the
     route (plots, evaluation); ``excluded_edges``: (u, v) map edges to
-    ignore (a replanning follower's failed ones)."""
+    ignore (a replanning follower's failed ones); ``view_scans``: the lidar
+    scans (start's, goal's) taken with the two views, by which a camera map
+    that keeps its drives' scans checks the links as a lidar map does
+    (:func:`link_scans`)."""
     if time_limit_s is not None and not (math.isfinite(time_limit_s) and time_limit_s > 0):
         raise TopodrakeError(f"the time limit must be a number of seconds > 0, not {time_limit_s}")
     m = topomap
@@ -186,6 +210,7 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
     frames = 2 * m.k + 1
     start_obs = _check_observation(m, start_observation, "start")
     goal_obs = _check_observation(m, goal_observation, "goal")
+    scans = link_scans(m, start_obs, goal_obs, view_scans)
     if goal_context is None:
         goal_context = np.repeat(goal_obs[None], frames, 0)
     goal_context = np.asarray(goal_context)
@@ -215,8 +240,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
             p_direct = min(p_direct, float(m.bank.score([g_rows[0]],
                                                         np.full((1, frames), s_row))[0]))
         links_g = [(int(v), float(p)) for v, p in zip(to_goal, p_goal) if p > m.config.p_link]
-        if checks_scans(m) and p_direct > m.config.p_link \
-                and not scans_match(goal_obs, start_obs, m.config.scan_match)[0]:
+        if scans is not None and p_direct > m.config.p_link \
+                and not scans_match(scans[1], scans[0], m.config.scan_match)[0]:
             p_direct = 0.0      # a look-alike of the goal, not the goal
         result = PlanResult(False, start_links=len(links_s), goal_links=len(links_g))
         if not links_s and p_direct <= m.config.p_link:
@@ -230,8 +255,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         if m.config.link_consensus:     # one place at each end, the most trusted that joins
             starts = link_groups(m, links_s, m.config.link_hops, m.config.link_order) or [[]]
             goals = link_groups(m, links_g, m.config.link_hops, m.config.link_order) or [[]]
-            if checks_scans(m):
-                starts, goals = matched_first(m, starts, start_obs), matched_first(m, goals, goal_obs)
+            if scans is not None:
+                starts, goals = matched_first(m, starts, scans[0]), matched_first(m, goals, scans[1])
             tries = sorted(((i, j) for i in range(len(starts)) for j in range(len(goals))),
                            key=lambda ij: (ij[0] + ij[1], ij))
             choices = [(starts[i], goals[j]) for i, j in tries]

@@ -277,3 +277,14 @@ def drive_observations(world, scorer, poses: np.ndarray) -> np.ndarray:
     from topodrake.sensing.observe import observe
 
     return observe(world, scorer.observation, poses, scorer.sensor)
+
+
+def view_scans(world, topomap, poses: np.ndarray) -> np.ndarray | None:
+    """The lidar scans (N, beams) a camera car takes with its views at
+    ``poses``, where ``topomap`` keeps its drives' scans to check links by
+    (:func:`topodrake.topomap.plan.link_scans`); None for other maps."""
+    if topomap.modality != "camera" or topomap.bank.scans is None:
+        return None
+    from topodrake.sensing.observe import camera_scans
+
+    return camera_scans(world, "camera", poses)
