@@ -316,6 +316,43 @@ def test_a_fresh_anchor_takes_its_prediction_from_the_legs(house, drives, policy
     assert not np.allclose(other, expected, atol=1e-3)
 
 
+def test_a_search_fit_a_neighbouring_anchor_refuses_is_not_taken(house, drives, policy):
+    """Where a corridor repeats, a search can fit one anchor's taught frames
+    metres off; the legs then put the car beside the neighbouring anchor's
+    frames, whose registration fails. A search fit is kept only where a
+    neighbour of the segment within reach registers too."""
+    from dataclasses import replace
+
+    from topodrake.sensing.lidar import Lidar
+    from topodrake.se2 import relative
+
+    poses = drives[0]
+    a, b = 60, 66
+    ctx, _ = _contexts(house, poses, [a, b])
+    elsewhere, _ = _contexts(house, drives[1], [len(drives[1]) // 2])
+    lidar = Lidar(house)
+    legs = (np.array([[0.0, 0.0, 0.0], relative(poses[a][None], poses[b][None])[0]]), np.zeros(2))
+    car = poses[b - 2]
+
+    def search(pol, feats):
+        track = pol.initial_track(1)
+        pol.predict_tracked(np.repeat(lidar.scan(car[None]), 2, 0), feats, track,
+                            np.zeros(2, np.int64), np.array([7, 8]), np.repeat(car[None], 2, 0),
+                            legs=legs)
+        return track[0].reshape(pol.config.slots, -1)[:, 1:4]     # slots: anchor a, anchor b
+
+    same = search(policy, policy.encode_target(ctx))
+    assert np.isfinite(same[1]).all()                   # b found, and a fits there too
+    truth = relative(poses[b][None], car[None])[0]
+    assert np.hypot(*(same[1, :2] - truth[:2])) < 0.1
+    mixed = policy.encode_target(np.concatenate([elsewhere, ctx[1:]]))
+    assert not np.isfinite(search(policy, mixed)[1]).all()     # a's frames refuse the fit
+    off = RegistrationPolicy(replace(policy.config, search_check_m=0.0))
+    assert np.isfinite(search(off, mixed)[1]).all()
+    with pytest.raises(TopodrakeError, match="search_check_m"):
+        RegistrationConfig(search_check_m=-1.0).check()
+
+
 def test_the_handover_settings_leave_the_re_fingerprint_alone():
     """RE's labels come from rollouts toward one target, where the handover
     along a route's legs never acts: an RE stays valid whatever those
@@ -324,7 +361,7 @@ def test_the_handover_settings_leave_the_re_fingerprint_alone():
 
     base = registration_identity(RegistrationPolicy())["sha1"]
     assert registration_identity(RegistrationPolicy(RegistrationConfig(
-        handover=False, handover_m=5.0)))["sha1"] == base
+        handover=False, handover_m=5.0, search_check_m=0.0)))["sha1"] == base
     assert registration_identity(RegistrationPolicy(RegistrationConfig(confirm=2)))["sha1"] != base
     assert registration_identity()["sha1"] == base
 

@@ -122,6 +122,10 @@ class RegistrationConfig:
     handover: bool = True            # with the route's legs: a fresh or lost anchor's prediction
                                      # comes from the anchor tracked best, moved by the legs
     handover_m: float = 2.0          # ... when that anchor's estimate is this recent (m driven)
+    search_check_m: float = 1.0      # with the route's legs: a search fit must also fit the scan
+                                     # to a neighbouring anchor of the segment whose taught frames
+                                     # it puts within this of the car (a corridor that repeats
+                                     # fits one anchor metres off; 0: off)
 
     def check(self) -> "RegistrationConfig":
         if self.k < 0 or self.frame_step < 1:
@@ -135,6 +139,9 @@ class RegistrationConfig:
                                  "confirm >= 1")
         if not (self.agree_m > 0 and self.agree_rad > 0) or any(b <= 0 for b in self.behind_m):
             raise TopodrakeError("registration agree_m, agree_rad and behind_m must be > 0")
+        if not (np.isfinite(self.search_check_m) and self.search_check_m >= 0):
+            raise TopodrakeError(f"registration search_check_m must be >= 0 (0: off), got "
+                                 f"{self.search_check_m}")
         if len(self.odometry_error) != 2 or not all(np.isfinite(self.odometry_error)):
             raise TopodrakeError(f"registration odometry_error must be two finite numbers, got "
                                  f"{self.odometry_error}")
@@ -327,6 +334,11 @@ class RegistrationPolicy:
             b = best[fitted]
             est[fitted] = compose(frames[fitted, jf[b]], res.pose[b])
             pinned[fitted] = res.constraint[b] >= cfg.slide_constraint
+        if legs is not None and cfg.search_check_m > 0 and fitted.any():
+            found = np.flatnonzero(fitted)[js[best[fitted]]]
+            wrong = self._neighbours_refuse(found, est, obs, feats, frames, usable, cars, keys,
+                                            frame_of, seg_of)
+            fitted[wrong], pinned[wrong], est[wrong] = False, False, prior[wrong]
         agree = fitted & (np.hypot(*(est[:, :2] - prior[:, :2]).T) < cfg.agree_m) \
             & (np.abs(_wrap(est[:, 2] - prior[:, 2])) < cfg.agree_rad)
         hits = np.zeros(m)
@@ -373,6 +385,33 @@ class RegistrationPolicy:
             else:
                 waypoint[q], heading[q] = self._approach(track[cars[q]], keys[q], odo[q])
         return WaypointPrediction(waypoint, heading, overlap)
+
+    def _neighbours_refuse(self, found, est, obs, feats, frames, usable, cars, keys,
+                           frame_of, seg_of) -> np.ndarray:
+        """The queries among ``found`` (fitted by search) whose estimate a
+        neighbour refuses: another query of the car toward an anchor of the
+        same segment of the legs, whose taught frames the estimate (carried
+        through the legs) puts within ``search_check_m`` of the car, where
+        the scan does not register onto the nearest of them from there."""
+        cfg = self.config
+        jobs = []                                     # (query, neighbour, frame, guess)
+        for q in found:
+            if seg_of[q] < 0:
+                continue
+            for o in np.flatnonzero((cars == cars[q]) & (keys != keys[q]) & (seg_of == seg_of[q])):
+                guess = compose(relative(frame_of[o][None], frame_of[q][None]), est[q][None])[0]
+                good = np.flatnonzero(usable[o])
+                d = np.hypot(*(frames[o, good, :2] - guess[:2]).T)
+                if good.size and d.min() < cfg.search_check_m:
+                    f = good[np.argmin(d)]
+                    jobs.append((q, o, f, compose(invert(frames[o, f]), guess[None])[0]))
+        if not jobs:
+            return np.zeros(0, np.int64)
+        q, o, f = (np.array([j[i] for j in jobs], np.int64) for i in range(3))
+        sp, sv = scan_points(obs[o], self.sensor)
+        tp, tv = scan_points(feats[o, f, 4:], self.sensor)
+        res = register_points(sp, sv, tp, tv, np.array([j[3] for j in jobs]), len(jobs), cfg.icp)
+        return np.unique(q[~res.accepted])
 
     def _handover(self, prior: np.ndarray, track: np.ndarray, cars: np.ndarray,
                   slot: np.ndarray, odo: np.ndarray) -> None:

@@ -21,10 +21,10 @@ from topodrake.fileio import file_sha1
 REGISTRATION = "registration"
 
 
-#: Registration settings that act only along a route's legs (the handover between anchors),
-#: never in RE's label rollouts toward one target: they stay out of the fingerprint, so an RE
-#: stays valid whatever they are.
-FOLLOWER_ONLY = ("handover", "handover_m")
+#: Registration settings that act only along a route's legs (the handover between anchors, a
+#: search fit checked against a neighbouring anchor), never in RE's label rollouts toward one
+#: target: they stay out of the fingerprint, so an RE stays valid whatever they are.
+FOLLOWER_ONLY = ("handover", "handover_m", "search_check_m")
 
 
 def registration_identity(policy=None) -> dict:
