@@ -191,7 +191,7 @@ def cmd_map_plot(args) -> None:
 
 def cmd_map_plan(args) -> None:
     from topodrake.topomap.plan import plan_path
-    from topodrake.topomap.sources import drive_observations, open_map
+    from topodrake.topomap.sources import drive_observations, open_map, view_scans
 
     check_output(args.plot, "image", force=args.force, option="--plot")
     start, goal = parse_pose(args.start, "start"), parse_pose(args.goal, "goal")
@@ -200,8 +200,10 @@ def cmd_map_plan(args) -> None:
     world.check_pose(start, "start")
     world.check_pose(goal, "goal")
     obs = drive_observations(world, topomap.scorer, np.stack([start, goal]))
+    scans = view_scans(world, topomap, np.stack([start, goal]))
     wall = time.perf_counter()
-    result = plan_path(topomap, obs[0], obs[1], start_pose=start, goal_pose=goal)
+    result = plan_path(topomap, obs[0], obs[1], start_pose=start, goal_pose=goal,
+                       view_scans=None if scans is None else (scans[0], scans[1]))
     query_s = time.perf_counter() - wall
     out = {"path": [int(v) for v in result.vertices], "anchors": anchor_count(result),
            "probability": round(result.probability, 6), "reachable": result.reachable,
