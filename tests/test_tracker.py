@@ -444,3 +444,38 @@ def test_a_sure_tracker_outvotes_a_here_toward_an_anchor_far_away():
             s, _ = drive(ev, s, car, tracked_sure_m=sure)
         visited[sure] = s.visited[0]
     assert visited[0.1] < 2 and visited[0.0] == 2
+
+
+def test_a_sure_tracker_refuses_a_goal_c_wp_calls_reached_short_of_it():
+    """Near a wall C_WP's waypoint toward the goal is short while the goal
+    is still 0.7-0.9 m off, and the follower stopped there; a tracker the
+    scans pin refuses that "here" where it puts the goal farther than
+    ``tracked_goal_m``."""
+    from topodrake.navigation.follower import REACHED
+
+    class ShortAtGoal(Scanned):
+        def __call__(self, cars, anchors, cwp, re):
+            a = super().__call__(cars, anchors, cwp, re)
+            goal = np.asarray(anchors) == len(self.frames) - 1
+            a.waypoint[goal], a.overlap[goal] = [0.1, 0.0], 0.9
+            return a
+
+    modes = {}
+    for limit in (0.5, 0.0):
+        ev = ShortAtGoal(4)
+        car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+        s = FollowerState.initial(1)
+        for x in (0.0, 0.6, 1.2, 1.6, 2.2):            # 0.8 m short of the goal at x = 3
+            car[0] = x
+            s, _ = drive(ev, s, car, tracked_goal_m=limit)
+            if s.mode[0] == REACHED:
+                break
+        modes[limit] = (s.mode[0], car[0])
+    assert modes[0.5][0] != REACHED
+    assert modes[0.0][0] == REACHED                     # C_WP's word alone
+    import pytest
+
+    from topodrake.errors import TopodrakeError
+
+    with pytest.raises(TopodrakeError, match="tracked_goal_m"):
+        FollowerConfig(tracked_goal_m=-1.0).check()

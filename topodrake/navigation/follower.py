@@ -137,7 +137,10 @@ class FollowerConfig:
                                     # ends the route within goal_m of the goal, outvotes
                                     # C_WP's "here" toward an anchor a metre away and ...
     tracked_reach_m: float = 2.5    # ... refuses Dead reckoning an anchor it puts farther than
-                                    # this (RE's look-alike anchors further on; 0: off)
+                                    # this (RE's look-alike anchors further on; 0: off), and ...
+    tracked_goal_m: float = 0.5     # ... refuses C_WP's "at the goal" where it puts the goal
+                                    # farther than this (near a wall C_WP's waypoint is short
+                                    # with the goal still 0.7-0.9 m off; 0: off)
     legs_m: float = 2.0             # a hop without a taught leg (between drives, into the
                                     # goal) takes C_WP's answer from the anchor's own view
                                     # toward the next as its leg, where that waypoint is
@@ -180,6 +183,9 @@ class FollowerConfig:
             raise TopodrakeError(f"follower turn_radius_m must be > 0, got {self.turn_radius_m}")
         if not 0.0 < self.check_deg <= 180.0:
             raise TopodrakeError(f"follower check_deg must be in (0, 180], got {self.check_deg}")
+        if not (np.isfinite(self.tracked_goal_m) and self.tracked_goal_m >= 0.0):
+            raise TopodrakeError(f"follower tracked_goal_m must be >= 0 (0: off), got "
+                                 f"{self.tracked_goal_m}")
         if not (self.tracked_reach_m >= 0.0 and self.tracked_sure_m >= 0.0):
             raise TopodrakeError(f"follower tracked_reach_m and tracked_sure_m must be >= 0 "
                                  f"(0: off), got {self.tracked_reach_m} and "
@@ -452,8 +458,10 @@ def _follow(per: _Period, f: np.ndarray) -> None:
     there = (((prox > cfg.p_visited) & ((length < cfg.visit_m) | passed))
              | ((prox > cfg.p_visited_close) & (length < cfg.visit_m) & nearest))
     there = np.where(last, _at_goal(prox, length, cfg), there)
-    # (not where a sure tracker puts the anchor a metre or more away: C_WP's wrong "here")
-    there &= ~_tracked_far(per, f[rows], anchors, TRACKED_PASS_M)
+    # (not where a sure tracker puts the anchor a metre or more away, the goal more than
+    # tracked_goal_m: C_WP's wrong "here")
+    there &= ~np.where(last, _tracked_far(per, f[rows], anchors, cfg.tracked_goal_m),
+                       _tracked_far(per, f[rows], anchors, TRACKED_PASS_M))
     visited = start.copy()
     for m in np.flatnonzero(there):
         visited[rows[m]] = max(visited[rows[m]], anchors[m])
@@ -542,7 +550,8 @@ def _dead_reckoning(per: _Period, d: np.ndarray) -> None:
     near = stay[new.visited[stay] + cfg.lookahead >= n_anchors[stay] - 1]
     if near.size:
         ans = evaluate(near, n_anchors[near] - 1, True, False)
-        home = near[_at_goal(ans.overlap.mean(axis=1), np.hypot(*ans.waypoint.T), cfg)]
+        home = near[_at_goal(ans.overlap.mean(axis=1), np.hypot(*ans.waypoint.T), cfg)
+                    & ~_tracked_far(per, near, n_anchors[near] - 1, cfg.tracked_goal_m)]
         new.visited[home] = n_anchors[home] - 1
         new.mode[home] = REACHED
         stay = stay[new.mode[stay] == DEAD_RECKONING]
