@@ -3,7 +3,9 @@
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
+from topodrake.errors import TopodrakeError
 from topodrake.navigation.follower import (DEAD_RECKONING, FOLLOW, Answers, FollowerConfig,
                                            FollowerState, follower_step)
 from topodrake.navigation.tracker import (TrackerConfig, anchor_in_car, diagonal_cov, fix, fix_pose,
@@ -104,6 +106,16 @@ def drive(ev, state, car, **cfg):
     ev.car = car[None, :3]
     return follower_step(state, np.array([len(ev.frames)]), car[None], ev,
                          FollowerConfig(**cfg))
+
+
+def drive_along(ev, xs, **cfg):
+    """The follower's state after driving a fresh car along x = ``xs``."""
+    car = np.zeros(5)
+    s = FollowerState.initial(1)
+    for x in xs:
+        car[0] = x
+        s, _ = drive(ev, s, car, **cfg)
+    return s
 
 
 def test_the_follower_replaces_a_waypoint_that_disagrees_with_the_tracked_anchor():
@@ -434,15 +446,8 @@ def test_a_sure_tracker_outvotes_a_here_toward_an_anchor_far_away():
             a.waypoint[far], a.overlap[far] = [0.1, 0.0], 0.9      # "here", 1.4 m short of it
             return a
 
-    visited = {}
-    for sure in (0.1, 0.0):
-        ev = Here(6)
-        car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
-        s = FollowerState.initial(1)
-        for x in (0.0, 0.3, 0.6):
-            car[0] = x
-            s, _ = drive(ev, s, car, tracked_sure_m=sure)
-        visited[sure] = s.visited[0]
+    visited = {sure: drive_along(Here(6), (0.0, 0.3, 0.6), tracked_sure_m=sure).visited[0]
+               for sure in (0.1, 0.0)}
     assert visited[0.1] < 2 and visited[0.0] == 2
 
 
@@ -460,22 +465,9 @@ def test_a_sure_tracker_refuses_a_goal_c_wp_calls_reached_short_of_it():
             a.waypoint[goal], a.overlap[goal] = [0.1, 0.0], 0.9
             return a
 
-    modes = {}
-    for limit in (0.5, 0.0):
-        ev = ShortAtGoal(4)
-        car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
-        s = FollowerState.initial(1)
-        for x in (0.0, 0.6, 1.2, 1.6, 2.2):            # 0.8 m short of the goal at x = 3
-            car[0] = x
-            s, _ = drive(ev, s, car, tracked_goal_m=limit)
-            if s.mode[0] == REACHED:
-                break
-        modes[limit] = (s.mode[0], car[0])
-    assert modes[0.5][0] != REACHED
-    assert modes[0.0][0] == REACHED                     # C_WP's word alone
-    import pytest
-
-    from topodrake.errors import TopodrakeError
-
+    modes = {limit: drive_along(ShortAtGoal(4), (0.0, 0.6, 1.2, 1.6, 2.2),   # 0.8 m short
+                                tracked_goal_m=limit).mode[0] for limit in (0.5, 0.0)}
+    assert modes[0.5] != REACHED
+    assert modes[0.0] == REACHED                        # C_WP's word alone
     with pytest.raises(TopodrakeError, match="tracked_goal_m"):
         FollowerConfig(tracked_goal_m=-1.0).check()

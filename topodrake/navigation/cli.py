@@ -102,7 +102,7 @@ class MapPlanner:
         scans = view_scans(self.world, self.topomap, poses)
         return plan_path(self.topomap, obs[0], obs[1], start_pose=start, goal_pose=goal,
                          excluded_edges=excluded_edges, time_limit_s=time_limit_s,
-                         view_scans=None if scans is None else (scans[0], scans[1]))
+                         view_scans=scans)
 
 
 def success_chance(planner: MapPlanner | None, route) -> float | None:

@@ -203,7 +203,7 @@ def cmd_map_plan(args) -> None:
     scans = view_scans(world, topomap, np.stack([start, goal]))
     wall = time.perf_counter()
     result = plan_path(topomap, obs[0], obs[1], start_pose=start, goal_pose=goal,
-                       view_scans=None if scans is None else (scans[0], scans[1]))
+                       view_scans=scans)
     query_s = time.perf_counter() - wall
     out = {"path": [int(v) for v in result.vertices], "anchors": anchor_count(result),
            "probability": round(result.probability, 6), "reachable": result.reachable,
