@@ -198,8 +198,9 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
     the goal's target; ``start_pose``/``goal_pose`` are metadata for the
     route (plots, evaluation); ``excluded_edges``: (u, v) map edges to
     ignore (a replanning follower's failed ones); ``view_scans``: the lidar
-    scans (start's, goal's; a pair or a (2, beams) array) taken with the two views, by which a camera map
-    that keeps its drives' scans checks the links as a lidar map does
+    scans (start's, goal's; a pair or a (2, beams) array) taken with the
+    two views, by which a camera map that keeps its drives' scans checks
+    the links as a lidar map does
     (:func:`link_scans`)."""
     if time_limit_s is not None and not (math.isfinite(time_limit_s) and time_limit_s > 0):
         raise TopodrakeError(f"the time limit must be a number of seconds > 0, not {time_limit_s}")
