@@ -227,7 +227,8 @@ def test_a_lidar_map_reuses_only_vertices_its_scans_place(three_drives, monkeypa
     placed = build()
     assert MapConfig().reuse_pinned and joins(placed)         # beside drive 0: pinned, reused
     assert all("leg" in d for d in joins(placed))
-    monkeypatch.setattr(build_module, "_pinned_poses", lambda source, target: [None] * len(source))
+    monkeypatch.setattr(build_module, "_pinned_poses",
+                        lambda source, target, config=None: [None] * len(source))
     sliding = build()
     assert not joins(sliding)                                 # nothing pins: nothing reused
     assert all(_traj(sliding, v) == 1 for v in sliding.trajectories[1].chain)

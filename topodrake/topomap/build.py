@@ -29,6 +29,10 @@ For each new drive, from its observations only:
    **sequence matched**: the minimum RE over the aligned chain neighbours up
    to ``sequence_window`` anchors either side (where both chains have them)
    must exceed ``p_edge`` too. An edge keeps the single pair's RE as its p.
+   On a map that places joins by scans (:func:`places_by_scans`) with
+   ``cross_legs``, it carries x's pose in the other's frame where
+   registering the two scans pins it (:func:`join_legs`), so the
+   follower tracks the car across the hop as along a drive.
 5. **Junction edges** where drives meet at their ends: a drive's last
    vertex (an arrival) -> another's first (a departure from the same
    place), when RE passes ``p_join`` both ways (the pair's views agree
@@ -204,11 +208,7 @@ def _junction_legs(m: TopoMap, us: np.ndarray, xs: np.ndarray) -> list:
     fit pins the translation; the path a straight line), else (None, None)."""
     if not places_by_scans(m) or not len(us) or m.config.teach_odometry == "none":
         return [(None, None)] * len(us)
-    from topodrake.navigation.route import LEG_POINTS
-
-    poses = _pinned_poses(vertex_scans(m, xs), vertex_scans(m, us))
-    return [(None, None) if leg is None else
-            (leg, np.linspace(0.0, 1.0, LEG_POINTS)[:, None] * leg[None]) for leg in poses]
+    return join_legs(vertex_scans(m, xs), vertex_scans(m, us), None)
 
 
 def drive_odometry(kind: str, poses, seed: int) -> np.ndarray | None:
@@ -271,19 +271,45 @@ def _reuse_offsets(m: TopoMap, scans, chain, anchors) -> dict:
     return {i: pose for i, pose in zip(pos, poses) if pose is not None}
 
 
-def _pinned_poses(source, target) -> list:
+def _pinned_poses(source, target, config=None) -> list:
     """Each lidar scan of ``source`` registered onto the scan of ``target``
-    beside it: its pose in that scan's frame (3,), or None where the fit is
-    rejected or does not pin the translation (a corridor slides)."""
+    beside it (from the identity; ``config``: the ICP settings, default
+    :class:`~topodrake.registration.icp.IcpConfig`): its pose in that
+    scan's frame (3,), or None where the fit is rejected or does not pin
+    the translation (a corridor slides)."""
     from topodrake.registration.icp import register
 
-    res = register(np.asarray(source, np.float64), np.asarray(target, np.float64))
+    if not len(source):
+        return []
+    res = register(np.asarray(source, np.float64), np.asarray(target, np.float64), None, config)
     good = res.accepted & (res.constraint >= REUSE_PINNED)
     return [pose if ok else None for pose, ok in zip(res.pose, good)]
 
 
 #: a reused vertex's registration must pin the translation this well (corridors slide)
 REUSE_PINNED = 0.05
+
+
+def join_icp():
+    """ICP settings that place the two ends of a join (a cross edge, the goal
+    link) from the identity: the ends lie up to a few metres and half a
+    right angle apart, farther than a reuse's."""
+    from topodrake.registration.icp import IcpConfig
+
+    return IcpConfig(gate_m=1.0, max_shift_m=2.5, max_turn_rad=0.8)
+
+
+def join_legs(source_scans, target_scans, config="join") -> list:
+    """(leg, leg path) of each join target -> source where registering the
+    source's scan onto the target's pins it (:func:`_pinned_poses` with
+    ``config``, by default :func:`join_icp`; the path a straight line),
+    else (None, None)."""
+    from topodrake.navigation.route import LEG_POINTS
+
+    line = np.linspace(0.0, 1.0, LEG_POINTS)[:, None]
+    icp = join_icp() if config == "join" else config
+    return [(None, None) if leg is None else (leg, line * leg[None])
+            for leg in _pinned_poses(source_scans, target_scans, icp)]
 
 
 def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,
@@ -512,8 +538,12 @@ def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[in
         ok = scans_match(obs[m.centers(pairs[:, 1])], obs[m.centers(pairs[:, 0])],
                          m.config.scan_match)
         edges = {key: p for (key, p), keep in zip(edges.items(), ok) if keep}
-    for (u, v), p in edges.items():
-        m.add_edge(u, v, p, "cross")
+    legs = [(None, None)] * len(edges)
+    if edges and cfg.cross_legs and places_by_scans(m) and cfg.teach_odometry != "none":
+        us, vs = np.array(list(edges), np.int64).T
+        legs = join_legs(vertex_scans(m, vs), vertex_scans(m, us))
+    for ((u, v), p), (leg, path) in zip(edges.items(), legs):
+        m.add_edge(u, v, p, "cross", leg, path)
     stats.cross_edges += len(edges)
     if audit:
         everyone = [m.index.ids[~np.isin(m.index.ids, ex)] for ex in excludes]

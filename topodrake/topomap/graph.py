@@ -18,7 +18,9 @@ frame; ``leg_path``: ``LEG_POINTS`` poses along the hop), a relative
 transform as a real robot measures it, never an absolute pose; at a vertex
 another drive placed (reuse), a lidar map registers that vertex's scan onto
 the drive's to place it, as does a camera map that keeps its drives' lidar
-scans (``camera_legs``), and other maps leave the hop without. A planned
+scans (``camera_legs``), and other maps leave the hop without. Such maps
+give a cross edge (``cross_legs``) and a junction the pose that
+registering the two vertices' scans finds, where the fit pins it. A planned
 route hands the legs to the follower.
 """
 
@@ -44,7 +46,7 @@ TEACH_ODOMETRY = ("wheel", "perfect", "none")
 #: before: a stored config without them reads as these values
 LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False,
                   "camera_scans": False, "camera_legs": False, "loop_check_m": 0.0,
-                  "loop_check_per_m": 0.1, "reuse_pinned": False}
+                  "loop_check_per_m": 0.1, "reuse_pinned": False, "cross_legs": False}
 
 
 #: settings only a lidar map reads (a map of another modality is built alike whatever they say)
@@ -52,7 +54,7 @@ LIDAR_ONLY = ("scan_match_cross", "reuse_pinned")
 #: settings only a camera map reads
 CAMERA_ONLY = ("camera_scans", "camera_legs")
 #: settings only planning reads, not building (a map is built alike whatever they say)
-PLAN_ONLY = ("link_order", "direct_check")
+PLAN_ONLY = ("link_order", "direct_check", "goal_leg")
 LINK_ORDERS = ("probability", "support")
 
 
@@ -134,6 +136,13 @@ class MapConfig:
     reuse_pinned: bool = True    # lidar maps: reuse only a vertex whose scan registers onto the
                                  # drive's pinning the translation, so every hop into and out of
                                  # it keeps a leg (and the loop check can see it)
+    cross_legs: bool = True      # maps that place joins by scans (lidar; camera with
+                                 # camera_legs): a cross edge carries the pose its scans
+                                 # register to, where the fit pins it (a hop between drives
+                                 # the follower can then track across)
+    goal_leg: bool = True        # planning, on such maps: the hop into the goal carries the
+                                 # pose the goal view's scan registers to on the last vertex's,
+                                 # where the fit pins it
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):
@@ -150,7 +159,8 @@ class MapConfig:
                 raise TopodrakeError(f"{where}: {name} must be one of {', '.join(choices)}, "
                                      f"got {getattr(self, name)!r}")
         for name in ("link_consensus", "direct_check", "join_ends", "scan_match_cross",
-                     "reuse_legs", "camera_scans", "camera_legs", "reuse_pinned"):
+                     "reuse_legs", "camera_scans", "camera_legs", "reuse_pinned", "cross_legs",
+                     "goal_leg"):
             if not isinstance(getattr(self, name), bool):
                 raise TopodrakeError(f"{where}: {name} must be true or false, got "
                                      f"{getattr(self, name)!r}")
@@ -252,8 +262,9 @@ class TopoMap:
                  leg_path: np.ndarray | None = None) -> None:
         """Add u -> v; an existing edge keeps the larger probability and its
         leg, and a trajectory edge is never demoted to a cross edge.
-        ``leg`` (3,) and ``leg_path`` (LEG_POINTS, 3): the drive's odometry
-        over the hop (trajectory edges only)."""
+        ``leg`` (3,) and ``leg_path`` (LEG_POINTS, 3): v's pose in u's frame
+        and the path there (the drive's odometry over a trajectory edge; the
+        scans' registration over a join)."""
         if kind not in EDGE_KINDS:
             raise ValueError(f"edge kind must be one of {EDGE_KINDS}")
         if u == v:
@@ -261,7 +272,7 @@ class TopoMap:
         p = float(min(max(p, 1e-12), 1.0))
         old = self.graph.get_edge_data(u, v)
         extra = {}
-        if leg is not None and np.all(np.isfinite(leg)) and kind in ("trajectory", "junction"):
+        if leg is not None and np.all(np.isfinite(leg)):
             extra = {"leg": np.asarray(leg, np.float64).reshape(3),
                      "leg_path": np.asarray(leg_path, np.float64).reshape(LEG_POINTS, 3)}
         if old is not None:
@@ -275,7 +286,7 @@ class TopoMap:
     def legs(self, vertices) -> tuple[np.ndarray, np.ndarray]:
         """The drives' odometry between consecutive ``vertices`` of a path:
         legs (n - 1, 3) and leg paths (n - 1, LEG_POINTS, 3), NaN where the
-        edge carries none (a cross edge, or one to or from a reused vertex)."""
+        edge carries none (a join or a reuse its scans could not place)."""
         n = max(len(vertices) - 1, 0)
         legs, paths = np.full((n, 3), np.nan), np.full((n, LEG_POINTS, 3), np.nan)
         for i, (u, v) in enumerate(zip(vertices[:-1], vertices[1:])):

@@ -19,7 +19,10 @@ plan jump there. On a lidar map with ``scan_match`` the groups with a
 vertex whose scan registers onto the view come first
 (:func:`matched_first`), and a direct start-goal link needs the two scans
 to match. With ``direct_check`` a direct start-goal link also needs the
-start's and the goal's links to be one place (:func:`one_place`).
+start's and the goal's links to be one place (:func:`one_place`). The
+route's hops keep the map's legs; on a map that places joins by scans,
+with ``goal_leg``, the hop into the goal gets the pose the goal's scan
+registers to on the last vertex's, where the fit pins it.
 Dijkstra on the edge weights -log p gives the most probable path; its
 probability is exp(-cost). Given a time limit, the plan is the path most
 likely to be driven within it: the most probable path, or where that one
@@ -146,6 +149,23 @@ def link_scans(topomap: TopoMap, start_obs: np.ndarray, goal_obs: np.ndarray,
                                  f"scans do (got shape {scan.shape})")
         out.append(scan)
     return out[0], out[1]
+
+
+def _goal_leg(topomap: TopoMap, vertices: list[int], goal_scan, legs: np.ndarray,
+              leg_paths: np.ndarray) -> None:
+    """Sets the last hop's leg (into the goal view) in place where the map
+    places joins by scans (``goal_leg``) and the goal's scan registers onto
+    the last vertex's, pinning the pose."""
+    from topodrake.topomap.build import join_legs, places_by_scans
+
+    cfg = topomap.config
+    if not (cfg.goal_leg and vertices and goal_scan is not None and places_by_scans(topomap)
+            and cfg.teach_odometry != "none"):
+        return
+    (leg, path), = join_legs(np.asarray(goal_scan, np.float64)[None],
+                             vertex_scans(topomap, vertices[-1:]))
+    if leg is not None:
+        legs[-1], leg_paths[-1] = leg, path
 
 
 def _route_scans(topomap: TopoMap, vertices: list[int]) -> np.ndarray | None:
@@ -290,8 +310,11 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
                                                      driving or DrivingTime())
         probs = [g.edges[u, v]["p"] for u, v in zip(path[:-1], path[1:])]
         vertices = [int(v) for v in path[1:-1]]
-        # the drives' odometry between the map's anchors; none into the goal view
+        # the drives' odometry between the map's anchors; into the goal view, its scan's
+        # registration onto the last vertex's
         legs, leg_paths = m.legs(vertices + [GOAL])
+        goal_scan = scans[1] if scans is not None else goal_obs if m.modality == "lidar" else None
+        _goal_leg(m, vertices, goal_scan, legs, leg_paths)
         route = Route(
             contexts=np.concatenate([m.bank.observations[m.contexts(vertices)],
                                      goal_context[None]]) if vertices else goal_context[None],
