@@ -228,7 +228,7 @@ def test_a_lidar_map_reuses_only_vertices_its_scans_place(three_drives, monkeypa
     assert MapConfig().reuse_pinned and joins(placed)         # beside drive 0: pinned, reused
     assert all("leg" in d for d in joins(placed))
     monkeypatch.setattr(build_module, "_pinned_poses",
-                        lambda source, target, config=None: [None] * len(source))
+                        lambda source, target, *settings: [None] * len(source))
     sliding = build()
     assert not joins(sliding)                                 # nothing pins: nothing reused
     assert all(_traj(sliding, v) == 1 for v in sliding.trajectories[1].chain)
@@ -346,3 +346,59 @@ def test_cross_edges_need_the_scans_to_match_where_asked(three_drives):
     # RE and sequence matching join the look-alike drive 1 to drive 0; its scans do not
     assert (0, 1) in kinds[False] and (0, 2) in kinds[False]
     assert (0, 1) not in kinds[True] and (1, 2) not in kinds[True] and (0, 2) in kinds[True]
+
+
+def _cross(m, a, b):
+    return [d for u, v, d in m.graph.edges(data=True) if d["kind"] == "cross"
+            and {_traj(m, u), _traj(m, v)} == {a, b}]
+
+
+def test_cross_edges_carry_the_pose_their_scans_register_to(three_drives):
+    """A cross edge between drives at one place carries the far vertex's pose
+    in the near one's frame, from the scans (the follower tracks the car
+    across it); one to the look-alike room 5 m away gets none."""
+    from topodrake.se2 import relative
+
+    scans, poses, frames = three_drives
+
+    def build(**config):
+        m = _scan_map(frames, reuse=False, join_ends=False, **config)
+        for d in (0, 1, 2):
+            add_trajectory(m, scans[d], poses[d])
+        return m
+
+    m = build()
+    beside = _cross(m, 0, 2)
+    assert MapConfig().cross_legs and beside and all("leg" in d for d in beside)
+    for u, v, d in m.graph.edges(data=True):
+        if d["kind"] == "cross" and {_traj(m, u), _traj(m, v)} == {0, 2}:
+            truth = relative(m.pose([u]), m.pose([v]))[0]
+            assert np.hypot(*(d["leg"][:2] - truth[:2])) < 0.05
+            assert abs(d["leg"][2] - truth[2]) < 0.05
+    alike = _cross(m, 0, 1)
+    assert alike and not any("leg" in d for d in alike)       # RE joins them; the scans cannot
+    assert not any("leg" in d for d in _cross(build(cross_legs=False), 0, 2))
+    with pytest.raises(TopodrakeError, match="cross_legs"):
+        MapConfig(cross_legs=1).validate()
+
+
+def test_the_hop_into_the_goal_carries_the_goal_scan_s_pose(three_drives):
+    """The goal view is no map vertex; its scan registered onto the last
+    vertex's places it, so the follower's tracker holds into the goal."""
+    from dataclasses import replace
+
+    from topodrake.se2 import relative
+    from topodrake.topomap.plan import plan_path
+
+    scans, poses, frames = three_drives
+    m = _scan_map(frames, reuse=False, join_ends=False)
+    add_trajectory(m, scans[0], poses[0])
+    goal_pose = poses[2][6]                            # 5 cm beside drive 0's frame 6
+    plan = plan_path(m, scans[0][0], scans[2][6], goal_pose=goal_pose)
+    assert plan.reachable
+    last = plan.vertices[-1]
+    truth = relative(m.pose([last]), goal_pose[None])[0]
+    leg = plan.route.legs[-1]
+    assert np.hypot(*(leg[:2] - truth[:2])) < 0.05
+    m.config = replace(m.config, goal_leg=False)
+    assert np.isnan(plan_path(m, scans[0][0], scans[2][6]).route.legs[-1]).all()

@@ -271,18 +271,20 @@ def _reuse_offsets(m: TopoMap, scans, chain, anchors) -> dict:
     return {i: pose for i, pose in zip(pos, poses) if pose is not None}
 
 
-def _pinned_poses(source, target, config=None) -> list:
+def _pinned_poses(source, target, config=None, share: float = 0.0) -> list:
     """Each lidar scan of ``source`` registered onto the scan of ``target``
     beside it (from the identity; ``config``: the ICP settings, default
     :class:`~topodrake.registration.icp.IcpConfig`): its pose in that
-    scan's frame (3,), or None where the fit is rejected or does not pin
-    the translation (a corridor slides)."""
+    scan's frame (3,), or None where the fit is rejected, pairs less than
+    ``share`` of either scan's points, or does not pin the translation (a
+    corridor slides)."""
     from topodrake.registration.icp import register
 
     if not len(source):
         return []
     res = register(np.asarray(source, np.float64), np.asarray(target, np.float64), None, config)
-    good = res.accepted & (res.constraint >= REUSE_PINNED)
+    good = res.accepted & (res.constraint >= REUSE_PINNED) \
+        & (np.minimum(res.inlier, res.inlier_back) >= share)
     return [pose if ok else None for pose, ok in zip(res.pose, good)]
 
 
@@ -299,17 +301,23 @@ def join_icp():
     return IcpConfig(gate_m=1.0, max_shift_m=2.5, max_turn_rad=0.8)
 
 
+#: a join's fit must pair this share of both scans' points (the wider search of
+#: :func:`join_icp` fits rooms metres apart that share a wall or two at 0.6-0.7)
+JOIN_SHARE = 0.7
+
+
 def join_legs(source_scans, target_scans, config="join") -> list:
     """(leg, leg path) of each join target -> source where registering the
     source's scan onto the target's pins it (:func:`_pinned_poses` with
-    ``config``, by default :func:`join_icp`; the path a straight line),
-    else (None, None)."""
+    ``config``, by default :func:`join_icp` and :data:`JOIN_SHARE`; the
+    path a straight line), else (None, None)."""
     from topodrake.navigation.route import LEG_POINTS
 
     line = np.linspace(0.0, 1.0, LEG_POINTS)[:, None]
-    icp = join_icp() if config == "join" else config
-    return [(None, None) if leg is None else (leg, line * leg[None])
-            for leg in _pinned_poses(source_scans, target_scans, icp)]
+    join = config == "join"
+    poses = _pinned_poses(source_scans, target_scans, join_icp() if join else config,
+                          JOIN_SHARE if join else 0.0)
+    return [(None, None) if leg is None else (leg, line * leg[None]) for leg in poses]
 
 
 def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,
