@@ -146,8 +146,9 @@ def encode_routes(routes, policy, reach, route_k: int | None = None,
 
 def cwp_legs(routes, policy, features, offsets: np.ndarray, route_k: int | None,
              max_m: float) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each route's (legs, leg paths), its hops without a taught leg (a
-    cross edge, a reused vertex, the goal link: NaN) filled with C_WP's
+    """Each route's (legs, leg paths), its hops without a leg (a join, a
+    reuse or the goal link the scans did not place, or any of them on a
+    map without scans: NaN) filled with C_WP's
     answer from the anchor's own view toward the next anchor: the waypoint
     as the next anchor's position and the heading head as its heading,
     where that waypoint is shorter than ``max_m`` (farther, C_WP's waypoint

@@ -141,8 +141,8 @@ class FollowerConfig:
     tracked_goal_m: float = 0.5     # ... refuses C_WP's "at the goal" where it puts the goal
                                     # farther than this (near a wall C_WP's waypoint is short
                                     # with the goal still 0.7-0.9 m off; 0: off)
-    legs_m: float = 2.0             # a hop without a taught leg (between drives, into the
-                                    # goal) takes C_WP's answer from the anchor's own view
+    legs_m: float = 2.0             # a hop without a leg (a join or goal link the scans did
+                                    # not place) takes C_WP's answer from the anchor's own view
                                     # toward the next as its leg, where that waypoint is
                                     # shorter than this (0: off; the tracker then starts
                                     # again after such a hop)

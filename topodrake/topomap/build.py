@@ -208,7 +208,7 @@ def _junction_legs(m: TopoMap, us: np.ndarray, xs: np.ndarray) -> list:
     fit pins the translation; the path a straight line), else (None, None)."""
     if not places_by_scans(m) or not len(us) or m.config.teach_odometry == "none":
         return [(None, None)] * len(us)
-    return join_legs(vertex_scans(m, xs), vertex_scans(m, us), None)
+    return join_legs(vertex_scans(m, xs), vertex_scans(m, us), wide=False)
 
 
 def drive_odometry(kind: str, poses, seed: int) -> np.ndarray | None:
@@ -306,17 +306,16 @@ def join_icp():
 JOIN_SHARE = 0.7
 
 
-def join_legs(source_scans, target_scans, config="join") -> list:
+def join_legs(source_scans, target_scans, wide: bool = True) -> list:
     """(leg, leg path) of each join target -> source where registering the
-    source's scan onto the target's pins it (:func:`_pinned_poses` with
-    ``config``, by default :func:`join_icp` and :data:`JOIN_SHARE`; the
-    path a straight line), else (None, None)."""
+    source's scan onto the target's pins it (:func:`_pinned_poses`; with
+    ``wide`` the search of :func:`join_icp` held to :data:`JOIN_SHARE`, else
+    a reuse's; the path a straight line), else (None, None)."""
     from topodrake.navigation.route import LEG_POINTS
 
     line = np.linspace(0.0, 1.0, LEG_POINTS)[:, None]
-    join = config == "join"
-    poses = _pinned_poses(source_scans, target_scans, join_icp() if join else config,
-                          JOIN_SHARE if join else 0.0)
+    poses = _pinned_poses(source_scans, target_scans, join_icp() if wide else None,
+                          JOIN_SHARE if wide else 0.0)
     return [(None, None) if leg is None else (leg, line * leg[None]) for leg in poses]
 
 
