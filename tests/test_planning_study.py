@@ -482,6 +482,10 @@ def test_a_map_written_before_a_setting_it_reads_is_not_the_default_map():
     assert not same_config(other_legs, MapConfig(), lidar=False)
     assert not same_config({**camera, "p_join": 0.5}, MapConfig(), lidar=False)
     assert not same_config(None, MapConfig(), lidar=False)
+    # a pose oracle map keeps no scans: a setting only maps with scans read leaves it alike
+    before_cross_legs = {**camera, "cross_legs": False}
+    assert not same_config(before_cross_legs, MapConfig(), lidar=False)
+    assert same_config(before_cross_legs, MapConfig(), lidar=False, scans=False)
 
 
 def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):

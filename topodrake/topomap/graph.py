@@ -53,28 +53,33 @@ LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False
 LIDAR_ONLY = ("scan_match_cross", "reuse_pinned")
 #: settings only a camera map reads
 CAMERA_ONLY = ("camera_scans", "camera_legs")
+#: settings only maps that keep lidar scans read (a pose oracle map keeps none)
+SCANS_ONLY = ("cross_legs",)
 #: settings only planning reads, not building (a map is built alike whatever they say)
 PLAN_ONLY = ("link_order", "direct_check", "goal_leg")
 LINK_ORDERS = ("probability", "support")
 
 
-def same_config(stored, config: "MapConfig", lidar: bool = True) -> bool:
+def same_config(stored, config: "MapConfig", lidar: bool = True, scans: bool = True) -> bool:
     """Whether a map file's stored config is ``config`` (the settings it
     predates read as :data:`LATER_DEFAULTS`), as far as building reads them
     (:func:`map_settings`: neither the :data:`PLAN_ONLY` settings count nor
     those of the other kind of map)."""
     if not isinstance(stored, dict):
         return False
-    return map_settings({**LATER_DEFAULTS, **stored}, lidar) == map_settings(asdict(config), lidar)
+    return map_settings({**LATER_DEFAULTS, **stored}, lidar, scans) \
+        == map_settings(asdict(config), lidar, scans)
 
 
-def map_settings(config: dict, lidar: bool = True) -> dict:
+def map_settings(config: dict, lidar: bool = True, scans: bool = True) -> dict:
     """The settings of a map config (as a dict) that building a map of its
     kind reads: without the :data:`PLAN_ONLY` ones, nor the
     :data:`LIDAR_ONLY` ones where it is not a lidar map, nor the
-    :data:`CAMERA_ONLY` ones where it is one. (A scan_match set for a pose
-    oracle map counts too: harmless, it only names another cached map.)"""
-    other = CAMERA_ONLY if lidar else LIDAR_ONLY
+    :data:`CAMERA_ONLY` ones where it is one, nor the :data:`SCANS_ONLY`
+    ones where it keeps no scans (a pose oracle map). (A scan_match set for
+    a pose oracle map counts too: harmless, it only names another cached
+    map.)"""
+    other = (CAMERA_ONLY if lidar else LIDAR_ONLY) + (() if scans else SCANS_ONLY)
     return {k: v for k, v in config.items() if k not in PLAN_ONLY and k not in other}
 
 

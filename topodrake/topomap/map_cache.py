@@ -47,18 +47,20 @@ def house_drives(spec: str, data: Path, progress: bool) -> list:
 def config_tag(tag: str, config, modality: str = "lidar") -> str:
     """``tag`` for a map of the default config; with a digest of ``config``
     appended for any other, so that each config keeps its own maps. A map
-    of a ``modality`` other than lidar ignores the lidar-only settings."""
+    of a ``modality`` other than lidar ignores the lidar-only settings, and
+    a pose oracle map the ones only maps with scans read."""
     from topodrake.topomap.graph import MapConfig, map_settings, same_config
 
-    lidar = _is_lidar(modality)
-    if config is None or same_config(asdict(config), MapConfig(), lidar):
+    kind = _kind(modality)
+    if config is None or same_config(asdict(config), MapConfig(), **kind):
         return tag
-    settings = map_settings(asdict(config), lidar)
+    settings = map_settings(asdict(config), **kind)
     return f"{tag}-cfg{zlib.crc32(json.dumps(settings, sort_keys=True).encode()):08x}"
 
 
-def _is_lidar(modality: str) -> bool:
-    return modality in ("lidar", "lidar_reg")
+def _kind(modality: str) -> dict:
+    """What a map of ``modality`` is, as :func:`~topodrake.topomap.graph.map_settings` asks."""
+    return {"lidar": modality in ("lidar", "lidar_reg"), "scans": modality != "oracle"}
 
 
 def map_path(data: Path, key: str, modality: str, tag: str) -> Path:
@@ -82,7 +84,7 @@ def _adoptable(candidate: Path, world: str, modality: str, names: list[str]) -> 
     except TopodrakeError:
         return False
     return (meta.get("world") == world and meta.get("modality") == modality
-            and same_config(meta.get("config"), MapConfig(), _is_lidar(modality))
+            and same_config(meta.get("config"), MapConfig(), **_kind(modality))
             and [t["name"] for t in meta.get("trajectories", [])] == names)
 
 
@@ -116,7 +118,7 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
             raise TopodrakeError(f"{path} holds other drives than {len(names)} of "
                                  f"{key}; delete it to rebuild")
         # the config as written (settings a map predates read as LATER_DEFAULTS)
-        same = same_config(read_map_meta(path).get("config"), config, _is_lidar(modality))
+        same = same_config(read_map_meta(path).get("config"), config, **_kind(modality))
         scanned = m.modality != "camera" or m.bank.scans is not None
         if same and scanned:
             # planning settings are the caller's, not the file's
