@@ -349,7 +349,8 @@ def test_cross_edges_need_the_scans_to_match_where_asked(three_drives):
 
 
 def _cross(m, a, b):
-    return [d for u, v, d in m.graph.edges(data=True) if d["kind"] == "cross"
+    """The cross edges (u, v, data) between drives ``a`` and ``b``."""
+    return [(u, v, d) for u, v, d in m.graph.edges(data=True) if d["kind"] == "cross"
             and {_traj(m, u), _traj(m, v)} == {a, b}]
 
 
@@ -369,15 +370,14 @@ def test_cross_edges_carry_the_pose_their_scans_register_to(three_drives):
 
     m = build()
     beside = _cross(m, 0, 2)
-    assert MapConfig().cross_legs and beside and all("leg" in d for d in beside)
-    for u, v, d in m.graph.edges(data=True):
-        if d["kind"] == "cross" and {_traj(m, u), _traj(m, v)} == {0, 2}:
-            truth = relative(m.pose([u]), m.pose([v]))[0]
-            assert np.hypot(*(d["leg"][:2] - truth[:2])) < 0.05
-            assert abs(d["leg"][2] - truth[2]) < 0.05
+    assert MapConfig().cross_legs and beside and all("leg" in d for _, _, d in beside)
+    for u, v, d in beside:
+        truth = relative(m.pose([u]), m.pose([v]))[0]
+        assert np.hypot(*(d["leg"][:2] - truth[:2])) < 0.05
+        assert abs(d["leg"][2] - truth[2]) < 0.05
     alike = _cross(m, 0, 1)
-    assert alike and not any("leg" in d for d in alike)       # RE joins them; the scans cannot
-    assert not any("leg" in d for d in _cross(build(cross_legs=False), 0, 2))
+    assert alike and not any("leg" in d for _, _, d in alike)  # RE joins them; the scans cannot
+    assert not any("leg" in d for _, _, d in _cross(build(cross_legs=False), 0, 2))
     with pytest.raises(TopodrakeError, match="cross_legs"):
         MapConfig(cross_legs=1).validate()
 
