@@ -361,7 +361,8 @@ def test_the_handover_settings_leave_the_re_fingerprint_alone():
 
     base = registration_identity(RegistrationPolicy())["sha1"]
     assert registration_identity(RegistrationPolicy(RegistrationConfig(
-        handover=False, handover_m=5.0, search_check_m=0.0)))["sha1"] == base
+        handover=False, handover_m=5.0, search_check_m=0.0,
+        start_slides=False)))["sha1"] == base
     assert registration_identity(RegistrationPolicy(RegistrationConfig(confirm=2)))["sha1"] != base
     assert registration_identity()["sha1"] == base
 
@@ -385,3 +386,47 @@ def test_a_goal_watch_ends_the_drake_drive_at_the_goal(box_world):
     assert (gap[:-2] > 2.0).all()            # (the last pose is logged and appended both)
     assert watched.time_s < plain.time_s
     assert np.allclose(watched.poses[:-1], plain.poses[:len(watched.poses) - 1])
+
+
+def test_a_route_start_in_a_corridor_takes_the_fit_that_slides():
+    """At a route's start the car stands at the view its start link names,
+    but in a corridor the search refuses every fit (it could sit anywhere
+    along the corridor) and the car would drive straight ahead, blind. With
+    the route's legs, a car with no estimate yet takes the fit from the
+    identity onto the anchor's own scan even where it slides: the walls pin
+    the side and the heading, the start link the rest."""
+    from dataclasses import replace
+
+    from topodrake.rollout import ExpertRollout, RolloutConfig
+    from topodrake.sensing.lidar import Lidar
+    from topodrake.se2 import relative
+    from topodrake.world import load_world
+
+    world = load_world("test-3")
+    start = world.places[9]
+    res = ExpertRollout(world, RolloutConfig(t_max_s=60.0)).run(start[None], world.places[3, :2][None])
+    poses = res.trajectory(0)["poses"]
+    ctx, _ = _contexts(world, poses, [0])
+    lidar = Lidar(world)
+    car = compose(poses[0][None], np.array([[0.0, 0.3, -0.16]]))[0]      # 0.3 m beside it
+    scan = lidar.scan(car[None])
+    legs = (np.zeros((1, 3)), np.zeros(1))
+
+    def estimate(pol, with_legs=True):
+        track = pol.initial_track(1)
+        pol.predict_tracked(scan, pol.encode_target(ctx), track, np.zeros(1, np.int64),
+                            np.zeros(1, np.int64), np.zeros((1, 3)),
+                            legs=legs if with_legs else None)
+        return track[0].reshape(pol.config.slots, -1)[0, 1:4]
+
+    from topodrake.registration.icp import register
+
+    fit = register(scan.astype(np.float64), ctx[0, K][None].astype(np.float64))
+    assert fit.accepted[0] and fit.constraint[0] < RegistrationConfig().slide_constraint
+    pol = RegistrationPolicy(RegistrationConfig(k=K, frame_step=STEP))
+    est = estimate(pol)
+    truth = relative(poses[0][None], car[None])[0]
+    assert np.hypot(*(est[:2] - truth[:2])) < 0.05 and abs(est[2] - truth[2]) < 0.03
+    assert not np.isfinite(estimate(pol, with_legs=False)).any()
+    off = RegistrationPolicy(replace(pol.config, start_slides=False))
+    assert not np.isfinite(estimate(off)).any()

@@ -402,3 +402,45 @@ def test_the_hop_into_the_goal_carries_the_goal_scan_s_pose(three_drives):
     assert np.hypot(*(leg[:2] - truth[:2])) < 0.05
     m.config = replace(m.config, goal_leg=False)
     assert np.isnan(plan_path(m, scans[0][0], scans[2][6]).route.legs[-1]).all()
+
+
+def test_plans_count_hops_without_legs_at_legless_p(three_drives):
+    """The follower fails a hop it cannot track across (a join the scans
+    could not place) more often: on a map that places joins by scans such a
+    hop counts its p times ``legless_p``, in the path's choice and in its
+    probability; start and goal links and hops with legs count as RE says."""
+    import math
+    from dataclasses import replace
+
+    from topodrake.topomap.plan import _hop_weight, plan_path
+
+    scans, poses, frames = three_drives
+
+    def joined(a, b):          # drive 0's end passes for the start of the look-alike drive 1
+        if a[0] == b[0]:
+            return 0.999 if 0 <= b[1] - a[1] <= 3 else 0.1
+        return 0.995 if (a, b) == ((0, 9), (1, 0)) else 0.1
+
+    m = _scan_map(frames, rule=joined, reuse=False)
+    for d in (0, 1):
+        add_trajectory(m, scans[d], poses[d])
+    alike = _cross(m, 0, 1)
+    assert alike and not any("leg" in d for _, _, d in alike)
+    m.config = replace(m.config, legless_p=1.0)
+    plain = plan_path(m, scans[0][0], scans[1][9])
+    m.config = replace(m.config, legless_p=0.9)
+    counted = plan_path(m, scans[0][0], scans[1][9])
+    assert plain.reachable and counted.vertices == plain.vertices
+    legless = [i for i in range(len(plain.vertices) - 1)
+               if "leg" not in m.graph.edges[plain.vertices[i], plain.vertices[i + 1]]]
+    assert legless                                    # the route crosses to the look-alike
+    assert math.isclose(counted.probability, plain.probability * 0.9 ** len(legless))
+    hop = plain.route.edge_probability
+    np.testing.assert_allclose(counted.route.edge_probability[legless], hop[legless] * 0.9)
+    weight = _hop_weight(m, {(1, 2)})
+    assert weight(1, 2, {"weight": 0.1, "kind": "trajectory"}) is None
+    assert weight(0, 1, {"weight": 0.1, "kind": "goal"}) == 0.1
+    assert math.isclose(weight(0, 1, {"weight": 0.1, "kind": "cross"}), 0.1 - math.log(0.9))
+    assert weight(0, 1, {"weight": 0.1, "kind": "cross", "leg": np.zeros(3)}) == 0.1
+    with pytest.raises(TopodrakeError, match="legless_p"):
+        MapConfig(legless_p=0.0).validate()

@@ -31,7 +31,10 @@ A query toward an anchor (``predict_tracked``):
    after ``confirm`` periods in a row of fits that agreed with the odometry
    prediction and pinned the translation (a fit in a corridor slides along
    it: it keeps a confirmed estimate, but confirms none, and a search fit
-   must be pinned);
+   must be pinned, except, along a route's legs, the fit from the identity
+   onto the anchor's own scan for a car that has no estimate yet: at the
+   route's start the start link put the car at that view, and the walls
+   pin what they can, ``start_slides``);
 4. answers by pure pursuit along the taught path: the point ``lookahead_m``
    along the frames from the car's projection onto them, no farther than
    the anchor (centre frame), in the car frame; the heading difference to
@@ -126,6 +129,10 @@ class RegistrationConfig:
                                      # to a neighbouring anchor of the segment whose taught frames
                                      # it puts within this of the car (a corridor that repeats
                                      # fits one anchor metres off; 0: off)
+    start_slides: bool = True        # with the route's legs: a car that has no estimate yet (the
+                                     # route's start) takes the fit from the identity onto the
+                                     # anchor's own scan even where it slides (the start link put
+                                     # it at that view; the walls pin what they can)
 
     def check(self) -> "RegistrationConfig":
         if self.k < 0 or self.frame_step < 1:
@@ -293,8 +300,10 @@ class RegistrationPolicy:
             search[q] = (not np.all(np.isfinite(prior[q])) or late >= 0) \
                 and (late <= 0 or late % cfg.search_every == 0)
         # 2. registrations: the frames nearest the prediction, and every frame when searching
-        jq, jf, jg, js = [], [], [], []
+        jq, jf, jg, js, jstart = [], [], [], [], []
         for q in range(m):
+            first = search[q] and cfg.start_slides and legs is not None and not np.isfinite(
+                track[cars[q]].reshape(cfg.slots, SLOT)[:, _EST]).any()
             good = np.flatnonzero(usable[q])
             if np.all(np.isfinite(prior[q])):
                 d = np.hypot(*(frames[q, good, :2] - prior[q, :2]).T)
@@ -303,6 +312,7 @@ class RegistrationPolicy:
                     jf.append(f)
                     jg.append(compose(invert(frames[q, f]), prior[q])[0])
                     js.append(False)
+                    jstart.append(False)
             if search[q]:
                 for turn in cfg.search_turns:
                     for f in good:
@@ -310,17 +320,20 @@ class RegistrationPolicy:
                         jf.append(f)
                         jg.append(np.array([0.0, 0.0, turn]))
                         js.append(True)
+                        jstart.append(first and turn == 0.0 and f == self.k)
                     for b in cfg.behind_m:
                         jq.append(q)
                         jf.append(good[0])
                         jg.append(np.array([-b, 0.0, turn]))
                         js.append(True)
+                        jstart.append(False)
         jq, jf, js = np.array(jq, np.int64), np.array(jf, np.int64), np.array(js, bool)
+        jstart = np.array(jstart, bool)
         best = np.full(m, -1, np.int64)
         if len(jq):
             res = self._register(obs[jq], feats[jq, jf, 4:], np.array(jg), js)
             # a search fit must be pinned: in a corridor it could sit anywhere along it
-            usable_fit = res.accepted & (~js | ((res.constraint >= cfg.slide_constraint)
+            usable_fit = res.accepted & (~js | (((res.constraint >= cfg.slide_constraint) | jstart)
                                                 & (res.inlier_back >= cfg.search_back)))
             score = np.where(usable_fit, res.inlier - res.rms, -np.inf)
             for i in range(len(jq)):

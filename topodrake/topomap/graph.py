@@ -56,7 +56,7 @@ CAMERA_ONLY = ("camera_scans", "camera_legs")
 #: settings only maps that keep lidar scans read (a pose oracle map keeps none)
 SCANS_ONLY = ("cross_legs",)
 #: settings only planning reads, not building (a map is built alike whatever they say)
-PLAN_ONLY = ("link_order", "direct_check", "goal_leg")
+PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p")
 LINK_ORDERS = ("probability", "support")
 
 
@@ -148,6 +148,10 @@ class MapConfig:
     goal_leg: bool = True        # planning, on such maps: the hop into the goal carries the
                                  # pose the goal view's scan registers to on the last vertex's,
                                  # where the fit pins it
+                                 # where the fit pins it
+    legless_p: float = 0.98      # planning, on such maps: a hop of the map without a leg (a
+                                 # join its scans could not place) counts its p times this: the
+                                 # follower cannot track across it and fails it more often
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):
@@ -169,6 +173,8 @@ class MapConfig:
             if not isinstance(getattr(self, name), bool):
                 raise TopodrakeError(f"{where}: {name} must be true or false, got "
                                      f"{getattr(self, name)!r}")
+        if not (isinstance(self.legless_p, (int, float)) and 0.0 < self.legless_p <= 1.0):
+            raise TopodrakeError(f"{where}: legless_p must be in (0, 1], got {self.legless_p!r}")
         for name in ("loop_check_m", "loop_check_per_m"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):

@@ -24,7 +24,9 @@ route's hops keep the map's legs; on a map that places joins by scans,
 with ``goal_leg``, the hop into the goal gets the pose the goal's scan
 registers to on the last vertex's, where the fit pins it.
 Dijkstra on the edge weights -log p gives the most probable path; its
-probability is exp(-cost). Given a time limit, the plan is the path most
+probability is exp(-cost). On a map that places joins by scans a map edge
+without a leg counts its p times ``legless_p``: the follower cannot track
+across such a hop. Given a time limit, the plan is the path most
 likely to be driven within it: the most probable path, or where that one
 would likely run out of time, a shorter one found by pricing each metre
 (:mod:`topodrake.topomap.route_time`). An unreachable goal is a result
@@ -41,7 +43,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.navigation.route import Route
-from topodrake.topomap.graph import TopoMap
+from topodrake.topomap.graph import EDGE_KINDS, TopoMap
 from topodrake.topomap.route_time import DrivingTime, edge_metres, path_metres
 from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
 
@@ -168,6 +170,22 @@ def _goal_leg(topomap: TopoMap, vertices: list[int], goal_scan, legs: np.ndarray
         legs[-1], leg_paths[-1] = leg, path
 
 
+def _hop_weight(topomap: TopoMap, banned: set):
+    """Dijkstra's weight of a hop: -log p, none for a ``banned`` map edge,
+    and on a map that places joins by scans a map edge without a leg counts
+    its p times ``legless_p`` (the follower cannot track across it)."""
+    from topodrake.topomap.build import places_by_scans
+
+    extra = -math.log(topomap.config.legless_p) if places_by_scans(topomap) else 0.0
+
+    def weight(u, v, d):
+        if (u, v) in banned:
+            return None
+        legless = extra > 0 and d.get("kind") in EDGE_KINDS and "leg" not in d
+        return d["weight"] + (extra if legless else 0.0)
+    return weight
+
+
 def _route_scans(topomap: TopoMap, vertices: list[int]) -> np.ndarray | None:
     """The lidar scans a camera map keeps for a route through ``vertices``
     and into the goal view (which has none: NaN); None where it keeps none."""
@@ -199,7 +217,7 @@ def within_time(g, cost: float, path: list, weight, limit_s: float,
             w = base(u, v, d)
             return None if w is None else w + price * metres.get((u, v), typical)
         p = nx.dijkstra_path(g, START, GOAL, weight=priced)
-        c = float(sum(g.edges[u, v]["weight"] for u, v in zip(p[:-1], p[1:])))
+        c = float(sum(base(u, v, g.edges[u, v]) for u, v in zip(p[:-1], p[1:])))
         cand = (c, p, on_time(p))
         if math.exp(-cand[0]) * cand[2] > math.exp(-best[0]) * best[2]:
             best = cand
@@ -284,7 +302,7 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         else:
             choices = [(links_s, links_g)]
         banned = {(int(u), int(v)) for u, v in excluded_edges}
-        weight = (lambda u, v, d: None if (u, v) in banned else d["weight"]) if banned else "weight"
+        weight = _hop_weight(m, banned)
         path = None
         for from_start, into_goal in choices:
             g.add_node(START)
@@ -308,7 +326,7 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         if time_limit_s is not None:
             cost, path, result.on_time = within_time(g, cost, path, weight, time_limit_s,
                                                      driving or DrivingTime())
-        probs = [g.edges[u, v]["p"] for u, v in zip(path[:-1], path[1:])]
+        probs = [math.exp(-weight(u, v, g.edges[u, v])) for u, v in zip(path[:-1], path[1:])]
         vertices = [int(v) for v in path[1:-1]]
         # the drives' odometry between the map's anchors; into the goal view, its scan's
         # registration onto the last vertex's
