@@ -442,5 +442,7 @@ def test_plans_count_hops_without_legs_at_legless_p(three_drives):
     assert weight(0, 1, {"weight": 0.1, "kind": "goal"}) == 0.1
     assert math.isclose(weight(0, 1, {"weight": 0.1, "kind": "cross"}), 0.1 - math.log(0.9))
     assert weight(0, 1, {"weight": 0.1, "kind": "cross", "leg": np.zeros(3)}) == 0.1
+    m.config = replace(m.config, teach_odometry="none")       # no hop has a leg: none counts
+    assert _hop_weight(m, set())(0, 1, {"weight": 0.1, "kind": "cross"}) == 0.1
     with pytest.raises(TopodrakeError, match="legless_p"):
         MapConfig(legless_p=0.0).validate()

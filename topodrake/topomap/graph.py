@@ -148,7 +148,6 @@ class MapConfig:
     goal_leg: bool = True        # planning, on such maps: the hop into the goal carries the
                                  # pose the goal view's scan registers to on the last vertex's,
                                  # where the fit pins it
-                                 # where the fit pins it
     legless_p: float = 0.98      # planning, on such maps: a hop of the map without a leg (a
                                  # join its scans could not place) counts its p times this: the
                                  # follower cannot track across it and fails it more often

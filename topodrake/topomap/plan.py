@@ -176,7 +176,9 @@ def _hop_weight(topomap: TopoMap, banned: set):
     its p times ``legless_p`` (the follower cannot track across it)."""
     from topodrake.topomap.build import places_by_scans
 
-    extra = -math.log(topomap.config.legless_p) if places_by_scans(topomap) else 0.0
+    cfg = topomap.config
+    legs = places_by_scans(topomap) and cfg.teach_odometry != "none"   # else no hop has one
+    extra = -math.log(cfg.legless_p) if legs else 0.0
 
     def weight(u, v, d):
         if (u, v) in banned:

@@ -22,7 +22,8 @@ REGISTRATION = "registration"
 
 
 #: Registration settings that act only along a route's legs (the handover between anchors, a
-#: search fit checked against a neighbouring anchor), never in RE's label rollouts toward one
+#: search fit checked against a neighbouring anchor, the fit that slides taken at the route's
+#: start), never in RE's label rollouts toward one
 #: target: they stay out of the fingerprint, so an RE stays valid whatever they are.
 FOLLOWER_ONLY = ("handover", "handover_m", "search_check_m", "start_slides")
 
