@@ -43,6 +43,20 @@ def test_search_picks_the_best_anchor_above_p_search_and_drives_toward_it():
     np.testing.assert_allclose(s.waypoint[0], [2.5, 2.0])
 
 
+def test_search_takes_the_first_anchor_where_re_passes_it():
+    """A plan links the car's view to the route's first anchor; a look-alike
+    further on may rate higher. With ``search_first`` Search takes the first
+    anchor where RE passes p_search (two cars: one where it passes, one where
+    it does not)."""
+    ev = Scripted(p=[[0.85, 0.9, 0.99, 0.2], [0.6, 0.95, 0.99, 0.2]], prox=[[0.3] * 4] * 2,
+                  dist=[[1.5] * 4] * 2)
+    s, _ = step(FollowerState.initial(2), ev, 4, search_first=True)
+    assert list(s.active) == [0, 2] and list(s.visited) == [-1, 1]
+    assert s.best_p[0] == pytest.approx(0.85)
+    s, _ = step(FollowerState.initial(2), ev, 4)             # off by default: the best anchor
+    assert list(s.active) == [2, 2]
+
+
 def test_search_gives_up_below_p_search():
     ev = Scripted(p=[0.5, 0.79, 0.2], prox=[0.9] * 3, dist=[0.1] * 3)
     s, out = step(FollowerState.initial(1), ev, 3)

@@ -108,6 +108,9 @@ class FollowerConfig:
     p_search: float = 0.8           # RE needed to pick the first active anchor (the paper: 0.92;
                                     # from 2 of 40 jittered starts our RE stays below 0.92 toward
                                     # every anchor, yet C_WP follows the route from there)
+    search_first: bool = False      # Search takes the route's first anchor where RE passes
+                                    # p_search toward it (a plan links the car's view to it; a
+                                    # look-alike further on may rate higher), else the best
     p_follow: float = 0.92          # RE needed to keep following the active anchor
     p_visited: float = 0.65         # proximity (mean predicted overlap) that marks an anchor visited
     p_near: float = 0.6             # proximity the anchor after the next needs to become active
@@ -407,13 +410,18 @@ class _Period:
 
 
 def _search(per: _Period, s: np.ndarray) -> None:
-    """Search (cars ``s``): RE toward every anchor; the best above ``p_search`` becomes active."""
+    """Search (cars ``s``): RE toward every anchor; the best above ``p_search`` becomes
+    active (with ``search_first``, the first anchor where it passes there)."""
     if not s.size:
         return
     cfg, new, n_anchors, evaluate = per.cfg, per.new, per.n_anchors, per.evaluate
     rows, anchors = _windows(np.zeros(s.size, np.int64), n_anchors[s] - 1)
     p = evaluate(s[rows], anchors, False, True).probability
     arg, best = _best_per_row(rows, p, s.size)
+    if cfg.search_first:
+        first = np.flatnonzero(anchors == 0)            # each car's first anchor (rows in order)
+        take = p[first] > cfg.p_search
+        arg[rows[first[take]]], best[rows[first[take]]] = first[take], p[first[take]]
     ok = best > cfg.p_search
     new.best_p[s] = np.where(np.isfinite(best), best, 0.0)
     got = s[ok]
