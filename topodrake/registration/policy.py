@@ -300,10 +300,8 @@ class RegistrationPolicy:
             search[q] = (not np.all(np.isfinite(prior[q])) or late >= 0) \
                 and (late <= 0 or late % cfg.search_every == 0)
         # 2. registrations: the frames nearest the prediction, and every frame when searching
-        jq, jf, jg, js, jstart = [], [], [], [], []
+        jq, jf, jg, js = [], [], [], []
         for q in range(m):
-            first = search[q] and cfg.start_slides and legs is not None and not np.isfinite(
-                track[cars[q]].reshape(cfg.slots, SLOT)[:, _EST]).any()
             good = np.flatnonzero(usable[q])
             if np.all(np.isfinite(prior[q])):
                 d = np.hypot(*(frames[q, good, :2] - prior[q, :2]).T)
@@ -312,7 +310,6 @@ class RegistrationPolicy:
                     jf.append(f)
                     jg.append(compose(invert(frames[q, f]), prior[q])[0])
                     js.append(False)
-                    jstart.append(False)
             if search[q]:
                 for turn in cfg.search_turns:
                     for f in good:
@@ -320,18 +317,21 @@ class RegistrationPolicy:
                         jf.append(f)
                         jg.append(np.array([0.0, 0.0, turn]))
                         js.append(True)
-                        jstart.append(first and turn == 0.0 and f == self.k)
                     for b in cfg.behind_m:
                         jq.append(q)
                         jf.append(good[0])
                         jg.append(np.array([-b, 0.0, turn]))
                         js.append(True)
-                        jstart.append(False)
         jq, jf, js = np.array(jq, np.int64), np.array(jf, np.int64), np.array(js, bool)
-        jstart = np.array(jstart, bool)
+        jg = np.array(jg).reshape(-1, 3)
+        # the route's start: a car without any estimate may take the identity fit onto the
+        # anchor's own scan even where it slides
+        fresh = np.array([search[q] and cfg.start_slides and legs is not None and not np.isfinite(
+            track[cars[q]].reshape(cfg.slots, SLOT)[:, _EST]).any() for q in range(m)], bool)
+        jstart = fresh[jq] & js & (jf == self.k) & np.all(jg == 0.0, axis=1)
         best = np.full(m, -1, np.int64)
         if len(jq):
-            res = self._register(obs[jq], feats[jq, jf, 4:], np.array(jg), js)
+            res = self._register(obs[jq], feats[jq, jf, 4:], jg, js)
             # a search fit must be pinned: in a corridor it could sit anywhere along it
             usable_fit = res.accepted & (~js | (((res.constraint >= cfg.slide_constraint) | jstart)
                                                 & (res.inlier_back >= cfg.search_back)))

@@ -206,7 +206,7 @@ def _junction_legs(m: TopoMap, us: np.ndarray, xs: np.ndarray) -> list:
     map that places its joins by its kept scans, :func:`places_by_scans`),
     x's pose in u's frame from registering x's scan onto u's (kept when the
     fit pins the translation; the path a straight line), else (None, None)."""
-    if not places_by_scans(m) or not len(us) or m.config.teach_odometry == "none":
+    if not joins_carry_legs(m) or not len(us):
         return [(None, None)] * len(us)
     return join_legs(vertex_scans(m, xs), vertex_scans(m, us), wide=False)
 
@@ -255,6 +255,13 @@ def places_by_scans(m: TopoMap) -> bool:
     scans, with ``camera_legs``."""
     return m.modality == "lidar" or (m.modality == "camera" and m.config.camera_legs
                                      and m.bank.scans is not None)
+
+
+def joins_carry_legs(m: TopoMap) -> bool:
+    """Whether ``m``'s joins (junctions, cross edges, the goal link) can
+    carry legs: it places them by scans and keeps the drives' odometry
+    (a map without odometry has a leg on no hop)."""
+    return places_by_scans(m) and m.config.teach_odometry != "none"
 
 
 def _reuse_offsets(m: TopoMap, scans, chain, anchors) -> dict:
@@ -546,7 +553,7 @@ def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[in
                          m.config.scan_match)
         edges = {key: p for (key, p), keep in zip(edges.items(), ok) if keep}
     legs = [(None, None)] * len(edges)
-    if edges and cfg.cross_legs and places_by_scans(m) and cfg.teach_odometry != "none":
+    if edges and cfg.cross_legs and joins_carry_legs(m):
         us, vs = np.array(list(edges), np.int64).T
         legs = join_legs(vertex_scans(m, vs), vertex_scans(m, us))
     for ((u, v), p), (leg, path) in zip(edges.items(), legs):

@@ -158,11 +158,10 @@ def _goal_leg(topomap: TopoMap, vertices: list[int], goal_scan, legs: np.ndarray
     """Sets the last hop's leg (into the goal view) in place where the map
     places joins by scans (``goal_leg``) and the goal's scan registers onto
     the last vertex's, pinning the pose."""
-    from topodrake.topomap.build import join_legs, places_by_scans
+    from topodrake.topomap.build import join_legs, joins_carry_legs
 
-    cfg = topomap.config
-    if not (cfg.goal_leg and vertices and goal_scan is not None and places_by_scans(topomap)
-            and cfg.teach_odometry != "none"):
+    if not (topomap.config.goal_leg and vertices and goal_scan is not None
+            and joins_carry_legs(topomap)):
         return
     (leg, path), = join_legs(np.asarray(goal_scan, np.float64)[None],
                              vertex_scans(topomap, vertices[-1:]))
@@ -174,11 +173,9 @@ def _hop_weight(topomap: TopoMap, banned: set):
     """Dijkstra's weight of a hop: -log p, none for a ``banned`` map edge,
     and on a map that places joins by scans a map edge without a leg counts
     its p times ``legless_p`` (the follower cannot track across it)."""
-    from topodrake.topomap.build import places_by_scans
+    from topodrake.topomap.build import joins_carry_legs
 
-    cfg = topomap.config
-    legs = places_by_scans(topomap) and cfg.teach_odometry != "none"   # else no hop has one
-    extra = -math.log(cfg.legless_p) if legs else 0.0
+    extra = -math.log(topomap.config.legless_p) if joins_carry_legs(topomap) else 0.0
 
     def weight(u, v, d):
         if (u, v) in banned:
