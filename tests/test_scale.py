@@ -123,9 +123,16 @@ def test_scale_trainer_trains_resumes_with_new_shards(test0_drives, tmp_path):
         policy = LearnedWaypointPolicy.from_checkpoint(folder / "checkpoint.pt")
         assert policy.k == 5
     assert json.loads((out / "wide" / "card.json").read_text())["config"]["network"]["hidden"] == 24
-    # a resumed call goes on counting and makes shards it has not made before
+    assert [c["samples_seen_after"] for c in card["calls"]] == [256]
+    # a resumed call goes on counting, makes shards it has not made before, and
+    # keeps the card's history and what was written into it by hand
+    hand = {**json.loads((out / "card.json").read_text()), "notes": ["measured in the loop"]}
+    (out / "card.json").write_text(json.dumps(hand))
     card = train_at_scale(_tiny_run(pack, 512), out, minutes=5, progress=False)
     assert card["samples_seen"] == 512 and card["scale"]["next_shard"] == 4
+    assert [c["samples_seen_after"] for c in card["calls"]] == [256, 512]
+    assert card["notes"] == ["measured in the loop"]
+    assert json.loads((out / "card.json").read_text())["calls"] == card["calls"]
     changed = _tiny_run(pack, 1024)
     changed.train.lr = 0.5
     with pytest.raises(TopodrakeError, match="was trained with lr"):

@@ -341,6 +341,12 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
                     "samples_per_s": round(rate, 1)},
                 "metrics": net.metrics, "compared": compared, "command": command,
                 "config": net.cfg.to_dict(), "scale": _scale_meta(sc, state, net.name)}
+        card = _with_history(card, net.out / CARD, {
+            "minutes": minutes, "device": card["device"], "samples_seen_after": state["samples_seen"],
+            "train_wall_s": round(state["wall_time_s"] - start_wall, 1),
+            "val_error_m": net.metrics["val"]["waypoint_error_m"],
+            "val_paper_error_m": net.metrics["val_paper"]["waypoint_error_m"],
+            "git_revision": revision})
         atomic_write_json(net.out / CARD, card)
         cards[net.name] = card
     if progress:
@@ -352,6 +358,22 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
                   f"{m['val_paper']['waypoint_error_m']:.3f} m -> {net.out / CHECKPOINT}",
                   file=sys.stderr)
     return cards["main"]
+
+
+def _with_history(card: dict, path: Path, this_call: dict) -> dict:
+    """The new card with the previous card's calls (this one appended) and the
+    fields written by hand since (notes, measurements), which a resumed call keeps."""
+    previous = {}
+    if path.exists():
+        try:
+            previous = json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            raise TopodrakeError(f"{path} is not a readable card ({e}); move it away to start a new one")
+    calls = previous.get("calls") if isinstance(previous.get("calls"), list) else []
+    merged = {**card, "calls": [*calls, this_call]}
+    for key, value in previous.items():
+        merged.setdefault(key, value)
+    return merged
 
 
 def _validate(model, val: dict) -> dict:
