@@ -446,3 +446,46 @@ def test_plans_count_hops_without_legs_at_legless_p(three_drives):
     assert _hop_weight(m, set())(0, 1, {"weight": 0.1, "kind": "cross"}) == 0.1
     with pytest.raises(TopodrakeError, match="legless_p"):
         MapConfig(legless_p=0.0).validate()
+
+
+def test_plans_start_at_the_anchor_the_start_s_scan_places_near(house, lidar):
+    """RE trusts anchors metres along a drive as readily as the one the car
+    stands by; where the start's scan registers onto an anchor within
+    ``start_near_m`` the plan starts there, not at one metres on."""
+    from dataclasses import replace
+
+    from topodrake.topomap.plan import near_start_links, plan_path
+
+    steps = np.column_stack([np.arange(17) * 0.25, np.zeros(17), np.zeros(17)])
+    rng = np.random.default_rng(5)
+    while True:          # a straight 4 m of free floor
+        pose = house.sample_free_pose(rng)
+        poses = compose(np.repeat(pose[None], 17, 0), steps)
+        if house.grid.is_free(poses[:, :2]).all():
+            break
+    scans = lidar.scan(poses)
+    frames = {s.tobytes(): (0, f) for f, s in enumerate(scans)}
+
+    def far_reaching(a, b):       # every frame ahead passes; the far ones a little more
+        return 0.99 + 0.0005 * min(b[1] - a[1], 16) / 16 if b[1] >= a[1] else 0.1
+
+    m = _scan_map(frames, rule=far_reaching, reuse=False, join_ends=False, start_near_m=0.0)
+    add_trajectory(m, scans, poses)
+    vertices = m.trajectories[0].chain
+    links = [(int(v), 0.99) for v in vertices]
+    assert near_start_links(m, links, scans[0]) == links                # off
+    m.config = replace(m.config, start_near_m=2.0)
+    near = near_start_links(m, links, scans[0])
+    offsets = np.hypot(*(m.pose([v for v, _ in near])[:, :2] - poses[0][:2]).T)
+    assert near and (offsets <= 2.0 + 0.1).all() and len(near) < len(links)
+    assert near_start_links(m, links[:1], scans[0]) == links[:1]         # one link: kept
+
+    m.config = replace(m.config, start_near_m=0.0)
+    blind = plan_path(m, scans[0], scans[-1])
+    m.config = replace(m.config, start_near_m=2.0)
+    placed = plan_path(m, scans[0], scans[-1])
+    first = lambda plan: np.hypot(*(m.pose(plan.vertices[:1])[0, :2] - poses[0][:2]))
+    assert blind.reachable and placed.reachable
+    assert first(blind) > 2.0 >= first(placed)
+    with pytest.raises(TopodrakeError, match="start_near_m"):
+        MapConfig(start_near_m=-1.0).validate()

@@ -56,7 +56,7 @@ CAMERA_ONLY = ("camera_scans", "camera_legs")
 #: settings only maps that keep lidar scans read (a pose oracle map keeps none)
 SCANS_ONLY = ("cross_legs",)
 #: settings only planning reads, not building (a map is built alike whatever they say)
-PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p")
+PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "start_near_m")
 LINK_ORDERS = ("probability", "support")
 
 
@@ -151,6 +151,10 @@ class MapConfig:
     legless_p: float = 0.98      # planning, on such maps: a hop of the map without a leg (a
                                  # join its scans could not place) counts its p times this: the
                                  # follower cannot track across it and fails it more often
+    start_near_m: float = 2.0    # planning, where the links are checked by scans: plans start
+                                 # first from the vertices the start's scan registers onto
+                                 # within this (0: off), then from every link: at the anchor
+                                 # the car stands by, not one RE trusts metres on
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):
@@ -174,7 +178,7 @@ class MapConfig:
                                      f"{getattr(self, name)!r}")
         if not (isinstance(self.legless_p, (int, float)) and 0.0 < self.legless_p <= 1.0):
             raise TopodrakeError(f"{where}: legless_p must be in (0, 1], got {self.legless_p!r}")
-        for name in ("loop_check_m", "loop_check_per_m"):
+        for name in ("loop_check_m", "loop_check_per_m", "start_near_m"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise TopodrakeError(f"{where}: {name} must be a number >= 0, got {v!r}")

@@ -18,7 +18,8 @@ certain anchors than at the place the car is at, and no longer lets the
 plan jump there. On a lidar map with ``scan_match`` the groups with a
 vertex whose scan registers onto the view come first
 (:func:`matched_first`), and a direct start-goal link needs the two scans
-to match. With ``direct_check`` a direct start-goal link also needs the
+to match, and the plan starts first from the vertices the start's scan
+registers onto within ``start_near_m`` (:func:`near_start_links`). With ``direct_check`` a direct start-goal link also needs the
 start's and the goal's links to be one place (:func:`one_place`). The
 route's hops keep the map's legs; on a map that places joins by scans,
 with ``goal_leg``, the hop into the goal gets the pose the goal's scan
@@ -132,6 +133,29 @@ def matched_first(topomap: TopoMap, groups: list[list[tuple[int, float]]],
         [g for g, hit in zip(groups, matched) if not hit]
 
 
+def near_start_links(topomap: TopoMap, links: list[tuple[int, float]],
+                     start_scan: np.ndarray) -> list[tuple[int, float]]:
+    """``links`` from the start without those to a vertex whose scan the
+    start's registers onto farther than ``start_near_m`` away, where another
+    link's registers within it: RE trusts anchors metres along a drive as
+    readily as the one the car stands by, and a plan that starts metres on
+    has the car take its first hop blind. Where a link's registers within
+    it, only such links stay (an unpinned fit may lie metres down a
+    corridor); else all do."""
+    from topodrake.topomap.build import join_legs
+
+    near_m = topomap.config.start_near_m
+    if near_m <= 0 or len(links) < 2:
+        return links
+    vertices = [v for v, _ in links]
+    source = np.repeat(np.asarray(start_scan, np.float64)[None], len(vertices), 0)
+    offsets = [None if leg is None else float(np.hypot(leg[0], leg[1]))
+               for leg, _ in join_legs(source, vertex_scans(topomap, vertices))]
+    if not any(d is not None and d <= near_m for d in offsets):
+        return links
+    return [link for link, d in zip(links, offsets) if d is not None and d <= near_m]
+
+
 def link_scans(topomap: TopoMap, start_obs: np.ndarray, goal_obs: np.ndarray,
                view_scans=None) -> tuple[np.ndarray, np.ndarray] | None:
     """The lidar scans (start's, goal's) a plan checks its links by: a lidar
@@ -151,6 +175,23 @@ def link_scans(topomap: TopoMap, start_obs: np.ndarray, goal_obs: np.ndarray,
                                  f"scans do (got shape {scan.shape})")
         out.append(scan)
     return out[0], out[1]
+
+
+def _link_choices(topomap: TopoMap, links_s: list, links_g: list, scans) -> list:
+    """(start links, goal links) pairs to plan between, in the order tried:
+    with ``link_consensus`` one place at each end, the most trusted pairs
+    first (:func:`link_groups`, on maps that check scans :func:`matched_first`);
+    else all links at once."""
+    m = topomap
+    if not m.config.link_consensus:
+        return [(links_s, links_g)]
+    starts = link_groups(m, links_s, m.config.link_hops, m.config.link_order) or [[]]
+    goals = link_groups(m, links_g, m.config.link_hops, m.config.link_order) or [[]]
+    if scans is not None:
+        starts, goals = matched_first(m, starts, scans[0]), matched_first(m, goals, scans[1])
+    tries = sorted(((i, j) for i in range(len(starts)) for j in range(len(goals))),
+                   key=lambda ij: (ij[0] + ij[1], ij))
+    return [(starts[i], goals[j]) for i, j in tries]
 
 
 def _goal_leg(topomap: TopoMap, vertices: list[int], goal_scan, legs: np.ndarray,
@@ -290,16 +331,10 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
             result.reason = (f"the goal is reachable from no map vertex (best RE "
                              f"{max(p_goal, default=0.0):.2f} <= {m.config.p_link})")
             return result
-        if m.config.link_consensus:     # one place at each end, the most trusted that joins
-            starts = link_groups(m, links_s, m.config.link_hops, m.config.link_order) or [[]]
-            goals = link_groups(m, links_g, m.config.link_hops, m.config.link_order) or [[]]
-            if scans is not None:
-                starts, goals = matched_first(m, starts, scans[0]), matched_first(m, goals, scans[1])
-            tries = sorted(((i, j) for i in range(len(starts)) for j in range(len(goals))),
-                           key=lambda ij: (ij[0] + ij[1], ij))
-            choices = [(starts[i], goals[j]) for i, j in tries]
-        else:
-            choices = [(links_s, links_g)]
+        # the start's links by the anchors its scan places near first, then all of them
+        near = near_start_links(m, links_s, scans[0]) if scans is not None else links_s
+        choices = [pair for from_start in ([near, links_s] if near != links_s else [links_s])
+                   for pair in _link_choices(m, from_start, links_g, scans)]
         banned = {(int(u), int(v)) for u, v in excluded_edges}
         weight = _hop_weight(m, banned)
         path = None
