@@ -327,43 +327,22 @@ def test_inside_turn_marks_points_the_car_circles_driving_forward():
 
 def test_a_waypoint_beside_the_car_is_driven_as_a_point_behind_it():
     car = np.array([[1.0, 2.0, np.pi / 2, 0.0, 0.0]])          # facing +y
-
-    def driven(metres):
-        s = following(active=1, visited=0)
-        s.driven[:] = metres
-        return s
-
-    # at the start the ground behind is unseen: C_WP's waypoint is driven as given
     s, out = step(following(active=1, visited=0), Beside([0.0, 0.6]), 4, car=car)
-    np.testing.assert_allclose(out.waypoint[0], [0.4, 2.0], atol=1e-9)
-    assert not out.held[0]
-    s, out = step(driven(1.5), Beside([0.0, 0.6]), 4, car=car)
     assert s.mode[0] == FOLLOW and out.held[0]                           # the follower's own
     np.testing.assert_allclose(out.waypoint[0], [1.0, 1.0], atol=1e-9)   # 1 m behind the car
     np.testing.assert_allclose(s.waypoint[0], [0.4, 2.0], atol=1e-9)     # C_WP's, kept as held
     np.testing.assert_allclose(out.local[0], [0.0, 0.6])                 # the answer itself
     # off, or a waypoint the car can turn onto: driven as C_WP gave it
-    s, out = step(driven(1.5), Beside([0.0, 0.6]), 4, car=car, reverse_inside_turn=-1.0)
+    s, out = step(following(active=1, visited=0), Beside([0.0, 0.6]), 4, car=car,
+                  reverse_inside_turn=-1.0)
     np.testing.assert_allclose(out.waypoint[0], [0.4, 2.0], atol=1e-9)
     assert not out.held[0]
-    s, out = step(driven(1.5), Beside([1.0, 0.6]), 4, car=car)
+    s, out = step(following(active=1, visited=0), Beside([1.0, 0.6]), 4, car=car)
     np.testing.assert_allclose(out.waypoint[0], [0.4, 3.0], atol=1e-9)
     assert not out.held[0]
     assert FollowerConfig.paper().reverse_inside_turn < 0
     with pytest.raises(TopodrakeError, match="turn_radius_m"):
         FollowerConfig(turn_radius_m=0.0).check()
-    with pytest.raises(TopodrakeError, match="back_up_after_m"):
-        FollowerConfig(back_up_after_m=-1.0).check()
-
-
-def test_the_follower_counts_the_metres_driven_by_odometry():
-    s = following(active=1, visited=0)
-    assert s.driven[0] == 0.0
-    ev = Scripted(p=[0.5] * 4, prox=[0.2] * 4, dist=[1.0] * 4)
-    for x in (0.0, 0.3, 0.3, -0.1):            # forward, still, back: all count
-        s, _ = step(s, ev, 4, car=np.array([[x, 0.0, 0.0, 0.0, 0.0]]))
-    assert s.driven[0] == pytest.approx(0.7)
-    assert FollowerState.from_vector(s.to_vector()).driven[0] == pytest.approx(0.7)
 
 
 def test_dead_reckoning_waypoints_are_not_backed_up():

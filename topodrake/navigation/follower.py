@@ -65,8 +65,6 @@ car: driving forward at full lock the car would circle it (an anchor
 beside the car), and a near answer far off the heading (C_WP's typical
 large error) would swing the car round; backing up brings the target
 where the car can turn onto it, and the next answer comes from farther.
-It backs up only once it has driven ``back_up_after_m``: at the start the
-ground behind it is unseen.
 
 Along routes with the teach drives' legs a route tracker
 (:mod:`topodrake.navigation.tracker`; ``odometry_check``) keeps each car's
@@ -155,9 +153,6 @@ class FollowerConfig:
                                     # radius widened by this share) is replaced by a point
                                     # straight behind: the car backs up until it can turn onto
                                     # it (negative: off)
-    back_up_after_m: float = 1.0    # ... once the car has driven this far: at the start the
-                                    # ground behind it is unseen (the lidar looks 240 deg
-                                    # ahead); later it backs up over ground it came across
     turn_radius_m: float = field(default_factory=lambda: VehicleConfig().turn_radius())
                                     # the car's smallest turning radius
     manoeuvres: bool = True         # the expert's closed-loop check and manoeuvre search run
@@ -198,9 +193,6 @@ class FollowerConfig:
             raise TopodrakeError(f"follower tracked_reach_m and tracked_sure_m must be >= 0 "
                                  f"(0: off), got {self.tracked_reach_m} and "
                                  f"{self.tracked_sure_m}")
-        if not (np.isfinite(self.back_up_after_m) and self.back_up_after_m >= 0.0):
-            raise TopodrakeError(f"follower back_up_after_m must be >= 0, got "
-                                 f"{self.back_up_after_m}")
         if not (np.isfinite(self.legs_m) and self.legs_m >= 0.0):
             raise TopodrakeError(f"follower legs_m must be >= 0 (0: off), got {self.legs_m}")
         if self.dr_back_anchors < -1:
@@ -249,7 +241,6 @@ class FollowerState:
     var: np.ndarray | None = None    # (N, 9): its covariance (3 x 3 over x, y, heading)
     odo: np.ndarray | None = None    # (N, 3): the odometry pose of the last period (NaN: none)
     misses: np.ndarray | None = None  # (N,) int: answers outvoted in a row
-    driven: np.ndarray | None = None  # (N,) metres driven since the start, by odometry
 
     def __post_init__(self) -> None:
         n = len(self.mode)
@@ -265,8 +256,6 @@ class FollowerState:
             self.odo = np.full((n, 3), np.nan)
         if self.misses is None:
             self.misses = np.zeros(n, np.int64)
-        if self.driven is None:
-            self.driven = np.zeros(n)
 
     @classmethod
     def initial(cls, n: int, track: np.ndarray | int = 0) -> "FollowerState":
@@ -298,8 +287,7 @@ class FollowerState:
             raise ValueError("to_vector packs the state of one car")
         return np.array([self.mode[0], self.active[0], self.visited[0], *self.waypoint[0],
                          self.dr_count[0], self.reason[0], self.best_p[0], self.stall[0],
-                         self.ref[0], *self.rel[0], *self.var[0], *self.odo[0], self.misses[0],
-                         self.driven[0]],
+                         self.ref[0], *self.rel[0], *self.var[0], *self.odo[0], self.misses[0]],
                         np.float64)
 
     @classmethod
@@ -308,12 +296,12 @@ class FollowerState:
         i = lambda x: np.array([int(round(x))], np.int64)   # noqa: E731
         return cls(i(v[0]), i(v[1]), i(v[2]), v[None, 3:5].copy(), i(v[5]), i(v[6]),
                    np.array([v[7]]), i(v[8]), None, i(v[9]), v[None, 10:13].copy(),
-                   v[None, 13:22].copy(), v[None, 22:25].copy(), i(v[25]), np.array([v[26]]))
+                   v[None, 13:22].copy(), v[None, 22:25].copy(), i(v[25]))
 
 
 _FIELDS = ("mode", "active", "visited", "waypoint", "dr_count", "reason", "best_p", "stall",
-           "track", "ref", "rel", "var", "odo", "misses", "driven")
-STATE_SIZE = 27
+           "track", "ref", "rel", "var", "odo", "misses")
+STATE_SIZE = 26
 
 
 @dataclass
@@ -391,11 +379,8 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     car_state = np.asarray(car_state, np.float64).reshape(n, 5)
     # the car's pose along its route by odometry, checked by C_WP's answers
     frames = getattr(evaluate, "anchor_frames", None) if cfg.odometry_check else None
-    moved = np.isfinite(state.odo).all(axis=1)
-    new.driven[moved] += np.hypot(*(car_state[moved, :2] - state.odo[moved, :2]).T)
     if frames is not None:
         tracker.advance(new, car_state[:, :3], TRACKER)
-    new.odo[:] = car_state[:, :3]
     per = _Period(cfg, state, new, np.broadcast_to(np.asarray(n_anchors, np.int64), (n,)),
                   car_state, evaluate, frames, np.full((n, 2), np.nan), np.full((n, 2), np.nan),
                   np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool))
@@ -634,8 +619,7 @@ def _drive(per: _Period) -> StepOutput:
     local[off], local_overlap[off], local_heading[off] = np.nan, np.nan, np.nan
     held = off & ((new.mode == FOLLOW) | (new.mode == DEAD_RECKONING))
     if cfg.reverse_inside_turn >= 0:
-        answer = np.flatnonzero((new.mode == FOLLOW) & ~held
-                                & (new.driven >= cfg.back_up_after_m))
+        answer = np.flatnonzero((new.mode == FOLLOW) & ~held)
         drive[answer], backed = back_up_inside_turn(drive[answer], car_state[answer], cfg)
         held[answer[backed]] = True             # the follower's own waypoint now
     return StepOutput(drive, target, local, local_overlap, local_heading, held)
