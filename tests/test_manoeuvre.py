@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from topodrake.control import controls_toward
-from topodrake.navigation.manoeuvre import (ManoeuvreConfig, Manoeuvres, local_grid, ray_path,
-                                            seen_ground, wall_points)
+from topodrake.navigation.manoeuvre import Manoeuvres, local_grid, ray_path, wall_points
 from topodrake.rmp import RmpConfig
 from topodrake.sensing.config import LidarConfig
 from topodrake.sensing.lidar import Lidar
@@ -45,42 +44,12 @@ def test_ray_path_runs_through_the_waypoint_to_its_length():
     assert far[-1] == pytest.approx([5.0, 0.0])
 
 
-def test_the_ground_behind_the_car_is_unseen_until_it_looks_there():
-    lidar = LidarConfig()
-    seen = seen_ground(np.array([[0.0, 0.0, 0.0], [np.nan, np.nan, np.nan]]), lidar, 0.35)
-    x, y = np.array([1.0, 0.0, -0.2, -1.0, -1.0]), np.array([0.0, 1.0, 0.0, 0.0, 0.5])
-    np.testing.assert_array_equal(seen(x, y), [True, True, True, False, False])
-    assert not seen(np.array([11.0]), np.array([0.0]))[0]          # beyond the range
-    turned = seen_ground(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, np.pi]]), lidar, 0.35)
-    assert turned(np.array([-1.0]), np.array([0.0]))[0]             # it has looked back
-    wall = np.stack([np.full(50, 1.0), np.linspace(-1, 1, 50)], axis=1)
-    g = local_grid(wall, np.zeros(2), 2.0, 0.05, seen)
-    col, row = int(2.0 / 0.05), int(2.0 / 0.05)
-    assert g.clearance[row, col] == pytest.approx(0.35, abs=0.06)     # the footprint's edge
-    assert g.clearance[row, col + 10] == pytest.approx(0.5, abs=0.06)  # the wall ahead
-
-
-def test_a_car_at_its_start_does_not_back_into_ground_it_has_not_seen():
-    """Facing away from a wall 0.35 m behind it, with a waypoint beside it
-    that the RMP circles: a manoeuvre that backs up blind hits the wall;
-    with the unseen ground a wall the car turns in forward and reaches it."""
-    from topodrake.world import load_world
-
-    world = load_world("test-3")
-    start, th = np.array([15.91, 2.93, np.radians(183.0)]), np.radians(183.0)
-    goal = start[:2] + 0.6 * np.array([-np.sin(th), np.cos(th)])     # 0.6 m to its left
-    blind, _ = _drive(world, start, goal, True, config=ManoeuvreConfig(unseen_walls=False))
-    careful, man = _drive(world, start, goal, True)
-    assert blind == "collision"
-    assert careful == "reached"
-
-
-def _drive(world, start, waypoint, manoeuvres: bool, periods=150, config=None):
+def _drive(world, start, waypoint, manoeuvres: bool, periods=150):
     lidar_cfg, veh, rmp = LidarConfig(), VehicleConfig(), RmpConfig()
     lidar = Lidar(world, lidar_cfg)
     st = np.zeros((1, 5))
     st[0, :3] = start
-    man = Manoeuvres(1, st[:, :3], lidar_cfg, config) if manoeuvres else None
+    man = Manoeuvres(1, st[:, :3], lidar_cfg) if manoeuvres else None
     for k in range(periods):
         ranges = lidar.scan(st[:, :3])
         wp = np.array([waypoint], float)

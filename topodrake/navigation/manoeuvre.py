@@ -47,11 +47,6 @@ class ManoeuvreConfig:
     half_m: float = 3.5           # the local grid reaches this far from the car each way
     resolution_m: float = 0.05
     join_m: float = 0.3           # neighbouring beams' hits closer than this are one wall
-    unseen_walls: bool = True     # ground no kept scan has looked at counts as a wall (the
-                                  # lidar looks 240 deg ahead: at the start the ground behind
-                                  # the car is unseen, and a reverse leg must not enter it)
-    footprint_m: float = 0.35     # ... but the ground within this of a pose the car was at
-                                  # is known free
     ray_m: float = 3.0            # the predicted "path" runs this far through the waypoint
     expert: ExpertConfig = field(default_factory=ExpertConfig)
 
@@ -79,46 +74,19 @@ def wall_points(points: np.ndarray, mask: np.ndarray, join_m: float, step_m: flo
     return np.concatenate([points[mask], (a[:, None] + t * (b - a)[:, None]).reshape(-1, 2)])
 
 
-def local_grid(points: np.ndarray, centre: np.ndarray, half_m: float, resolution_m: float,
-               seen=None) -> LocalGrid:
+def local_grid(points: np.ndarray, centre: np.ndarray, half_m: float, resolution_m: float
+               ) -> LocalGrid:
     """Clearance (m) to the nearest of ``points`` (P, 2) on a square grid
-    around ``centre``; outside the grid counts as a wall (the kernel's rule),
-    and with ``seen`` (a function of the cells' centres (n, n) x and y
-    giving a boolean (n, n)) so does every cell it leaves out."""
+    around ``centre``; outside the grid counts as a wall (the kernel's rule)."""
     n = int(np.ceil(2 * half_m / resolution_m))
     ox, oy = float(centre[0] - half_m), float(centre[1] - half_m)
     occ = np.zeros((n, n), bool)
-    if seen is not None:
-        ys, xs = (np.mgrid[0:n, 0:n] + 0.5) * resolution_m
-        occ = ~seen(xs + ox, ys + oy)
     c = np.floor((points[:, 0] - ox) / resolution_m).astype(np.int64)
     r = np.floor((points[:, 1] - oy) / resolution_m).astype(np.int64)
     inside = (c >= 0) & (c < n) & (r >= 0) & (r < n)
     occ[r[inside], c[inside]] = True
     clear = distance_transform_edt(~occ) * resolution_m if occ.any() else np.full((n, n), 1e3)
     return LocalGrid(np.ascontiguousarray(clear, np.float64), (ox, oy), resolution_m)
-
-
-def seen_ground(poses: np.ndarray, lidar: LidarConfig, footprint_m: float):
-    """The test of which points a car has looked at from ``poses`` (S, 3;
-    NaN rows skipped): inside some pose's lidar wedge (its field of view,
-    out to its range) or within ``footprint_m`` of a pose (where the car
-    was). A function of x and y arrays of one shape; walls stay walls
-    through the hits the grid is built from."""
-    poses = poses[np.isfinite(poses).all(axis=1)]
-    half = 0.5 * np.radians(lidar.fov_deg)
-    eyes = poses[:, :2] + lidar.forward_m * np.column_stack([np.cos(poses[:, 2]),
-                                                             np.sin(poses[:, 2])])
-
-    def seen(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        out = np.zeros(x.shape, bool)
-        for pose, eye in zip(poses, eyes):
-            dx, dy = x - eye[0], y - eye[1]
-            bearing = np.angle(np.exp(1j * (np.arctan2(dy, dx) - pose[2])))
-            out |= (np.abs(bearing) <= half) & (dx * dx + dy * dy <= lidar.range_m ** 2)
-            out |= (x - pose[0]) ** 2 + (y - pose[1]) ** 2 <= footprint_m ** 2
-        return out
-    return seen
 
 
 def ray_path(pose: np.ndarray, waypoint: np.ndarray, ray_m: float, step_m: float = 0.1
@@ -145,7 +113,6 @@ class Manoeuvres:
         s, b = self.config.scans, lidar.beams
         self.points = np.zeros((n, s, b, 2))
         self.mask = np.zeros((n, s, b), bool)
-        self.poses = np.full((n, s, 3), np.nan)     # where each kept scan was taken
         self.periods = np.zeros(n, np.int64)
         self.memory = initial_memory(starts_odo)
         self.started = np.zeros(n, np.int64)   # manoeuvres started, per car
@@ -159,7 +126,6 @@ class Manoeuvres:
             slot = (self.periods[c] // self.config.every) % self.config.scans
             self.points[c, slot] = pts
             self.mask[c, slot] = hit
-            self.poses[c, slot] = poses_odo[keep]
         self.periods[cars] += 1
 
     def step(self, cars: np.ndarray, poses_odo: np.ndarray, waypoints: np.ndarray,
@@ -179,11 +145,9 @@ class Manoeuvres:
                 _note_pose(row[0], poses_odo[i], self.vehicle)
                 row[0, _M_TRUST] = max(row[0, _M_TRUST] - 1, 0)
                 continue
-            seen = seen_ground(np.vstack([self.poses[car], poses_odo[i:i + 1]]), self.lidar,
-                               cfg.footprint_m) if cfg.unseen_walls else None
             grid = local_grid(wall_points(self.points[car], self.mask[car], cfg.join_m,
                                           0.5 * cfg.resolution_m),
-                              poses_odo[i], cfg.half_m, cfg.resolution_m, seen)
+                              poses_odo[i], cfg.half_m, cfg.resolution_m)
             paths = PackedPaths.pack([ray_path(poses_odo[i], out[i], cfg.ray_m)])
             was = row[0, _M_MODE] == 1.0 and row[0, _M_LEFT] > 0
             wp, _ = expert_waypoints(grid, paths, np.zeros(1, np.int64), poses_odo[i:i + 1],
@@ -233,4 +197,4 @@ def _note_pose(mem: np.ndarray, pose: np.ndarray, vehicle: VehicleConfig) -> Non
 
 
 __all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "local_grid", "ray_path",
-           "seen_ground", "wall_points"]
+           "wall_points"]
