@@ -19,8 +19,9 @@ plan jump there. On a lidar map with ``scan_match`` the groups with a
 vertex whose scan registers onto the view come first
 (:func:`matched_first`), and a direct start-goal link needs the two scans
 to match; with ``start_near_m`` the plan starts first from the vertices
-the start's scan registers onto within it (:func:`near_start_links`). With ``direct_check`` a direct start-goal link also needs the
-start's and the goal's links to be one place (:func:`one_place`). The
+the start's scan registers onto within it (:func:`near_start_links`).
+With ``direct_check`` a direct start-goal link also needs the start's and
+the goal's links to be one place (:func:`one_place`). The
 route's hops keep the map's legs; on a map that places joins by scans,
 with ``goal_leg``, the hop into the goal gets the pose the goal's scan
 registers to on the last vertex's, where the fit pins it.
@@ -135,13 +136,11 @@ def matched_first(topomap: TopoMap, groups: list[list[tuple[int, float]]],
 
 def near_start_links(topomap: TopoMap, links: list[tuple[int, float]],
                      start_scan: np.ndarray) -> list[tuple[int, float]]:
-    """``links`` from the start without those to a vertex whose scan the
-    start's registers onto farther than ``start_near_m`` away, where another
-    link's registers within it: RE trusts anchors metres along a drive as
-    readily as the one the car stands by, and a plan that starts metres on
-    has the car take its first hop blind. Where a link's registers within
-    it, only such links stay (an unpinned fit may lie metres down a
-    corridor); else all do."""
+    """The ``links`` from the start to vertices whose scans the start's scan
+    registers onto within ``start_near_m`` (pinning the pose), where there
+    are any; else all ``links``. RE trusts anchors metres along a drive as
+    readily as the one the car stands by; a fit that does not pin the pose
+    may lie metres down a corridor, so it does not count as near."""
     from topodrake.topomap.build import join_legs
 
     near_m = topomap.config.start_near_m
