@@ -326,9 +326,9 @@ class RegistrationPolicy:
         jg = np.array(jg).reshape(-1, 3)
         # the route's start: a car without any estimate may take the identity fit onto the
         # anchor's own scan even where it slides
-        fresh = np.array([search[q] and cfg.start_slides and legs is not None and not np.isfinite(
-            track[cars[q]].reshape(cfg.slots, SLOT)[:, _EST]).any() for q in range(m)], bool)
-        jstart = fresh[jq] & js & (jf == self.k) & np.all(jg == 0.0, axis=1)
+        placed = np.isfinite(track[cars].reshape(m, cfg.slots, SLOT)[:, :, _EST]).any(axis=(1, 2))
+        starting = search & ~placed & (cfg.start_slides and legs is not None)
+        jstart = starting[jq] & js & (jf == self.k) & np.all(jg == 0.0, axis=1)
         best = np.full(m, -1, np.int64)
         if len(jq):
             res = self._register(obs[jq], feats[jq, jf, 4:], jg, js)
