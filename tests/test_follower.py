@@ -345,6 +345,53 @@ def test_a_waypoint_beside_the_car_is_driven_as_a_point_behind_it():
         FollowerConfig(turn_radius_m=0.0).check()
 
 
+class NearThenAhead(Scripted):
+    """Waypoints per anchor in the car frame (``points`` (A, 2)); RE 0.99."""
+
+    def __init__(self, points):
+        points = np.asarray(points, float)
+        super().__init__(p=[0.99] * len(points), prox=[0.2] * len(points), dist=[1.0] * len(points))
+        self.points = points
+
+    def __call__(self, cars, anchors, cwp, re):
+        ans = super().__call__(cars, anchors, cwp, re)
+        if cwp:
+            ans.waypoint = self.points[np.asarray(anchors)]
+        return ans
+
+
+def test_an_anchor_beside_the_car_is_passed_when_the_next_lies_ahead():
+    """A car started beside its route's first anchors would back up blind:
+    an active anchor inside the turning circle and within ``skip_inside_m``
+    counts as visited when C_WP puts the next one ahead, outside the circle;
+    otherwise (the next one behind or inside too, the anchor farther, the
+    rule off, or the route's last anchor) the car backs up as before."""
+    car = np.array([[1.0, 2.0, np.pi / 2, 0.0, 0.0]])          # facing +y
+    ev = NearThenAhead([[0.0, 0.0], [0.0, 0.3], [1.2, 0.2], [2.0, 0.0]])
+    s, out = step(following(active=1, visited=0), ev, 4, car=car)
+    assert s.active[0] == 2 and s.visited[0] == 1 and out.target[0] == 2 and not out.held[0]
+    np.testing.assert_allclose(out.waypoint[0], [0.8, 3.2], atol=1e-9)   # anchor 2's answer
+    np.testing.assert_allclose(out.local[0], [1.2, 0.2])
+    for points, kw in (([[0, 0], [0, 0.3], [-1.2, 0.2], [2, 0]], {}),      # the next one behind
+                       ([[0, 0], [0, 0.3], [0.1, 0.4], [2, 0]], {}),       # ... inside too
+                       ([[0, 0], [0, 0.3], [1.2, 0.2], [2, 0]], {"skip_inside_m": 0.0})):
+        s, out = step(following(active=1, visited=0), NearThenAhead(points), 4, car=car, **kw)
+        assert s.active[0] == 1 and out.held[0]
+        np.testing.assert_allclose(out.waypoint[0], [1.0, 1.0], atol=1e-9)   # backing up
+    s, out = step(following(active=1, visited=0), ev, 4, car=car, skip_inside_m=0.25)
+    assert s.active[0] == 1 and out.held[0]                      # the anchor is 0.3 m off
+    s, out = step(following(active=1, visited=0), ev, 2, car=car)
+    assert s.active[0] == 1 and out.held[0]                      # the goal is never skipped
+    # past the route's first skip_inside_first anchors the car backs up (it came that way)
+    later = NearThenAhead([[0, 0], [0, 0], [0, 0], [0, 0.3], [1.2, 0.2], [2, 0]])
+    s, out = step(following(active=3, visited=2), later, 6, car=car)
+    assert s.active[0] == 3 and out.held[0]
+    s, out = step(following(active=3, visited=2), later, 6, car=car, skip_inside_first=4)
+    assert s.active[0] == 4 and not out.held[0]
+    with pytest.raises(TopodrakeError, match="skip_inside_first"):
+        FollowerConfig(skip_inside_m=-1.0).check()
+
+
 def test_dead_reckoning_waypoints_are_not_backed_up():
     s = following(active=1, visited=0)
     s.mode[:] = DEAD_RECKONING

@@ -65,6 +65,10 @@ car: driving forward at full lock the car would circle it (an anchor
 beside the car), and a near answer far off the heading (C_WP's typical
 large error) would swing the car round; backing up brings the target
 where the car can turn onto it, and the next answer comes from farther.
+Among the route's first anchors (``skip_inside_first``; ours) such an
+anchor counts as passed instead when C_WP puts the next one ahead, where
+the car can drive onto it: at the start the car has not seen what lies
+behind it (its lidar looks ahead), and backing up drove it into walls.
 
 Along routes with the teach drives' legs a route tracker
 (:mod:`topodrake.navigation.tracker`; ``odometry_check``) keeps each car's
@@ -153,6 +157,12 @@ class FollowerConfig:
                                     # radius widened by this share) is replaced by a point
                                     # straight behind: the car backs up until it can turn onto
                                     # it (negative: off)
+    skip_inside_first: int = 3      # ... but an anchor among the route's first this many,
+    skip_inside_m: float = 1.0      # this close, counts as passed when C_WP puts the next one
+                                    # where the car can drive onto it (a car started beside its
+                                    # route's first anchors would back up into ground its lidar
+                                    # has not seen; later, behind it lies the way it came;
+                                    # either 0: off)
     turn_radius_m: float = field(default_factory=lambda: VehicleConfig().turn_radius())
                                     # the car's smallest turning radius
     manoeuvres: bool = True         # the expert's closed-loop check and manoeuvre search run
@@ -170,7 +180,8 @@ class FollowerConfig:
         return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65,
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
                    odometry_check=False, scan_fix=False, tracked_sure_m=0.0,
-                   reverse_inside_turn=-1.0, legs_m=0.0, manoeuvres=False)
+                   reverse_inside_turn=-1.0, skip_inside_first=0, legs_m=0.0,
+                   manoeuvres=False)
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
@@ -182,6 +193,11 @@ class FollowerConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise TopodrakeError(f"follower {name} must be in [0, 1], got {v}")
+        if not (np.isfinite(self.skip_inside_m) and self.skip_inside_m >= 0.0
+                and self.skip_inside_first >= 0):
+            raise TopodrakeError(f"follower skip_inside_m and skip_inside_first must be >= 0 "
+                                 f"(0: off), got {self.skip_inside_m} and "
+                                 f"{self.skip_inside_first}")
         if not self.turn_radius_m > 0:
             raise TopodrakeError(f"follower turn_radius_m must be > 0, got {self.turn_radius_m}")
         if not 0.0 < self.check_deg <= 180.0:
@@ -620,9 +636,46 @@ def _drive(per: _Period) -> StepOutput:
     held = off & ((new.mode == FOLLOW) | (new.mode == DEAD_RECKONING))
     if cfg.reverse_inside_turn >= 0:
         answer = np.flatnonzero((new.mode == FOLLOW) & ~held)
+        _skip_inside_turn(per, answer, drive, target)
         drive[answer], backed = back_up_inside_turn(drive[answer], car_state[answer], cfg)
         held[answer[backed]] = True             # the follower's own waypoint now
     return StepOutput(drive, target, local, local_overlap, local_heading, held)
+
+
+def _skip_inside_turn(per: _Period, cars: np.ndarray, drive: np.ndarray, target: np.ndarray
+                      ) -> None:
+    """Cars among ``cars`` whose active anchor is one of the route's first
+    ``skip_inside_first``, whose answer toward it lies inside the turning
+    circle within ``skip_inside_m``, and whose answer toward the
+    next anchor lies ahead outside it: the near anchor counts as visited and
+    they drive the next answer (in place)."""
+    cfg, new = per.cfg, per.new
+    if cfg.skip_inside_m <= 0 or not cars.size:
+        return
+    cars = cars[new.active[cars] < cfg.skip_inside_first]
+    local = per.local[cars]
+    near = np.isfinite(local).all(axis=1) & (np.hypot(*local.T) < cfg.skip_inside_m) \
+        & inside_turn(np.nan_to_num(local), cfg.turn_radius_m, cfg.reverse_inside_turn) \
+        & (new.active[cars] < per.n_anchors[cars] - 1)
+    c = cars[near]
+    if not c.size:
+        return
+    ans = per.evaluate(c, new.active[c] + 1, True, False)
+    w = np.asarray(ans.waypoint, np.float64)
+    ok = np.isfinite(w).all(axis=1) & (w[:, 0] > 0.0) \
+        & ~inside_turn(np.nan_to_num(w), cfg.turn_radius_m, cfg.reverse_inside_turn)
+    c, w = c[ok], w[ok]
+    if not c.size:
+        return
+    new.visited[c] = new.active[c]
+    new.active[c] += 1
+    new.stall[c] = 0
+    per.local[c] = w
+    per.local_overlap[c] = ans.overlap[ok]
+    if ans.heading is not None:
+        per.local_heading[c] = np.asarray(ans.heading)[ok]
+    target[c] = new.active[c]
+    drive[c] = new.waypoint[c] = car_to_world(w[:, None], per.car_state[c])[:, 0]
 
 
 BACK_UP_M = 1.0     # how far behind the car the backing-up waypoint lies
