@@ -362,29 +362,35 @@ class NearThenAhead(Scripted):
 
 def test_an_anchor_beside_the_car_is_passed_when_the_next_lies_ahead():
     """A car started beside its route's first anchors would back up blind:
-    an active anchor inside the turning circle and within ``skip_inside_m``
+    with ``skip_inside_first`` (off by default) an active anchor among the
+    first ones, inside the turning circle and within ``skip_inside_m``,
     counts as visited when C_WP puts the next one ahead, outside the circle;
-    otherwise (the next one behind or inside too, the anchor farther, the
-    rule off, or the route's last anchor) the car backs up as before."""
+    otherwise (the next one behind or inside too, the anchor farther or
+    later on the route, or the route's last anchor) the car backs up."""
     car = np.array([[1.0, 2.0, np.pi / 2, 0.0, 0.0]])          # facing +y
     ev = NearThenAhead([[0.0, 0.0], [0.0, 0.3], [1.2, 0.2], [2.0, 0.0]])
     s, out = step(following(active=1, visited=0), ev, 4, car=car)
+    assert s.active[0] == 1 and out.held[0]                      # off by default: backing up
+    on = {"skip_inside_first": 3}
+    s, out = step(following(active=1, visited=0), ev, 4, car=car, **on)
     assert s.active[0] == 2 and s.visited[0] == 1 and out.target[0] == 2 and not out.held[0]
     np.testing.assert_allclose(out.waypoint[0], [0.8, 3.2], atol=1e-9)   # anchor 2's answer
     np.testing.assert_allclose(out.local[0], [1.2, 0.2])
     for points, kw in (([[0, 0], [0, 0.3], [-1.2, 0.2], [2, 0]], {}),      # the next one behind
                        ([[0, 0], [0, 0.3], [0.1, 0.4], [2, 0]], {}),       # ... inside too
                        ([[0, 0], [0, 0.3], [1.2, 0.2], [2, 0]], {"skip_inside_m": 0.0})):
-        s, out = step(following(active=1, visited=0), NearThenAhead(points), 4, car=car, **kw)
+        s, out = step(following(active=1, visited=0), NearThenAhead(points), 4, car=car,
+                      **{**on, **kw})
         assert s.active[0] == 1 and out.held[0]
         np.testing.assert_allclose(out.waypoint[0], [1.0, 1.0], atol=1e-9)   # backing up
-    s, out = step(following(active=1, visited=0), ev, 4, car=car, skip_inside_m=0.25)
+    s, out = step(following(active=1, visited=0), ev, 4, car=car, skip_inside_first=3,
+                  skip_inside_m=0.25)
     assert s.active[0] == 1 and out.held[0]                      # the anchor is 0.3 m off
-    s, out = step(following(active=1, visited=0), ev, 2, car=car)
+    s, out = step(following(active=1, visited=0), ev, 2, car=car, **on)
     assert s.active[0] == 1 and out.held[0]                      # the goal is never skipped
     # past the route's first skip_inside_first anchors the car backs up (it came that way)
     later = NearThenAhead([[0, 0], [0, 0], [0, 0], [0, 0.3], [1.2, 0.2], [2, 0]])
-    s, out = step(following(active=3, visited=2), later, 6, car=car)
+    s, out = step(following(active=3, visited=2), later, 6, car=car, **on)
     assert s.active[0] == 3 and out.held[0]
     s, out = step(following(active=3, visited=2), later, 6, car=car, skip_inside_first=4)
     assert s.active[0] == 4 and not out.held[0]

@@ -65,10 +65,10 @@ car: driving forward at full lock the car would circle it (an anchor
 beside the car), and a near answer far off the heading (C_WP's typical
 large error) would swing the car round; backing up brings the target
 where the car can turn onto it, and the next answer comes from farther.
-Among the route's first anchors (``skip_inside_first``; ours) such an
-anchor counts as passed instead when C_WP puts the next one ahead, where
-the car can drive onto it: at the start the car has not seen what lies
-behind it (its lidar looks ahead), and backing up drove it into walls.
+With ``skip_inside_first`` (off: an ablation) such an anchor among the
+route's first counts as passed instead when C_WP puts the next one ahead,
+where the car can drive onto it: at the start the car has not seen what
+lies behind it (its lidar looks ahead), and backing up drove it into walls.
 
 Along routes with the teach drives' legs a route tracker
 (:mod:`topodrake.navigation.tracker`; ``odometry_check``) keeps each car's
@@ -157,12 +157,13 @@ class FollowerConfig:
                                     # radius widened by this share) is replaced by a point
                                     # straight behind: the car backs up until it can turn onto
                                     # it (negative: off)
-    skip_inside_first: int = 3      # ... but an anchor among the route's first this many,
+    skip_inside_first: int = 0      # ... but an anchor among the route's first this many,
     skip_inside_m: float = 1.0      # this close, counts as passed when C_WP puts the next one
                                     # where the car can drive onto it (a car started beside its
                                     # route's first anchors would back up into ground its lidar
                                     # has not seen; later, behind it lies the way it came;
-                                    # either 0: off)
+                                    # either 0: off, the default: an ablation, it trusts a
+                                    # near answer that a learned C_WP gets wrong)
     turn_radius_m: float = field(default_factory=lambda: VehicleConfig().turn_radius())
                                     # the car's smallest turning radius
     manoeuvres: bool = True         # the expert's closed-loop check and manoeuvre search run
