@@ -394,8 +394,9 @@ def test_an_anchor_beside_the_car_is_passed_when_the_next_lies_ahead():
     assert s.active[0] == 3 and out.held[0]
     s, out = step(following(active=3, visited=2), later, 6, car=car, skip_inside_first=4)
     assert s.active[0] == 4 and not out.held[0]
-    with pytest.raises(TopodrakeError, match="skip_inside_first"):
-        FollowerConfig(skip_inside_m=-1.0).check()
+    for bad in ({"skip_inside_m": -1.0}, {"skip_inside_m": np.nan}, {"skip_inside_first": -1}):
+        with pytest.raises(TopodrakeError, match="skip_inside_m and skip_inside_first"):
+            FollowerConfig(**bad).check()
 
 
 def test_dead_reckoning_waypoints_are_not_backed_up():
