@@ -651,8 +651,8 @@ def _skip_inside_turn(per: _Period, cars: np.ndarray, drive: np.ndarray, target:
     next anchor lies ahead outside it: the near anchor counts as visited and
     they drive the next answer (in place)."""
     cfg, new = per.cfg, per.new
-    if cfg.skip_inside_m <= 0 or not cars.size:
-        return
+    if cfg.skip_inside_m <= 0 or cfg.skip_inside_first <= 0 or not cars.size:
+        return                                  # off (the default): no work each period
     cars = cars[new.active[cars] < cfg.skip_inside_first]
     local = per.local[cars]
     near = np.isfinite(local).all(axis=1) & (np.hypot(*local.T) < cfg.skip_inside_m) \
