@@ -257,6 +257,10 @@ def main(argv=None) -> int:
     ap.add_argument("--follower", metavar="JSON",
                     help="follower settings to change, as JSON (FollowerConfig fields; an "
                          "ablation), recorded in planning.json's config")
+    ap.add_argument("--replan", metavar="JSON",
+                    help="replanning schedule of the *_replan methods to change, as JSON "
+                         "(ReplanSchedule fields: first, every, discount, max_replans; default: "
+                         "the paper's), recorded in planning.json's config")
     ap.add_argument("--seed", type=at.seed, default=0, help="base seed of the trials")
     ap.add_argument("--data", default="data", help="cache of demonstrations and maps")
     ap.add_argument("--workers", type=at.count, default=1,

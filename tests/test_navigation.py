@@ -304,6 +304,19 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
         ReplanSchedule(discount=1.5).check()
 
 
+def test_a_replanning_schedule_from_json_changes_only_the_fields_named():
+    from topodrake.navigation.replan import ReplanSchedule
+
+    assert ReplanSchedule.from_json(None) == ReplanSchedule()
+    s = ReplanSchedule.from_json('{"first": 100, "every": 10}')
+    assert (s.first, s.every, s.discount) == (100, 10, ReplanSchedule().discount)
+    assert s.due(np.array([99, 100, 105, 110])).tolist() == [False, True, False, True]
+    for bad, why in (('[1]', "not a JSON object"), ('{"often": 2}', "often"),
+                     ('{"every": 0}', "every"), ('{"first": ', "--replan")):
+        with pytest.raises(TopodrakeError, match=why):
+            ReplanSchedule.from_json(bad)
+
+
 def test_a_run_passes_the_hops_before_its_last_visited_anchor_and_fails_the_next():
     from topodrake.navigation.replan import route_traversals
 

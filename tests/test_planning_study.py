@@ -113,6 +113,21 @@ def test_replanning_gain_is_the_smallest_gain_where_ours_is_below_0_97():
     assert pt.summarize({"c": house(0.98, 0.9)}, None, None)["replanning_gain"] is None
 
 
+def test_replanning_gains_pair_each_method_with_its_replanning_twin_per_house():
+    def house(lidar, replan, reg=None):
+        m = {"lidar": {"success": lidar}, "lidar_replan": {"success": replan}}
+        if reg is not None:
+            m["lidar_reg"] = {"success": reg}      # no twin: not paired
+        return {"methods": m}
+
+    s = pt.summarize({"a": house(0.5, 0.7, 0.9), "b": house(0.8, 0.7)}, None, None)
+    assert s["replanning_gains"] == {"lidar": {"min": pytest.approx(-0.1),
+                                               "mean": pytest.approx(0.05)}}
+    assert s["replanning_gain"] is None           # ours' figure needs ours
+    assert pt.summarize({"a": house(0.5, 0.6)}, None, None)["replanning_gains"]["lidar"][
+        "min"] == pytest.approx(0.1)
+
+
 def test_longest_link_is_the_longest_true_step_of_start_anchors_and_goal():
     from topodrake.navigation.route import Route
 
@@ -347,7 +362,8 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
     assert list(METHODS) == ["ours", "lidar", "lidar_reg", "sptm", "oracle", "ours_replan",
                              "ours_obstacles", "oracle_full", "ours_oracle_follow", "oracle_cwp",
                              "lidar_scale", "ours_scale", "lidar_oracle_follow",
-                             "lidar_scale_oracle_re", "lidar_oracle_cwp"]
+                             "lidar_scale_oracle_re", "lidar_oracle_cwp", "lidar_replan",
+                             "lidar_reg_replan"]
     assert ORACLE_METHODS == ("oracle_full", "ours_oracle_follow", "oracle_cwp",
                               "lidar_oracle_follow")
     for name, m in METHODS.items():
@@ -355,7 +371,11 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
         assert m.followed_by == FOLLOWERS[m.follower]
         assert m.oracle == (name in ORACLE_METHODS)
     assert {n: m.drive for n, m in METHODS.items() if m.drive != "plain"} == \
-        {"ours_replan": "replan", "ours_obstacles": "obstacles"}
+        {"ours_replan": "replan", "ours_obstacles": "obstacles", "lidar_replan": "replan",
+         "lidar_reg_replan": "replan"}
+    for name in ("ours_replan", "lidar_replan", "lidar_reg_replan"):   # the same system, replanning
+        plain = METHODS[name[:-len("_replan")]]
+        assert (METHODS[name].map, METHODS[name].follower) == (plain.map, plain.follower)
     assert [n for n, m in METHODS.items() if m.renders_routes] == ["oracle", "oracle_cwp"]
     assert METHODS["sptm"].map == "sptm" and METHODS["ours_oracle_follow"].map == "camera"
     assert METHODS["lidar_scale"].map == METHODS["lidar_oracle_follow"].map == "lidar"

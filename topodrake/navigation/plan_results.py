@@ -185,7 +185,7 @@ def planning(args, command: str) -> dict:
     cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
            "oracle_trials": args.oracle_trials,
            "trajectories": args.trajectories, "batch": args.batch, "seed": args.seed,
-           "replan": asdict(ReplanSchedule()), "obstacle_trials": args.obstacle_trials,
+           "replan": asdict(ReplanSchedule.from_json(getattr(args, "replan", None))), "obstacle_trials": args.obstacle_trials,
            "obstacles": args.obstacles,
            "pruned_fractions": fractions, "pruned_method": args.pruned_method,
            "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed,

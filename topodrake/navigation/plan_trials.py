@@ -296,6 +296,16 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
              for h in houses.values() if {"ours", "ours_replan"} <= set(h["methods"])
              and h["methods"]["ours"]["success"] < 0.97]
     out["replanning_gain"] = round(min(gains), 4) if gains else None
+    # every map method run with and without replanning: its smallest per-house gain
+    out["replanning_gains"] = {}
+    for name in {m[:-len("_replan")] for h in houses.values() for m in h["methods"]
+                 if m.endswith("_replan")}:
+        pairs = [(h["methods"][name]["success"], h["methods"][f"{name}_replan"]["success"])
+                 for h in houses.values() if {name, f"{name}_replan"} <= set(h["methods"])]
+        if pairs:
+            out["replanning_gains"][name] = {
+                "min": round(min(b - a for a, b in pairs), 4),
+                "mean": round(float(np.mean([b - a for a, b in pairs])), 4)}
     # planner errors apart from follower errors: plans with a step between look-alike places
     shares: dict = {}
     for h in houses.values():

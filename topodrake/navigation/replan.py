@@ -59,6 +59,24 @@ class ReplanSchedule:
             raise TopodrakeError(f"max_replans must be >= 0, got {self.max_replans}")
         return self
 
+    @classmethod
+    def from_json(cls, text: str | None) -> "ReplanSchedule":
+        """The schedule a ``--replan`` JSON object of its fields gives
+        (defaults for the others; none: the paper's), checked; a bad one is
+        refused in one line."""
+        import json
+
+        if not text:
+            return cls()
+        try:
+            fields = json.loads(text)
+            if not isinstance(fields, dict):
+                raise ValueError("not a JSON object")
+            return cls(**fields).check()
+        except (ValueError, TypeError, TopodrakeError) as e:
+            raise TopodrakeError(f"--replan {text!r} is not a JSON object of ReplanSchedule "
+                                 f"fields ({e})") from None
+
     def due(self, dr_count: np.ndarray) -> np.ndarray:
         """Which Dead reckoning period counts are a try."""
         c = np.asarray(dr_count, np.int64)
