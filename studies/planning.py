@@ -23,11 +23,13 @@ subset; existing maps are reused):
   camera RE (the navigation engine needs C_WP and RE on one modality);
 - ``sptm``: SPTM's graph (every 20th frame, retrieval shortcuts, top-1
   localization, hop-count path), followed by camera k=5 C_WP + RE;
-- ``ours_replan``: ``ours`` with replanning on the paper's schedule: a car
-  in dead reckoning plans again from where it stands after 5 periods and
-  then every 3, without the edge it fails on, and takes the new plan when it
-  beats the current one discounted by 0.99 per try, up to 5 new plans
-  (:mod:`topodrake.navigation.replan`); ``replanning_gain`` is the
+- ``ours_replan``: ``ours`` with replanning: a car in dead reckoning plans
+  again from where it stands in the last 10 periods before it would give
+  up (every 3), without the edge it fails on, and takes any new plan its
+  follower can start, up to 5 new plans (``--replan paper``: the paper's
+  schedule, from the 5th period; :mod:`topodrake.navigation.replan`);
+  ``lidar_replan`` and ``lidar_reg_replan`` the same for those methods;
+  ``replanning_gain`` is the
   smallest per-house gain over ``ours`` among the houses where ``ours`` is
   below 0.97;
 - ``oracle_full``: perfect perception, the design's ceiling: the oracle map
@@ -260,7 +262,8 @@ def main(argv=None) -> int:
     ap.add_argument("--replan", metavar="JSON",
                     help="replanning schedule of the *_replan methods to change, as JSON "
                          "(ReplanSchedule fields: first, every, discount, max_replans; default: "
-                         "the paper's), recorded in planning.json's config")
+                         "tries in the last 10 Dead reckoning periods before giving up), or "
+                         "'paper' for the paper's schedule; recorded in planning.json's config")
     ap.add_argument("--seed", type=at.seed, default=0, help="base seed of the trials")
     ap.add_argument("--data", default="data", help="cache of demonstrations and maps")
     ap.add_argument("--workers", type=at.count, default=1,

@@ -213,7 +213,8 @@ def test_a_car_in_dead_reckoning_is_replanned_without_the_failing_edge(box_world
         return None if (7, 8) not in excluded else route
 
     start = np.array([[1.0, 1.6, 0.4]])
-    res = follow_routes(engine, start, [bad], goal, t_max_s=60.0, replan=replan)
+    res = follow_routes(engine, start, [bad], goal, t_max_s=60.0, replan=replan,
+                        schedule=ReplanSchedule.paper())
     assert res.success[0] and res.outcome[0] == "goal" and res.plans[0] == 2
     assert res.excluded[0] == [(7, 8)] and len(asked) == 1
     assert np.hypot(*(asked[0][1][:2] - start[0, :2])) < 2.0     # replanned where it was lost
@@ -228,7 +229,7 @@ def test_replanning_in_the_drake_diagram_matches_the_engine(box_world, route, or
     new plan at the same period and drives the engine's path."""
     from topodrake.navigation.engine import NavigationConfig, NavigationEngine
     from topodrake.navigation.follower import FollowerConfig
-    from topodrake.navigation.replan import Replanner
+    from topodrake.navigation.replan import Replanner, ReplanSchedule
     from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
                                               make_navigation_diagram)
 
@@ -237,14 +238,14 @@ def test_replanning_in_the_drake_diagram_matches_the_engine(box_world, route, or
     follower = FollowerConfig(dr_max_iterations=20)
     start = np.array([1.0, 1.6, 0.4])
     sc = NavigationScenario(world="box", camera_enabled=False, follower=follower, t_max_s=60.0)
-    replanner = Replanner(plan, [bad])
+    replanner = Replanner(plan, [bad], ReplanSchedule.paper())
     runner = NavigationRunner(make_navigation_diagram(sc, bad, world=box_world, policy=oracles[0],
                                                       reach=oracles[1], replanner=replanner))
     drake = runner.run(start)
     assert drake.outcome == "reached" and drake.plans == 2 and drake.route is route
     assert replanner.excluded[0] == [(7, 8)]
     engine = NavigationEngine(box_world, *oracles, NavigationConfig(follower=follower))
-    again = Replanner(plan, [bad])
+    again = Replanner(plan, [bad], ReplanSchedule.paper())
     res = engine.run(start[None], [bad], t_max_s=60.0, replanner=again)
     assert NAV_OUTCOMES_OF(res) == "reached" and again.plans[0] == 2
     k = min(len(drake.poses), int(res.steps[0]) + 1)
@@ -267,13 +268,13 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     from topodrake.navigation.replan import Replanner, ReplanSchedule
     from topodrake.navigation.route import Route
 
-    sched = ReplanSchedule()
+    sched = ReplanSchedule.paper()
     assert np.flatnonzero(sched.due(np.arange(15))).tolist() == [5, 8, 11, 14]
     cur = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([1, 2, 3]), probability=0.5)
     worse = Route(np.zeros((2, 1)), np.zeros((2, 3)), vertices=np.array([4, 3]), probability=0.48)
     calls = []
     rp = Replanner(lambda i, pose, ex: calls.append(list(ex)) or worse, [cur],
-                   ReplanSchedule(max_replans=1))
+                   ReplanSchedule(first=5, every=3, discount=0.99, max_replans=1))
     st = FollowerState.initial(1)
     st.mode[:], st.visited[:], st.active[:] = DEAD_RECKONING, 0, 1
     taken = []
@@ -296,7 +297,7 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     assert rp.routes[0] is cur and rp.plans[0] == 1 and rp.excluded[0] == []
     # a plan the follower could not start (its start link below p_search) is not taken
     better = Route(np.zeros((2, 1)), np.zeros((2, 3)), probability=0.9, start_probability=0.7)
-    rp = Replanner(lambda i, pose, ex: better, [cur])
+    rp = Replanner(lambda i, pose, ex: better, [cur], ReplanSchedule.paper())
     st.dr_count[:] = 5
     assert rp.step(np.array([0]), st, np.zeros((1, 3)), p_start=0.8) == []
     assert rp.step(np.array([0]), st, np.zeros((1, 3)), p_start=0.6) == [(0, better)]
@@ -304,10 +305,34 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
         ReplanSchedule(discount=1.5).check()
 
 
+def test_the_default_schedule_asks_only_before_dead_reckoning_gives_up_and_takes_any_plan():
+    """Tries fall in the last 10 periods before the follower's default
+    give-up; a plan far worse than the current one is taken at the first
+    try; the paper's schedule asks from the 5th period."""
+    from topodrake.navigation.follower import DEAD_RECKONING, FollowerConfig, FollowerState
+    from topodrake.navigation.replan import Replanner, ReplanSchedule
+    from topodrake.navigation.route import Route
+
+    give_up = FollowerConfig().dr_max_iterations
+    tries = np.flatnonzero(ReplanSchedule().due(np.arange(give_up + 1))).tolist()
+    assert tries and all(give_up - 10 <= t < give_up for t in tries)
+    assert np.flatnonzero(ReplanSchedule.paper().due(np.arange(12))).tolist() == [5, 8, 11]
+    cur = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([1, 2, 3]), probability=0.9)
+    poor = Route(np.zeros((2, 1)), np.zeros((2, 3)), vertices=np.array([4, 3]), probability=0.1)
+    st = FollowerState.initial(1)
+    st.mode[:], st.visited[:], st.active[:] = DEAD_RECKONING, 0, 1
+    st.dr_count[:] = tries[0]
+    assert Replanner(lambda i, pose, ex: poor, [cur]).step(
+        np.array([0]), st, np.zeros((1, 3))) == [(0, poor)]
+    assert Replanner(lambda i, pose, ex: poor, [cur], ReplanSchedule.paper()).step(
+        np.array([0]), st, np.zeros((1, 3))) == []
+
+
 def test_a_replanning_schedule_from_json_changes_only_the_fields_named():
     from topodrake.navigation.replan import ReplanSchedule
 
     assert ReplanSchedule.from_json(None) == ReplanSchedule()
+    assert ReplanSchedule.from_json("paper") == ReplanSchedule.paper()
     s = ReplanSchedule.from_json('{"first": 100, "every": 10}')
     assert (s.first, s.every, s.discount) == (100, 10, ReplanSchedule().discount)
     assert s.due(np.array([99, 100, 105, 110])).tolist() == [False, True, False, True]

@@ -351,10 +351,10 @@ def add_navigate_parser(sub) -> None:
     nv.add_argument("--p", type=float, default=0.99,
                     help="p_sparsify of a chain (default: 0.99)")
     nv.add_argument("--replan", type=int, default=0,
-                    help="on a map: while dead reckoning (after 5 periods, then every 3), plan "
-                         "again from where the car is without the edge it fails on, and take "
-                         "the new plan when it beats the current one (discounted 0.99 per try); "
-                         "at most this many new plans (default: 0: no replanning)")
+                    help="on a map: a car about to give up in dead reckoning (its last 10 "
+                         "periods, every 3) plans again from where it is without the edge it "
+                         "fails on and takes the new plan if its follower can start it; at most "
+                         "this many new plans (default: 0: no replanning)")
     nv.add_argument("--update-map", action="store_true",
                     help="on a map: fold the drive into the probability of each edge it passed "
                          "or gave up on and save the map over its file (edges from "

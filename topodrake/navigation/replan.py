@@ -1,10 +1,15 @@
-"""Replanning while dead reckoning (the paper's schedule) and loop breaking.
+"""Replanning while dead reckoning, and loop breaking.
 
 The paper lets a car replan when it stays in Dead reckoning "for too long":
 its authors' follower asks the planner after 5 failing periods and then
 every 3, and accepts the new plan when its probability beats the current
 plan's discounted by 0.99 per try; otherwise the car keeps dead reckoning
-on the current plan (and gives up after 200 periods as before). Each try
+on the current plan (and gives up after 200 periods as before). That
+schedule (:meth:`ReplanSchedule.paper`) interrupts Dead reckoning that
+would have found the route again (cars enter it many times a drive), so
+the default asks only in the last periods before the car would give up,
+and takes any plan the follower can start: the current plan is then worth
+nothing (docs/figures.md, "Replanning before giving up"). Each try
 here plans from the car's current observation without the edge the car is
 failing on (its last visited anchor -> its active anchor); once a plan is
 accepted that edge stays excluded for the car, so a car that keeps failing
@@ -42,12 +47,21 @@ GIVE_UP = ("dead_reckoning_gave_up", "search_failed")
 
 @dataclass
 class ReplanSchedule:
-    """When a car in Dead reckoning asks for a new plan, and which it takes."""
+    """When a car in Dead reckoning asks for a new plan, and which it takes
+    (default: in the last 10 periods before the follower's default
+    ``dr_max_iterations`` of 200 gives up)."""
 
-    first: int = 5            # Dead reckoning periods before the first try
+    first: int = 190          # Dead reckoning periods before the first try
     every: int = 3            # then a try every this many periods
-    discount: float = 0.99    # a new plan is taken when p_new > p_current * discount ** tries
+    discount: float = 0.01    # a new plan is taken when p_new > p_current * discount ** tries
     max_replans: int = 5      # accepted new plans per car and run
+
+    @classmethod
+    def paper(cls) -> "ReplanSchedule":
+        """The paper's schedule (its authors' follower): tries from the 5th
+        period, every 3, a new plan taken when it beats the current one
+        discounted by 0.99 per try."""
+        return cls(first=5, every=3, discount=0.99, max_replans=5)
 
     def check(self) -> "ReplanSchedule":
         if self.first < 1 or self.every < 1:
@@ -62,20 +76,22 @@ class ReplanSchedule:
     @classmethod
     def from_json(cls, text: str | None) -> "ReplanSchedule":
         """The schedule a ``--replan`` JSON object of its fields gives
-        (defaults for the others; none: the paper's), checked; a bad one is
-        refused in one line."""
+        (defaults for the others; none: the default; ``"paper"``: the
+        paper's), checked; a bad one is refused in one line."""
         import json
 
         if not text:
             return cls()
+        if text.strip() == "paper":
+            return cls.paper()
         try:
             fields = json.loads(text)
             if not isinstance(fields, dict):
                 raise ValueError("not a JSON object")
             return cls(**fields).check()
         except (ValueError, TypeError, TopodrakeError) as e:
-            raise TopodrakeError(f"--replan {text!r} is not a JSON object of ReplanSchedule "
-                                 f"fields ({e})") from None
+            raise TopodrakeError(f"--replan {text!r} is not 'paper' or a JSON object of "
+                                 f"ReplanSchedule fields ({e})") from None
 
     def due(self, dr_count: np.ndarray) -> np.ndarray:
         """Which Dead reckoning period counts are a try."""
