@@ -62,6 +62,8 @@ class FollowerFsm(LeafSystem):
         self.policy = policy
         self.reach = reach
         self.config = (config or FollowerConfig()).check()
+        if replanner is not None:
+            replanner.schedule.check_against(self.config.dr_max_iterations)
         self.replanner = replanner
         self._routes: list[_EncodedRoute] = []
         self._encode(route)

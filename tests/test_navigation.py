@@ -213,13 +213,15 @@ def test_a_car_in_dead_reckoning_is_replanned_without_the_failing_edge(box_world
         return None if (7, 8) not in excluded else route
 
     start = np.array([[1.0, 1.6, 0.4]])
+    with pytest.raises(TopodrakeError, match="gives up at 20"):    # the default tries at 190
+        follow_routes(engine, start, [bad], goal, t_max_s=60.0, replan=replan)
     res = follow_routes(engine, start, [bad], goal, t_max_s=60.0, replan=replan,
                         schedule=ReplanSchedule.paper())
     assert res.success[0] and res.outcome[0] == "goal" and res.plans[0] == 2
     assert res.excluded[0] == [(7, 8)] and len(asked) == 1
     assert np.hypot(*(asked[0][1][:2] - start[0, :2])) < 2.0     # replanned where it was lost
     none = follow_routes(engine, start, [bad], goal, t_max_s=60.0, replan=replan,
-                         schedule=ReplanSchedule(max_replans=0))
+                         schedule=ReplanSchedule(first=5, max_replans=0))
     assert not none.success[0] and none.outcome[0] == "dead_reckoning_gave_up"
     assert none.plans[0] == 1 and len(asked) == 1
 
@@ -238,6 +240,9 @@ def test_replanning_in_the_drake_diagram_matches_the_engine(box_world, route, or
     follower = FollowerConfig(dr_max_iterations=20)
     start = np.array([1.0, 1.6, 0.4])
     sc = NavigationScenario(world="box", camera_enabled=False, follower=follower, t_max_s=60.0)
+    with pytest.raises(TopodrakeError, match="gives up at 20"):
+        make_navigation_diagram(sc, bad, world=box_world, policy=oracles[0], reach=oracles[1],
+                                replanner=Replanner(plan, [bad]))
     replanner = Replanner(plan, [bad], ReplanSchedule.paper())
     runner = NavigationRunner(make_navigation_diagram(sc, bad, world=box_world, policy=oracles[0],
                                                       reach=oracles[1], replanner=replanner))
@@ -326,6 +331,9 @@ def test_the_default_schedule_asks_only_before_dead_reckoning_gives_up_and_takes
         np.array([0]), st, np.zeros((1, 3))) == [(0, poor)]
     assert Replanner(lambda i, pose, ex: poor, [cur], ReplanSchedule.paper()).step(
         np.array([0]), st, np.zeros((1, 3))) == []
+    assert ReplanSchedule().check_against(give_up) == ReplanSchedule()
+    with pytest.raises(TopodrakeError, match="gives up at 150"):
+        ReplanSchedule().check_against(150)
 
 
 def test_a_replanning_schedule_from_json_changes_only_the_fields_named():

@@ -138,6 +138,8 @@ class NavigationEngine:
         n = len(starts)
         if len(routes) != n:
             raise ValueError(f"{n} starts and {len(routes)} routes")
+        if replanner is not None:
+            replanner.schedule.check_against(self.config.follower.dr_max_iterations)
         if features is None:
             features = encode_routes(routes, self.policy, self.reach,
                                      legs_m=self.config.follower.legs_m)

@@ -93,6 +93,16 @@ class ReplanSchedule:
             raise TopodrakeError(f"--replan {text!r} is not 'paper' or a JSON object of "
                                  f"ReplanSchedule fields ({e})") from None
 
+    def check_against(self, dr_max_iterations: int) -> "ReplanSchedule":
+        """Refuse a schedule whose first try comes when Dead reckoning has
+        already given up (it would never replan)."""
+        if self.first >= dr_max_iterations:
+            raise TopodrakeError(f"the replanning schedule tries first at Dead reckoning "
+                                 f"period {self.first}, but the follower gives up at "
+                                 f"{dr_max_iterations} (dr_max_iterations): set its 'first' "
+                                 f"below that")
+        return self
+
     def due(self, dr_count: np.ndarray) -> np.ndarray:
         """Which Dead reckoning period counts are a try."""
         c = np.asarray(dr_count, np.int64)
