@@ -265,6 +265,36 @@ def NAV_OUTCOMES_OF(res):
     return NAV_OUTCOMES[int(res.outcome[0])]
 
 
+def test_an_evaluator_is_freed_when_dropped_with_the_route_features_it_holds():
+    """A period's Evaluator holds the batch's route features (a GB for camera
+    routes): it must be freed as soon as the engine drops it, not at some
+    later full garbage collection, or a replanning run keeps every version
+    of the features it stacked."""
+    import gc
+    import weakref
+    from types import SimpleNamespace
+
+    from topodrake.navigation.evaluate import Evaluator, RouteFeatures
+
+    beams = 8
+    net = SimpleNamespace(observation="lidar")
+    from topodrake.sensing.lidar import LidarConfig
+
+    lidar = LidarConfig(beams=beams)
+    feats = RouteFeatures(None, None, np.array([0, 2]), scans=np.ones((2, beams)))
+    ev = Evaluator(net, net, feats, np.zeros(3, np.int64), np.ones((3, beams)), lidar=lidar)
+    assert ev.scan_fixes is not None and ev.anchor_frames is not None
+    gone, held = weakref.ref(ev), weakref.ref(feats)
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        del ev, feats
+        assert gone() is None and held() is None
+    finally:
+        if enabled:
+            gc.enable()
+
+
 def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     """Tries at Dead reckoning periods 5, 8, 11, ...; a worse plan is taken
     once 0.99 ** tries brings the current plan's probability below it; no

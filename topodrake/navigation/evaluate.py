@@ -257,9 +257,6 @@ class Evaluator:
         self.odometry = poses if odometry is None else np.asarray(odometry, np.float64)
         if self.stateful and (self.track is None or self.odometry is None):
             raise TopodrakeError("a stateful C_WP needs the cars' track state and odometry")
-        # the route tracker's frames (a stateful C_WP, the registration one, keeps its
-        # own estimates too: its answers are fixes like any C_WP's)
-        self.anchor_frames = self.leg_frames
         # the tracker's scan fixes: lidar routes followed on lidar observations
         self.lidar = lidar or LidarConfig()
         beams = self.lidar.beams
@@ -267,10 +264,18 @@ class Evaluator:
                 and np.shape(observations)[1] == beams:
             ranges = observations
         self.ranges = ranges
-        self.scan_fixes = None
-        if features.scans is not None and ranges is not None \
-                and np.shape(ranges)[1] == beams and features.scans.shape[1] == beams:
-            self.scan_fixes = self.register_anchors
+        self._scans_register = features.scans is not None and ranges is not None \
+            and np.shape(ranges)[1] == beams and features.scans.shape[1] == beams
+
+    # Answers are methods of the class, never bound methods kept on the
+    # instance: such a cycle would keep every period's Evaluator, and with it
+    # the route features it holds (a GB for a camera batch), alive until a
+    # full garbage collection; a replanning run would hold each version.
+    @property
+    def scan_fixes(self):
+        """:meth:`register_anchors` where the cars' scans can be registered
+        onto the routes' taught scans, else None."""
+        return self.register_anchors if self._scans_register else None
 
     def leg_frames(self, cars: np.ndarray, anchors: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -283,6 +288,10 @@ class Evaluator:
             return np.zeros((len(rows), 3)), np.full(len(rows), -1), np.full((len(rows), 1, 3),
                                                                           np.nan)
         return f.frames[rows], f.segments[rows], f.approach[rows]
+
+    # the route tracker's frames (a stateful C_WP, the registration one, keeps its
+    # own estimates too: its answers are fixes like any C_WP's)
+    anchor_frames = leg_frames
 
     def register_anchors(self, cars: np.ndarray, anchors: np.ndarray, guess: np.ndarray
                          ) -> tuple[np.ndarray, np.ndarray]:
