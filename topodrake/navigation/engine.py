@@ -23,7 +23,7 @@ Drake navigation diagram (``topodrake.systems.navigation``)::
     (:class:`topodrake.navigation.replan.Replanner`, as FollowerFsm does).
 
 so the two executors drive the same path for the same start, route and
-noise (``tests/test_navigation_parity.py``).
+noise (``tests/test_navigation.py``, ``test_drake_diagram_and_engine_drive_the_same_path``).
 """
 
 from __future__ import annotations
