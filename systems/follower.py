@@ -19,7 +19,8 @@ computed once at construction (per route, not state).
 Replanning (optional, ``replanner``: a
 :class:`~topodrake.navigation.replan.Replanner` of one car, the same the
 batched engine calls): the commit asks it after each decision; a route it
-accepts is encoded once and kept in the system's append-only list of
+accepts (only where Search would pass on it from the held observation,
+as in the engine) is encoded once and kept in the system's append-only list of
 routes, the abstract state ``route`` (its index; 0 = the route given at
 construction) switches to it and the follower starts again in Search. The
 replanner's bookkeeping (tries, excluded edges) lives in that object, one
@@ -45,7 +46,8 @@ from topodrake.learning.waypoint.policy import TargetContext, WaypointPrediction
 from topodrake.navigation.evaluate import (Evaluator, encode_routes, initial_track,
                                            network_context, take_rows)
 from topodrake.navigation.follower import (FAILED, MODES, REACHED, REASONS,
-                                           FollowerConfig, FollowerState, follower_step)
+                                           FollowerConfig, FollowerState, follower_step,
+                                           search_choice)
 
 
 class FollowerFsm(LeafSystem):
@@ -113,12 +115,41 @@ class FollowerFsm(LeafSystem):
         self.period = float(period)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._commit)
 
-    def _encode(self, route) -> None:
+    def _encode(self, route, features=None) -> None:
+        """Keep ``route`` with its features (:func:`encode_routes`; computed
+        when not given)."""
         wide = self.policy if self.policy.k >= self.reach.k else self.reach
         base = self._routes[-1].key_base + len(self._routes[-1].route) if self._routes else 0
+        if features is None:
+            features = encode_routes([route], self.policy, self.reach, legs_m=self.config.legs_m)
         self._routes.append(_EncodedRoute(
-            route, encode_routes([route], self.policy, self.reach, legs_m=self.config.legs_m),
-            network_context(route.contexts, wide.k, wide.frame_step, self.policy), base))
+            route, features, network_context(route.contexts, wide.k, wide.frame_step, self.policy),
+            base))
+
+    def _startable(self, context, car: np.ndarray, encoded: dict):
+        """``startable(row, route)`` for the replanner, as the batched engine's:
+        would Search pass on ``route`` from the held observation (its
+        encoding kept in ``encoded`` under ``id(route)``)."""
+        obs, ranges = self._held_observations(context)
+
+        def startable(_row: int, route) -> bool:
+            f = encoded[id(route)] = encode_routes([route], self.policy, self.reach,
+                                                   legs_m=self.config.legs_m)
+            ev = Evaluator(self.policy, self.reach, f, np.zeros(1, np.int64), obs,
+                           poses=car[:, :3], track=self._initial_state().track,
+                           odometry=car[:, :3], lidar=self.lidar, ranges=ranges)
+            _, best = search_choice(ev, np.zeros(1, np.int64), f.n_anchors, self.config)
+            return bool(best[0] > self.config.p_search)
+        return startable
+
+    def _held_observations(self, context):
+        """(the held observation (1, ...) or None, the held lidar scan (1, beams) or None)."""
+        obs = None if self.observation_port is None else \
+            np.asarray(self.observation_port.Eval(context))[None]
+        ranges = None
+        if self.ranges_port is not None and self.ranges_port.HasValue(context):
+            ranges = np.asarray(self.ranges_port.Eval(context))[None]
+        return obs, ranges
 
     def _initial_state(self) -> FollowerState:
         return FollowerState.initial(1, initial_track(self.policy, 1))
@@ -141,11 +172,7 @@ class FollowerFsm(LeafSystem):
     def _calc_decision(self, context, value):
         state = self.follower_state(context)
         car = np.asarray(self.state_port.Eval(context))[None]
-        obs = None if self.observation_port is None else \
-            np.asarray(self.observation_port.Eval(context))[None]
-        ranges = None
-        if self.ranges_port is not None and self.ranges_port.HasValue(context):
-            ranges = np.asarray(self.ranges_port.Eval(context))[None]
+        obs, ranges = self._held_observations(context)
         feats = self._routes[self._route_of(context)].features
         ev = Evaluator(self.policy, self.reach, feats, np.zeros(1, np.int64), obs,
                        poses=car[:, :3], track=state.track, odometry=car[:, :3],
@@ -187,10 +214,11 @@ class FollowerFsm(LeafSystem):
         fs, _ = self.decision(context)
         fs = fs.copy()
         if self.replanner is not None:
-            car = np.asarray(self.state_port.Eval(context))[None, :3]
-            for _, new in self.replanner.step(np.zeros(1, np.int64), fs, car,
-                                              self.config.p_search):
-                self._encode(new)
+            car = np.asarray(self.state_port.Eval(context))[None]
+            encoded: dict = {}
+            for _, new in self.replanner.step(np.zeros(1, np.int64), fs, car[:, :3],
+                                              startable=self._startable(context, car, encoded)):
+                self._encode(new, encoded[id(new)])
                 state.get_mutable_abstract_state(self.route_index).set_value(len(self._routes) - 1)
                 fs = self._initial_state()
         state.get_mutable_abstract_state(self.fsm_index).set_value(fs)

@@ -259,6 +259,54 @@ def test_replanning_in_the_drake_diagram_matches_the_engine(box_world, route, or
     assert runner.run(start).plans == 2 and replanner.plans[0] == 2
 
 
+def test_a_new_plan_is_taken_only_where_the_follower_s_search_would_start_it(box_world, route,
+                                                                            oracles):
+    """A plan whose anchors the car cannot see from where it is lost (the far
+    end of the drive, behind the partition) is not taken, however sure the
+    planner's start link: the car keeps dead reckoning and gives up, in the
+    engine and in the Drake diagram alike, where taking it would have
+    failed Search at once."""
+    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+    from topodrake.navigation.follower import FollowerConfig
+    from topodrake.navigation.replan import Replanner, ReplanSchedule
+    from topodrake.navigation.route import Route
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+
+    bad = _bad_route(route)
+    far = Route(route.contexts[-2:], route.poses[-2:], vertices=np.array([20, 21]),
+                modality=route.modality, start_probability=0.99)
+    asked = []
+
+    def plan(i, pose, excluded):
+        asked.append(i)
+        return far
+
+    follower = FollowerConfig(dr_max_iterations=20)
+    start = np.array([1.0, 1.6, 0.4])
+    engine = NavigationEngine(box_world, *oracles, NavigationConfig(follower=follower))
+    replanner = Replanner(plan, [bad], ReplanSchedule.paper())
+    res = engine.run(start[None], [bad], t_max_s=60.0, replanner=replanner)
+    assert NAV_OUTCOMES[int(res.outcome[0])] == "dead_reckoning_gave_up"
+    assert replanner.plans[0] == 1 and len(asked) >= 3      # asked at every try, never taken
+    sc = NavigationScenario(world="box", camera_enabled=False, follower=follower, t_max_s=60.0)
+    fsm_replanner = Replanner(plan, [bad], ReplanSchedule.paper())
+    drake = NavigationRunner(make_navigation_diagram(sc, bad, world=box_world, policy=oracles[0],
+                                                     reach=oracles[1],
+                                                     replanner=fsm_replanner)).run(start)
+    assert drake.outcome != "reached" and drake.plans == 1 and drake.route is bad
+    # the planner's start link alone (0.99 > p_search) would have taken it
+    from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
+
+    lost = FollowerState.initial(1, np.zeros((1, 0)))
+    lost.mode[:], lost.dr_count[:] = DEAD_RECKONING, 5
+    lone = Replanner(plan, [bad], ReplanSchedule.paper())
+    assert [r for _, r in lone.step(np.zeros(1, np.int64), lost, start[None],
+                                    p_start=follower.p_search)] == [far]
+    assert lone.step(np.zeros(1, np.int64), lost, start[None], p_start=follower.p_search,
+                     startable=lambda r, new: False) == []
+
+
 def NAV_OUTCOMES_OF(res):
     from topodrake.navigation.engine import NAV_OUTCOMES
 
@@ -275,11 +323,10 @@ def test_an_evaluator_is_freed_when_dropped_with_the_route_features_it_holds():
     from types import SimpleNamespace
 
     from topodrake.navigation.evaluate import Evaluator, RouteFeatures
+    from topodrake.sensing.lidar import LidarConfig
 
     beams = 8
     net = SimpleNamespace(observation="lidar")
-    from topodrake.sensing.lidar import LidarConfig
-
     lidar = LidarConfig(beams=beams)
     feats = RouteFeatures(None, None, np.array([0, 2]), scans=np.ones((2, beams)))
     ev = Evaluator(net, net, feats, np.zeros(3, np.int64), np.ones((3, beams)), lidar=lidar)

@@ -363,17 +363,17 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
                              "ours_obstacles", "oracle_full", "ours_oracle_follow", "oracle_cwp",
                              "lidar_scale", "ours_scale", "lidar_oracle_follow",
                              "lidar_scale_oracle_re", "lidar_oracle_cwp", "lidar_replan",
-                             "lidar_reg_replan"]
+                             "lidar_reg_replan", "oracle_full_replan"]
     assert ORACLE_METHODS == ("oracle_full", "ours_oracle_follow", "oracle_cwp",
-                              "lidar_oracle_follow")
+                              "lidar_oracle_follow", "oracle_full_replan")
     for name, m in METHODS.items():
         assert m.name == name and m.map in MAP_KINDS and m.follower in FOLLOWERS
         assert m.followed_by == FOLLOWERS[m.follower]
         assert m.oracle == (name in ORACLE_METHODS)
     assert {n: m.drive for n, m in METHODS.items() if m.drive != "plain"} == \
         {"ours_replan": "replan", "ours_obstacles": "obstacles", "lidar_replan": "replan",
-         "lidar_reg_replan": "replan"}
-    for name in ("ours_replan", "lidar_replan", "lidar_reg_replan"):   # the same system, replanning
+         "lidar_reg_replan": "replan", "oracle_full_replan": "replan"}
+    for name in ("ours_replan", "lidar_replan", "lidar_reg_replan", "oracle_full_replan"):
         plain = METHODS[name[:-len("_replan")]]
         assert (METHODS[name].map, METHODS[name].follower) == (plain.map, plain.follower)
     assert [n for n, m in METHODS.items() if m.renders_routes] == ["oracle", "oracle_cwp"]

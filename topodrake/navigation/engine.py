@@ -37,7 +37,8 @@ from topodrake.control import controls_toward
 from topodrake.navigation.evaluate import (Evaluator, RouteFeatures, encode_routes,
                                            initial_track, stack_features)
 from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, SEARCH_FAILED,
-                                           FollowerConfig, FollowerState, follower_step)
+                                           FollowerConfig, FollowerState, follower_step,
+                                           search_choice)
 from topodrake.navigation.manoeuvre import Manoeuvres
 from topodrake.odometry import Odometry, OdometryConfig
 from topodrake.rollout import RolloutConfig, standard_normal_noise
@@ -119,6 +120,26 @@ class NavigationEngine:
             return self.camera.render(states[:, :3])
         return ranges if self.kind == "lidar" else None
 
+    def _startable(self, observations, states, odometry, ranges, encoded: dict):
+        """``startable(row, route)`` for the replanner: would the follower's
+        Search pass on ``route`` from the observation of the car in row
+        ``row`` of this period's cars (its encoding kept in ``encoded``
+        under ``id(route)``)."""
+        cfg = self.config.follower
+
+        def startable(r: int, route) -> bool:
+            f = encoded[id(route)] = encode_routes([route], self.policy, self.reach,
+                                                   legs_m=cfg.legs_m)
+            one = slice(r, r + 1)
+            ev = Evaluator(self.policy, self.reach, f, np.zeros(1, np.int64),
+                           None if observations is None else observations[one],
+                           poses=states[one, :3], track=initial_track(self.policy, 1),
+                           odometry=odometry[one, :3], lidar=self.config.rollout.lidar,
+                           ranges=ranges[one])
+            _, best = search_choice(ev, np.zeros(1, np.int64), f.n_anchors, cfg)
+            return bool(best[0] > cfg.p_search)
+        return startable
+
     def run(self, starts: np.ndarray, routes, *, features: RouteFeatures | None = None,
             seeds=None, noise: np.ndarray | None = None, t_max_s=None,
             watch: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
@@ -187,10 +208,10 @@ class NavigationEngine:
             fs.track = ev.track
             follower.put(cars, fs)
             if replanner is not None:
-                for i, new in replanner.step(cars, fs, st[:, :3],
-                                             self.config.follower.p_search):
-                    features = stack_features(features, encode_routes(
-                        [new], self.policy, self.reach, legs_m=self.config.follower.legs_m))
+                encoded: dict = {}
+                startable = self._startable(ev.observations, st, odo, ranges, encoded)
+                for i, new in replanner.step(cars, fs, st[:, :3], startable=startable):
+                    features = stack_features(features, encoded[id(new)])
                     route_of[i] = len(features.offsets) - 2
                     n_anchors[i] = len(new)
                     goals[i] = new.goal_pose

@@ -426,23 +426,37 @@ class _Period:
     need: np.ndarray                  # (N,) bool: the car drives a fresh C_WP waypoint
 
 
-def _search(per: _Period, s: np.ndarray) -> None:
-    """Search (cars ``s``): RE toward every anchor; the best above ``p_search`` becomes
-    active (with ``search_first``, the first anchor where it passes there)."""
-    if not s.size:
-        return
-    cfg, new, n_anchors, evaluate = per.cfg, per.new, per.n_anchors, per.evaluate
-    rows, anchors = _windows(np.zeros(s.size, np.int64), n_anchors[s] - 1)
-    p = evaluate(s[rows], anchors, False, True).probability
-    arg, best = _best_per_row(rows, p, s.size)
+def search_choice(evaluate: Evaluate, cars: np.ndarray, n_anchors: np.ndarray,
+                  cfg: FollowerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Search's choice for cars ``cars`` on routes of ``n_anchors`` (one per
+    car): RE toward every anchor, the best becomes active (with
+    ``search_first``, the first anchor where it passes ``p_search``).
+    Returns (that anchor (-1: none), its probability (-inf: none)); Search
+    passes where the probability is above ``p_search``. A replanning car's
+    new route is taken only where it would (:mod:`~topodrake.navigation.replan`)."""
+    cars = np.asarray(cars, np.int64)
+    rows, anchors = _windows(np.zeros(cars.size, np.int64), np.asarray(n_anchors, np.int64) - 1)
+    p = evaluate(cars[rows], anchors, False, True).probability
+    arg, best = _best_per_row(rows, p, cars.size)
     if cfg.search_first:
         first = np.flatnonzero(anchors == 0)            # each car's first anchor (rows in order)
         take = p[first] > cfg.p_search
         arg[rows[first[take]]], best[rows[first[take]]] = first[take], p[first[take]]
+    if not anchors.size:
+        return np.full(cars.size, -1, np.int64), best
+    return np.where(arg >= 0, anchors[np.maximum(arg, 0)], -1), best
+
+
+def _search(per: _Period, s: np.ndarray) -> None:
+    """Search (cars ``s``): :func:`search_choice` becomes active where it passes."""
+    if not s.size:
+        return
+    cfg, new = per.cfg, per.new
+    anchor, best = search_choice(per.evaluate, s, per.n_anchors[s], cfg)
     ok = best > cfg.p_search
     new.best_p[s] = np.where(np.isfinite(best), best, 0.0)
     got = s[ok]
-    new.active[got] = anchors[arg[ok]]
+    new.active[got] = anchor[ok]
     new.visited[got] = new.active[got] - 1
     new.mode[got] = FOLLOW
     per.need[got] = True

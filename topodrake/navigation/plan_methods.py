@@ -85,6 +85,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("lidar_oracle_cwp", map="lidar", follower="oracle_cwp_lidar"),
     Method("lidar_replan", map="lidar", follower="lidar", drive="replan"),
     Method("lidar_reg_replan", map="lidar_reg", follower="lidar_reg", drive="replan"),
+    Method("oracle_full_replan", map="oracle", follower="oracle", oracle=True, drive="replan"),
 )}
 #: the perfect-perception ablations (fast: they run ``--oracle-trials`` trials)
 ORACLE_METHODS = tuple(name for name, m in METHODS.items() if m.oracle)

@@ -15,10 +15,12 @@ failing on (its last visited anchor -> its active anchor); once a plan is
 accepted that edge stays excluded for the car, so a car that keeps failing
 on one hop cannot be sent back onto it: that is the loop breaking the paper
 left for future work (a loop is the same edge failed again; excluding it
-breaks it). A plan whose start link is below the follower's p_search is
-not taken (ours: the planner links the start above 0.5, and the new route's
-Search would fail at once). The accepted route replaces the car's current
-one from the next period, and its follower starts again in Search.
+breaks it). A plan is taken only where the follower's Search would pass on
+it from the car's current observation (the executors ask their own RE,
+as Search will in the next period; the planner links the start above 0.5
+under the map's calibration, which is not the follower's). The accepted
+route replaces the car's current one from the next period, and its
+follower starts again in Search.
 
 :class:`Replanner` keeps this per-car bookkeeping for one run
 (:func:`topodrake.navigation.plan_trials.follow_routes` with ``replan=``
@@ -182,14 +184,19 @@ class Replanner:
         self.plans = np.ones(n, np.int64)
         self.excluded: list[list[tuple[int, int]]] = [[] for _ in range(n)]
 
-    def step(self, cars: np.ndarray, state, poses: np.ndarray,
-             p_start: float = 0.0) -> list[tuple[int, object]]:
+    def step(self, cars: np.ndarray, state, poses: np.ndarray, p_start: float = 0.0,
+             startable: Callable[[int, object], bool] | None = None
+             ) -> list[tuple[int, object]]:
         """After a period's decision ``state`` (FollowerState of ``cars``,
         rows in the same order; ``poses`` (len(cars), 3)): ask the planner
         for the cars whose Dead reckoning reached a try, and return the
-        (car, new route) pairs accepted. A new route whose start link is not
-        above ``p_start`` (the follower's p_search: its Search would fail
-        at once) is not taken."""
+        (car, new route) pairs accepted. A new route is taken only where
+        the follower can start it: ``startable(row, route)`` (the
+        executor's: would the follower's Search pass from the car's current
+        observation, :func:`~topodrake.navigation.follower.search_choice`),
+        or without it, where the plan's start link is above ``p_start``
+        (the follower's p_search; the planner's and the follower's RE
+        calibrations differ, so this only approximates Search)."""
         cars = np.asarray(cars, np.int64)
         due = np.flatnonzero((state.mode == DEAD_RECKONING) & self.schedule.due(state.dr_count))
         taken = []
@@ -203,10 +210,12 @@ class Replanner:
                 excluded.append(edge)
             self.tries[i] += 1
             new = self.plan(i, np.array(poses[r], np.float64), excluded)
-            if new is None or new.start_probability <= p_start \
-                    or not self.schedule.accepts(new.probability,
+            if new is None or not self.schedule.accepts(new.probability,
                                                         self.routes[i].probability,
                                                         int(self.tries[i])):
+                continue
+            if not (startable(int(r), new) if startable is not None
+                    else new.start_probability > p_start):
                 continue
             self.routes[i], self.excluded[i] = new, excluded
             self.tries[i] = 0
