@@ -46,8 +46,7 @@ from topodrake.learning.waypoint.policy import TargetContext, WaypointPrediction
 from topodrake.navigation.evaluate import (Evaluator, encode_routes, initial_track,
                                            network_context, take_rows)
 from topodrake.navigation.follower import (FAILED, MODES, REACHED, REASONS,
-                                           FollowerConfig, FollowerState, follower_step,
-                                           search_choice)
+                                           FollowerConfig, FollowerState, follower_step)
 
 
 class FollowerFsm(LeafSystem):
@@ -127,19 +126,18 @@ class FollowerFsm(LeafSystem):
             base))
 
     def _startable(self, context, car: np.ndarray, encoded: dict):
-        """``startable(row, route)`` for the replanner, as the batched engine's:
-        would Search pass on ``route`` from the held observation (its
-        encoding kept in ``encoded`` under ``id(route)``)."""
+        """``startable(row, route)`` for the replanner, as the batched engine's
+        (:func:`~topodrake.navigation.replan.search_would_start` from the
+        held observation; its encoding kept in ``encoded`` under ``id(route)``)."""
+        from topodrake.navigation.replan import search_would_start
+
         obs, ranges = self._held_observations(context)
 
         def startable(_row: int, route) -> bool:
-            f = encoded[id(route)] = encode_routes([route], self.policy, self.reach,
-                                                   legs_m=self.config.legs_m)
-            ev = Evaluator(self.policy, self.reach, f, np.zeros(1, np.int64), obs,
-                           poses=car[:, :3], track=self._initial_state().track,
-                           odometry=car[:, :3], lidar=self.lidar, ranges=ranges)
-            _, best = search_choice(ev, np.zeros(1, np.int64), f.n_anchors, self.config)
-            return bool(best[0] > self.config.p_search)
+            ok, encoded[id(route)] = search_would_start(self.policy, self.reach, route, obs,
+                                                        car[:, :3], ranges, self.lidar,
+                                                        self.config)
+            return ok
         return startable
 
     def _held_observations(self, context):

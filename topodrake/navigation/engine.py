@@ -37,8 +37,7 @@ from topodrake.control import controls_toward
 from topodrake.navigation.evaluate import (Evaluator, RouteFeatures, encode_routes,
                                            initial_track, stack_features)
 from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, SEARCH_FAILED,
-                                           FollowerConfig, FollowerState, follower_step,
-                                           search_choice)
+                                           FollowerConfig, FollowerState, follower_step)
 from topodrake.navigation.manoeuvre import Manoeuvres
 from topodrake.odometry import Odometry, OdometryConfig
 from topodrake.rollout import RolloutConfig, standard_normal_noise
@@ -122,22 +121,19 @@ class NavigationEngine:
 
     def _startable(self, observations, states, odometry, ranges, encoded: dict):
         """``startable(row, route)`` for the replanner: would the follower's
-        Search pass on ``route`` from the observation of the car in row
-        ``row`` of this period's cars (its encoding kept in ``encoded``
-        under ``id(route)``)."""
-        cfg = self.config.follower
+        Search pass on ``route`` for the car in row ``row`` of this period's
+        cars (:func:`~topodrake.navigation.replan.search_would_start`; its
+        encoding kept in ``encoded`` under ``id(route)``)."""
+        from topodrake.navigation.replan import search_would_start
 
         def startable(r: int, route) -> bool:
-            f = encoded[id(route)] = encode_routes([route], self.policy, self.reach,
-                                                   legs_m=cfg.legs_m)
             one = slice(r, r + 1)
-            ev = Evaluator(self.policy, self.reach, f, np.zeros(1, np.int64),
-                           None if observations is None else observations[one],
-                           poses=states[one, :3], track=initial_track(self.policy, 1),
-                           odometry=odometry[one, :3], lidar=self.config.rollout.lidar,
-                           ranges=ranges[one])
-            _, best = search_choice(ev, np.zeros(1, np.int64), f.n_anchors, cfg)
-            return bool(best[0] > cfg.p_search)
+            ok, encoded[id(route)] = search_would_start(
+                self.policy, self.reach, route,
+                None if observations is None else observations[one], states[one, :3],
+                ranges[one], self.config.rollout.lidar, self.config.follower,
+                odometry=odometry[one, :3])
+            return ok
         return startable
 
     def run(self, starts: np.ndarray, routes, *, features: RouteFeatures | None = None,

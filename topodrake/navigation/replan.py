@@ -166,6 +166,26 @@ def traversals_of_records(records: list[dict]) -> tuple[list, list]:
 PlanCallback = Callable[[int, np.ndarray, list], object]
 
 
+def search_would_start(policy, reach, route, observation, pose: np.ndarray, ranges, lidar,
+                       config, odometry: np.ndarray | None = None) -> tuple[bool, object]:
+    """Would the follower's Search (``config``: its FollowerConfig) pass on
+    ``route`` from one car's ``observation`` (1, ...; None for pose
+    oracles) at ``pose`` (1, 3; its odometry pose ``odometry``, default the
+    same), with its lidar scan ``ranges`` (1, beams) or None? Returns that
+    and the route's features (:func:`encode_routes`), for the executor to
+    keep if the route is taken. Both executors ask this of a replanned
+    route before they take it."""
+    from topodrake.navigation.evaluate import Evaluator, encode_routes, initial_track
+    from topodrake.navigation.follower import search_choice
+
+    features = encode_routes([route], policy, reach, legs_m=config.legs_m)
+    ev = Evaluator(policy, reach, features, np.zeros(1, np.int64), observation, poses=pose,
+                   track=initial_track(policy, 1), odometry=pose if odometry is None else odometry,
+                   lidar=lidar, ranges=ranges)
+    _, best = search_choice(ev, np.zeros(1, np.int64), features.n_anchors, config)
+    return bool(best[0] > config.p_search), features
+
+
 class Replanner:
     """The replanning bookkeeping of one run of N cars: each car's current
     route, tries since that route was taken, plans driven, edges excluded."""
