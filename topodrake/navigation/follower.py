@@ -436,14 +436,14 @@ def search_choice(evaluate: Evaluate, cars: np.ndarray, n_anchors: np.ndarray,
     new route is taken only where it would (:mod:`~topodrake.navigation.replan`)."""
     cars = np.asarray(cars, np.int64)
     rows, anchors = _windows(np.zeros(cars.size, np.int64), np.asarray(n_anchors, np.int64) - 1)
+    if not anchors.size:
+        return np.full(cars.size, -1, np.int64), np.full(cars.size, -np.inf)
     p = evaluate(cars[rows], anchors, False, True).probability
     arg, best = _best_per_row(rows, p, cars.size)
     if cfg.search_first:
         first = np.flatnonzero(anchors == 0)            # each car's first anchor (rows in order)
         take = p[first] > cfg.p_search
         arg[rows[first[take]]], best[rows[first[take]]] = first[take], p[first[take]]
-    if not anchors.size:
-        return np.full(cars.size, -1, np.int64), best
     return np.where(arg >= 0, anchors[np.maximum(arg, 0)], -1), best
 
 
