@@ -158,8 +158,10 @@ def test_each_shipped_controller_finds_its_shipped_re():
     assert default_reach("registration").parent.name == "reach_lidar_reg"
     assert default_reach("checkpoints/lidar_k5_scale/checkpoint.pt").parent.name == \
         "reach_lidar_k5_scale"
+    assert default_reach("checkpoints/camera_k5_scale/checkpoint.pt").parent.name == \
+        "reach_camera_k5_scale"
     with pytest.raises(TopodrakeError, match="no RE ships for the controller"):
-        default_reach("checkpoints/camera_k5_scale/checkpoint.pt")
+        default_reach("checkpoints/camera_k5_dagger/checkpoint.pt")
 
 
 def test_a_teach_drive_ends_at_its_first_closest_pass_of_the_goal():

@@ -689,7 +689,8 @@ def test_limits_study_compares_res_keep_ratio_with_the_controllers_own(tiny_re):
 
 @pytest.mark.parametrize("name", ["reach_camera_k2", "reach_camera_k5_base", "reach_camera_k5",
                                   "reach_lidar_k5", "reach_lidar_reg", "reach_lidar_k5_dagger",
-                                  "reach_lidar_k5_onpolicy", "reach_lidar_k5_scale"])
+                                  "reach_lidar_k5_onpolicy", "reach_lidar_k5_scale",
+                                  "reach_camera_k5_scale"])
 def test_shipped_res_were_trained_with_their_configs_and_controllers(name):
     """A shipped RE matches its YAML (so the card's command reproduces it)
     and the C_WP file it measured; label sets name catalogue houses only."""
