@@ -1,9 +1,10 @@
 """Do drives that share a place join? Maps of the drives a -> b and b -> c plan a -> c.
 
 For seeded ordered triples of places (a, b, c) of each house, a learned
-map (camera and lidar, the shipped RE and place embedding) is built from
-only the expert drive a -> b and the drive b -> c, and a plan is made from
-the view at place a to the view at place c
+map (camera and lidar, the shipped RE and place embedding; a camera map
+keeps the lidar scans its drives took, as ``topodrake map build`` makes
+it) is built from only the expert drive a -> b and the drive b -> c, and a
+plan is made from the view at place a to the view at place c
 (:func:`topodrake.topomap.joining.join_trial`). A triple is joined when the
 plan exists without a false step: no link (a start, goal or direct link,
 a cross or junction edge; not the drives' own hops) longer than 5 m in

@@ -227,6 +227,32 @@ def test_a_map_of_two_drives_through_a_place_plans_across_it():
     assert s["false_steps"] == 0.0
 
 
+def test_a_joining_map_keeps_the_scans_its_drives_took_where_given():
+    """Camera maps in the study keep their drives' lidar scans, as built by
+    ``topodrake map build``: the scans taken at each drive's poses."""
+    world, drives, observe = line_world()
+    drive_of = lambda s, g: SimpleNamespace(poses=drives[(s, g)]) if (s, g) in drives else None
+    made, asked = [], []
+
+    def make():
+        made.append(table_map(meeting_drives))
+        return made[-1]
+
+    def scan(poses):
+        asked.append(np.asarray(poses))
+        return np.repeat(np.asarray(poses)[:, :1], 8, axis=1)     # a scan per pose
+
+    r = join_trial(world, make, drive_of, observe, (0, 1, 2), scan)
+    assert r.planned and r.joined
+    kept = made[0].bank.scans
+    assert kept is not None and kept.shape[1] == 8
+    np.testing.assert_array_equal(asked[0], drives[(0, 1)])
+    np.testing.assert_array_equal(asked[1], drives[(1, 2)])
+    assert len(asked) == 3 and asked[2].shape == (2, 3)           # and the two views' scans
+    join_trial(world, make, drive_of, observe, (0, 1, 2))
+    assert made[1].bank.scans is None
+
+
 def test_a_start_link_to_a_look_alike_far_along_the_map_is_a_false_step():
     world, drives, observe = line_world()
     drive_of = lambda s, g: SimpleNamespace(poses=drives[(s, g)]) if (s, g) in drives else None

@@ -256,6 +256,44 @@ def test_junctions_need_the_scans_to_match(three_drives):
     assert built[0.8] == {(0, 2)}
 
 
+@pytest.fixture(scope="module")
+def turned_departure(house, lidar):
+    """As :func:`three_drives`' drives 0, 1 and 3, but drive 3 sets off 5 cm
+    beside drive 0's end turned 10 deg, where their scans pair 0.72-0.76 of
+    their points (a free pose of test-0 found by seed)."""
+    end = house.sample_free_pose(np.random.default_rng(54))[None]
+    far = _apart(house, np.random.default_rng(3), 1)[1]
+    back = np.column_stack([np.arange(-9, 1) * 0.1, np.zeros(10), np.zeros(10)])
+    ahead = np.column_stack([np.arange(10) * 0.1, np.zeros(10), np.zeros(10)])
+    start = compose(end, np.array([[0.0, 0.05, np.radians(10)]]))
+    poses = {0: compose(np.repeat(end, 10, 0), back), 1: compose(np.repeat(far, 10, 0), ahead),
+             3: compose(np.repeat(start, 10, 0), ahead)}
+    scans = {d: lidar.scan(p) for d, p in poses.items()}
+    frames = {s.tobytes(): (d, f) for d, ss in scans.items() for f, s in enumerate(ss)}
+    return scans, poses, frames
+
+
+def test_a_junction_needs_its_own_share_of_matched_points(turned_departure):
+    """An arrival and a departure at one place face different ways: their
+    scans pair fewer points than a reuse asks, and the junction takes its
+    own, lower share, still refusing the look-alike."""
+    scans, poses, frames = turned_departure
+    shares = scans_match(scans[3][:1], scans[0][-1:], 0.72), scans_match(scans[3][:1],
+                                                                           scans[0][-1:], 0.8)
+    assert shares[0][0] and not shares[1][0]             # the fixture sits between the two
+    built = {}
+    for share in (0.8, 0.7):
+        m = _scan_map(frames, _ends_meet, scan_match=0.8, junction_scan_match=share,
+                      reuse=False)
+        for d in (0, 1, 3):
+            add_trajectory(m, scans[d], poses[d])
+        built[share] = _junctions(m)
+    assert built[0.8] == set()
+    assert built[0.7] == {(0, 2)}                        # trajectories are numbered as added
+    with pytest.raises(TopodrakeError, match="junction_scan_match"):
+        MapConfig(junction_scan_match=1.0).validate()
+
+
 def test_links_that_match_the_view_come_first(three_drives):
     scans, poses, frames = three_drives
     m = _scan_map(frames, scan_match=0.8)

@@ -41,8 +41,9 @@ For each new drive, from its observations only:
    anchors before the place and the departure's after it diverge. The edge
    keeps RE(arrival, departure) as its p; on a lidar map it carries the
    departure's pose in the arrival's frame, registered scan to scan, and
-   with ``scan_match`` the two scans must match (on a camera map with
-   ``camera_scans``, the scans it keeps).
+   with ``scan_match`` the two scans must match, to ``junction_scan_match``
+   of their points (on a camera map with ``camera_scans``, the scans it
+   keeps).
 
 With ``audit=True`` step 4 also scores every vertex of the map (not only
 the retrieved ones) and records which cross edges the exhaustive pass
@@ -194,7 +195,7 @@ def _junctions(m: TopoMap, t: int, score, stats: BuildStats) -> None:
     keep = np.flatnonzero(np.minimum(ahead, back) > m.config.p_join)
     if joins_by_scans(m) and len(keep):
         keep = keep[scans_match(vertex_scans(m, xs[keep]), vertex_scans(m, us[keep]),
-                                m.config.scan_match)]
+                                m.config.junction_scan_match)]
     legs = _junction_legs(m, us[keep], xs[keep])
     for i, (leg, path) in zip(keep, legs):
         m.add_edge(int(us[i]), int(xs[i]), float(ahead[i]), "junction", leg, path)

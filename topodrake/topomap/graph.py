@@ -46,7 +46,8 @@ TEACH_ODOMETRY = ("wheel", "perfect", "none")
 #: before: a stored config without them reads as these values
 LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False,
                   "camera_scans": False, "camera_legs": False, "loop_check_m": 0.0,
-                  "loop_check_per_m": 0.1, "reuse_pinned": False, "cross_legs": False}
+                  "loop_check_per_m": 0.1, "reuse_pinned": False, "cross_legs": False,
+                  "junction_scan_match": 0.8}
 
 
 #: settings only a lidar map reads (a map of another modality is built alike whatever they say)
@@ -56,7 +57,8 @@ CAMERA_ONLY = ("camera_scans", "camera_legs")
 #: settings only maps that keep lidar scans read (a pose oracle map keeps none)
 SCANS_ONLY = ("cross_legs",)
 #: settings only planning reads, not building (a map is built alike whatever they say)
-PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "start_near_m")
+PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "start_near_m",
+             "link_scan_match")
 LINK_ORDERS = ("probability", "support")
 
 
@@ -128,6 +130,12 @@ class MapConfig:
     scan_match: float = 0.8      # lidar maps: a reused vertex, a junction and the plan's start
                                  # and goal links must match by registering the scans, each
                                  # scan's points paired at least this share (0: off)
+    junction_scan_match: float = 0.7  # ... but a junction's two scans need pair only this
+                                 # share: an arrival and a departure at one place face
+                                 # different ways, which leaves far beams without a partner
+                                 # (chosen on train-60/61; docs/figures.md, "Drives that join")
+    link_scan_match: float = 0.8  # planning: the start's and the goal's link groups whose
+                                 # scan matches the view to this share come first
     scan_match_cross: bool = False  # ... and cross edges too (off: the long cross edges it
                                     # drops in open rooms are true hops, and success did not move)
     camera_scans: bool = True    # camera maps that keep their drives' lidar scans check a reused
@@ -183,8 +191,10 @@ class MapConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise TopodrakeError(f"{where}: {name} must be a number >= 0, got {v!r}")
-        if not (isinstance(self.scan_match, (int, float)) and 0.0 <= self.scan_match < 1.0):
-            raise TopodrakeError(f"{where}: scan_match must be in [0, 1), got {self.scan_match!r}")
+        for name in ("scan_match", "junction_scan_match", "link_scan_match"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0.0 <= v < 1.0):
+                raise TopodrakeError(f"{where}: {name} must be in [0, 1), got {v!r}")
         if self.reuse_slack > 0 and self.reuse_rule != "paper":
             raise TopodrakeError(f"{where}: reuse_slack applies to reuse_rule 'paper' only")
         for name, low in (("sequence_window", 0), ("retrieval_k", 1), ("sparsify_window", 1),

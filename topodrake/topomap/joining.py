@@ -121,13 +121,16 @@ def plan_links(topomap, result, start_pose, goal_pose) -> dict:
             "false_link_kind": false_kind}
 
 
-def join_trial(world, make_map, drive_of, observe, triple) -> JoinResult:
+def join_trial(world, make_map, drive_of, observe, triple, scan=None) -> JoinResult:
     """Build a map from the drives a -> b and b -> c of ``triple`` and plan
     a -> c from the views at the places.
 
     ``make_map()`` gives an empty map; ``drive_of(s, g)`` the expert drive
     from place s to place g (its ``poses``) or None; ``observe(poses)``
-    what the map's scorer sees there."""
+    what the map's scorer sees there; ``scan(poses)``, for a camera map, the
+    lidar scans taken with those views, which the map keeps and checks its
+    reuses, junctions and links by, as every camera map built by
+    ``topodrake map build`` or the planning study does (None: none kept)."""
     from topodrake.topomap.build import BuildStats, add_trajectory
     from topodrake.topomap.plan import plan_path
 
@@ -139,10 +142,12 @@ def join_trial(world, make_map, drive_of, observe, triple) -> JoinResult:
         if drive is None:
             return JoinResult((a, b, c), len(topomap), stats.junctions, False, 0.0, np.nan,
                               np.nan, reason=f"no expert drive from place {s} to place {g}")
-        add_trajectory(topomap, observe(drive.poses), drive.poses, f"{s}->{g}", stats)
+        add_trajectory(topomap, observe(drive.poses), drive.poses, f"{s}->{g}", stats,
+                       scans=None if scan is None else scan(drive.poses))
     places = np.asarray(world.places, np.float64)
     views = observe(places[[a, c]])
-    plan = plan_path(topomap, views[0], views[1], start_pose=places[a], goal_pose=places[c])
+    plan = plan_path(topomap, views[0], views[1], start_pose=places[a], goal_pose=places[c],
+                     view_scans=None if scan is None else scan(places[[a, c]]))
     if not plan.reachable:
         return JoinResult((a, b, c), len(topomap), stats.junctions, False, 0.0, np.nan, np.nan,
                           reason=plan.reason)
@@ -176,6 +181,7 @@ def house_results(spec: str, modality: str, triples, config, progress: bool) -> 
     """The :class:`JoinResult` of each triple in one house."""
     from tqdm import tqdm
 
+    from topodrake.sensing.observe import camera_scans
     from topodrake.topomap.graph import TopoMap
     from topodrake.topomap.retrieval import default_embedding
     from topodrake.topomap.sources import demo_drives, drive_observations, make_scorer, place_of
@@ -189,6 +195,7 @@ def house_results(spec: str, modality: str, triples, config, progress: bool) -> 
     scorer = make_scorer(modality, world)
     embedding = default_embedding(scorer.observation)
     seen: dict[bytes, np.ndarray] = {}
+    scanned: dict[bytes, np.ndarray] = {}
 
     def observe(poses):
         key = np.asarray(poses, np.float64).tobytes()
@@ -196,13 +203,19 @@ def house_results(spec: str, modality: str, triples, config, progress: bool) -> 
             seen[key] = drive_observations(world, scorer, poses)
         return seen[key]
 
+    def scan(poses):
+        key = np.asarray(poses, np.float64).tobytes()
+        if key not in scanned:
+            scanned[key] = camera_scans(world, scorer.observation, poses)
+        return scanned[key]
+
     def make_map():
         return TopoMap(scorer, embedding, config, world=spec)
 
     out = []
     for triple in tqdm(triples, desc=f"{spec} {modality}", unit="triple", disable=not progress):
         out.append(join_trial(world, make_map, lambda s, g: by_places.get((s, g)),
-                              observe, triple))
+                              observe, triple, scan if modality == "camera" else None))
     return out
 
 
