@@ -294,6 +294,30 @@ def test_a_junction_needs_its_own_share_of_matched_points(turned_departure):
         MapConfig(junction_scan_match=1.0).validate()
 
 
+def test_a_camera_map_joins_drives_ends_by_re_unless_told_to_check_the_scans(three_drives):
+    """The camera RE tells a camera map's junctions apart; its kept scans
+    refused true ones (an arrival and a departure face different ways), so
+    they check a junction only with ``camera_junction_scans``."""
+    from test_topomap import drive
+
+    scans, poses, _ = three_drives
+
+    def rule(a, b):             # drive 2 here plays _ends_meet's drive 3
+        return _ends_meet(*[(3 if x[0] == 2 else x[0], x[1]) for x in (a, b)])
+
+    built = {}
+    for check in (False, True):
+        m = TopoMap(CameraTable(rule), FlatCameraEmbedding(),
+                    MapConfig(reuse=False, camera_junction_scans=check), world="test-0")
+        # drive 2 (trajectory 2) sets off where drive 0 ends, but with the scans of drive 1,
+        # taken in a room far away: its junction stands on RE alone, or falls to the scans
+        for d, sc in ((0, scans[0]), (1, scans[1]), (2, scans[1])):
+            add_trajectory(m, drive(d, 10), poses[d], scans=sc)
+        built[check] = _junctions(m)
+    assert built[False] == {(0, 1), (0, 2)}
+    assert built[True] == set()
+
+
 def test_links_that_match_the_view_come_first(three_drives):
     scans, poses, frames = three_drives
     m = _scan_map(frames, scan_match=0.8)

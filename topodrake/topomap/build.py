@@ -40,10 +40,12 @@ For each new drive, from its observations only:
    links). Sequence matching cannot confirm such a pair: the arrival's
    anchors before the place and the departure's after it diverge. The edge
    keeps RE(arrival, departure) as its p; on a lidar map it carries the
-   departure's pose in the arrival's frame, registered scan to scan, and
-   with ``scan_match`` the two scans must match, to ``junction_scan_match``
-   of their points (on a camera map with ``camera_scans``, the scans it
-   keeps).
+   departure's pose in the arrival's frame, registered scan to scan (so
+   does a camera map that places its joins by its kept scans), and with
+   ``scan_match`` the two scans must match, to ``junction_scan_match`` of
+   their points: the lidar RE passes rooms of one shape, while the camera
+   RE's gate alone tells a camera map's junctions apart (with
+   ``camera_junction_scans`` its kept scans are checked too).
 
 With ``audit=True`` step 4 also scores every vertex of the map (not only
 the retrieved ones) and records which cross edges the exhaustive pass
@@ -193,7 +195,7 @@ def _junctions(m: TopoMap, t: int, score, stats: BuildStats) -> None:
     ahead = score(m.centers(us), m.contexts(xs))
     back = score(m.centers(xs), m.contexts(us))
     keep = np.flatnonzero(np.minimum(ahead, back) > m.config.p_join)
-    if joins_by_scans(m) and len(keep):
+    if len(keep) and (checks_scans(m) or (joins_by_scans(m) and m.config.camera_junction_scans)):
         keep = keep[scans_match(vertex_scans(m, xs[keep]), vertex_scans(m, us[keep]),
                                 m.config.junction_scan_match)]
     legs = _junction_legs(m, us[keep], xs[keep])

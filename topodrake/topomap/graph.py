@@ -47,18 +47,17 @@ TEACH_ODOMETRY = ("wheel", "perfect", "none")
 LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False,
                   "camera_scans": False, "camera_legs": False, "loop_check_m": 0.0,
                   "loop_check_per_m": 0.1, "reuse_pinned": False, "cross_legs": False,
-                  "junction_scan_match": 0.8}
+                  "junction_scan_match": 0.8, "camera_junction_scans": True}
 
 
 #: settings only a lidar map reads (a map of another modality is built alike whatever they say)
 LIDAR_ONLY = ("scan_match_cross", "reuse_pinned")
 #: settings only a camera map reads
-CAMERA_ONLY = ("camera_scans", "camera_legs")
+CAMERA_ONLY = ("camera_scans", "camera_legs", "camera_junction_scans")
 #: settings only maps that keep lidar scans read (a pose oracle map keeps none)
 SCANS_ONLY = ("cross_legs",)
 #: settings only planning reads, not building (a map is built alike whatever they say)
-PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "start_near_m",
-             "link_scan_match")
+PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "start_near_m")
 LINK_ORDERS = ("probability", "support")
 
 
@@ -133,13 +132,13 @@ class MapConfig:
     junction_scan_match: float = 0.7  # ... but a junction's two scans need pair only this
                                  # share: an arrival and a departure at one place face
                                  # different ways, which leaves far beams without a partner
-                                 # (chosen on train-60/61; docs/figures.md, "Drives that join")
-    link_scan_match: float = 0.8  # planning: the start's and the goal's link groups whose
-                                 # scan matches the view to this share come first
+                                 # (chosen on train-60..63; docs/figures.md, "Drives that join")
     scan_match_cross: bool = False  # ... and cross edges too (off: the long cross edges it
                                     # drops in open rooms are true hops, and success did not move)
     camera_scans: bool = True    # camera maps that keep their drives' lidar scans check a reused
-                                 # vertex and a junction by scan_match too (textures repeat)
+                                 # vertex by scan_match too (textures repeat) ...
+    camera_junction_scans: bool = False  # ... and a junction (off: RE both ways tells a camera
+                                 # map's junctions apart, and the scans refused true ones)
     camera_legs: bool = True     # ... and place them by registering those scans, as lidar maps
                                  # do: hops into and out of them keep the drive's odometry
     loop_check_m: float = 1.5    # a reused vertex must lie where the drive's odometry puts it,
@@ -181,7 +180,7 @@ class MapConfig:
                                      f"got {getattr(self, name)!r}")
         for name in ("link_consensus", "direct_check", "join_ends", "scan_match_cross",
                      "reuse_legs", "camera_scans", "camera_legs", "reuse_pinned", "cross_legs",
-                     "goal_leg"):
+                     "goal_leg", "camera_junction_scans"):
             if not isinstance(getattr(self, name), bool):
                 raise TopodrakeError(f"{where}: {name} must be true or false, got "
                                      f"{getattr(self, name)!r}")
@@ -191,7 +190,7 @@ class MapConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise TopodrakeError(f"{where}: {name} must be a number >= 0, got {v!r}")
-        for name in ("scan_match", "junction_scan_match", "link_scan_match"):
+        for name in ("scan_match", "junction_scan_match"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0.0 <= v < 1.0):
                 raise TopodrakeError(f"{where}: {name} must be in [0, 1), got {v!r}")

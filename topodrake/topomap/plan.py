@@ -128,7 +128,7 @@ def matched_first(topomap: TopoMap, groups: list[list[tuple[int, float]]],
         return groups
     vertices = [v for group in groups for v, _ in group]
     ok = dict(zip(vertices, scans_match(vertex_scans(topomap, vertices), view,
-                                        topomap.config.link_scan_match)))
+                                        topomap.config.scan_match)))
     matched = [any(ok[v] for v, _ in group) for group in groups]
     return [g for g, hit in zip(groups, matched) if hit] + \
         [g for g, hit in zip(groups, matched) if not hit]
