@@ -129,8 +129,8 @@ def join_trial(world, make_map, drive_of, observe, triple, scan=None) -> JoinRes
     from place s to place g (its ``poses``) or None; ``observe(poses)``
     what the map's scorer sees there; ``scan(poses)``, for a camera map, the
     lidar scans taken with those views, which the map keeps and checks its
-    reuses, junctions and links by, as every camera map built by
-    ``topodrake map build`` or the planning study does (None: none kept)."""
+    reuses and links by, as every camera map built by ``topodrake map
+    build`` or the planning study does (None: none kept)."""
     from topodrake.topomap.build import BuildStats, add_trajectory
     from topodrake.topomap.plan import plan_path
 
