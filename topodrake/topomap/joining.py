@@ -177,6 +177,19 @@ def summarize(results: list[JoinResult]) -> dict:
                                  if planned else None)}
 
 
+def _by_poses(sense):
+    """``sense(poses)`` remembered per poses: each drive's frames are
+    rendered (or scanned) once, however many triples use the drive."""
+    seen: dict[bytes, np.ndarray] = {}
+
+    def remembered(poses):
+        key = np.asarray(poses, np.float64).tobytes()
+        if key not in seen:
+            seen[key] = sense(poses)
+        return seen[key]
+    return remembered
+
+
 def house_results(spec: str, modality: str, triples, config, progress: bool) -> list:
     """The :class:`JoinResult` of each triple in one house."""
     from tqdm import tqdm
@@ -194,20 +207,8 @@ def house_results(spec: str, modality: str, triples, config, progress: bool) -> 
         by_places.setdefault((place_of(world, d.poses[0]), place_of(world, d.poses[-1])), d)
     scorer = make_scorer(modality, world)
     embedding = default_embedding(scorer.observation)
-    seen: dict[bytes, np.ndarray] = {}
-    scanned: dict[bytes, np.ndarray] = {}
-
-    def observe(poses):
-        key = np.asarray(poses, np.float64).tobytes()
-        if key not in seen:
-            seen[key] = drive_observations(world, scorer, poses)
-        return seen[key]
-
-    def scan(poses):
-        key = np.asarray(poses, np.float64).tobytes()
-        if key not in scanned:
-            scanned[key] = camera_scans(world, scorer.observation, poses)
-        return scanned[key]
+    observe = _by_poses(lambda poses: drive_observations(world, scorer, poses))
+    scan = _by_poses(lambda poses: camera_scans(world, scorer.observation, poses))
 
     def make_map():
         return TopoMap(scorer, embedding, config, world=spec)
