@@ -128,15 +128,16 @@ class FollowerFsm(LeafSystem):
     def _startable(self, context, car: np.ndarray, encoded: dict):
         """``startable(row, route)`` for the replanner, as the batched engine's
         (:func:`~topodrake.navigation.replan.search_would_start` from the
-        held observation; its encoding kept in ``encoded`` under ``id(route)``)."""
+        held observation; the route and its encoding kept in ``encoded`` under
+        ``id(route)``)."""
         from topodrake.navigation.replan import search_would_start
 
         obs, ranges = self._held_observations(context)
 
         def startable(_row: int, route) -> bool:
-            ok, encoded[id(route)] = search_would_start(self.policy, self.reach, route, obs,
-                                                        car[:, :3], ranges, self.lidar,
-                                                        self.config)
+            ok, feats = search_would_start(self.policy, self.reach, route, obs, car[:, :3],
+                                           ranges, self.lidar, self.config)
+            encoded[id(route)] = (route, feats)      # the route kept: its id stays its own
             return ok
         return startable
 
@@ -214,11 +215,13 @@ class FollowerFsm(LeafSystem):
         if self.replanner is not None:
             car = np.asarray(self.state_port.Eval(context))[None]
             encoded: dict = {}
-            for _, new in self.replanner.step(np.zeros(1, np.int64), fs, car[:, :3],
-                                              startable=self._startable(context, car, encoded)):
-                self._encode(new, encoded[id(new)])
+            for _, new, start in self.replanner.step(
+                    np.zeros(1, np.int64), fs, car[:, :3],
+                    startable=self._startable(context, car, encoded), fresh=self._initial_state):
+                kept, feats = encoded.get(id(new), (None, None))
+                self._encode(new, feats if kept is new else None)
                 state.get_mutable_abstract_state(self.route_index).set_value(len(self._routes) - 1)
-                fs = self._initial_state()
+                fs = start
         state.get_mutable_abstract_state(self.fsm_index).set_value(fs)
         m = int(fs.mode[0])
         if m == REACHED:

@@ -301,7 +301,7 @@ def test_a_new_plan_is_taken_only_where_the_follower_s_search_would_start_it(box
     lost = FollowerState.initial(1, np.zeros((1, 0)))
     lost.mode[:], lost.dr_count[:] = DEAD_RECKONING, 5
     lone = Replanner(plan, [bad], ReplanSchedule.paper())
-    assert [r for _, r in lone.step(np.zeros(1, np.int64), lost, start[None],
+    assert [r for _, r, _ in lone.step(np.zeros(1, np.int64), lost, start[None],
                                     p_start=follower.p_search)] == [far]
     assert lone.step(np.zeros(1, np.int64), lost, start[None], p_start=follower.p_search,
                      startable=lambda r, new: False) == []
@@ -346,7 +346,7 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     """Tries at Dead reckoning periods 5, 8, 11, ...; a worse plan is taken
     once 0.99 ** tries brings the current plan's probability below it; no
     more than max_replans new plans."""
-    from topodrake.navigation.follower import DEAD_RECKONING, FOLLOW, FollowerState
+    from topodrake.navigation.follower import DEAD_RECKONING, FOLLOW, SEARCH, FollowerState
     from topodrake.navigation.replan import Replanner, ReplanSchedule
     from topodrake.navigation.route import Route
 
@@ -382,7 +382,8 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     rp = Replanner(lambda i, pose, ex: better, [cur], ReplanSchedule.paper())
     st.dr_count[:] = 5
     assert rp.step(np.array([0]), st, np.zeros((1, 3)), p_start=0.8) == []
-    assert rp.step(np.array([0]), st, np.zeros((1, 3)), p_start=0.6) == [(0, better)]
+    (car, route, start), = rp.step(np.array([0]), st, np.zeros((1, 3)), p_start=0.6)
+    assert car == 0 and route is better and start.mode[0] == SEARCH   # it starts in Search
     with pytest.raises(TopodrakeError, match="discount"):
         ReplanSchedule(discount=1.5).check()
 
@@ -404,8 +405,8 @@ def test_the_default_schedule_asks_only_before_dead_reckoning_gives_up_and_takes
     st = FollowerState.initial(1)
     st.mode[:], st.visited[:], st.active[:] = DEAD_RECKONING, 0, 1
     st.dr_count[:] = tries[0]
-    assert Replanner(lambda i, pose, ex: poor, [cur]).step(
-        np.array([0]), st, np.zeros((1, 3))) == [(0, poor)]
+    assert [r for _, r, _ in Replanner(lambda i, pose, ex: poor, [cur]).step(
+        np.array([0]), st, np.zeros((1, 3)))] == [poor]
     assert Replanner(lambda i, pose, ex: poor, [cur], ReplanSchedule.paper()).step(
         np.array([0]), st, np.zeros((1, 3))) == []
     assert ReplanSchedule().check_against(give_up) == ReplanSchedule()
@@ -494,3 +495,52 @@ def test_a_camera_follower_fsm_hands_the_car_s_lidar_scan_to_the_evaluator(box_w
     fsm.ranges_port.FixValue(ctx, Lidar(box_world).scan(drive[:1])[0])
     fsm.decision(ctx)
     assert seen == [False, True]
+
+
+def test_a_tracked_car_with_no_plan_from_its_view_returns_to_its_anchor_and_plans_from_it():
+    """With return_to_anchor, a car no plan starts for from its view takes a
+    plan from the map vertex the tracker places it relative to, and starts it
+    dead reckoning back to that anchor: held where odometry puts the anchor,
+    tracked from the new route's first anchor; an untracked car, or the
+    schedule without it, takes nothing."""
+    from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
+    from topodrake.navigation.replan import Replanner, ReplanSchedule
+    from topodrake.navigation.route import Route
+
+    cur = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([1, 2, 3]), probability=0.5)
+    back = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([2, 5, 3]),
+                 probability=0.4)
+    asked = []
+
+    def plan(i, pose, excluded, vertex=None):
+        asked.append((vertex, list(excluded)))
+        return back if vertex == 2 else None
+
+    st = FollowerState.initial(1, 2)
+    st.mode[:], st.visited[:], st.active[:], st.dr_count[:] = DEAD_RECKONING, 1, 2, 190
+    st.ref[:], st.rel[:], st.odo[:] = 1, [1.0, 0.5, 0.3], [2.0, 3.0, 0.1]
+    st.var[:] = np.eye(3).ravel() * 0.01
+    assert Replanner(plan, [cur]).step(np.array([0]), st, np.zeros((1, 3))) == []
+    assert asked == [(None, [(2, 3)])]
+    rp = Replanner(plan, [cur], ReplanSchedule(return_to_anchor=True))
+    (car, route, start), = rp.step(np.array([0]), st, np.zeros((1, 3)))
+    assert route is back and asked[-1] == (2, [(2, 3)]) and rp.excluded[0] == [(2, 3)]
+    assert start.mode[0] == DEAD_RECKONING and start.active[0] == 0 and start.visited[0] == -1
+    assert start.ref[0] == 0 and start.dr_count[0] == 0 and start.track.shape == (1, 2)
+    np.testing.assert_allclose(start.rel[0], st.rel[0])
+    np.testing.assert_allclose(start.var[0], st.var[0])
+    # the anchor, seen from the car at rel, lies at the held waypoint in the odometry frame
+    np.testing.assert_allclose(start.waypoint[0],
+                               st.odo[0, :2] + _anchor_offset(st.odo[0], st.rel[0]), atol=1e-12)
+    st.ref[:] = -1                                        # not tracked: nothing to return to
+    rp = Replanner(plan, [cur], ReplanSchedule(return_to_anchor=True))
+    assert rp.step(np.array([0]), st, np.zeros((1, 3))) == [] and rp.plans[0] == 1
+
+
+def _anchor_offset(odo, rel):
+    """Where an anchor lies from the car's odometry position, the car being
+    at ``rel`` in the anchor's frame (worked out by hand)."""
+    x, y, th = rel
+    ax, ay = -(np.cos(th) * x + np.sin(th) * y), -(-np.sin(th) * x + np.cos(th) * y)
+    c, s = np.cos(odo[2]), np.sin(odo[2])
+    return np.array([c * ax - s * ay, s * ax + c * ay])

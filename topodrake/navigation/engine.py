@@ -122,17 +122,18 @@ class NavigationEngine:
     def _startable(self, observations, states, odometry, ranges, encoded: dict):
         """``startable(row, route)`` for the replanner: would the follower's
         Search pass on ``route`` for the car in row ``row`` of this period's
-        cars (:func:`~topodrake.navigation.replan.search_would_start`; its
-        encoding kept in ``encoded`` under ``id(route)``)."""
+        cars (:func:`~topodrake.navigation.replan.search_would_start`; the
+        route and its encoding kept in ``encoded`` under ``id(route)``)."""
         from topodrake.navigation.replan import search_would_start
 
         def startable(r: int, route) -> bool:
             one = slice(r, r + 1)
-            ok, encoded[id(route)] = search_would_start(
+            ok, feats = search_would_start(
                 self.policy, self.reach, route,
                 None if observations is None else observations[one], states[one, :3],
                 ranges[one], self.config.rollout.lidar, self.config.follower,
                 odometry=odometry[one, :3])
+            encoded[id(route)] = (route, feats)      # the route kept: its id stays its own
             return ok
         return startable
 
@@ -206,13 +207,18 @@ class NavigationEngine:
             if replanner is not None:
                 encoded: dict = {}
                 startable = self._startable(ev.observations, st, odo, ranges, encoded)
-                for i, new in replanner.step(cars, fs, st[:, :3], startable=startable):
-                    features = stack_features(features, encoded[id(new)])
+                fresh = lambda: FollowerState.initial(1, initial_track(self.policy, 1))  # noqa: E731
+                for i, new, start in replanner.step(cars, fs, st[:, :3], startable=startable,
+                                                    fresh=fresh):
+                    kept, feats = encoded.get(id(new), (None, None))
+                    if kept is not new:         # a route from a vertex: never asked of Search
+                        feats = encode_routes([new], self.policy, self.reach,
+                                              legs_m=self.config.follower.legs_m)
+                    features = stack_features(features, feats)
                     route_of[i] = len(features.offsets) - 2
                     n_anchors[i] = len(new)
                     goals[i] = new.goal_pose
-                    follower.put(np.array([i]), FollowerState.initial(
-                        1, initial_track(self.policy, 1)))
+                    follower.put(np.array([i]), start)
             u = controls_toward(st, out.waypoint, ranges, cfg.lidar, cfg.rmp, veh)
             if noise is not None and cfg.noise_std > 0:
                 u = u * (1.0 + cfg.noise_std * noise[cars, k])

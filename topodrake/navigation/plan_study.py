@@ -46,12 +46,13 @@ def navigation_config(cfg: dict):
 def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
                 cfg: dict, tag: str = "all", experience=None):
     """(plans' routes (None = no plan), plan probabilities, map size dict,
-    ``replan(trial, pose, excluded_edges)`` on our maps (None for SPTM)).
+    ``replan(trial, pose, excluded_edges, vertex=None)`` on our maps (None
+    for SPTM)).
     ``experience``: ``(passed, failed)`` map edges of earlier drives, folded
     into the map's edges before planning
     (:func:`topodrake.topomap.recalibrate.record_traversals`)."""
     from topodrake.navigation.plan_trials import render_pose_route
-    from topodrake.topomap.plan import plan_path
+    from topodrake.topomap.plan import plan_from_vertex, plan_path
     from topodrake.topomap.sources import drive_observations, view_scans
 
     data, progress = Path(cfg["data"]), not cfg["quiet"]
@@ -94,7 +95,12 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
 
         limit = plan_time_limit(cfg)
 
-        def replan(t, pose, excluded):
+        def replan(t, pose, excluded, vertex=None):
+            if vertex is not None:      # the car returns to a vertex of its route
+                p = plan_from_vertex(m, vertex, go[goal_idx[t]], goal_pose=places[goal_idx[t]],
+                                     goal_scan=None if g_scans is None else g_scans[goal_idx[t]],
+                                     excluded_edges=excluded, time_limit_s=limit)
+                return p.route if p.reachable else None
             pose = np.asarray(pose)[None]
             obs = drive_observations(world, m.scorer, pose)[0]
             here = view_scans(world, m, pose)
@@ -364,7 +370,7 @@ def house_job(seed: int, jobs: dict, cfg: dict) -> dict:
 def unplanned_pairs(spec: str, world, drives, indices, cfg: dict, tag: str) -> list:
     """The ordered pairs of places (start place, goal place) that get no plan
     on the oracle map, from the start place's own pose."""
-    from topodrake.topomap.plan import plan_path
+    from topodrake.topomap.plan import plan_from_vertex, plan_path
     from topodrake.topomap.sources import drive_observations
 
     m, _ = get_map(spec, world, "oracle", drives, indices, Path(cfg["data"]), tag,

@@ -133,8 +133,9 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     """Drive cars from ``starts`` along ``routes`` (None: no plan, a failed
     trial that is not driven) toward the goal places ``goals`` (n, 3), in
     engine batches of ``batch``. ``progress(n_done)`` is called per batch.
-    With ``replan(trial, pose, excluded_edges) -> Route | None`` cars replan
-    while dead reckoning (:mod:`topodrake.navigation.replan`, on
+    With ``replan(trial, pose, excluded_edges, vertex=None) -> Route | None``
+    (``vertex``: plan from that map vertex instead of the view at ``pose``)
+    cars replan while dead reckoning (:mod:`topodrake.navigation.replan`, on
     ``schedule``), and the result holds ``plans`` and ``excluded``."""
     from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
     from topodrake.navigation.replan import Replanner
@@ -151,7 +152,8 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
         watch = GoalWatch(goals[part], radius)
         replanner = None
         if replan is not None:
-            replanner = Replanner(lambda j, pose, ex, part=part: replan(part[j], pose, ex),
+            replanner = Replanner(lambda j, pose, ex, part=part, **kw: replan(part[j], pose, ex,
+                                                                               **kw),
                                   [routes[i] for i in part], schedule)
         res = engine.run(np.asarray(starts)[part], [routes[i] for i in part], t_max_s=t_max_s,
                          watch=watch, replanner=replanner)

@@ -42,7 +42,8 @@ from typing import Callable
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.follower import DEAD_RECKONING
+from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
+from topodrake.se2 import compose, invert
 
 GIVE_UP = ("dead_reckoning_gave_up", "search_failed")
 
@@ -57,6 +58,9 @@ class ReplanSchedule:
     every: int = 3            # then a try every this many periods
     discount: float = 0.01    # a new plan is taken when p_new > p_current * discount ** tries
     max_replans: int = 5      # accepted new plans per car and run
+    return_to_anchor: bool = False  # where no plan starts from the car's view, a tracked car
+                                    # returns to the anchor it is tracked from and drives a
+                                    # plan from that vertex (see Replanner.step)
 
     @classmethod
     def paper(cls) -> "ReplanSchedule":
@@ -163,7 +167,22 @@ def traversals_of_records(records: list[dict]) -> tuple[list, list]:
     return passed, failed
 
 
-PlanCallback = Callable[[int, np.ndarray, list], object]
+PlanCallback = Callable[..., object]
+
+
+def returning_state(state: FollowerState, row: int, fresh: FollowerState) -> FollowerState:
+    """The follower state (one car) that starts a route from the anchor the
+    car in ``row`` of ``state`` is tracked from: Dead reckoning toward that
+    anchor (the route's first), held where the tracker puts it in the
+    odometry frame, the tracked pose kept relative to it; ``fresh``: the
+    one-car initial state (the policy's initial track)."""
+    out = fresh.copy()
+    rel, odo = state.rel[row], state.odo[row]
+    anchor = compose(odo, invert(rel))[0]
+    out.mode[0], out.active[0], out.visited[0] = DEAD_RECKONING, 0, -1
+    out.waypoint[0] = anchor[:2]
+    out.ref[0], out.rel[0], out.var[0], out.odo[0] = 0, rel, state.var[row], odo
+    return out
 
 
 def search_would_start(policy, reach, route, observation, pose: np.ndarray, ranges, lidar,
@@ -205,41 +224,71 @@ class Replanner:
         self.excluded: list[list[tuple[int, int]]] = [[] for _ in range(n)]
 
     def step(self, cars: np.ndarray, state, poses: np.ndarray, p_start: float = 0.0,
-             startable: Callable[[int, object], bool] | None = None
-             ) -> list[tuple[int, object]]:
+             startable: Callable[[int, object], bool] | None = None,
+             fresh: Callable[[], FollowerState] | None = None
+             ) -> list[tuple[int, object, FollowerState]]:
         """After a period's decision ``state`` (FollowerState of ``cars``,
         rows in the same order; ``poses`` (len(cars), 3)): ask the planner
         for the cars whose Dead reckoning reached a try, and return the
-        (car, new route) pairs accepted. A new route is taken only where
-        the follower can start it: ``startable(row, route)`` (the
-        executor's: would the follower's Search pass from the car's current
-        observation, :func:`~topodrake.navigation.follower.search_choice`),
-        or without it, where the plan's start link is above ``p_start``
-        (the follower's p_search; the planner's and the follower's RE
-        calibrations differ, so this only approximates Search)."""
+        (car, new route, the car's follower state to start it with) triples
+        accepted. A new route is taken only where the follower can start it:
+        ``startable(row, route)`` (the executor's: would the follower's
+        Search pass from the car's current observation,
+        :func:`~topodrake.navigation.follower.search_choice`), or without
+        it, where the plan's start link is above ``p_start`` (the follower's
+        p_search; the planner's and the follower's RE calibrations differ,
+        so this only approximates Search); it starts in Search (``fresh()``:
+        a one-car initial state, by default one with a zero track). With
+        ``return_to_anchor`` a car that no such plan starts for, and that
+        the route tracker still places relative to an anchor of a map
+        vertex, takes a plan from that vertex instead
+        (``plan(car, pose, excluded, vertex=v)``) and starts it dead
+        reckoning back to that anchor (:func:`returning_state`)."""
         cars = np.asarray(cars, np.int64)
+        if fresh is None:
+            fresh = lambda: FollowerState.initial(1, state.track.shape[1])   # noqa: E731
         due = np.flatnonzero((state.mode == DEAD_RECKONING) & self.schedule.due(state.dr_count))
         taken = []
         for r in due:
             i = int(cars[r])
             if self.plans[i] > self.schedule.max_replans:
                 continue
-            edge = failing_edge(self.routes[i], int(state.visited[r]), int(state.active[r]))
+            route = self.routes[i]
+            edge = failing_edge(route, int(state.visited[r]), int(state.active[r]))
             excluded = list(self.excluded[i])
             if edge is not None and edge not in excluded:
                 excluded.append(edge)
             self.tries[i] += 1
             new = self.plan(i, np.array(poses[r], np.float64), excluded)
-            if new is None or not self.schedule.accepts(new.probability,
-                                                        self.routes[i].probability,
-                                                        int(self.tries[i])):
-                continue
-            if not (startable(int(r), new) if startable is not None
-                    else new.start_probability > p_start):
+            start = None
+            if new is not None and self._accepts(new, i) and \
+                    (startable(int(r), new) if startable is not None
+                     else new.start_probability > p_start):
+                start = fresh()
+            elif self.schedule.return_to_anchor:
+                vertex = self._tracked_vertex(state, r, route)
+                new = None if vertex is None else \
+                    self.plan(i, np.array(poses[r], np.float64), excluded, vertex=vertex)
+                if new is not None and self._accepts(new, i):
+                    start = returning_state(state, int(r), fresh())
+            if start is None:
                 continue
             self.routes[i], self.excluded[i] = new, excluded
             self.tries[i] = 0
             self.plans[i] += 1
-            taken.append((i, new))
+            taken.append((i, new, start))
         return taken
 
+    def _accepts(self, new, car: int) -> bool:
+        return self.schedule.accepts(new.probability, self.routes[car].probability,
+                                     int(self.tries[car]))
+
+    @staticmethod
+    def _tracked_vertex(state, row: int, route) -> int | None:
+        """The map vertex of the anchor the route tracker places the car in
+        ``row`` relative to (None: not tracked, or not a map vertex)."""
+        ref = int(state.ref[row])
+        if not (0 <= ref < len(route.vertices)) or not np.isfinite(state.odo[row]).all():
+            return None
+        v = int(route.vertices[ref])
+        return v if v >= 0 else None

@@ -266,7 +266,8 @@ def within_time(g, cost: float, path: list, weight, limit_s: float,
 def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation: np.ndarray,
               goal_context: np.ndarray | None = None, start_pose=None, goal_pose=None,
               excluded_edges=(), retrieval_k: int | None = None, time_limit_s: float | None = None,
-              driving: DrivingTime | None = None, view_scans=None) -> PlanResult:
+              driving: DrivingTime | None = None, view_scans=None,
+              start_vertex: int | None = None) -> PlanResult:
     """The most probable path from ``start_observation`` to the goal, or
     with ``time_limit_s`` the path most likely to be driven within it
     (:func:`within_time`, the follower's pace ``driving``).
@@ -278,7 +279,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
     scans (start's, goal's; a pair or a (2, beams) array) taken with the
     two views, by which a camera map that keeps its drives' scans checks
     the links as a lidar map does
-    (:func:`link_scans`)."""
+    (:func:`link_scans`); ``start_vertex``: the path starts at this map
+    vertex instead of the start's links (:func:`plan_from_vertex`)."""
     if time_limit_s is not None and not (math.isfinite(time_limit_s) and time_limit_s > 0):
         raise TopodrakeError(f"the time limit must be a number of seconds > 0, not {time_limit_s}")
     m = topomap
@@ -321,6 +323,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         if scans is not None and p_direct > m.config.p_link \
                 and not scans_match(scans[1], scans[0], m.config.scan_match)[0]:
             p_direct = 0.0      # a look-alike of the goal, not the goal
+        if start_vertex is not None:      # the car returns to a vertex it saw: no start link
+            links_s, p_direct = [(int(start_vertex), 1.0)], 0.0
         result = PlanResult(False, start_links=len(links_s), goal_links=len(links_g))
         if not links_s and p_direct <= m.config.p_link:
             result.reason = (f"no map vertex is reachable from the start (best RE "
@@ -331,7 +335,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
                              f"{max(p_goal, default=0.0):.2f} <= {m.config.p_link})")
             return result
         # the start's links by the anchors its scan places near first, then all of them
-        near = near_start_links(m, links_s, scans[0]) if scans is not None else links_s
+        near = near_start_links(m, links_s, scans[0]) \
+            if scans is not None and start_vertex is None else links_s
         choices = [pair for from_start in ([near, links_s] if near != links_s else [links_s])
                    for pair in _link_choices(m, from_start, links_g, scans)]
         banned = {(int(u), int(v)) for u, v in excluded_edges}
@@ -385,3 +390,22 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         if GOAL in g:
             g.remove_node(GOAL)
         m.bank.keep_tail(first, np.zeros(0, np.int64))
+
+
+def plan_from_vertex(topomap: TopoMap, vertex: int, goal_observation: np.ndarray,
+                     goal_scan=None, **kwargs) -> PlanResult:
+    """The path :func:`plan_path` finds from the map vertex ``vertex`` (a
+    replanning car that returns to an anchor it saw) to the goal;
+    ``goal_scan``: the goal view's lidar scan, where a camera map checks its
+    goal links by scans; ``kwargs`` as :func:`plan_path`'s (a start pose
+    defaults to the vertex's)."""
+    m = topomap
+    if vertex not in m.graph:
+        raise TopodrakeError(f"vertex {vertex} is not a vertex of the map ({len(m)} vertices)")
+    start_obs = m.bank.observations[m.centers([vertex])[0]]
+    scans = None
+    if goal_scan is not None and m.modality != "lidar":
+        scans = (vertex_scans(m, [vertex])[0], goal_scan)
+    kwargs.setdefault("start_pose", m.pose([vertex])[0])
+    return plan_path(m, start_obs, goal_observation, view_scans=scans, start_vertex=vertex,
+                     **kwargs)
