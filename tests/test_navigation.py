@@ -544,3 +544,60 @@ def _anchor_offset(odo, rel):
     ax, ay = -(np.cos(th) * x + np.sin(th) * y), -(-np.sin(th) * x + np.cos(th) * y)
     c, s = np.cos(odo[2]), np.sin(odo[2])
     return np.array([c * ax - s * ay, s * ax + c * ay])
+
+
+def _sub_route(route, rows, vertices, leg_rows):
+    """Anchors ``rows`` of ``route`` as map ``vertices``; hop i keeps the
+    route's leg ``leg_rows[i]`` (None: a hop without a leg)."""
+    from topodrake.navigation.route import Route
+
+    nan = np.full_like(route.leg_paths[0], np.nan)
+    paths = np.stack([nan if j is None else route.leg_paths[j] for j in leg_rows])
+    return Route(route.contexts[rows], route.poses[rows], vertices=np.array(vertices),
+                 modality=route.modality, legs=paths[:, -1], leg_paths=paths)
+
+
+def test_a_car_lost_on_a_hop_returns_to_its_anchor_and_drives_a_plan_from_it(box_world, route,
+                                                                            oracles):
+    """A plan whose last hop jumps behind the partition: the car follows its
+    first anchors, cannot see the goal and dead reckons; no plan starts from
+    its view, so with return_to_anchor it takes the plan from the vertex it
+    is tracked from, drives back to that anchor and round the partition to
+    the goal, in the engine and the Drake diagram alike; without it it
+    gives up."""
+    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+    from topodrake.navigation.follower import FollowerConfig
+    from topodrake.navigation.replan import Replanner, ReplanSchedule
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+
+    n = len(route)
+    bad = _sub_route(route, [0, 1, 2, n - 1], [10, 11, 12, 99], [0, 1, None])
+    good = _sub_route(route, list(range(2, n)), [12, *range(13, 11 + n - 2), 99],
+                      list(range(2, n - 1)))
+    asked = []
+
+    def plan(i, pose, excluded, vertex=None):
+        asked.append((vertex, list(excluded)))
+        return good if vertex == 12 and (12, 99) in excluded else None
+
+    follower = FollowerConfig(dr_max_iterations=40)
+    start = np.array([1.0, 1.5, 0.3])
+    engine = NavigationEngine(box_world, *oracles, NavigationConfig(follower=follower))
+    schedule = ReplanSchedule(first=20, every=3, return_to_anchor=True)
+    replanner = Replanner(plan, [bad], schedule)
+    res = engine.run(start[None], [bad], t_max_s=80.0, replanner=replanner)
+    assert NAV_OUTCOMES[int(res.outcome[0])] == "reached" and replanner.plans[0] == 2
+    assert (12, [(12, 99)]) in asked and replanner.routes[0] is good
+    k = int(res.steps[0])
+    assert np.hypot(*(res.poses[0, k, :2] - route.poses[-1, :2])) < 1.0
+    sc = NavigationScenario(world="box", camera_enabled=False, follower=follower, t_max_s=80.0)
+    fsm = Replanner(plan, [bad], schedule)
+    drake = NavigationRunner(make_navigation_diagram(sc, bad, world=box_world, policy=oracles[0],
+                                                     reach=oracles[1], replanner=fsm)).run(start)
+    assert drake.outcome == "reached" and drake.plans == 2 and drake.route is good
+    m = min(len(drake.poses), k + 1)
+    assert np.linalg.norm(drake.poses[:m, :2] - res.poses[0, :m, :2], axis=1).max() <= 1e-6
+    plain = Replanner(plan, [bad], ReplanSchedule(first=20, every=3))
+    res = engine.run(start[None], [bad], t_max_s=80.0, replanner=plain)
+    assert NAV_OUTCOMES[int(res.outcome[0])] == "dead_reckoning_gave_up" and plain.plans[0] == 1

@@ -22,6 +22,14 @@ under the map's calibration, which is not the follower's). The accepted
 route replaces the car's current one from the next period, and its
 follower starts again in Search.
 
+Most cars about to give up stand where no plan starts from their view:
+they have left the places the map links views to. With
+``return_to_anchor`` such a car, where the route tracker still places it
+relative to an anchor of its route (its last visited one), takes a plan
+from that anchor's map vertex instead, without the failing edge, and
+starts it dead reckoning back to the anchor: the tracker knows where it
+lies in the odometry frame.
+
 :class:`Replanner` keeps this per-car bookkeeping for one run
 (:func:`topodrake.navigation.plan_trials.follow_routes` with ``replan=``
 makes one per engine batch). Both
