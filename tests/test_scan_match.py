@@ -551,3 +551,19 @@ def test_plans_start_at_the_anchor_the_start_s_scan_places_near(house, lidar):
     assert first(blind) > 2.0 >= first(placed)
     with pytest.raises(TopodrakeError, match="start_near_m"):
         MapConfig(start_near_m=-1.0).validate()
+
+
+def test_a_near_start_vertex_faces_the_car_s_way_and_lies_not_far_behind():
+    """_near_start reads the car's pose in the vertex's frame: within
+    start_near_m, its heading within start_near_deg, the vertex at most
+    start_near_behind_m behind the car."""
+    from topodrake.topomap.plan import _near_start
+
+    cfg = MapConfig(start_near_m=2.0, start_near_deg=60.0, start_near_behind_m=0.3)
+    assert _near_start(np.array([-1.0, 0.2, 0.3]), cfg)          # 1 m short of it, same way
+    assert not _near_start(np.array([-1.0, 0.2, 1.4]), cfg)      # turned 80 deg
+    assert not _near_start(np.array([1.0, 0.0, 0.0]), cfg)       # it lies 1 m behind the car
+    assert _near_start(np.array([0.2, 0.0, 0.0]), cfg)           # 0.2 m behind: near
+    assert not _near_start(np.array([-2.5, 0.0, 0.0]), cfg)      # beyond start_near_m
+    with pytest.raises(TopodrakeError, match="start_near_deg"):
+        MapConfig(start_near_deg=-1.0).validate()

@@ -57,7 +57,8 @@ CAMERA_ONLY = ("camera_scans", "camera_legs", "camera_junction_scans")
 #: settings only maps that keep lidar scans read (a pose oracle map keeps none)
 SCANS_ONLY = ("cross_legs",)
 #: settings only planning reads, not building (a map is built alike whatever they say)
-PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "start_near_m")
+PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "start_near_m",
+             "start_near_deg", "start_near_behind_m")
 LINK_ORDERS = ("probability", "support")
 
 
@@ -162,7 +163,9 @@ class MapConfig:
                                  # first from the vertices the start's scan registers onto
                                  # within this (0: off), then from every link: at the anchor
                                  # the car stands by, not one RE trusts metres on (an
-                                 # ablation, off: it cost plans more than it kept short)
+                                 # ablation, off: it cost plans more than it kept short) ...
+    start_near_deg: float = 180.0  # ... of such vertices only those facing the car's way
+    start_near_behind_m: float = 1e9  # within this and at most this far behind it count
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):
@@ -186,7 +189,8 @@ class MapConfig:
                                      f"{getattr(self, name)!r}")
         if not (isinstance(self.legless_p, (int, float)) and 0.0 < self.legless_p <= 1.0):
             raise TopodrakeError(f"{where}: legless_p must be in (0, 1], got {self.legless_p!r}")
-        for name in ("loop_check_m", "loop_check_per_m", "start_near_m"):
+        for name in ("loop_check_m", "loop_check_per_m", "start_near_m", "start_near_deg",
+                     "start_near_behind_m"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise TopodrakeError(f"{where}: {name} must be a number >= 0, got {v!r}")

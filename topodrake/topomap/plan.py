@@ -47,6 +47,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.navigation.route import Route
 from topodrake.topomap.graph import EDGE_KINDS, TopoMap
 from topodrake.topomap.route_time import DrivingTime, edge_metres, path_metres
+from topodrake.se2 import invert
 from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
 
 START, GOAL = -1, -2
@@ -143,16 +144,30 @@ def near_start_links(topomap: TopoMap, links: list[tuple[int, float]],
     may lie metres down a corridor, so it does not count as near."""
     from topodrake.topomap.build import join_legs
 
-    near_m = topomap.config.start_near_m
-    if near_m <= 0 or len(links) < 2:
+    cfg = topomap.config
+    if cfg.start_near_m <= 0 or len(links) < 2:
         return links
     vertices = [v for v, _ in links]
     source = np.repeat(np.asarray(start_scan, np.float64)[None], len(vertices), 0)
-    offsets = [None if leg is None else float(np.hypot(leg[0], leg[1]))
-               for leg, _ in join_legs(source, vertex_scans(topomap, vertices))]
-    if not any(d is not None and d <= near_m for d in offsets):
+    near = [leg is not None and _near_start(leg, cfg)
+            for leg, _ in join_legs(source, vertex_scans(topomap, vertices))]
+    if not any(near):
         return links
-    return [link for link, d in zip(links, offsets) if d is not None and d <= near_m]
+    return [link for link, ok in zip(links, near) if ok]
+
+
+def _near_start(leg: np.ndarray, cfg) -> bool:
+    """Whether a vertex at which the start's pose registers to ``leg`` (the
+    car in the vertex's frame) is near: within ``start_near_m``, facing the
+    way the car faces within ``start_near_deg`` and not behind the car by
+    more than ``start_near_behind_m`` (an anchor off the car's heading or
+    behind it is a harder first hop than one a few metres ahead)."""
+    if float(np.hypot(leg[0], leg[1])) > cfg.start_near_m:
+        return False
+    if abs(math.degrees(float(leg[2]))) > cfg.start_near_deg:
+        return False
+    ahead = float(invert(leg)[0, 0])          # the vertex's x in the car's frame
+    return ahead >= -cfg.start_near_behind_m
 
 
 def link_scans(topomap: TopoMap, start_obs: np.ndarray, goal_obs: np.ndarray,
