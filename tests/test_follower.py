@@ -432,3 +432,28 @@ def test_backing_up_brings_the_car_onto_a_target_it_would_circle():
         target = np.array(target)
         assert closest(target, back_up=True) < 0.2
         assert closest(target, back_up=False) > 0.2
+
+
+def test_the_follower_keeps_the_odometry_pose_at_which_it_marked_an_anchor_visited(box_world):
+    """``seen`` holds the car's odometry pose of the period in which its last
+    visited anchor changed, and stays while it does not."""
+    from topodrake.navigation.follower import FOLLOW, FollowerState, follower_step
+
+    class Here:                  # every anchor is right here: each period marks one visited
+        anchor_frames = None
+
+        def __call__(self, cars, anchors, cwp, re):
+            from topodrake.navigation.follower import Answers
+
+            m = len(cars)
+            return Answers(np.zeros((m, 2)) + [0.1, 0.0], np.full((m, 2), 0.9),
+                           np.full(m, 0.99))
+
+    st = FollowerState.initial(1)
+    st.mode[:], st.active[:], st.visited[:] = FOLLOW, 1, 0
+    car = np.array([[2.0, 3.0, 0.5, 0.0, 0.0]])
+    new, _ = follower_step(st, np.array([6]), car, Here())
+    assert new.visited[0] > 0
+    np.testing.assert_allclose(new.seen[0], car[0, :3])
+    back = FollowerState.from_vector(new.to_vector())
+    np.testing.assert_allclose(back.seen, new.seen)

@@ -501,8 +501,9 @@ def test_a_tracked_car_with_no_plan_from_its_view_returns_to_its_anchor_and_plan
     """With return_to_anchor, a car no plan starts for from its view takes a
     plan from the map vertex the tracker places it relative to, and starts it
     dead reckoning back to that anchor: held where odometry puts the anchor,
-    tracked from the new route's first anchor; an untracked car, or the
-    schedule without it, takes nothing."""
+    tracked from the new route's first anchor; a car the tracker lost
+    returns to the odometry pose of its last visit; without either, or
+    without return_to_anchor, it takes nothing."""
     from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
     from topodrake.navigation.replan import Replanner, ReplanSchedule
     from topodrake.navigation.route import Route
@@ -532,9 +533,14 @@ def test_a_tracked_car_with_no_plan_from_its_view_returns_to_its_anchor_and_plan
     # the anchor, seen from the car at rel, lies at the held waypoint in the odometry frame
     np.testing.assert_allclose(start.waypoint[0],
                                st.odo[0, :2] + _anchor_offset(st.odo[0], st.rel[0]), atol=1e-12)
-    st.ref[:] = -1                                        # not tracked: nothing to return to
+    assert rp.returns[0] == 1 and rp.plans[0] == 2
+    st.ref[:] = -1            # the tracker lost it, and no visit pose kept: nothing to return to
     rp = Replanner(plan, [cur], ReplanSchedule(return_to_anchor=True))
     assert rp.step(np.array([0]), st, np.zeros((1, 3))) == [] and rp.plans[0] == 1
+    st.seen[:] = [4.0, 1.0, 0.2]      # ... with it, the car returns to where it marked it visited
+    (_, route, start), = rp.step(np.array([0]), st, np.zeros((1, 3)))
+    assert route is back and start.ref[0] == -1 and start.mode[0] == DEAD_RECKONING
+    np.testing.assert_allclose(start.waypoint[0], [4.0, 1.0])
 
 
 def _anchor_offset(odo, rel):

@@ -861,3 +861,25 @@ def test_a_reuse_must_lie_where_the_drive_s_odometry_puts_it():
     assert loop_consistent(m, 0, 0, np.zeros(3)) and not loop_consistent(m, 0, 0, np.ones(3) * 2)
     with pytest.raises(TopodrakeError, match="loop_check_m"):
         MapConfig(loop_check_m=-1.0).validate()
+
+
+def test_a_plan_from_a_vertex_starts_there_and_avoids_the_excluded_edges():
+    """plan_from_vertex: the path starts at the vertex given (no start link
+    from a view, probability 1 for it) and takes another way round an
+    excluded edge; a vertex not in the map is refused."""
+    from topodrake.topomap.plan import plan_from_vertex
+
+    m = table_map(parallel_drives, reuse=False)
+    add_trajectory(m, drive(0, 13))
+    add_trajectory(m, drive(1, 13))
+    r = plan_path(m, np.array([0, 0]), np.array([0, 12]))
+    v = r.vertices[1]
+    f = plan_from_vertex(m, v, np.array([0, 12]))
+    assert f.reachable and f.vertices[0] == v and f.route.start_probability == 1.0
+    assert f.route.vertices[0] == v and f.probability >= r.probability
+    first = (f.vertices[0], f.vertices[1])
+    g = plan_from_vertex(m, v, np.array([0, 12]), excluded_edges=[first])
+    assert g.reachable and g.vertices[0] == v and first not in set(zip(g.vertices[:-1],
+                                                                        g.vertices[1:]))
+    with pytest.raises(TopodrakeError, match="not a vertex"):
+        plan_from_vertex(m, 10 ** 6, np.array([0, 12]))

@@ -91,15 +91,21 @@ class MapPlanner:
         self.reach = self.scorer.reach
         self.layers = _map_layers(self.topomap)
 
-    def plan(self, start, goal, excluded_edges=(), time_limit_s: float | None = None):
-        """The PlanResult from pose ``start`` to pose ``goal``, made for
-        ``time_limit_s`` seconds of driving where given."""
-        from topodrake.topomap.plan import plan_path
+    def plan(self, start, goal, excluded_edges=(), time_limit_s: float | None = None,
+             vertex: int | None = None):
+        """The PlanResult from pose ``start`` (or from the map vertex
+        ``vertex``: a replanning car returning to an anchor) to pose
+        ``goal``, made for ``time_limit_s`` seconds of driving where given."""
+        from topodrake.topomap.plan import plan_from_vertex, plan_path
         from topodrake.topomap.sources import drive_observations, view_scans
 
         poses = np.stack([start, goal])
         obs = drive_observations(self.world, self.scorer, poses)
         scans = view_scans(self.world, self.topomap, poses)
+        if vertex is not None:
+            return plan_from_vertex(self.topomap, vertex, obs[1], goal_pose=goal,
+                                    goal_scan=None if scans is None else scans[1],
+                                    excluded_edges=excluded_edges, time_limit_s=time_limit_s)
         return plan_path(self.topomap, obs[0], obs[1], start_pose=start, goal_pose=goal,
                          excluded_edges=excluded_edges, time_limit_s=time_limit_s,
                          view_scans=scans)
@@ -240,8 +246,8 @@ def cmd_navigate(args) -> int:
     if planner is not None and args.replan:
         from topodrake.navigation.replan import ReplanSchedule, Replanner
 
-        replanner = Replanner(lambda _, pose, excluded: _route_or_none(planner.plan(
-            pose, goal, excluded, time_limit_s=args.t_max)), [route],
+        replanner = Replanner(lambda _, pose, excluded, vertex=None: _route_or_none(planner.plan(
+            pose, goal, excluded, time_limit_s=args.t_max, vertex=vertex)), [route],
             ReplanSchedule(max_replans=args.replan))
     result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
                          record=bool(args.meshcat), seed=args.seed, replanner=replanner)

@@ -258,6 +258,8 @@ class FollowerState:
     var: np.ndarray | None = None    # (N, 9): its covariance (3 x 3 over x, y, heading)
     odo: np.ndarray | None = None    # (N, 3): the odometry pose of the last period (NaN: none)
     misses: np.ndarray | None = None  # (N,) int: answers outvoted in a row
+    seen: np.ndarray | None = None   # (N, 3): the odometry pose at which the last visited
+                                     # anchor was marked visited (NaN: none)
 
     def __post_init__(self) -> None:
         n = len(self.mode)
@@ -273,6 +275,8 @@ class FollowerState:
             self.odo = np.full((n, 3), np.nan)
         if self.misses is None:
             self.misses = np.zeros(n, np.int64)
+        if self.seen is None:
+            self.seen = np.full((n, 3), np.nan)
 
     @classmethod
     def initial(cls, n: int, track: np.ndarray | int = 0) -> "FollowerState":
@@ -304,8 +308,8 @@ class FollowerState:
             raise ValueError("to_vector packs the state of one car")
         return np.array([self.mode[0], self.active[0], self.visited[0], *self.waypoint[0],
                          self.dr_count[0], self.reason[0], self.best_p[0], self.stall[0],
-                         self.ref[0], *self.rel[0], *self.var[0], *self.odo[0], self.misses[0]],
-                        np.float64)
+                         self.ref[0], *self.rel[0], *self.var[0], *self.odo[0], self.misses[0],
+                         *self.seen[0]], np.float64)
 
     @classmethod
     def from_vector(cls, v) -> "FollowerState":
@@ -313,12 +317,12 @@ class FollowerState:
         i = lambda x: np.array([int(round(x))], np.int64)   # noqa: E731
         return cls(i(v[0]), i(v[1]), i(v[2]), v[None, 3:5].copy(), i(v[5]), i(v[6]),
                    np.array([v[7]]), i(v[8]), None, i(v[9]), v[None, 10:13].copy(),
-                   v[None, 13:22].copy(), v[None, 22:25].copy(), i(v[25]))
+                   v[None, 13:22].copy(), v[None, 22:25].copy(), i(v[25]), v[None, 26:29].copy())
 
 
 _FIELDS = ("mode", "active", "visited", "waypoint", "dr_count", "reason", "best_p", "stall",
-           "track", "ref", "rel", "var", "odo", "misses")
-STATE_SIZE = 26
+           "track", "ref", "rel", "var", "odo", "misses", "seen")
+STATE_SIZE = 29
 
 
 @dataclass
@@ -404,6 +408,8 @@ def follower_step(state: FollowerState, n_anchors: np.ndarray, car_state: np.nda
     _search(per, np.flatnonzero(state.mode == SEARCH))
     _follow(per, np.flatnonzero(state.mode == FOLLOW))
     _dead_reckoning(per, np.flatnonzero(state.mode == DEAD_RECKONING))
+    marked = (new.visited != state.visited) & (new.visited >= 0)
+    new.seen[marked] = car_state[marked, :3]
     return new, _drive(per)
 
 

@@ -211,8 +211,8 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                     "visited": int(res.visited[t]), "active": int(res.active[t])}
                    if routes[t] is not None and meth.map != "sptm" else {}),
                 **({"round": int(round_of[t])} if round_of is not None else {}),
-                **({"plans": int(res.plans[t])} if getattr(res, "plans", None) is not None
-                   else {}),
+                **({"plans": int(res.plans[t]), "returns": int(res.returns[t])}
+                   if getattr(res, "plans", None) is not None else {}),
                 **({"boxes": None if boxes[t] is None else np.round(boxes[t], 3).tolist()}
                    if meth.drive == "obstacles" else {})}
                for t, (a, b) in enumerate(pairs)]

@@ -106,6 +106,7 @@ class FollowResult:
     success: np.ndarray          # (n,) bool
     steps: np.ndarray            # (n,) control periods driven
     plans: np.ndarray | None = None       # (n,) plans driven (with replanning)
+    returns: np.ndarray | None = None     # (n,) of them plans from an anchor the car returned to
     excluded: list | None = None          # per trial, the edges replanning excluded
     visited: np.ndarray | None = None     # (n,) the follower's last visited anchor (-1: none)
     active: np.ndarray | None = None      # (n,) ... and its active anchor at the end
@@ -136,7 +137,7 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     With ``replan(trial, pose, excluded_edges, vertex=None) -> Route | None``
     (``vertex``: plan from that map vertex instead of the view at ``pose``)
     cars replan while dead reckoning (:mod:`topodrake.navigation.replan`, on
-    ``schedule``), and the result holds ``plans`` and ``excluded``."""
+    ``schedule``), and the result holds ``plans``, ``returns`` and ``excluded``."""
     from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
     from topodrake.navigation.replan import Replanner
 
@@ -145,6 +146,7 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     outcome, dist, success, steps = out.outcome, out.final_distance_m, out.success, out.steps
     if replan is not None:
         out.plans = np.array([int(r is not None) for r in routes], np.int64)
+        out.returns = np.zeros(n, np.int64)
         out.excluded = [[] for _ in range(n)]
     todo = [i for i in range(n) if routes[i] is not None]
     for lo in range(0, len(todo), batch):
@@ -160,6 +162,7 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
         for j, i in enumerate(part):
             if replanner is not None:
                 out.plans[i], out.excluded[i] = replanner.plans[j], replanner.excluded[j]
+                out.returns[i] = replanner.returns[j]
             code = int(res.outcome[j])
             out.visited[i], out.active[i] = res.follower.visited[j], res.follower.active[j]
             final = float(np.hypot(*(res.poses[j, int(res.steps[j]), :2] - goals[i][:2])))

@@ -24,11 +24,11 @@ follower starts again in Search.
 
 Most cars about to give up stand where no plan starts from their view:
 they have left the places the map links views to. With
-``return_to_anchor`` such a car, where the route tracker still places it
-relative to an anchor of its route (its last visited one), takes a plan
-from that anchor's map vertex instead, without the failing edge, and
-starts it dead reckoning back to the anchor: the tracker knows where it
-lies in the odometry frame.
+``return_to_anchor`` such a car takes a plan from the map vertex of its
+last visited anchor instead, without the failing edge, and starts it dead
+reckoning back to that anchor: where the route tracker still places the
+car relative to it, at the pose the tracker gives it in the odometry
+frame, else at the odometry pose where the car marked it visited.
 
 :class:`Replanner` keeps this per-car bookkeeping for one run
 (:func:`topodrake.navigation.plan_trials.follow_routes` with ``replan=``
@@ -180,17 +180,37 @@ PlanCallback = Callable[..., object]
 
 def returning_state(state: FollowerState, row: int, fresh: FollowerState) -> FollowerState:
     """The follower state (one car) that starts a route from the anchor the
-    car in ``row`` of ``state`` is tracked from: Dead reckoning toward that
-    anchor (the route's first), held where the tracker puts it in the
-    odometry frame, the tracked pose kept relative to it; ``fresh``: the
-    one-car initial state (the policy's initial track)."""
+    car in ``row`` of ``state`` returns to (:func:`return_anchor`): Dead
+    reckoning toward it (the route's first anchor), held where the route
+    tracker puts it in the odometry frame, the tracked pose kept relative to
+    it; a car the tracker lost holds the odometry pose at which it marked
+    the anchor visited; ``fresh``: the one-car initial state (the policy's
+    initial track)."""
     out = fresh.copy()
-    rel, odo = state.rel[row], state.odo[row]
-    anchor = compose(odo, invert(rel))[0]
     out.mode[0], out.active[0], out.visited[0] = DEAD_RECKONING, 0, -1
-    out.waypoint[0] = anchor[:2]
-    out.ref[0], out.rel[0], out.var[0], out.odo[0] = 0, rel, state.var[row], odo
+    if state.ref[row] >= 0 and np.isfinite(state.odo[row]).all():
+        rel, odo = state.rel[row], state.odo[row]
+        out.waypoint[0] = compose(odo, invert(rel))[0, :2]
+        out.ref[0], out.rel[0], out.var[0], out.odo[0] = 0, rel, state.var[row], odo
+    else:
+        out.waypoint[0] = state.seen[row, :2]
     return out
+
+
+def return_anchor(state: FollowerState, row: int, route) -> int | None:
+    """The anchor of ``route`` the car in ``row`` can return to: the one the
+    route tracker places it relative to, else its last visited one where it
+    kept the odometry pose of that visit; None where that is not a map
+    vertex or there is none."""
+    if state.ref[row] >= 0 and np.isfinite(state.odo[row]).all():
+        anchor = int(state.ref[row])
+    elif state.visited[row] >= 0 and np.isfinite(state.seen[row]).all():
+        anchor = int(state.visited[row])
+    else:
+        return None
+    if not 0 <= anchor < len(route.vertices):
+        return None
+    return anchor if route.vertices[anchor] >= 0 else None
 
 
 def search_would_start(policy, reach, route, observation, pose: np.ndarray, ranges, lidar,
@@ -215,7 +235,8 @@ def search_would_start(policy, reach, route, observation, pose: np.ndarray, rang
 
 class Replanner:
     """The replanning bookkeeping of one run of N cars: each car's current
-    route, tries since that route was taken, plans driven, edges excluded."""
+    route, tries since that route was taken, plans driven (and of them
+    plans from an anchor it returned to), edges excluded."""
 
     def __init__(self, plan: PlanCallback, routes: list, schedule: ReplanSchedule | None = None):
         self.plan = plan
@@ -229,6 +250,7 @@ class Replanner:
         n = len(self.routes)
         self.tries = np.zeros(n, np.int64)
         self.plans = np.ones(n, np.int64)
+        self.returns = np.zeros(n, np.int64)      # of them plans from an anchor returned to
         self.excluded: list[list[tuple[int, int]]] = [[] for _ in range(n)]
 
     def step(self, cars: np.ndarray, state, poses: np.ndarray, p_start: float = 0.0,
@@ -247,11 +269,11 @@ class Replanner:
         p_search; the planner's and the follower's RE calibrations differ,
         so this only approximates Search); it starts in Search (``fresh()``:
         a one-car initial state, by default one with a zero track). With
-        ``return_to_anchor`` a car that no such plan starts for, and that
-        the route tracker still places relative to an anchor of a map
-        vertex, takes a plan from that vertex instead
-        (``plan(car, pose, excluded, vertex=v)``) and starts it dead
-        reckoning back to that anchor (:func:`returning_state`)."""
+        ``return_to_anchor`` a car that no such plan starts for takes a plan
+        from the map vertex of the anchor it can return to
+        (:func:`return_anchor`) instead (``plan(car, pose, excluded,
+        vertex=v)``) and starts it dead reckoning back to that anchor
+        (:func:`returning_state`)."""
         cars = np.asarray(cars, np.int64)
         if fresh is None:
             fresh = lambda: FollowerState.initial(1, state.track.shape[1])   # noqa: E731
@@ -274,11 +296,13 @@ class Replanner:
                      else new.start_probability > p_start):
                 start = fresh()
             elif self.schedule.return_to_anchor:
-                vertex = self._tracked_vertex(state, r, route)
-                new = None if vertex is None else \
-                    self.plan(i, np.array(poses[r], np.float64), excluded, vertex=vertex)
+                anchor = return_anchor(state, int(r), route)
+                new = None if anchor is None else \
+                    self.plan(i, np.array(poses[r], np.float64), excluded,
+                              vertex=int(route.vertices[anchor]))
                 if new is not None and self._accepts(new, i):
                     start = returning_state(state, int(r), fresh())
+                    self.returns[i] += 1
             if start is None:
                 continue
             self.routes[i], self.excluded[i] = new, excluded
@@ -290,13 +314,3 @@ class Replanner:
     def _accepts(self, new, car: int) -> bool:
         return self.schedule.accepts(new.probability, self.routes[car].probability,
                                      int(self.tries[car]))
-
-    @staticmethod
-    def _tracked_vertex(state, row: int, route) -> int | None:
-        """The map vertex of the anchor the route tracker places the car in
-        ``row`` relative to (None: not tracked, or not a map vertex)."""
-        ref = int(state.ref[row])
-        if not (0 <= ref < len(route.vertices)) or not np.isfinite(state.odo[row]).all():
-            return None
-        v = int(route.vertices[ref])
-        return v if v >= 0 else None
