@@ -534,6 +534,14 @@ def test_a_tracked_car_with_no_plan_from_its_view_returns_to_its_anchor_and_plan
     np.testing.assert_allclose(start.waypoint[0],
                                st.odo[0, :2] + _anchor_offset(st.odo[0], st.rel[0]), atol=1e-12)
     assert rp.returns[0] == 1 and rp.plans[0] == 2
+    # a vertex with no way on but the failing hop: the plan retries it, once
+    retry = Replanner(lambda i, pose, ex, vertex=None: back if vertex == 2 and not ex else None,
+                      [cur], ReplanSchedule(return_to_anchor=True))
+    (_, route, _), = retry.step(np.array([0]), st, np.zeros((1, 3)))
+    assert route is back and retry.excluded[0] == [(2, 3)]
+    again = st.copy()                # failing again from vertex 2, on (2, 5) of the retried plan
+    again.visited[:], again.active[:], again.ref[:] = 0, 1, 0
+    assert retry.step(np.array([0]), again, np.zeros((1, 3))) == []   # (2, 3) stays excluded
     st.ref[:] = -1            # the tracker lost it, and no visit pose kept: nothing to return to
     rp = Replanner(plan, [cur], ReplanSchedule(return_to_anchor=True))
     assert rp.step(np.array([0]), st, np.zeros((1, 3))) == [] and rp.plans[0] == 1

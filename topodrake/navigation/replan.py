@@ -28,7 +28,10 @@ they have left the places the map links views to. With
 last visited anchor instead, without the failing edge, and starts it dead
 reckoning back to that anchor: where the route tracker still places the
 car relative to it, at the pose the tracker gives it in the odometry
-frame, else at the odometry pose where the car marked it visited.
+frame, else at the odometry pose where the car marked it visited. Where
+the map has no way on from that vertex but the failing hop (a drive's
+vertex has one edge out, to the next anchor), the plan retries that hop
+once.
 
 :class:`Replanner` keeps this per-car bookkeeping for one run
 (:func:`topodrake.navigation.plan_trials.follow_routes` with ``replan=``
@@ -272,7 +275,8 @@ class Replanner:
         ``return_to_anchor`` a car that no such plan starts for takes a plan
         from the map vertex of the anchor it can return to
         (:func:`return_anchor`) instead (``plan(car, pose, excluded,
-        vertex=v)``) and starts it dead reckoning back to that anchor
+        vertex=v)``; where none avoids the failing edge, one that may take
+        it once more) and starts it dead reckoning back to that anchor
         (:func:`returning_state`)."""
         cars = np.asarray(cars, np.int64)
         if fresh is None:
@@ -297,9 +301,15 @@ class Replanner:
                 start = fresh()
             elif self.schedule.return_to_anchor:
                 anchor = return_anchor(state, int(r), route)
-                new = None if anchor is None else \
-                    self.plan(i, np.array(poses[r], np.float64), excluded,
-                              vertex=int(route.vertices[anchor]))
+                new = None
+                for ex in ([] if anchor is None else [excluded, self.excluded[i]]):
+                    # a way round the failing hop, else that hop once more (its
+                    # vertex may have no other way on): the retried edge is
+                    # excluded at the car's next try
+                    new = self.plan(i, np.array(poses[r], np.float64), ex,
+                                    vertex=int(route.vertices[anchor]))
+                    if new is not None:
+                        break
                 if new is not None and self._accepts(new, i):
                     start = returning_state(state, int(r), fresh())
                     self.returns[i] += 1
