@@ -23,8 +23,8 @@ accepts (only where Search would pass on it from the held observation,
 as in the engine) is encoded once and kept in the system's append-only list of
 routes, the abstract state ``route`` (its index; 0 = the route given at
 construction) switches to it and the follower starts again in Search (or,
-for a plan from the anchor the car is tracked from, dead reckoning back to
-it: the replanner's ``return_to_anchor``). The
+for a plan from the anchor the car returns to, dead reckoning back to it:
+the replanner's ``return_to_anchor``). The
 replanner's bookkeeping (tries, excluded edges) lives in that object, one
 per run (:class:`~topodrake.systems.navigation.NavigationRunner` resets it).
 

@@ -400,6 +400,9 @@ def test_the_default_schedule_asks_only_before_dead_reckoning_gives_up_and_takes
     tries = np.flatnonzero(ReplanSchedule().due(np.arange(give_up + 1))).tolist()
     assert tries and all(give_up - 10 <= t < give_up for t in tries)
     assert np.flatnonzero(ReplanSchedule.paper().due(np.arange(12))).tolist() == [5, 8, 11]
+    with pytest.raises(TopodrakeError, match="return_to_anchor"):
+        ReplanSchedule.from_json('{"return_to_anchor": "yes"}')
+    assert ReplanSchedule.from_json('{"return_to_anchor": true}').return_to_anchor
     cur = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([1, 2, 3]), probability=0.9)
     poor = Route(np.zeros((2, 1)), np.zeros((2, 3)), vertices=np.array([4, 3]), probability=0.1)
     st = FollowerState.initial(1)

@@ -370,7 +370,7 @@ def house_job(seed: int, jobs: dict, cfg: dict) -> dict:
 def unplanned_pairs(spec: str, world, drives, indices, cfg: dict, tag: str) -> list:
     """The ordered pairs of places (start place, goal place) that get no plan
     on the oracle map, from the start place's own pose."""
-    from topodrake.topomap.plan import plan_from_vertex, plan_path
+    from topodrake.topomap.plan import plan_path
     from topodrake.topomap.sources import drive_observations
 
     m, _ = get_map(spec, world, "oracle", drives, indices, Path(cfg["data"]), tag,

@@ -69,9 +69,9 @@ class ReplanSchedule:
     every: int = 3            # then a try every this many periods
     discount: float = 0.01    # a new plan is taken when p_new > p_current * discount ** tries
     max_replans: int = 5      # accepted new plans per car and run
-    return_to_anchor: bool = False  # where no plan starts from the car's view, a tracked car
-                                    # returns to the anchor it is tracked from and drives a
-                                    # plan from that vertex (see Replanner.step)
+    return_to_anchor: bool = False  # where no plan starts from the car's view, the car
+                                    # returns to its last visited anchor and drives a plan
+                                    # from that vertex (an ablation; see Replanner.step)
 
     @classmethod
     def paper(cls) -> "ReplanSchedule":
@@ -86,6 +86,9 @@ class ReplanSchedule:
                                  f"and {self.every}")
         if not 0.0 < self.discount <= 1.0:
             raise TopodrakeError(f"the replanning discount must be in (0, 1], got {self.discount}")
+        if not isinstance(self.return_to_anchor, bool):
+            raise TopodrakeError(f"return_to_anchor must be true or false, got "
+                                 f"{self.return_to_anchor!r}")
         if self.max_replans < 0:
             raise TopodrakeError(f"max_replans must be >= 0, got {self.max_replans}")
         return self

@@ -159,13 +159,12 @@ class MapConfig:
     legless_p: float = 0.98      # planning, on such maps: a hop of the map without a leg (a
                                  # join its scans could not place) counts its p times this: the
                                  # follower cannot track across it and fails it more often
-    start_near_m: float = 0.0    # planning, where the links are checked by scans: plans start
+    start_near_m: float = 2.0    # planning, where the links are checked by scans: plans start
                                  # first from the vertices the start's scan registers onto
                                  # within this (0: off), then from every link: at the anchor
-                                 # the car stands by, not one RE trusts metres on (an
-                                 # ablation, off: it cost plans more than it kept short) ...
-    start_near_deg: float = 180.0  # ... of such vertices only those facing the car's way
-    start_near_behind_m: float = 1e9  # within this and at most this far behind it count
+                                 # the car stands by, not one RE trusts metres on ...
+    start_near_deg: float = 60.0   # ... of such vertices only those facing the car's way
+    start_near_behind_m: float = 0.3  # within this and at most this far behind it count
 
     def validate(self, where: str = "map config") -> "MapConfig":
         for name in ("p_sparsify", "p_reuse", "p_edge", "p_link", "p_join"):

@@ -19,7 +19,8 @@ plan jump there. On a lidar map with ``scan_match`` the groups with a
 vertex whose scan registers onto the view come first
 (:func:`matched_first`), and a direct start-goal link needs the two scans
 to match; with ``start_near_m`` the plan starts first from the vertices
-the start's scan registers onto within it (:func:`near_start_links`).
+the start's scan registers onto within it, facing the car's way and not
+behind it (:func:`near_start_links`).
 With ``direct_check`` a direct start-goal link also needs the start's and
 the goal's links to be one place (:func:`one_place`). The
 route's hops keep the map's legs; on a map that places joins by scans,
