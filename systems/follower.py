@@ -49,6 +49,7 @@ from topodrake.navigation.evaluate import (Evaluator, encode_routes, initial_tra
                                            network_context, take_rows)
 from topodrake.navigation.follower import (FAILED, MODES, REACHED, REASONS,
                                            FollowerConfig, FollowerState, follower_step)
+from topodrake.navigation.replan import kept_features
 
 
 class FollowerFsm(LeafSystem):
@@ -220,8 +221,7 @@ class FollowerFsm(LeafSystem):
             for _, new, start in self.replanner.step(
                     np.zeros(1, np.int64), fs, car[:, :3],
                     startable=self._startable(context, car, encoded), fresh=self._initial_state):
-                kept, feats = encoded.get(id(new), (None, None))
-                self._encode(new, feats if kept is new else None)
+                self._encode(new, kept_features(encoded, new))
                 state.get_mutable_abstract_state(self.route_index).set_value(len(self._routes) - 1)
                 fs = start
         state.get_mutable_abstract_state(self.fsm_index).set_value(fs)

@@ -39,6 +39,7 @@ from topodrake.navigation.evaluate import (Evaluator, RouteFeatures, encode_rout
 from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, SEARCH_FAILED,
                                            FollowerConfig, FollowerState, follower_step)
 from topodrake.navigation.manoeuvre import Manoeuvres
+from topodrake.navigation.replan import kept_features
 from topodrake.odometry import Odometry, OdometryConfig
 from topodrake.rollout import RolloutConfig, standard_normal_noise
 from topodrake.vehicle import car_to_world, in_collision, vehicle_step, world_to_car
@@ -210,8 +211,8 @@ class NavigationEngine:
                 fresh = lambda: FollowerState.initial(1, initial_track(self.policy, 1))  # noqa: E731
                 for i, new, start in replanner.step(cars, fs, st[:, :3], startable=startable,
                                                     fresh=fresh):
-                    kept, feats = encoded.get(id(new), (None, None))
-                    if kept is not new:         # a route from a vertex: never asked of Search
+                    feats = kept_features(encoded, new)
+                    if feats is None:
                         feats = encode_routes([new], self.policy, self.reach,
                                               legs_m=self.config.follower.legs_m)
                     features = stack_features(features, feats)

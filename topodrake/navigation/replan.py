@@ -194,7 +194,7 @@ def returning_state(state: FollowerState, row: int, fresh: FollowerState) -> Fol
     initial track)."""
     out = fresh.copy()
     out.mode[0], out.active[0], out.visited[0] = DEAD_RECKONING, 0, -1
-    if state.ref[row] >= 0 and np.isfinite(state.odo[row]).all():
+    if _tracked(state, row):
         rel, odo = state.rel[row], state.odo[row]
         out.waypoint[0] = compose(odo, invert(rel))[0, :2]
         out.ref[0], out.rel[0], out.var[0], out.odo[0] = 0, rel, state.var[row], odo
@@ -203,12 +203,24 @@ def returning_state(state: FollowerState, row: int, fresh: FollowerState) -> Fol
     return out
 
 
+def _tracked(state: FollowerState, row: int) -> bool:
+    """Whether the route tracker places the car in ``row`` relative to an anchor."""
+    return bool(state.ref[row] >= 0 and np.isfinite(state.odo[row]).all())
+
+
+def kept_features(encoded: dict, route):
+    """The features an executor's ``startable`` kept for ``route`` under its
+    id (None: it never asked of it, as of a plan from a vertex)."""
+    kept, features = encoded.get(id(route), (None, None))
+    return features if kept is route else None
+
+
 def return_anchor(state: FollowerState, row: int, route) -> int | None:
     """The anchor of ``route`` the car in ``row`` can return to: the one the
     route tracker places it relative to, else its last visited one where it
     kept the odometry pose of that visit; None where that is not a map
     vertex or there is none."""
-    if state.ref[row] >= 0 and np.isfinite(state.odo[row]).all():
+    if _tracked(state, row):
         anchor = int(state.ref[row])
     elif state.visited[row] >= 0 and np.isfinite(state.seen[row]).all():
         anchor = int(state.visited[row])
@@ -290,8 +302,7 @@ class Replanner:
             i = int(cars[r])
             if self.plans[i] > self.schedule.max_replans:
                 continue
-            route = self.routes[i]
-            edge = failing_edge(route, int(state.visited[r]), int(state.active[r]))
+            edge = failing_edge(self.routes[i], int(state.visited[r]), int(state.active[r]))
             excluded = list(self.excluded[i])
             if edge is not None and edge not in excluded:
                 excluded.append(edge)
@@ -303,16 +314,7 @@ class Replanner:
                      else new.start_probability > p_start):
                 start = fresh()
             elif self.schedule.return_to_anchor:
-                anchor = return_anchor(state, int(r), route)
-                new = None
-                for ex in ([] if anchor is None else [excluded, self.excluded[i]]):
-                    # a way round the failing hop, else that hop once more (its
-                    # vertex may have no other way on): the retried edge is
-                    # excluded at the car's next try
-                    new = self.plan(i, np.array(poses[r], np.float64), ex,
-                                    vertex=int(route.vertices[anchor]))
-                    if new is not None:
-                        break
+                new = self._plan_back(i, state, int(r), poses[r], excluded)
                 if new is not None and self._accepts(new, i):
                     start = returning_state(state, int(r), fresh())
                     self.returns[i] += 1
@@ -323,6 +325,21 @@ class Replanner:
             self.plans[i] += 1
             taken.append((i, new, start))
         return taken
+
+    def _plan_back(self, car: int, state, row: int, pose, excluded: list):
+        """The plan from the vertex of the anchor the car can return to: a way
+        round the failing hop, else one taking that hop once more (the vertex
+        may have no other way on; the hop stays excluded at the next try)."""
+        route = self.routes[car]
+        anchor = return_anchor(state, row, route)
+        if anchor is None:
+            return None
+        for ex in (excluded, self.excluded[car]):
+            new = self.plan(car, np.array(pose, np.float64), ex,
+                            vertex=int(route.vertices[anchor]))
+            if new is not None:
+                return new
+        return None
 
     def _accepts(self, new, car: int) -> bool:
         return self.schedule.accepts(new.probability, self.routes[car].probability,
