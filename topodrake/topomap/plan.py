@@ -46,9 +46,9 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.navigation.route import Route
+from topodrake.se2 import invert
 from topodrake.topomap.graph import EDGE_KINDS, TopoMap
 from topodrake.topomap.route_time import DrivingTime, edge_metres, path_metres
-from topodrake.se2 import invert
 from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
 
 START, GOAL = -1, -2
