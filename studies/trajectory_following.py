@@ -15,7 +15,10 @@ share of the reference path's length up to the farthest reference sample the
 robot came within 0.5 m of (in order), averaged over trajectories. At
 that ``p`` the RE chains are also followed with perfect perception (the A*
 oracle C_WP and the geometric oracle RE: ``cover_oracle``), which separates
-the follower's design from the networks' errors.
+the follower's design from the networks' errors, and with ``--runs
+oracle_re`` by the controller's own C_WP with the geometric oracle RE in
+the follower's place (``cover_oracle_re``: what RE's answers cost the
+follower on the same chains).
 ``--follower`` changes the follower's thresholds (an ablation).
 ``--cwp NAME=oracle:anchor=0.3`` follows NAME's chains with the A* oracle
 C_WP plus a controlled error and NAME's RE
@@ -41,7 +44,8 @@ a checkpoint's hash.
     python studies/trajectory_following.py --json
 
 prints at p = 0.99 ``{"camera_k0": {"cover": c, "cover_noisy": c,
-"cover_subsampled": c, "cover_oracle": c, "anchors_per_m": a}, ...}`` and writes
+"cover_subsampled": c, "cover_oracle": c, "cover_oracle_re": c, "anchors_per_m": a},
+...}`` (``cover_oracle_re`` null unless asked for) and writes
 ``results/trajectory_following.json`` and ``.png``.
 """
 
@@ -117,8 +121,9 @@ def main(argv=None) -> int:
     ap.add_argument("--follower", default="{}",
                     help="follower thresholds to change, as JSON (FollowerConfig fields)")
     ap.add_argument("--runs", default="re,subsampled,noisy,oracle",
-                    help="which runs to make (comma-separated of re, subsampled, noisy, oracle; "
-                         "noisy and oracle at the headline p only); figures of runs left out "
+                    help="which runs to make (comma-separated of re, subsampled, noisy, oracle, "
+                         "oracle_re: the controller's C_WP with the geometric oracle RE; noisy, "
+                         "oracle and oracle_re at the headline p only); figures of runs left out "
                          "are null")
     ap.add_argument("--odometry", choices=("perfect", "wheel"), default="wheel",
                     help="the cars' and the drives' odometry: the true pose, or wheel odometry "
@@ -144,6 +149,7 @@ def _run(args) -> int:
         for name, s in summary.items():
             f = {k: "-" if v is None else f"{v:.3f}" for k, v in s.items()}
             print(f"{name:<10} cover {f['cover']}, oracle {f['cover_oracle']}, "
+                  f"oracle RE {f['cover_oracle_re']}, "
                   f"noisy {f['cover_noisy']}, every n-th "
                   f"{f['cover_subsampled']} at {s['anchors_per_m']:.2f} anchors/m")
         for name, t in tables.items():

@@ -47,7 +47,8 @@ def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path,
                     "lidar_k5-p0.99-re-test-0-0.json"]
     summary = first["summary"]["lidar_k5"]
     assert set(summary) == {"cover", "cover_noisy", "cover_subsampled", "cover_oracle",
-                            "anchors_per_m"}
+                            "cover_oracle_re", "anchors_per_m"}
+    assert summary["cover_oracle_re"] is None                            # not asked for
     assert 0.0 <= summary["cover_oracle"] <= 1.0
 
     def no_rendering(self, m):
@@ -122,3 +123,29 @@ def test_runs_picks_what_is_followed_and_refuses_unknown_runs(tmp_path):
     summary = json.loads((tmp_path / "out" / "trajectory_following.json").read_text())["summary"]
     assert summary["lidar_k5"]["cover_noisy"] is None                   # not run
     assert 0.0 <= summary["lidar_k5"]["cover_oracle"] <= 1.0
+
+
+def test_the_oracle_re_run_follows_with_the_controller_and_the_geometric_re(tmp_path, monkeypatch):
+    """``--runs oracle_re``: the controller's own C_WP drives, the geometric
+    oracle RE answers the follower, and the chains stay the learned RE's."""
+    import topodrake.navigation.engine as engine_module
+    from topodrake.navigation.evaluate import GeometricReachability
+
+    made = []
+    real = engine_module.NavigationEngine
+
+    class Watched(real):
+        def __init__(self, world, policy, reach, config=None):
+            made.append((type(policy).__name__, type(reach).__name__))
+            super().__init__(world, policy, reach, config)
+
+    monkeypatch.setattr(engine_module, "NavigationEngine", Watched)
+    doc = following(_options(tmp_path, runs="re,oracle_re", odometry="perfect"), "test")
+    assert len(made) == 2
+    (cwp_re, re_re), (cwp_oracle, re_oracle) = made
+    assert cwp_oracle == cwp_re and "Oracle" not in cwp_oracle       # the same learned C_WP
+    assert re_oracle == GeometricReachability.__name__ and re_re != re_oracle
+    summary = doc["summary"]["lidar_k5"]
+    assert 0.0 <= summary["cover_oracle_re"] <= 1.0 and summary["cover_oracle"] is None
+    runs = sorted(p.name for p in (tmp_path / "out" / "trajectory_following_runs").iterdir())
+    assert "lidar_k5-p0.99-oracle_re-test-0-0.json" in runs

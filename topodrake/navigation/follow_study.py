@@ -22,7 +22,7 @@ from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, path_length
 from topodrake.navigation.follow_trials import (CONTROLLERS, load_trajectories, run_controller,
                                                 trajectories_name)
 
-RUNS = ("re", "subsampled", "noisy", "oracle")
+RUNS = ("re", "subsampled", "noisy", "oracle", "oracle_re")
 
 
 def parse_sensitivity(text: str | None) -> tuple[str, list[str]] | None:
@@ -70,7 +70,7 @@ def _check(args) -> list[float]:
     args.odometry_config = getattr(OdometryConfig, args.odometry)()
     args.runs = {r for r in args.runs.split(",") if r}
     if not args.runs or args.runs - set(RUNS):
-        raise TopodrakeError(f"--runs takes re, subsampled, noisy, oracle, got "
+        raise TopodrakeError(f"--runs takes {', '.join(RUNS)}, got "
                              f"{','.join(sorted(args.runs)) or 'none'}")
     return ps
 
@@ -97,7 +97,7 @@ def following(args, command: str) -> dict:
     lengths = [path_length(t["poses"])[-1] for t in trajs]
     headline = any(abs(p - args.headline_p) < 1e-9 for p in ps)
     per_p = ("re" in args.runs) + ("subsampled" in args.runs)
-    at_headline = ("noisy" in args.runs) + ("oracle" in args.runs) if headline else 0
+    at_headline = len(args.runs & {"noisy", "oracle", "oracle_re"}) if headline else 0
     steps = len(specs) * (per_p * len(ps) + at_headline
                           + (len(args.sensitivity[1]) if args.sensitivity else 0))
     results = {}
@@ -108,7 +108,8 @@ def following(args, command: str) -> dict:
     for name, r in results.items():
         q = min(r["points"], key=lambda q: abs(q["p_sparsify"] - args.headline_p))
         summary[name] = {k: (round(q[k], 4) if k in q else None)
-                         for k in ("cover", "cover_noisy", "cover_subsampled", "cover_oracle")}
+                         for k in ("cover", "cover_noisy", "cover_subsampled", "cover_oracle",
+                                   "cover_oracle_re")}
         summary[name]["anchors_per_m"] = q["anchors_per_m"]
     tables = {name: r["sensitivity"] for name, r in results.items() if "sensitivity" in r}
     return {

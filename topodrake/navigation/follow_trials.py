@@ -181,8 +181,8 @@ def every_nth(n_frames: int, n: int) -> np.ndarray:
 
 def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, seed, batch,
                   noisy, follower=None, cache: RunCache | None = None, tag: str = "",
-                  oracle: bool = False, key: dict | None = None, odometry=None
-                  ) -> tuple[np.ndarray, list[str]]:
+                  oracle: bool = False, key: dict | None = None, odometry=None,
+                  oracle_re: bool = False) -> tuple[np.ndarray, list[str]]:
     """Cover (M,) and outcomes of following chains[m] of trajs[m] (one
     engine batch per world and chunk of ``batch`` chains; finished batches
     are kept in ``cache`` under ``tag``). ``policy``: a C_WP, or a function
@@ -190,7 +190,10 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
     oracle; made anew for each batch, so that its draws do not depend on
     which batches were cached). ``oracle``: the same chains followed by the
     A* oracle C_WP and the geometric oracle RE instead of ``policy`` and
-    ``reach`` (perfect perception). ``key``: more settings the cached batches depend on.
+    ``reach`` (perfect perception); ``oracle_re``: ``policy`` with the
+    geometric oracle RE in the follower's place (the chains stay those of
+    ``reach``: what RE's answers cost the follower). ``key``: more settings
+    the cached batches depend on.
     ``odometry``: the cars' (and the drives') odometry model (default perfect)."""
     from topodrake.montecarlo import trial_seeds
     from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
@@ -212,12 +215,13 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
     for name, idx in by_world.items():
         world = world_of(name)
         cwp, re = policy, reach
-        if oracle:
+        if oracle or oracle_re:
             from topodrake.learning.waypoint.policy import AStarOracle
             from topodrake.navigation.evaluate import GeometricReachability
 
-            cwp = AStarOracle(world, k=wide.k, frame_step=wide.frame_step)
             re = GeometricReachability(world, k=wide.k, frame_step=wide.frame_step)
+        if oracle:
+            cwp = AStarOracle(world, k=wide.k, frame_step=wide.frame_step)
         for lo in range(0, len(idx), batch):
             part = idx[lo:lo + batch]
             block = {**(key or {}), "noisy": noisy, "cars": part,
@@ -297,7 +301,8 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         got = follow_chains(world_of, trajs, obs, chain_list, policy, reach, wide, args.noise,
                             args.seed, args.batch, noisy=noisy, follower=args.follower_config,
                             odometry=args.odometry_config, cache=cache,
-                            tag=f"{name}-p{p}-{tag}-", oracle=oracle)
+                            tag=f"{name}-p{p}-{tag}-", oracle=kind == "oracle",
+                            oracle_re=kind == "oracle_re")
         bar.update()
         return got
 
@@ -314,7 +319,8 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
                 ("re", "re", "", chains[p], False, False, True),
                 ("subsampled", f"every{n}", "_subsampled", sub, False, False, True),
                 ("noisy", "noisy", "_noisy", chains[p], True, False, headline),
-                ("oracle", "oracle", "_oracle", chains[p], False, True, headline)):
+                ("oracle", "oracle", "_oracle", chains[p], False, True, headline),
+                ("oracle_re", "oracle_re", "_oracle_re", chains[p], False, False, headline)):
             got = follow(kind, tag, p, chain_list, noisy, oracle) if asked else None
             if got is not None:
                 c, o = got
