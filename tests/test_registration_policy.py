@@ -188,7 +188,8 @@ def test_trajectory_following_study_has_a_lidar_reg_entry(tmp_path):
     summary = json.loads(out.strip().splitlines()[-1])
     entry = summary["lidar_reg"]
     assert set(entry) == {"cover", "cover_noisy", "cover_subsampled", "cover_oracle",
-                          "anchors_per_m"}
+                          "cover_oracle_re", "anchors_per_m"}
+    assert entry["cover_oracle_re"] is None                   # not in the default runs
     assert all(0.0 <= entry[k] <= 1.0 for k in ("cover", "cover_noisy", "cover_oracle"))
     assert entry["anchors_per_m"] > 0
     rc, _, err = run_study("trajectory_following", "--controllers", "lidar_nope", "--data",
