@@ -229,6 +229,40 @@ def test_label_rollouts_carry_each_cars_tracking_state(house, drives, policy):
     assert np.isfinite(seen[2][3]).mean() >= 0.8         # ... then carried over
 
 
+def test_a_tracked_start_drives_where_a_cold_one_is_blind(house, drives, policy):
+    """A label rollout started tracked (``tracked_start``: the following car's
+    state) holds the estimate it was given and drives on by odometry where
+    no scan registers; a cold start without any fit drives straight ahead."""
+    from topodrake.learning.reachability.labels import ReachLabelConfig, tracked_starts
+
+    poses = drives[0]
+    a = 60
+    feats = policy.encode_target(_contexts(house, poses, [a])[0])
+    # the car 1.5 m before the anchor and off the path: the anchor is ahead and to the left
+    start = compose(poses[a], np.array([-1.5, -0.6, 0.3]))
+    track = tracked_starts(policy, start, poses[a][None], np.array([3]),
+                           ReachLabelConfig(tracked_error_m=0.0, tracked_error_rad=0.0))
+    slot = track[0].reshape(policy.config.slots, -1)[0]
+    np.testing.assert_allclose(slot[1:4], [-1.5, -0.6, 0.3], atol=1e-9)
+    blind = np.full((1, 64), np.inf)
+    warm = policy.predict_tracked(blind, feats, track, [0], [0], start)
+    cold = policy.predict_tracked(blind, feats, policy.initial_track(1), [0], [0], start)
+    anchor_in_car = compose(invert(start), poses[a][None])[0]
+    assert np.hypot(*(warm.waypoint[0] - anchor_in_car[:2])) < 0.2
+    np.testing.assert_allclose(cold.waypoint[0], [policy.config.lookahead_m, 0.0])
+    # untracked rows (another drive's target) start cold; the error is seeded
+    cfg = ReachLabelConfig()
+    two = tracked_starts(policy, np.repeat(start, 2, 0), np.repeat(poses[a][None], 2, 0),
+                         np.array([3, 4]), cfg, tracked=np.array([True, False]))
+    again = tracked_starts(policy, start, poses[a][None], np.array([3]), cfg)
+    np.testing.assert_array_equal(two[0], again[0])
+    assert not np.isfinite(two[1, 1:4]).any() and two[1, 0] == -1
+    with pytest.raises(TopodrakeError, match="initial_track"):
+        from topodrake.rollout import PolicyRollout
+
+        PolicyRollout(house, policy).run(start, poses[a][None], feats, initial_track=two)
+
+
 def test_drake_waypoint_diagram_and_label_rollouts_drive_the_same_path(house, drives, policy):
     """Table I's Drake diagram keeps the registration C_WP's track in the
     WaypointNet's state and commits it once a period: it drives the same

@@ -254,12 +254,15 @@ class PolicyRollout:
         return ranges if kind == "lidar" else st[:, :3]
 
     def run(self, starts: np.ndarray, target_poses: np.ndarray, target_features, *,
-            t_max_s=None, seeds=None, noise: np.ndarray | None = None) -> PolicyRolloutResult:
+            t_max_s=None, seeds=None, noise: np.ndarray | None = None,
+            initial_track: np.ndarray | None = None) -> PolicyRolloutResult:
         """Drive cars from ``starts`` (N, 3) toward ``target_poses`` (N, 3).
 
         ``target_features``: ``policy.encode_target`` of the N targets'
         contexts (row i belongs to car i). ``t_max_s``: scalar or (N,)
-        (default: the config's). Noise as in :meth:`ExpertRollout.run`."""
+        (default: the config's). Noise as in :meth:`ExpertRollout.run`.
+        ``initial_track``: a stateful policy's tracking state at the start
+        (N, ``track_size``; default ``policy.initial_track``)."""
         from topodrake.sensing.overlap import mutual_overlap
 
         cfg = self.config
@@ -290,6 +293,14 @@ class PolicyRollout:
         feats, feats_cars = target_features, np.arange(n)
         stateful = int(getattr(self.policy, "track_size", 0) or 0) > 0
         track = self.policy.initial_track(n) if stateful else None
+        if initial_track is not None:
+            from topodrake.errors import TopodrakeError
+
+            if not stateful or np.shape(initial_track) != track.shape:
+                width = track.shape[1] if stateful else 0
+                raise TopodrakeError(f"initial_track must be ({n}, {width}) for this policy, "
+                                     f"got {np.shape(initial_track)}")
+            track = np.array(initial_track, np.float64)
         for k in range(t_steps):
             outcome[(outcome == RUNNING) & (limit <= k)] = TIMEOUT
             active = np.flatnonzero(outcome == RUNNING)

@@ -237,6 +237,29 @@ class RegistrationPolicy:
         t[:, _KEY::SLOT] = -1.0
         return t
 
+    def tracked_start(self, starts: np.ndarray, targets: np.ndarray,
+                      error: np.ndarray | None = None) -> np.ndarray:
+        """Tracking state of cars at ``starts`` (N, 3) that already track
+        the anchor at ``targets`` (N, 3; key 0), as a following car's
+        tracker holds the anchor it drives toward: the car's pose in the
+        anchor's frame (plus ``error`` (N, 3), where given), confirmed, made
+        at the odometry pose ``starts``. For labels of the tracked
+        controller (the poses are the truth)."""
+        starts = np.asarray(starts, np.float64).reshape(-1, 3)
+        est = relative(np.asarray(targets, np.float64).reshape(-1, 3), starts)
+        if error is not None:
+            est = est + np.asarray(error, np.float64).reshape(-1, 3)
+        t = self.initial_track(len(starts))
+        slot = t[:, :SLOT]
+        slot[:, _KEY] = 0.0
+        slot[:, _EST] = est
+        slot[:, _ODO] = starts
+        slot[:, _OVL] = 0.0
+        slot[:, _MISS] = 0.0
+        slot[:, _HITS] = float(self.config.confirm)
+        slot[:, _SEG] = -1.0
+        return t
+
     def predict(self, observation: np.ndarray, target) -> WaypointPrediction:
         feats = np.asarray(target, np.float64)
         obs = np.asarray(observation, np.float64).reshape(-1, self.sensor.beams)

@@ -60,6 +60,10 @@ class ReachLabelConfig:
     noise_std: float = 0.33
     target_snap_m: float = 0.3       # A* goal: nearest free cell within this of the target
     unjittered_sources: float = 0.0  # share of sources on the expert pose itself
+    tracked_start: bool = False      # a tracking controller (the registration C_WP) starts
+                                     # tracking same-drive targets, as a following car does
+    tracked_error_m: float = 0.1     # ... its estimate off the truth by N(0, this) per axis
+    tracked_error_rad: float = 0.05
     batch: int = 128                 # cars per engine run
     chunk: int = 1024                # pairs per file
     jitter: SampleConfig = field(default_factory=SampleConfig)
@@ -72,6 +76,8 @@ class ReachLabelConfig:
             raise TopodrakeError("need v_min > 0, batch >= 1 and chunk >= 1")
         if self.distance_min_m >= self.distance_max_m:
             raise TopodrakeError("need distance_min_m < distance_max_m")
+        if not (self.tracked_error_m >= 0 and self.tracked_error_rad >= 0):
+            raise TopodrakeError("need tracked_error_m and tracked_error_rad >= 0")
         return self
 
 
@@ -180,16 +186,20 @@ def rollout_pairs(world, policy, trajs: TrajectorySet, pairs: dict, seeds: np.nd
     out = rollout_to_targets(
         world, policy, pairs["src_pose"], tgt_pose,
         lambda sl: target_contexts(world, policy, trajs, pairs["traj"][sl], pairs["tgt"][sl]),
-        seeds, cfg)
+        seeds, cfg, tracked=pairs["same"])
     return {**pairs, **out, "seed": np.asarray(seeds, np.int64)}
 
 
 def rollout_to_targets(world, policy, src_pose: np.ndarray, tgt_pose: np.ndarray, contexts,
-                       seeds: np.ndarray, cfg: ReachLabelConfig) -> dict:
+                       seeds: np.ndarray, cfg: ReachLabelConfig,
+                       tracked: np.ndarray | None = None) -> dict:
     """Drive ``policy`` from ``src_pose`` (N, 3) toward targets taken at
     ``tgt_pose`` (N, 3), whose context observations ``contexts(slice)``
     returns batch by batch, one noise seed each, under the labels' rules:
-    ``t_max``, ``outcome``, ``steps``, final ``overlap`` and ``label``."""
+    ``t_max``, ``outcome``, ``steps``, final ``overlap`` and ``label``.
+    With ``cfg.tracked_start``, a tracking policy starts the pairs marked in
+    ``tracked`` (N,; default all) already tracking the target
+    (:func:`tracked_starts`)."""
     from topodrake.rollout import SUCCESS, PolicyRollout, RolloutConfig
 
     t_max = time_limits(world, src_pose, tgt_pose[:, :2], cfg)
@@ -202,12 +212,35 @@ def rollout_to_targets(world, policy, src_pose: np.ndarray, tgt_pose: np.ndarray
     for lo in range(0, n, cfg.batch):
         sl = slice(lo, min(lo + cfg.batch, n))
         feats = policy.encode_target(contexts(sl))
-        res = engine.run(src_pose[sl], tgt_pose[sl], feats, t_max_s=t_max[sl], seeds=seeds[sl])
+        track = None
+        if cfg.tracked_start and hasattr(policy, "tracked_start"):
+            track = tracked_starts(policy, src_pose[sl], tgt_pose[sl], seeds[sl], cfg,
+                                   None if tracked is None else np.asarray(tracked)[sl])
+        res = engine.run(src_pose[sl], tgt_pose[sl], feats, t_max_s=t_max[sl], seeds=seeds[sl],
+                         initial_track=track)
         outcome[sl] = res.outcome
         steps[sl] = res.steps
         overlap[sl] = res.overlap
     return {"t_max": t_max.astype(np.float32), "outcome": outcome, "steps": steps,
             "overlap": overlap, "label": (outcome == SUCCESS).astype(np.uint8)}
+
+
+def tracked_starts(policy, src_pose: np.ndarray, tgt_pose: np.ndarray, seeds: np.ndarray,
+                   cfg: ReachLabelConfig, tracked: np.ndarray | None = None) -> np.ndarray:
+    """The tracking state a following car would start a hop with: ``policy``
+    tracking each target from its source (``policy.tracked_start``), its
+    estimate off the truth by the config's error drawn from the pair's
+    seed; rows not ``tracked`` start untracked."""
+    n = len(src_pose)
+    error = np.empty((n, 3))
+    for i, s in enumerate(np.asarray(seeds, np.int64)):
+        e = np.random.default_rng([int(s), 7]).standard_normal(3)
+        error[i] = e * [cfg.tracked_error_m, cfg.tracked_error_m, cfg.tracked_error_rad]
+    track = policy.tracked_start(src_pose, tgt_pose, error)
+    if tracked is not None:
+        cold = ~np.asarray(tracked, bool)
+        track[cold] = policy.initial_track(int(cold.sum()))
+    return track
 
 
 def target_contexts(world, net, trajs, traj, tgt) -> np.ndarray:
