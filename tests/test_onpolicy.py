@@ -240,3 +240,20 @@ def test_follower_state_labels_are_re_logits_and_c_wp_rollouts(drives, networks,
     again = label_visited_reach(world, trajs, visited, policy, reach, 12,
                                 np.random.default_rng(0), seed=1)
     np.testing.assert_array_equal(again.label, labels.label)
+
+
+def test_follower_state_labels_toward_the_anchor_after(drives, networks, visited):
+    from topodrake.learning.onpolicy.calibration import label_visited_reach
+    from topodrake.learning.reachability.labels import target_contexts
+
+    world, trajs = drives
+    policy, reach = networks
+    pick = np.random.default_rng(0).permutation(len(visited))[:12]
+    vs = visited.subset(pick)
+    nxt = np.where(vs.next_anchor >= 0, vs.next_anchor, vs.anchor)
+    assert np.any(nxt != vs.anchor)
+    ahead = label_visited_reach(world, trajs, visited, policy, reach, 12,
+                                np.random.default_rng(0), seed=1, ahead=True)
+    feats = reach.encode_target(target_contexts(world, reach, trajs, vs.traj, nxt))
+    np.testing.assert_allclose(ahead.logit, reach.logit(reach.observe(world, vs.state[:, :3]),
+                                                        feats), atol=1e-5)

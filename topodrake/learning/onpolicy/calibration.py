@@ -78,10 +78,12 @@ class StateLabels:
 
 
 def label_visited_reach(world, trajs, visited, policy, reach, n: int, rng,
-                        seed: int) -> StateLabels:
+                        seed: int, *, ahead: bool = False, config=None) -> StateLabels:
     """RE's logits and C_WP rollout outcomes for ``n`` random states of
     ``visited`` (:class:`~topodrake.learning.onpolicy.states.VisitedStates`),
-    toward the anchor each aimed at."""
+    toward the anchor each aimed at (``ahead``: the one after it, where
+    there is one), under the labels' rules ``config`` (default
+    :class:`~topodrake.learning.reachability.labels.ReachLabelConfig`)."""
     from topodrake.learning.reachability.labels import (ReachLabelConfig, rollout_to_targets,
                                                         target_contexts)
 
@@ -89,12 +91,14 @@ def label_visited_reach(world, trajs, visited, policy, reach, n: int, rng,
     if len(pick) == 0:
         return StateLabels()
     vs = visited.subset(pick)
-    tgt_pose = trajs.poses[trajs.traj_offsets[vs.traj] + vs.anchor]
+    tgt = np.where(ahead & (vs.next_anchor >= 0), vs.next_anchor, vs.anchor) if ahead \
+        else vs.anchor
+    tgt_pose = trajs.poses[trajs.traj_offsets[vs.traj] + tgt]
     lab = rollout_to_targets(
         world, policy, vs.state[:, :3], tgt_pose,
-        lambda sl: target_contexts(world, policy, trajs, vs.traj[sl], vs.anchor[sl]),
-        np.arange(len(pick)) + 10_000 * seed, ReachLabelConfig())
-    feats = reach.encode_target(target_contexts(world, reach, trajs, vs.traj, vs.anchor))
+        lambda sl: target_contexts(world, policy, trajs, vs.traj[sl], tgt[sl]),
+        np.arange(len(pick)) + 10_000 * seed, config or ReachLabelConfig())
+    feats = reach.encode_target(target_contexts(world, reach, trajs, vs.traj, tgt))
     z = reach.logit(reach.observe(world, vs.state[:, :3]), feats)
     return StateLabels(np.asarray(z, np.float64), np.asarray(lab["label"], np.float64))
 

@@ -60,10 +60,11 @@ class ReachLabelConfig:
     noise_std: float = 0.33
     target_snap_m: float = 0.3       # A* goal: nearest free cell within this of the target
     unjittered_sources: float = 0.0  # share of sources on the expert pose itself
-    tracked_start: bool = False      # a tracking controller (the registration C_WP) starts
-                                     # tracking same-drive targets, as a following car does
-    tracked_error_m: float = 0.1     # ... its estimate off the truth by N(0, this) per axis
-    tracked_error_rad: float = 0.05
+    # a tracking controller (the registration C_WP) starts tracking same-drive targets, as a
+    # following car does (None: no, as configs before the option read) ...
+    tracked_start: bool | None = None
+    tracked_error_m: float | None = None     # ... its estimate off the truth by N(0, this) per
+    tracked_error_rad: float | None = None   # axis (None: 0.1 m and 0.05 rad)
     batch: int = 128                 # cars per engine run
     chunk: int = 1024                # pairs per file
     jitter: SampleConfig = field(default_factory=SampleConfig)
@@ -76,7 +77,8 @@ class ReachLabelConfig:
             raise TopodrakeError("need v_min > 0, batch >= 1 and chunk >= 1")
         if self.distance_min_m >= self.distance_max_m:
             raise TopodrakeError("need distance_min_m < distance_max_m")
-        if not (self.tracked_error_m >= 0 and self.tracked_error_rad >= 0):
+        if any(v is not None and not (np.isfinite(v) and v >= 0)
+               for v in (self.tracked_error_m, self.tracked_error_rad)):
             raise TopodrakeError("need tracked_error_m and tracked_error_rad >= 0")
         return self
 
@@ -232,10 +234,12 @@ def tracked_starts(policy, src_pose: np.ndarray, tgt_pose: np.ndarray, seeds: np
     estimate off the truth by the config's error drawn from the pair's
     seed; rows not ``tracked`` start untracked."""
     n = len(src_pose)
+    sd_m = 0.1 if cfg.tracked_error_m is None else cfg.tracked_error_m
+    sd_rad = 0.05 if cfg.tracked_error_rad is None else cfg.tracked_error_rad
     error = np.empty((n, 3))
     for i, s in enumerate(np.asarray(seeds, np.int64)):
         e = np.random.default_rng([int(s), 7]).standard_normal(3)
-        error[i] = e * [cfg.tracked_error_m, cfg.tracked_error_m, cfg.tracked_error_rad]
+        error[i] = e * [sd_m, sd_m, sd_rad]
     track = policy.tracked_start(src_pose, tgt_pose, error)
     if tracked is not None:
         cold = ~np.asarray(tracked, bool)
