@@ -740,6 +740,37 @@ def test_a_cached_map_plans_with_the_callers_planning_settings(tmp_path, monkeyp
     assert not again.config.direct_check and again.config.link_order == "support"
 
 
+def test_a_cached_map_of_another_re_is_rebuilt_not_refused(tmp_path, monkeypatch, capsys):
+    """A checkpoint retrained under the same path makes its cached maps
+    stale: the cache builds the map again for the RE it is given."""
+    from types import SimpleNamespace
+
+    from topodrake.topomap import map_cache, sources
+    from topodrake.world import load_world
+
+    world = load_world("test-0")
+    drive = SimpleNamespace(poses=np.array([[1.0, 1.0, 0.0], [1.3, 1.0, 0.0], [1.6, 1.0, 0.0]]))
+    monkeypatch.setattr(map_cache, "DEMO_SEED", 0)
+    built, first_s = map_cache.get_map("test-0", world, "oracle", [drive], [0], tmp_path, "all",
+                                       False)
+    assert first_s > 0.0
+    make = sources.make_scorer
+
+    def retrained(modality, w):
+        scorer = make(modality, w)
+        scorer.identity = {**scorer.identity, "retrained": True}
+        return scorer
+
+    monkeypatch.setattr(sources, "make_scorer", retrained)
+    capsys.readouterr()
+    again, build_s = map_cache.get_map("test-0", world, "oracle", [drive], [0], tmp_path, "all",
+                                       False)
+    assert build_s > 0.0 and "rebuilding it" in capsys.readouterr().err
+    assert again.identity.get("retrained") is True
+    _, cached_s = map_cache.get_map("test-0", world, "oracle", [drive], [0], tmp_path, "all", False)
+    assert cached_s == 0.0                          # the rebuilt map is reused
+
+
 def test_a_camera_map_keeps_its_drives_lidar_scans_and_one_cached_without_is_rebuilt(
         tmp_path, monkeypatch):
     """A camera map built for a study keeps each kept frame's lidar scan as

@@ -112,7 +112,10 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
         tmp = path.with_suffix(".tmp")
         shutil.copyfile(legacy, tmp)
         tmp.replace(path)
-    if path.is_file():
+    if path.is_file() and not _same_identity(path, scorer):
+        print(f"{path} was built for another reachability estimator or controller; rebuilding it",
+              file=sys.stderr)
+    elif path.is_file():
         m = load_map(path, scorer)
         if [t.name for t in m.trajectories] != names:
             raise TopodrakeError(f"{path} holds other drives than {len(names)} of "
@@ -135,6 +138,18 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
     build_map(m, items, progress=progress, desc=f"map {key} {modality} {tag}")
     save_map(m, path)
     return m, time.perf_counter() - t0
+
+
+def _same_identity(path: Path, scorer) -> bool:
+    """Whether the cached map at ``path`` was built with ``scorer``'s RE and
+    controller (a retrained checkpoint under the same path makes it stale)."""
+    from topodrake.topomap.mapfile import check_identity, read_map_meta
+
+    try:
+        check_identity(path, read_map_meta(path), scorer.identity)
+    except TopodrakeError:
+        return False
+    return True
 
 
 class _Lazy:
