@@ -46,7 +46,7 @@ def main(argv=None) -> int:
                     help="houses, comma-separated")
     ap.add_argument("--drives", type=at.count, default=8, help="chains followed per house")
     ap.add_argument("--states", type=at.count, default=150, help="visited states labelled per house")
-    ap.add_argument("--seed", type=at.seed, default=0)
+    ap.add_argument("--seed", type=at.seed, default=0, help="seed of the drives, states and noise")
     ap.add_argument("--data", default="data", help="cache of demonstrations")
     ap.add_argument("--out", default="results", help="output folder")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
