@@ -17,7 +17,11 @@ come from closed-loop rollouts of that controller (C_WP + RMP, or any
   above ``overlap_success`` (0.7), before ``t_max = A*(source, target) /
   v_min`` (``v_min`` = 0.25 m/s; at least one control period);
 * failure: timeout, both overlaps below ``overlap_lost`` (0.05), or a
-  collision (a failure to reach, not a discarded sample).
+  collision (a failure to reach, not a discarded sample);
+* with ``tracked_start``, a tracking controller (the registration C_WP)
+  starts each same-trajectory pair already tracking its target, as a
+  following car's tracker holds the anchors ahead (off the truth by
+  ``tracked_error_m`` / ``tracked_error_rad``); other pairs start cold.
 
 Pairs are drawn per world from seeds derived from one base seed. Rollouts
 run in chunks written atomically into a folder with a ``manifest.json``
