@@ -294,7 +294,7 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
     out: dict = {"controller": cwp_path, "reach": re_path, "points": []}
     runs = args.runs
 
-    def follow(kind, tag, p, chain_list, noisy=False, oracle=False):
+    def follow(kind, tag, p, chain_list, noisy=False):
         """One kind of run of ``chain_list``: (covers, outcomes); None when not asked for."""
         if kind not in runs:
             return None
@@ -315,13 +315,13 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         point = {"p_sparsify": p, "anchors_per_m": round(density, 4), "every_n": n,
                  "subsampled_anchors_per_m": round(sub_density, 4)}
         headline = abs(p - args.headline_p) < 1e-9
-        for kind, tag, suffix, chain_list, noisy, oracle, asked in (
-                ("re", "re", "", chains[p], False, False, True),
-                ("subsampled", f"every{n}", "_subsampled", sub, False, False, True),
-                ("noisy", "noisy", "_noisy", chains[p], True, False, headline),
-                ("oracle", "oracle", "_oracle", chains[p], False, True, headline),
-                ("oracle_re", "oracle_re", "_oracle_re", chains[p], False, False, headline)):
-            got = follow(kind, tag, p, chain_list, noisy, oracle) if asked else None
+        for kind, tag, suffix, chain_list, noisy, asked in (
+                ("re", "re", "", chains[p], False, True),
+                ("subsampled", f"every{n}", "_subsampled", sub, False, True),
+                ("noisy", "noisy", "_noisy", chains[p], True, headline),
+                ("oracle", "oracle", "_oracle", chains[p], False, headline),
+                ("oracle_re", "oracle_re", "_oracle_re", chains[p], False, headline)):
+            got = follow(kind, tag, p, chain_list, noisy) if asked else None
             if got is not None:
                 c, o = got
                 point.update({f"cover{suffix}": float(c.mean()), f"outcomes{suffix}": _count(o),

@@ -91,8 +91,7 @@ def label_visited_reach(world, trajs, visited, policy, reach, n: int, rng,
     if len(pick) == 0:
         return StateLabels()
     vs = visited.subset(pick)
-    tgt = np.where(ahead & (vs.next_anchor >= 0), vs.next_anchor, vs.anchor) if ahead \
-        else vs.anchor
+    tgt = np.where(vs.next_anchor >= 0, vs.next_anchor, vs.anchor) if ahead else vs.anchor
     tgt_pose = trajs.poses[trajs.traj_offsets[vs.traj] + tgt]
     lab = rollout_to_targets(
         world, policy, vs.state[:, :3], tgt_pose,
