@@ -20,6 +20,8 @@ oracle_re`` by the controller's own C_WP with the geometric oracle RE in
 the follower's place (``cover_oracle_re``: what RE's answers cost the
 follower on the same chains).
 ``--follower`` changes the follower's thresholds (an ablation).
+``--chain-re NAME=CHECKPOINT`` places NAME's anchors with another RE while
+NAME's own RE answers the follower (the two roles of RE apart).
 ``--cwp NAME=oracle:anchor=0.3`` follows NAME's chains with the A* oracle
 C_WP plus a controlled error and NAME's RE
 (:mod:`topodrake.learning.waypoint.noisy_oracle`); ``--sensitivity anchor=0.1,0.3``
@@ -113,6 +115,9 @@ def main(argv=None) -> int:
     ap.add_argument("--re", action="append", metavar="NAME=CHECKPOINT",
                     help="with another RE under NAME, trained for NAME's C_WP (the --cwp one if "
                          "given): its chains and its answers; repeatable")
+    ap.add_argument("--chain-re", action="append", metavar="NAME=CHECKPOINT",
+                    help="place NAME's anchors with this RE (trained for NAME's C_WP, the same "
+                         "sensor) while NAME's RE answers the follower; repeatable")
     ap.add_argument("--batch", type=at.count, default=48, help="cars per engine batch")
     ap.add_argument("--seed", type=at.seed, default=0, help="seed of the trajectories, starts and noise")
     ap.add_argument("--noise", type=at.nonnegative, default=0.33, help="actuation noise std of the noisy runs")

@@ -149,3 +149,43 @@ def test_the_oracle_re_run_follows_with_the_controller_and_the_geometric_re(tmp_
     assert 0.0 <= summary["cover_oracle_re"] <= 1.0 and summary["cover_oracle"] is None
     runs = sorted(p.name for p in (tmp_path / "out" / "trajectory_following_runs").iterdir())
     assert "lidar_k5-p0.99-oracle_re-test-0-0.json" in runs
+
+
+def test_another_re_places_the_anchors_while_the_controllers_re_answers(tmp_path, monkeypatch):
+    """``--chain-re``: the chains are the placing RE's sparsification, the
+    follower asks the controller's RE, and both are recorded."""
+    import topodrake.navigation.engine as engine_module
+
+    placed, answered = [], []
+    real_chains, real_engine = follow_trials.chains_of, engine_module.NavigationEngine
+
+    def watched_chains(obs, reach, *a, **kw):
+        placed.append(reach.name)
+        return real_chains(obs, reach, *a, **kw)
+
+    class Watched(real_engine):
+        def __init__(self, world, policy, reach, config=None):
+            answered.append(reach.name)
+            super().__init__(world, policy, reach, config)
+
+    monkeypatch.setattr(follow_trials, "chains_of", watched_chains)
+    monkeypatch.setattr(engine_module, "NavigationEngine", Watched)
+    dagger = "checkpoints/lidar_k5_dagger/checkpoint.pt"
+    doc = following(_options(tmp_path, runs="re", odometry="perfect", cwp=[f"lidar_k5={dagger}"],
+                             re=["lidar_k5=checkpoints/reach_lidar_k5_onpolicy/checkpoint.pt"],
+                             chain_re=["lidar_k5=checkpoints/reach_lidar_k5_dagger/checkpoint.pt"]),
+                    "test")
+    assert placed == ["reach_lidar_k5_dagger"] and answered == ["reach_lidar_k5_onpolicy"]
+    result = doc["results"]["lidar_k5"]
+    assert result["chain_reach"].endswith("reach_lidar_k5_dagger/checkpoint.pt")
+    assert result["reach"].endswith("reach_lidar_k5_onpolicy/checkpoint.pt")
+
+
+def test_the_placing_re_is_named_per_controller_and_must_fit_its_c_wp(tmp_path):
+    args = ["--controllers", "lidar_k5", "--out", str(tmp_path), "--quiet", "--trajectories", "1",
+            "--data", str(tmp_path / "data"), "--worlds", "test-0", "--p", "0.99"]
+    assert "NAME=CHECKPOINT with NAME one of ['lidar_k5']" in _refused(
+        *args, "--chain-re", "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt")
+    assert "does not exist" in _refused(*args, "--chain-re", f"lidar_k5={tmp_path / 'none.pt'}")
+    assert "was trained for controller" in _refused(
+        *args, "--chain-re", "lidar_k5=checkpoints/reach_lidar_k5_dagger/checkpoint.pt")

@@ -1,7 +1,8 @@
 """The trajectory-following study as a whole: its options checked, every controller run, the result.
 
 :func:`following` checks a study's options (p values, follower thresholds,
-odometry, runs, controllers with their ``--cwp``/``--re`` replacements and
+odometry, runs, controllers with their ``--cwp``/``--re`` replacements, the
+``--chain-re`` REs that place a controller's anchors instead of its own, and
 the ``--sensitivity`` sweep: :func:`parse_sensitivity`), follows each
 controller's chains of the test drives
 (:func:`topodrake.navigation.follow_trials.run_controller`) and assembles
@@ -39,6 +40,22 @@ def parse_sensitivity(text: str | None) -> tuple[str, list[str]] | None:
     for v in items:
         OracleError().with_value(key, v)
     return key, items
+
+
+def parse_chain_reach(items: list[str] | None, specs: dict) -> dict:
+    """``--chain-re NAME=CHECKPOINT`` options as {NAME: checkpoint}: the RE
+    (trained for NAME's C_WP) whose sparsification makes NAME's chains, while
+    NAME's own RE answers the follower (the two roles of RE apart)."""
+    out = {}
+    for o in items or []:
+        name, sep, path = o.partition("=")
+        if not sep or name not in specs:
+            raise TopodrakeError(f"--chain-re {o!r} is not NAME=CHECKPOINT with NAME one of "
+                                 f"{list(specs)}")
+        if not Path(path).is_file():
+            raise TopodrakeError(f"--chain-re: checkpoint {path} does not exist")
+        out[name] = path
+    return out
 
 
 def _p_values(text: str) -> list[float]:
@@ -88,6 +105,7 @@ def following(args, command: str) -> dict:
     specs = parse_controllers(args.controllers, args.cwp, args.re, table=CONTROLLERS,
                               must_exist=True)
     args.sensitivity = parse_sensitivity(args.sensitivity)
+    args.chain_reach = parse_chain_reach(getattr(args, "chain_re", None), specs)
     worlds = [w for w in args.worlds.split(",") if w]
     t0 = time.perf_counter()
     trajs = load_trajectories(Path(args.data), worlds, args.trajectories, args.seed)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes, atomic_write_json
 from topodrake.learning.onpolicy.bench import CONTROLLERS as BENCH_CONTROLLERS
 from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec
@@ -174,6 +175,19 @@ def chains_of(obs, reach, ps, cache: RunCache | None = None, tag: str = "",
     return out
 
 
+def chain_reachability(path: str, controller, reach):
+    """The RE at ``path`` (trained for ``controller``) that places anchors
+    in ``reach``'s place: it reads the same observations, so it must share
+    ``reach``'s sensor."""
+    from topodrake.learning.reachability.estimator import Reachability
+
+    placer = Reachability.from_checkpoint(path, controller)
+    if (placer.observation, placer.sensor) != (reach.observation, reach.sensor):
+        raise TopodrakeError(f"--chain-re {path}: its observations ({placer.observation}) are not "
+                             f"the follower RE's ({reach.observation}, the same sensor)")
+    return placer
+
+
 def every_nth(n_frames: int, n: int) -> np.ndarray:
     a = np.arange(0, n_frames, max(int(n), 1))
     return a if a[-1] == n_frames - 1 else np.append(a, n_frames - 1)
@@ -275,6 +289,8 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
 
     cwp_path, re_path, re_controller = spec
     reach = Reachability.from_checkpoint(re_path, re_controller)
+    chain_path = (getattr(args, "chain_reach", None) or {}).get(name)
+    placer = reach if chain_path is None else chain_reachability(chain_path, re_controller, reach)
     if is_oracle_spec(cwp_path):                     # made per world: it reads the world's A*
         policy, wide = (lambda world: controller_policy(cwp_path, world)), reach
     else:
@@ -286,12 +302,15 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         "checkpoints": [_fingerprint(f) for f in spec], "seed": args.seed, "noise": args.noise,
         "follower": asdict(args.follower_config), "tolerance_m": TOLERANCE_M,
         **({} if args.odometry_config.is_perfect else {"odometry": asdict(args.odometry_config)}),
-        "diverge_m": DIVERGE_M, "slack": args.slack})
+        "diverge_m": DIVERGE_M, "slack": args.slack,
+        **({} if chain_path is None else {"chain_reach": _fingerprint(chain_path)})})
     obs = Observations(reach, trajs, world_of)
     lengths = np.array([path_length(t["poses"])[-1] for t in trajs])
     frames = np.array([len(t["poses"]) for t in trajs])
-    chains = chains_of(obs, reach, ps, cache, f"{name}-", args.slack)
+    chains = chains_of(obs, placer, ps, cache, f"{name}-", args.slack)
     out: dict = {"controller": cwp_path, "reach": re_path, "points": []}
+    if chain_path is not None:
+        out["chain_reach"] = chain_path
     runs = args.runs
 
     def follow(kind, tag, p, chain_list, noisy=False):
@@ -330,15 +349,17 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         bar.set_postfix_str(f"{name} p={p}: cover {point.get('cover', float('nan')):.3f}")
     if args.sensitivity:
         out["sensitivity"] = sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache,
-                                         bar)
+                                         bar, placer)
     return out
 
 
-def sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache, bar) -> dict:
+def sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache, bar,
+                placer=None) -> dict:
     """Cover of ``name``'s RE chains at the headline p followed by the noisy
     oracle C_WP (and ``name``'s RE) at each value of ``args.sensitivity``
     (KEY, values): the error of ``cwp_path`` if it is an oracle spec, else
-    none, with KEY set to each value."""
+    none, with KEY set to each value. ``placer``: the RE that made the
+    chains (default ``reach``)."""
     import re as regex
 
     from topodrake.learning.reachability.controllers import controller_policy
@@ -346,7 +367,7 @@ def sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache, bar) -
 
     key, values = args.sensitivity
     p = args.headline_p
-    chains = chains_of(obs, reach, [p], cache, f"{name}-", args.slack)[p]
+    chains = chains_of(obs, placer or reach, [p], cache, f"{name}-", args.slack)[p]
     base = parse_oracle_spec(cwp_path if is_oracle_spec(cwp_path) else "oracle")
     rows = []
     for v in values:
