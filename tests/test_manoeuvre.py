@@ -121,3 +121,40 @@ def test_cars_in_one_batch_keep_their_own_scans_and_memory(box_world):
     np.testing.assert_allclose(both[1], alone1[0])
     assert man.started[1] == man1.started[0]
     assert man.started[0] >= 1
+
+
+def test_the_blind_cone_behind_the_start_is_an_arc_of_wall():
+    from topodrake.navigation.manoeuvre import blind_arc
+
+    lidar = LidarConfig()
+    pose = np.array([[1.0, 2.0, np.pi / 2]])
+    arc = blind_arc(pose, lidar, 0.25, 0.025)[0]
+    d = arc - pose[0, :2]
+    assert np.allclose(np.hypot(d[:, 0], d[:, 1]), 0.25)
+    ahead = d @ np.array([np.cos(pose[0, 2]), np.sin(pose[0, 2])])
+    bearing = np.degrees(np.abs(np.arctan2(d[:, 0] * -1.0, d[:, 1])))   # from the heading (+y)
+    assert np.all(ahead < 0)                                  # all of it behind the car
+    assert np.all(bearing >= 0.5 * lidar.fov_deg - 1e-6)      # none of it in the lidar's view
+    assert np.all(np.hypot(*np.diff(arc, axis=0).T) <= 0.025 + 1e-9)
+    assert blind_arc(pose, lidar, None, 0.025).shape == (1, 0, 2)
+    assert blind_arc(pose, LidarConfig(fov_deg=360.0), 0.25, 0.025).shape == (1, 0, 2)
+
+
+def test_the_kernel_sees_the_blind_arc_of_each_cars_own_start(box_world, monkeypatch):
+    import topodrake.navigation.manoeuvre as manoeuvre
+
+    seen = []
+    real = manoeuvre.local_grid
+    monkeypatch.setattr(manoeuvre, "local_grid",
+                        lambda points, *a, **kw: seen.append(points) or real(points, *a, **kw))
+    lidar_cfg = LidarConfig()
+    starts = np.array([[4.5, 7.0, 0.0], [2.5, 5.0, np.pi]])
+    man = Manoeuvres(2, starts, lidar_cfg)
+    man.step(np.array([0, 1]), starts, np.array([[5.5, 5.2], [1.0, 5.0]]),
+             Lidar(box_world, lidar_cfg).scan(starts))
+    assert len(seen) == 2
+    for points, start in zip(seen, starts):
+        behind = start[:2] - 0.25 * np.array([np.cos(start[2]), np.sin(start[2])])
+        assert np.min(np.hypot(*(points - behind).T)) < 0.025
+    off = Manoeuvres(1, starts[:1], lidar_cfg, manoeuvre.ManoeuvreConfig(blind_start_m=None))
+    assert off.blind.shape == (1, 0, 2)

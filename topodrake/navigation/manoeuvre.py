@@ -18,7 +18,8 @@ Everything is in the odometry frame, as on a robot: the scans are placed
 by the odometry pose they were taken at, and the waypoint goes out in the
 frame it came in. Walls behind the car are known only as far as it has
 seen them, and the lidar's beams are joined into wall segments where
-neighbouring hits lie close.
+neighbouring hits lie close; behind the start, where the car has seen
+nothing, a short arc stands in for a wall (``blind_start_m``).
 """
 
 from __future__ import annotations
@@ -48,6 +49,10 @@ class ManoeuvreConfig:
     resolution_m: float = 0.05
     join_m: float = 0.3           # neighbouring beams' hits closer than this are one wall
     ray_m: float = 3.0            # the predicted "path" runs this far through the waypoint
+    # the blind cone behind the car's start (outside the lidar's field of view) counts as a wall
+    # this far from the start (m; None: as free space): a car set down beside a wall has seen
+    # nothing behind it, and a manoeuvre that reverses there reverses into the unknown
+    blind_start_m: float | None = 0.25
     expert: ExpertConfig = field(default_factory=ExpertConfig)
 
 
@@ -89,6 +94,21 @@ def local_grid(points: np.ndarray, centre: np.ndarray, half_m: float, resolution
     return LocalGrid(np.ascontiguousarray(clear, np.float64), (ox, oy), resolution_m)
 
 
+def blind_arc(poses: np.ndarray, lidar: LidarConfig, radius_m: float | None, step_m: float
+              ) -> np.ndarray:
+    """Points (N, A, 2) every ``step_m`` along the arc of radius ``radius_m``
+    around each pose that lies outside the lidar's field of view (behind
+    the car); (N, 0, 2) for ``radius_m`` None or a lidar that sees all round."""
+    blind = 2 * np.pi - np.radians(lidar.fov_deg)
+    if radius_m is None or blind <= 0:
+        return np.zeros((len(poses), 0, 2))
+    a = np.pi + np.linspace(-0.5 * blind, 0.5 * blind,
+                            max(2, int(np.ceil(blind * radius_m / step_m)) + 1))
+    th = poses[:, 2:3] + a[None, :]
+    return np.stack([poses[:, 0:1] + radius_m * np.cos(th),
+                     poses[:, 1:2] + radius_m * np.sin(th)], axis=-1)
+
+
 def ray_path(pose: np.ndarray, waypoint: np.ndarray, ray_m: float, step_m: float = 0.1
              ) -> np.ndarray:
     """Points (K, 2) from the car's position through ``waypoint`` to at least ``ray_m``."""
@@ -116,6 +136,8 @@ class Manoeuvres:
         self.periods = np.zeros(n, np.int64)
         self.memory = initial_memory(starts_odo)
         self.started = np.zeros(n, np.int64)   # manoeuvres started, per car
+        self.blind = blind_arc(np.asarray(starts_odo, np.float64).reshape(-1, 3), lidar,
+                               self.config.blind_start_m, 0.5 * self.config.resolution_m)
 
     def remember(self, cars: np.ndarray, poses_odo: np.ndarray, ranges: np.ndarray) -> None:
         """Keep every ``every``-th scan of ``cars``, placed at their odometry poses."""
@@ -145,9 +167,10 @@ class Manoeuvres:
                 _note_pose(row[0], poses_odo[i], self.vehicle)
                 row[0, _M_TRUST] = max(row[0, _M_TRUST] - 1, 0)
                 continue
-            grid = local_grid(wall_points(self.points[car], self.mask[car], cfg.join_m,
-                                          0.5 * cfg.resolution_m),
-                              poses_odo[i], cfg.half_m, cfg.resolution_m)
+            walls = wall_points(self.points[car], self.mask[car], cfg.join_m,
+                                0.5 * cfg.resolution_m)
+            grid = local_grid(np.concatenate([walls, self.blind[car]]), poses_odo[i], cfg.half_m,
+                              cfg.resolution_m)
             paths = PackedPaths.pack([ray_path(poses_odo[i], out[i], cfg.ray_m)])
             was = row[0, _M_MODE] == 1.0 and row[0, _M_LEFT] > 0
             wp, _ = expert_waypoints(grid, paths, np.zeros(1, np.int64), poses_odo[i:i + 1],
@@ -196,5 +219,5 @@ def _note_pose(mem: np.ndarray, pose: np.ndarray, vehicle: VehicleConfig) -> Non
     mem[_M_PX], mem[_M_PY], mem[_M_PT] = pose
 
 
-__all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "local_grid", "ray_path",
+__all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "blind_arc", "local_grid", "ray_path",
            "wall_points"]
