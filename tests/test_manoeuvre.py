@@ -123,24 +123,21 @@ def test_cars_in_one_batch_keep_their_own_scans_and_memory(box_world):
     assert man.started[0] >= 1
 
 
-def test_the_blind_cone_behind_the_start_is_an_arc_of_wall():
-    from topodrake.navigation.manoeuvre import blind_arc
+def test_a_wall_beside_the_start_goes_on_into_the_blind_cone(box_world):
+    from topodrake.navigation.manoeuvre import edge_walls
 
-    lidar = LidarConfig()
-    pose = np.array([[1.0, 2.0, np.pi / 2]])
-    arc = blind_arc(pose, lidar, 0.25, 0.025)[0]
-    d = arc - pose[0, :2]
-    assert np.allclose(np.hypot(d[:, 0], d[:, 1]), 0.25)
-    ahead = d @ np.array([np.cos(pose[0, 2]), np.sin(pose[0, 2])])
-    bearing = np.degrees(np.abs(np.arctan2(d[:, 0] * -1.0, d[:, 1])))   # from the heading (+y)
-    assert np.all(ahead < 0)                                  # all of it behind the car
-    assert np.all(bearing >= 0.5 * lidar.fov_deg - 1e-6)      # none of it in the lidar's view
-    assert np.all(np.hypot(*np.diff(arc, axis=0).T) <= 0.025 + 1e-9)
-    assert blind_arc(pose, lidar, None, 0.025).shape == (1, 0, 2)
-    assert blind_arc(pose, LidarConfig(fov_deg=360.0), 0.25, 0.025).shape == (1, 0, 2)
+    lidar_cfg = LidarConfig()
+    pose = np.array([[5.5, 3.0, np.pi / 2]])        # heading +y, the partition 0.4 m to its left
+    ranges = Lidar(box_world, lidar_cfg).scan(pose)
+    walls = edge_walls(pose, ranges, lidar_cfg, 1.0, 1.0, 0.025)[0]
+    assert len(walls) > 30
+    assert np.allclose(walls[:, 0], 5.1, atol=0.03)               # on the partition's face
+    assert walls[:, 1].max() < pose[0, 1] and walls[:, 1].min() < pose[0, 1] - 0.9   # behind
+    open_right = edge_walls(pose, ranges, lidar_cfg, 1.0, 0.3, 0.025)[0]
+    assert len(open_right) == 0                      # nothing at the edges within 0.3 m
 
 
-def test_the_kernel_sees_the_blind_arc_of_each_cars_own_start(box_world, monkeypatch):
+def test_the_kernel_sees_the_start_walls_until_the_car_leaves(box_world, monkeypatch):
     import topodrake.navigation.manoeuvre as manoeuvre
 
     seen = []
@@ -148,13 +145,30 @@ def test_the_kernel_sees_the_blind_arc_of_each_cars_own_start(box_world, monkeyp
     monkeypatch.setattr(manoeuvre, "local_grid",
                         lambda points, *a, **kw: seen.append(points) or real(points, *a, **kw))
     lidar_cfg = LidarConfig()
-    starts = np.array([[4.5, 7.0, 0.0], [2.5, 5.0, np.pi]])
-    man = Manoeuvres(2, starts, lidar_cfg)
-    man.step(np.array([0, 1]), starts, np.array([[5.5, 5.2], [1.0, 5.0]]),
-             Lidar(box_world, lidar_cfg).scan(starts))
-    assert len(seen) == 2
-    for points, start in zip(seen, starts):
-        behind = start[:2] - 0.25 * np.array([np.cos(start[2]), np.sin(start[2])])
-        assert np.min(np.hypot(*(points - behind).T)) < 0.025
-    off = Manoeuvres(1, starts[:1], lidar_cfg, manoeuvre.ManoeuvreConfig(blind_start_m=None))
-    assert off.blind.shape == (1, 0, 2)
+    lidar = Lidar(box_world, lidar_cfg)
+    start = np.array([[5.5, 3.0, np.pi / 2]])
+    man = Manoeuvres(1, start, lidar_cfg)
+    behind = np.array([[5.1, 2.2]])                  # on the partition, in the blind cone
+
+    def nearest(points):
+        return float(np.min(np.hypot(*(points - behind).T)))
+
+    man.step(np.array([0]), start, np.array([[5.5, 1.0]]), lidar.scan(start))
+    assert nearest(seen[-1]) < 0.05 and man.blind_on[0]
+    away = start + [[0.0, 1.5, 0.0]]
+    man.memory[0, manoeuvre._M_TRUST] = 0            # make the kernel check again
+    man.step(np.array([0]), away, np.array([[5.5, 1.0]]), lidar.scan(away))
+    assert not man.blind_on[0] and nearest(seen[-1]) > 0.05
+    off = Manoeuvres(1, start, lidar_cfg, manoeuvre.ManoeuvreConfig(blind_extend_m=None))
+    assert not off.blind_on[0]
+def test_the_blind_arc_goes_once_the_car_leaves_its_start_or_turns(box_world):
+    lidar_cfg = LidarConfig()
+    lidar = Lidar(box_world, lidar_cfg)
+    starts = np.array([[2.5, 5.0, 0.0], [2.5, 5.0, 0.0], [2.5, 5.0, 0.0]])
+    man = Manoeuvres(3, starts, lidar_cfg)
+    moved = starts + [[0.3, 0.0, 0.0], [1.2, 0.0, 0.0], [0.0, 0.0, np.radians(70.0)]]
+    man.step(np.arange(3), moved, moved[:, :2] + [[1.0, 0.0]], lidar.scan(moved))
+    assert man.blind_on.tolist() == [True, False, False]
+    back = starts.copy()                                    # coming back does not restore it
+    man.step(np.arange(3), back, back[:, :2] + [[1.0, 0.0]], lidar.scan(back))
+    assert man.blind_on.tolist() == [True, False, False]

@@ -19,7 +19,8 @@ by the odometry pose they were taken at, and the waypoint goes out in the
 frame it came in. Walls behind the car are known only as far as it has
 seen them, and the lidar's beams are joined into wall segments where
 neighbouring hits lie close; behind the start, where the car has seen
-nothing, a short arc stands in for a wall (``blind_start_m``).
+nothing, the walls its first scan sees beside it are taken to go on
+(``blind_extend_m``).
 """
 
 from __future__ import annotations
@@ -49,10 +50,13 @@ class ManoeuvreConfig:
     resolution_m: float = 0.05
     join_m: float = 0.3           # neighbouring beams' hits closer than this are one wall
     ray_m: float = 3.0            # the predicted "path" runs this far through the waypoint
-    # the blind cone behind the car's start (outside the lidar's field of view) counts as a wall
-    # this far from the start (m; None: as free space): a car set down beside a wall has seen
-    # nothing behind it, and a manoeuvre that reverses there reverses into the unknown
-    blind_start_m: float | None = 0.25
+    # a car set down beside a wall has seen nothing behind it, and a manoeuvre that reverses
+    # there reverses into the unknown: the walls its first scan sees at the edges of its field
+    # of view (within near) are taken to go on this far into the blind cone (m; None: off) ...
+    blind_extend_m: float | None = 1.0
+    blind_near_m: float = 1.0
+    blind_until_m: float = 1.0    # ... until the car is this far from its start or has turned
+    # far enough to have seen behind it (its lidar's blind half-angle)
     expert: ExpertConfig = field(default_factory=ExpertConfig)
 
 
@@ -94,19 +98,31 @@ def local_grid(points: np.ndarray, centre: np.ndarray, half_m: float, resolution
     return LocalGrid(np.ascontiguousarray(clear, np.float64), (ox, oy), resolution_m)
 
 
-def blind_arc(poses: np.ndarray, lidar: LidarConfig, radius_m: float | None, step_m: float
-              ) -> np.ndarray:
-    """Points (N, A, 2) every ``step_m`` along the arc of radius ``radius_m``
-    around each pose that lies outside the lidar's field of view (behind
-    the car); (N, 0, 2) for ``radius_m`` None or a lidar that sees all round."""
-    blind = 2 * np.pi - np.radians(lidar.fov_deg)
-    if radius_m is None or blind <= 0:
-        return np.zeros((len(poses), 0, 2))
-    a = np.pi + np.linspace(-0.5 * blind, 0.5 * blind,
-                            max(2, int(np.ceil(blind * radius_m / step_m)) + 1))
-    th = poses[:, 2:3] + a[None, :]
-    return np.stack([poses[:, 0:1] + radius_m * np.cos(th),
-                     poses[:, 1:2] + radius_m * np.sin(th)], axis=-1)
+def edge_walls(poses: np.ndarray, ranges: np.ndarray, lidar: LidarConfig, extend_m: float,
+               near_m: float, step_m: float, edge_beams: int = 4) -> list[np.ndarray]:
+    """Per scan, points (P, 2) every ``step_m`` that continue the walls seen
+    at the two edges of the lidar's field of view ``extend_m`` into the blind
+    cone behind the car: where the ``edge_beams`` outermost beams of a side
+    all hit within ``near_m``, the line through the outermost and the
+    ``edge_beams``-th hit goes on past the outermost one."""
+    from topodrake.expert.kernel import lidar_world_points
+
+    pts, hit = lidar_world_points(poses, ranges, lidar)
+    r = np.where(hit, np.asarray(ranges, np.float64).reshape(hit.shape), np.inf)
+    t = np.arange(step_m, extend_m + 1e-9, step_m)
+    out = []
+    for i in range(len(pts)):
+        walls = []
+        for edge, inner in ((0, edge_beams - 1), (-1, -edge_beams)):
+            side = slice(0, edge_beams) if edge == 0 else slice(-edge_beams, None)
+            if not np.all(r[i, side] < near_m):
+                continue
+            d = pts[i, edge] - pts[i, inner]
+            n = float(np.hypot(*d))
+            if n > 1e-6:
+                walls.append(pts[i, edge] + t[:, None] * (d / n))
+        out.append(np.concatenate(walls) if walls else np.zeros((0, 2)))
+    return out
 
 
 def ray_path(pose: np.ndarray, waypoint: np.ndarray, ray_m: float, step_m: float = 0.1
@@ -136,8 +152,9 @@ class Manoeuvres:
         self.periods = np.zeros(n, np.int64)
         self.memory = initial_memory(starts_odo)
         self.started = np.zeros(n, np.int64)   # manoeuvres started, per car
-        self.blind = blind_arc(np.asarray(starts_odo, np.float64).reshape(-1, 3), lidar,
-                               self.config.blind_start_m, 0.5 * self.config.resolution_m)
+        self.starts = np.asarray(starts_odo, np.float64).reshape(-1, 3).copy()
+        self.blind: list[np.ndarray] = [np.zeros((0, 2))] * n   # from each car's first scan
+        self.blind_on = np.full(n, self.config.blind_extend_m is not None)
 
     def remember(self, cars: np.ndarray, poses_odo: np.ndarray, ranges: np.ndarray) -> None:
         """Keep every ``every``-th scan of ``cars``, placed at their odometry poses."""
@@ -157,10 +174,17 @@ class Manoeuvres:
         scans (M, B), all in the odometry frame."""
         cars = np.asarray(cars, np.int64)
         poses_odo = np.asarray(poses_odo, np.float64).reshape(-1, 3)
+        cfg = self.config
+        first = self.periods[cars] == 0
         self.remember(cars, poses_odo, ranges)
         out = np.array(waypoints, np.float64).reshape(-1, 2)
-        cfg = self.config
+        if self.config.blind_extend_m is not None and first.any():
+            made = edge_walls(poses_odo[first], ranges[first], self.lidar, cfg.blind_extend_m,
+                              cfg.blind_near_m, 0.5 * cfg.resolution_m)
+            for car, walls in zip(cars[first], made):
+                self.blind[car] = walls
         skip = self._unchecked(cars, poses_odo, out)
+        self._leave_start(cars, poses_odo)
         for i, car in enumerate(cars):
             row = self.memory[car:car + 1]          # a view: the kernel updates it in place
             if skip[i] or not np.isfinite(out[i]).all():
@@ -169,8 +193,9 @@ class Manoeuvres:
                 continue
             walls = wall_points(self.points[car], self.mask[car], cfg.join_m,
                                 0.5 * cfg.resolution_m)
-            grid = local_grid(np.concatenate([walls, self.blind[car]]), poses_odo[i], cfg.half_m,
-                              cfg.resolution_m)
+            if self.blind_on[car]:
+                walls = np.concatenate([walls, self.blind[car]])
+            grid = local_grid(walls, poses_odo[i], cfg.half_m, cfg.resolution_m)
             paths = PackedPaths.pack([ray_path(poses_odo[i], out[i], cfg.ray_m)])
             was = row[0, _M_MODE] == 1.0 and row[0, _M_LEFT] > 0
             wp, _ = expert_waypoints(grid, paths, np.zeros(1, np.int64), poses_odo[i:i + 1],
@@ -180,6 +205,19 @@ class Manoeuvres:
                 out[i] = wp[0]
                 self.started[car] += int(not was)
         return out
+
+    def _leave_start(self, cars: np.ndarray, poses: np.ndarray) -> None:
+        """Drop the blind arc of cars that drove ``blind_until_m`` from their
+        start or turned past the lidar's blind half-angle: they have seen
+        behind the start, or left it."""
+        on = self.blind_on[cars]
+        if not on.any():
+            return
+        d = poses - self.starts[cars]
+        turned = np.abs(np.angle(np.exp(1j * d[:, 2])))
+        half_blind = np.pi - 0.5 * np.radians(self.lidar.fov_deg)
+        left = (np.hypot(d[:, 0], d[:, 1]) > self.config.blind_until_m) | (turned > half_blind)
+        self.blind_on[cars[on & left]] = False
 
     def _unchecked(self, cars, poses, waypoints) -> np.ndarray:
         """Cars the kernel would not check this period (M,): no manoeuvre
@@ -219,5 +257,5 @@ def _note_pose(mem: np.ndarray, pose: np.ndarray, vehicle: VehicleConfig) -> Non
     mem[_M_PX], mem[_M_PY], mem[_M_PT] = pose
 
 
-__all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "blind_arc", "local_grid", "ray_path",
+__all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "edge_walls", "local_grid", "ray_path",
            "wall_points"]
