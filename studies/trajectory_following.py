@@ -38,8 +38,11 @@ camera k=2 ones (the network of the nearest controller).
 
 lidar_reg is the registration controller
 (:class:`topodrake.registration.policy.RegistrationPolicy`: no network,
-scans registered against the anchors' taught scans) with the RE learnt from
-its own rollouts (``checkpoints/reach_lidar_reg``); its runs are keyed by
+scans registered against the anchors' taught scans) with two REs learnt from
+its own rollouts: ``checkpoints/reach_lidar_reg`` (rollouts that start cold)
+places its anchors and ``checkpoints/reach_lidar_reg_tracked`` (rollouts that
+start the controller tracking its target, as the follower's tracker does)
+answers its follower; ``--re lidar_reg=...`` replaces both. Its runs are keyed by
 the controller's settings and the registration package's sources instead of
 a checkpoint's hash.
 

@@ -189,3 +189,20 @@ def test_the_placing_re_is_named_per_controller_and_must_fit_its_c_wp(tmp_path):
     assert "does not exist" in _refused(*args, "--chain-re", f"lidar_k5={tmp_path / 'none.pt'}")
     assert "was trained for controller" in _refused(
         *args, "--chain-re", "lidar_k5=checkpoints/reach_lidar_k5_dagger/checkpoint.pt")
+
+
+def test_the_registration_system_places_anchors_with_one_re_and_follows_with_another():
+    from topodrake.navigation.follow_study import parse_chain_reach
+    from topodrake.navigation.follow_trials import CONTROLLERS
+
+    specs = {"lidar_reg": CONTROLLERS["lidar_reg"], "lidar_k5": CONTROLLERS["lidar_k5"]}
+    assert specs["lidar_reg"][1] == "checkpoints/reach_lidar_reg_tracked/checkpoint.pt"
+    assert parse_chain_reach(None, specs) == {
+        "lidar_reg": "checkpoints/reach_lidar_reg/checkpoint.pt"}
+    # another RE under --re does both jobs, unless --chain-re says otherwise
+    other = "lidar_reg=checkpoints/reach_lidar_reg/checkpoint.pt"
+    assert parse_chain_reach(None, specs, [other]) == {}
+    assert parse_chain_reach(["lidar_reg=checkpoints/reach_lidar_reg_tracked/checkpoint.pt"],
+                             specs, [other]) == {
+        "lidar_reg": "checkpoints/reach_lidar_reg_tracked/checkpoint.pt"}
+    assert parse_chain_reach(None, {"lidar_k5": specs["lidar_k5"]}) == {}

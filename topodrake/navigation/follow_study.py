@@ -42,11 +42,17 @@ def parse_sensitivity(text: str | None) -> tuple[str, list[str]] | None:
     return key, items
 
 
-def parse_chain_reach(items: list[str] | None, specs: dict) -> dict:
+def parse_chain_reach(items: list[str] | None, specs: dict, reach: list[str] | None = None
+                      ) -> dict:
     """``--chain-re NAME=CHECKPOINT`` options as {NAME: checkpoint}: the RE
     (trained for NAME's C_WP) whose sparsification makes NAME's chains, while
-    NAME's own RE answers the follower (the two roles of RE apart)."""
-    out = {}
+    NAME's own RE answers the follower (the two roles of RE apart). A
+    controller of :data:`CHAIN_REACH` keeps its own placing RE unless
+    ``--re`` (``reach``) replaces its RE, which then does both."""
+    from topodrake.navigation.follow_trials import CHAIN_REACH
+
+    replaced = {o.partition("=")[0] for o in reach or []}
+    out = {n: p for n, p in CHAIN_REACH.items() if n in specs and n not in replaced}
     for o in items or []:
         name, sep, path = o.partition("=")
         if not sep or name not in specs:
@@ -105,7 +111,8 @@ def following(args, command: str) -> dict:
     specs = parse_controllers(args.controllers, args.cwp, args.re, table=CONTROLLERS,
                               must_exist=True)
     args.sensitivity = parse_sensitivity(args.sensitivity)
-    args.chain_reach = parse_chain_reach(getattr(args, "chain_re", None), specs)
+    args.chain_reach = parse_chain_reach(getattr(args, "chain_re", None), specs,
+                                         getattr(args, "re", None))
     worlds = [w for w in args.worlds.split(",") if w]
     t0 = time.perf_counter()
     trajs = load_trajectories(Path(args.data), worlds, args.trajectories, args.seed)

@@ -34,8 +34,14 @@ CONTROLLERS = {
     "camera_k2": ("checkpoints/camera_k2/checkpoint.pt", "checkpoints/reach_camera_k2/checkpoint.pt",
                   "checkpoints/camera_k2/checkpoint.pt"),
     **BENCH_CONTROLLERS,
-    "lidar_reg": ("registration", "checkpoints/reach_lidar_reg/checkpoint.pt", "registration"),
+    "lidar_reg": ("registration", "checkpoints/reach_lidar_reg_tracked/checkpoint.pt",
+                  "registration"),
 }
+
+#: name: the RE that places the controller's anchors where it is not the one
+#: that answers its follower (the registration system: RE on cold-start labels
+#: places them, RE on labels that start the controller tracking answers)
+CHAIN_REACH = {"lidar_reg": "checkpoints/reach_lidar_reg/checkpoint.pt"}
 
 
 # ---------------------------------------------------------------- trajectories
