@@ -794,3 +794,13 @@ def test_a_camera_map_keeps_its_drives_lidar_scans_and_one_cached_without_is_reb
     again, build_s = map_cache.get_map("test-0", world, "camera", [drive], [0], tmp_path, "all",
                                        False)
     assert build_s > 0 and again.bank.scans is not None
+
+
+def test_the_registration_follower_asks_its_tracked_re_and_its_maps_keep_the_cold_one():
+    from topodrake.navigation.plan_methods import FOLLOWER_REACH, networks
+    from topodrake.topomap.sources import SHIPPED
+
+    policy, reach = networks("lidar_reg")
+    assert reach.name == FOLLOWER_REACH["lidar_reg"] == "reach_lidar_reg_tracked"
+    assert SHIPPED["lidar_reg"][0] == "reach_lidar_reg"        # what its maps are built with
+    assert networks("lidar")[1].name == SHIPPED["lidar"][0]    # the others ask their maps' RE

@@ -99,7 +99,8 @@ SCALE_FOLLOWERS = {"lidar_scale": ("lidar_k5_scale", "lidar"),
 
 def networks(modality: str, world=None):
     """(C_WP, RE) of the shipped k=5 follower of ``modality`` (``lidar_reg``:
-    the registration C_WP and its RE; loaded once), or of the oracles in
+    the registration C_WP and its follower RE, :data:`FOLLOWER_REACH`; loaded
+    once), or of the oracles in
     ``world`` (``"oracle"``: A* C_WP and geometric RE; ``"oracle_cwp"``: A*
     C_WP and the learned camera RE; ``"oracle_cwp_lidar"``: A* C_WP and the
     learned lidar RE; ``"lidar_scale_oracle_re"``: the C_WP at scale and the
@@ -130,9 +131,16 @@ def networks(modality: str, world=None):
                                Reachability.from_checkpoint(shipped_checkpoint(SHIPPED[kind][0]),
                                                             shipped_checkpoint(SHIPPED[kind][1])))
     if modality not in _NETWORKS:
+        reach = FOLLOWER_REACH.get(modality, SHIPPED[modality][0])
         _NETWORKS[modality] = load_networks(shipped_controller(modality),
-                                            shipped_checkpoint(SHIPPED[modality][0]))
+                                            shipped_checkpoint(reach))
     return _NETWORKS[modality]
+
+
+#: map kinds whose follower asks another RE than the one their maps were built
+#: with: the registration C_WP's follower asks the RE on labels that start it
+#: tracking its target, as the follower's tracker does
+FOLLOWER_REACH = {"lidar_reg": "reach_lidar_reg_tracked"}
 
 
 #: methods whose follower is not their map kind's own: their plan calibration
