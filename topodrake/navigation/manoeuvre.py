@@ -178,7 +178,7 @@ class Manoeuvres:
         first = self.periods[cars] == 0
         self.remember(cars, poses_odo, ranges)
         out = np.array(waypoints, np.float64).reshape(-1, 2)
-        if self.config.blind_extend_m is not None and first.any():
+        if cfg.blind_extend_m is not None and first.any():
             made = edge_walls(poses_odo[first], ranges[first], self.lidar, cfg.blind_extend_m,
                               cfg.blind_near_m, 0.5 * cfg.resolution_m)
             for car, walls in zip(cars[first], made):
@@ -207,7 +207,7 @@ class Manoeuvres:
         return out
 
     def _leave_start(self, cars: np.ndarray, poses: np.ndarray) -> None:
-        """Drop the blind arc of cars that drove ``blind_until_m`` from their
+        """Drop the start walls of cars that drove ``blind_until_m`` from their
         start or turned past the lidar's blind half-angle: they have seen
         behind the start, or left it."""
         on = self.blind_on[cars]
