@@ -44,6 +44,9 @@ subset; existing maps are reused):
   followed by ``lidar_scale``'s C_WP with the geometric oracle RE, and by
   the A* oracle C_WP with the learned lidar RE: which of the follower's two
   networks loses the routes;
+- ``lidar_reg_oracle_follow`` and ``lidar_reg_oracle_re``: ``lidar_reg``'s
+  map followed by the two oracles (the map's share), and by the
+  registration C_WP with the geometric oracle RE (its RE's share);
 - ``ours_obstacles``: ``ours`` on the first ``--obstacle-trials`` trials,
   each alone in a copy of its house with ``--obstacles`` boxes (0.3-0.6 m)
   that the map never saw, placed on its planned route away from its start
@@ -61,7 +64,10 @@ A trial starts at one place jittered (0.3 m sideways, 9 deg) and gets the
 observation at another place as its goal; it succeeds when the car comes
 within 0.54 m of the goal within 150 s (1,500 steps) at <= 0.5 m/s without
 colliding. A goal without a plan is a failed trial. Every method of a house
-runs the same trials. Plan probabilities, and where a plan calibration
+runs the same trials. The cars' odometry drifts as a small car's wheel
+odometry does (each trial's errors from its seed; ``--odometry perfect``
+reads the true pose, an ablation), as the drives' odometry stored on the
+maps' edges does. Plan probabilities, and where a plan calibration
 ships for the method (``topodrake map calibrate``, fitted on training
 houses) each plan's calibrated ``success_probability``, are set against
 empirical success (10 bins, expected calibration error; ``--rescore``
@@ -108,6 +114,7 @@ from topodrake import argtypes as at
 from topodrake.fileio import atomic_write_json
 from topodrake.navigation.plan_methods import METHODS, ORACLE_METHODS
 from topodrake.navigation.plan_results import HOUSES, paired_runs, planning, rescore
+from topodrake.navigation.plan_study import ODOMETRY
 from topodrake.navigation.plan_trials import T_MAX_S
 from topodrake.topomap.recalibrate import PRIOR_WEIGHT
 
@@ -259,6 +266,11 @@ def main(argv=None) -> int:
     ap.add_argument("--follower", metavar="JSON",
                     help="follower settings to change, as JSON (FollowerConfig fields; an "
                          "ablation), recorded in planning.json's config")
+    ap.add_argument("--odometry", choices=ODOMETRY, default="wheel",
+                    help="what the cars' odometry reads: wheel odometry that drifts "
+                         "(topodrake.odometry.OdometryConfig.wheel, each trial's errors from "
+                         "its seed) or the true pose (an ablation); recorded in "
+                         "planning.json's config")
     ap.add_argument("--replan", metavar="JSON",
                     help="replanning schedule of the *_replan methods to change, as JSON "
                          "(ReplanSchedule fields: first, every, discount, max_replans; default: "

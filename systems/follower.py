@@ -54,11 +54,17 @@ from topodrake.navigation.replan import kept_features
 
 class FollowerFsm(LeafSystem):
     """Inputs ``observation`` (camera image / lidar ranges; absent for pose
-    oracles), ``state`` (held car state, 5) and, for a camera C_WP,
-    ``ranges`` (the car's lidar scan, optional)."""
+    oracles), ``state`` (held car state, 5), for a camera C_WP ``ranges``
+    (the car's lidar scan, optional) and, with ``odometry_input``,
+    ``odometry`` (the car's odometry state, 5, from
+    :class:`~topodrake.systems.odometry.OdometrySensor`): the follower then
+    decides on the odometry pose, as the engine does under drifting
+    odometry, and its waypoints are in the odometry frame (the pose oracles
+    still read ``state``)."""
 
     def __init__(self, route, policy, reach, config: FollowerConfig | None = None,
-                 period: float = 0.1, camera=None, lidar=None, replanner=None):
+                 period: float = 0.1, camera=None, lidar=None, replanner=None,
+                 odometry_input: bool = False):
         super().__init__()
         from topodrake.sensing.config import CameraConfig, LidarConfig
 
@@ -91,10 +97,13 @@ class FollowerFsm(LeafSystem):
         self.ranges_port = self.DeclareVectorInputPort("ranges", self.lidar.beams) \
             if kind == "camera" else None
         self.state_port = self.DeclareVectorInputPort("state", 5)
+        self.odometry_port = self.DeclareVectorInputPort("odometry", 5) if odometry_input \
+            else None
         self.fsm_index = self.DeclareAbstractState(AbstractValue.Make(self._initial_state()))
         self.route_index = self.DeclareAbstractState(AbstractValue.Make(0))
         prereq = {self.input_port_ticket(p.get_index())
-                  for p in (self.state_port, self.observation_port, self.ranges_port)
+                  for p in (self.state_port, self.observation_port, self.ranges_port,
+                            self.odometry_port)
                   if p is not None}
         prereq.add(self.abstract_state_ticket(self.fsm_index))
         prereq.add(self.abstract_state_ticket(self.route_index))
@@ -137,9 +146,12 @@ class FollowerFsm(LeafSystem):
 
         obs, ranges = self._held_observations(context)
 
+        odo = self._odometry(context, car)
+
         def startable(_row: int, route) -> bool:
             ok, feats = search_would_start(self.policy, self.reach, route, obs, car[:, :3],
-                                           ranges, self.lidar, self.config)
+                                           ranges, self.lidar, self.config,
+                                           odometry=odo[:, :3])
             encoded[id(route)] = (route, feats)      # the route kept: its id stays its own
             return ok
         return startable
@@ -152,6 +164,11 @@ class FollowerFsm(LeafSystem):
         if self.ranges_port is not None and self.ranges_port.HasValue(context):
             ranges = np.asarray(self.ranges_port.Eval(context))[None]
         return obs, ranges
+
+    def _odometry(self, context, car: np.ndarray) -> np.ndarray:
+        """The car's odometry state (1, 5): the ``odometry`` input, else the held state."""
+        return car if self.odometry_port is None else \
+            np.asarray(self.odometry_port.Eval(context))[None]
 
     def _initial_state(self) -> FollowerState:
         return FollowerState.initial(1, initial_track(self.policy, 1))
@@ -176,10 +193,11 @@ class FollowerFsm(LeafSystem):
         car = np.asarray(self.state_port.Eval(context))[None]
         obs, ranges = self._held_observations(context)
         feats = self._routes[self._route_of(context)].features
+        odo = self._odometry(context, car)
         ev = Evaluator(self.policy, self.reach, feats, np.zeros(1, np.int64), obs,
-                       poses=car[:, :3], track=state.track, odometry=car[:, :3],
+                       poses=car[:, :3], track=state.track, odometry=odo[:, :3],
                        lidar=self.lidar, ranges=ranges)
-        fs, out = follower_step(state, feats.n_anchors, car, ev, self.config)
+        fs, out = follower_step(state, feats.n_anchors, odo, ev, self.config)
         fs.track = ev.track
         value.set_value((fs, out))
 

@@ -9,6 +9,9 @@
     WaypointSelect --> ManoeuvreGuard --> RmpController <--ranges-- LidarSensor
     (ManoeuvreGuard: the expert's manoeuvres on the car's recent scans; left
     out when the follower's ``manoeuvres`` is off)
+    with odometry that drifts (the scenario's ``odometry``):
+    ZeroOrderHold --> OdometrySensor --odometry--> FollowerFsm, WaypointNet, ManoeuvreGuard,
+    and the waypoint goes through OdometryFrame (odometry frame -> world) to the RmpController
     RmpController --> ActuationNoise <-- RandomSource; ActuationNoise --> CarPlant
 
 FollowerFsm runs RE itself (on the route's cached anchor features), so no
@@ -26,6 +29,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.navigation.follower import FollowerConfig
+from topodrake.odometry import OdometryConfig
 from topodrake.systems.scenario import Scenario
 from topodrake.systems.run import DiagramRunner, RunResult
 
@@ -33,13 +37,21 @@ from topodrake.systems.run import DiagramRunner, RunResult
 @dataclass
 class NavigationScenario(Scenario):
     """A :class:`Scenario` plus the learned follower: C_WP and RE
-    checkpoints and the follower's thresholds (YAML keys ``controller``,
-    ``reach``, ``follower``)."""
+    checkpoints, the follower's thresholds and what the car's odometry reads
+    (YAML keys ``controller``, ``reach``, ``follower``, ``odometry``: an
+    :class:`~topodrake.odometry.OdometryConfig`, all zero for the true pose;
+    each run's errors come from its odometry seed)."""
 
     controller: str = "checkpoints/camera_k5/checkpoint.pt"
     reach: str = "checkpoints/reach_camera_k5/checkpoint.pt"
     follower: FollowerConfig = field(default_factory=FollowerConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig.perfect)
     t_max_s: float = 150.0
+
+    def validate(self, where: str = "scenario") -> "NavigationScenario":
+        super().validate(where)
+        self.odometry.check()
+        return self
 
 
 def load_networks(scenario: NavigationScenario):
@@ -61,6 +73,7 @@ class NavigationDiagram:
     world: object
     scenario: object
     route: object
+    odometry: object = None     # the OdometrySensor (None: the follower reads the true pose)
 
 
 def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *, world=None,
@@ -79,6 +92,7 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     from topodrake.systems.control import ManoeuvreGuard, RmpController
     from topodrake.systems.diagram import add_chassis
     from topodrake.systems.follower import FollowerFsm, WaypointSelect
+    from topodrake.systems.odometry import OdometryFrame, OdometrySensor
     from topodrake.systems.waypoint_net import WaypointNet
     from topodrake.world import load_world
 
@@ -90,14 +104,24 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     dt = scenario.vehicle.dt
     b = DiagramBuilder()
     c = add_chassis(b, scenario, world, camera=policy.observation == "camera", meshcat=meshcat)
+    drifts = not scenario.odometry.is_perfect
     fsm = b.AddNamedSystem("follower", FollowerFsm(plan, policy, reach, scenario.follower, dt,
-                                                   scenario.camera, scenario.lidar, replanner))
-    net = b.AddNamedSystem("waypoint_net", WaypointNet(policy, dt, scenario.camera, scenario.lidar))
+                                                   scenario.camera, scenario.lidar, replanner,
+                                                   odometry_input=drifts))
+    net = b.AddNamedSystem("waypoint_net", WaypointNet(policy, dt, scenario.camera, scenario.lidar,
+                                                       odometry_input=drifts))
     select = b.AddNamedSystem("waypoint_select", WaypointSelect())
     rmp = b.AddNamedSystem("rmp", RmpController(scenario.lidar, scenario.rmp, scenario.vehicle))
     b.Connect(c.hold.get_output_port(), fsm.state_port)
     b.Connect(c.hold.get_output_port(), net.state_port)
     b.Connect(c.hold.get_output_port(), rmp.state_port)
+    odometry, odo_port = None, c.hold.get_output_port()    # what the follower's side reads
+    if drifts:
+        odometry = b.AddNamedSystem("odometry", OdometrySensor(scenario.odometry, dt))
+        b.Connect(c.hold.get_output_port(), odometry.state_port)
+        odo_port = odometry.odometry_port
+        b.Connect(odo_port, fsm.odometry_port)
+        b.Connect(odo_port, net.odometry_port)
     obs = {"camera": c.camera.image_port if c.camera is not None else None,
            "lidar": c.lidar.ranges_port}.get(policy.observation)
     if obs is not None:
@@ -112,10 +136,16 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     if scenario.follower.manoeuvres:
         guard = b.AddNamedSystem("manoeuvres", ManoeuvreGuard(scenario.lidar, scenario.rmp,
                                                               scenario.vehicle, dt))
-        b.Connect(c.hold.get_output_port(), guard.state_port)
+        b.Connect(odo_port, guard.state_port)
         b.Connect(select.waypoint_port, guard.waypoint_in_port)
         b.Connect(c.lidar.ranges_port, guard.ranges_port)
         waypoint = guard.waypoint_port
+    if drifts:          # the waypoint where it lies relative to the car, in the world
+        frame = b.AddNamedSystem("odometry_frame", OdometryFrame())
+        b.Connect(waypoint, frame.waypoint_in_port)
+        b.Connect(odo_port, frame.odometry_port)
+        b.Connect(c.hold.get_output_port(), frame.state_port)
+        waypoint = frame.waypoint_port
     b.Connect(waypoint, rmp.waypoint_port)
     b.Connect(c.lidar.ranges_port, rmp.ranges_port)
     b.Connect(rmp.controls_port, c.noise.controls_port)
@@ -126,7 +156,7 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     diagram = b.Build()
     diagram.set_name("topodrake_navigation")
     return NavigationDiagram(diagram, c.car, fsm, net, c.pose_logger, c.noise_logger, mode_logger,
-                             world, scenario, plan)
+                             world, scenario, plan, odometry)
 
 
 @dataclass
@@ -159,11 +189,13 @@ class NavigationRunner(DiagramRunner):
     """Runs a navigation diagram (:func:`make_navigation_diagram`) from a start pose."""
 
     def run(self, start, seed: int = 0, t_max_s: float | None = None,
-            goal_watch_m: float | None = None) -> NavigationRunResult:
+            goal_watch_m: float | None = None,
+            odometry_seed: int | None = None) -> NavigationRunResult:
         """Drive from ``start``; with ``goal_watch_m`` the run also ends,
         reached, once the car is that close to the route's goal pose (the
         planning study's goal watch), whether or not the follower has
-        declared arrival yet."""
+        declared arrival yet. Where the scenario's odometry drifts, its
+        errors come from ``odometry_seed`` (default: ``seed``)."""
         from topodrake.navigation.follower import REACHED, REASONS, FAILED
         from topodrake.vehicle import in_collision
 
@@ -175,6 +207,9 @@ class NavigationRunner(DiagramRunner):
             raise TopodrakeError(f"start ({start[0]:.2f}, {start[1]:.2f}) puts the car's body "
                                  f"into a wall of {world.name!r}")
         context = self._reset(start, seed)
+        if b.odometry is not None:
+            b.odometry.set_start(b.odometry.GetMyMutableContextFromRoot(context), start,
+                                 seed if odometry_seed is None else odometry_seed)
         startup = 0.0 if self.warm else self._warm_up()
         replanner = b.follower.replanner
         if replanner is not None:

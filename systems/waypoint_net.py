@@ -69,7 +69,8 @@ class TargetConditionedNet(LeafSystem):
     ``network`` has ``observation`` ("camera", "lidar" or "pose"), an
     optional ``sensor`` and ``encode_target``."""
 
-    def __init__(self, network, period: float, camera=None, lidar=None, state_input: bool = True):
+    def __init__(self, network, period: float, camera=None, lidar=None, state_input: bool = True,
+                 odometry_input: bool = False):
         super().__init__()
         from topodrake.sensing.config import CameraConfig, LidarConfig
 
@@ -90,8 +91,13 @@ class TargetConditionedNet(LeafSystem):
             raise ValueError("a pose-observing network needs the state input")
         self.target_port = self.DeclareAbstractInputPort("target", AbstractValue.Make(TargetContext()))
         self.state_port = self.DeclareVectorInputPort("state", 5) if state_input else None
+        # the car's odometry state (5), where it drifts from the held state: a stateful
+        # network tracks on it and the waypoint is given in its frame
+        self.odometry_port = self.DeclareVectorInputPort("odometry", 5) \
+            if odometry_input and state_input else None
         self.cache_index = self.DeclareAbstractState(AbstractValue.Make(TargetCache()))
-        inputs = [p for p in (self.target_port, self.state_port, self.observation_port)
+        inputs = [p for p in (self.target_port, self.state_port, self.observation_port,
+                              self.odometry_port)
                   if p is not None]
         prereq = {self.input_port_ticket(p.get_index()) for p in inputs}
         prereq.add(self.abstract_state_ticket(self.cache_index))
@@ -163,13 +169,18 @@ class TargetConditionedNet(LeafSystem):
         feats = self._features(context, target)
         if self.track_index is not None:
             track = np.array(context.get_abstract_state(self.track_index).get_value(), np.float64)
-            car = np.asarray(self.state_port.Eval(context))[None, :3]
+            car = self.odometry(context)[None, :3]
             p = self.network.predict_tracked(obs, feats, track, np.zeros(1, np.int64),
                                              np.array([target.key], np.int64), car)
             value.set_value(TrackedPrediction(p.waypoint, p.heading_diff, p.overlap, p.controls,
                                               track))
             return
         value.set_value(self.compute(obs, feats))
+
+    def odometry(self, context) -> np.ndarray:
+        """The car's odometry state (5): the ``odometry`` input, else the held state."""
+        port = self.odometry_port if self.odometry_port is not None else self.state_port
+        return np.asarray(port.Eval(context))
 
     def _reusable(self, target: TargetContext, obs: np.ndarray) -> bool:
         """The target carries the answer this system would compute: made by
@@ -181,15 +192,18 @@ class WaypointNet(TargetConditionedNet):
     """Inputs: ``observation`` (camera: abstract (H, W, 3) uint8 image; lidar:
     vector of ranges; absent for the pose oracle, which reads ``state``),
     ``target`` (abstract :class:`TargetContext`), ``state`` (held car state,
-    5). Outputs: ``waypoint`` (world xy, for RmpController), ``waypoint_local``
+    5) and, with ``odometry_input``, ``odometry`` (the car's odometry state,
+    5; the waypoint is then in the odometry frame). Outputs: ``waypoint``
+    (world xy, for RmpController), ``waypoint_local``
     (car frame), ``heading_diff`` (1), ``overlap`` (2), and ``controls`` (2)
     for a direct-control policy. Without a target (key < 0) the waypoint is
     NaN, which the RMP reads as "stop"."""
 
-    def __init__(self, policy, period: float = 0.1, camera=None, lidar=None):
+    def __init__(self, policy, period: float = 0.1, camera=None, lidar=None,
+                 odometry_input: bool = False):
         self.policy = policy
         self.direct = bool(getattr(policy, "is_direct_control", False))
-        super().__init__(policy, period, camera, lidar)
+        super().__init__(policy, period, camera, lidar, odometry_input=odometry_input)
         ticket = self.prediction_ticket
         self.waypoint_port = self.DeclareVectorOutputPort("waypoint", 2, self._out_waypoint,
                                                           prerequisites_of_calc=ticket)
@@ -221,7 +235,7 @@ class WaypointNet(TargetConditionedNet):
 
     def _out_waypoint(self, context, output):
         local = self.prediction(context).waypoint[:1]
-        state = self.state_port.Eval(context)
+        state = self.odometry(context)
         output.SetFromVector(car_to_world(local[:, None], state[None])[0, 0])
 
 

@@ -174,6 +174,14 @@ def test_drake_diagram_and_engine_drive_the_same_path(box_world, route, oracles,
     assert not manoeuvres or res.manoeuvres[0] >= 1
 
 
+def test_a_navigation_scenario_refuses_bad_odometry():
+    from topodrake.odometry import OdometryConfig
+    from topodrake.systems.navigation import NavigationScenario
+
+    with pytest.raises(TopodrakeError, match="odometry scale_std"):
+        NavigationScenario(world="box", odometry=OdometryConfig(scale_std=-0.1))
+
+
 def test_runner_refuses_a_start_in_a_wall(box_world, route, oracles):
     from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
                                               make_navigation_diagram)

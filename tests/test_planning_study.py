@@ -237,6 +237,18 @@ def test_plan_and_follow_on_an_oracle_map_in_the_box_world(box_world):
     done = []
     out = pt.follow_routes(engine, starts, routes, goals, t_max_s=60.0, batch=2,
                            progress=done.append)
+    # each trial's odometry errors come from its own seed, whatever batch it drives in
+    asked = []
+    run = engine.run
+    engine.run = lambda *a, **kw: asked.append(kw["odometry_seeds"]) or run(*a, **kw)
+    pt.follow_routes(engine, starts, routes, goals, t_max_s=1.0, batch=1,
+                     odometry_seeds=[7, 8, 9])
+    planned = [t for t in range(len(routes)) if routes[t] is not None]
+    assert asked == [[[7, 8, 9][t]] for t in planned]
+    asked.clear()
+    pt.follow_routes(engine, starts, routes, goals, t_max_s=1.0, batch=2)
+    assert sum(asked, []) == planned                  # default: the trial's index
+    engine.run = run
     assert sum(done) == sum(r is not None for r in routes) and max(done) <= 2
     assert out.success[:2].all()
     assert (out.final_distance_m[:2] <= pt.SUCCESS_M).all()
@@ -363,9 +375,11 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
                              "ours_obstacles", "oracle_full", "ours_oracle_follow", "oracle_cwp",
                              "lidar_scale", "ours_scale", "lidar_oracle_follow",
                              "lidar_scale_oracle_re", "lidar_oracle_cwp", "lidar_replan",
-                             "lidar_reg_replan", "oracle_full_replan"]
+                             "lidar_reg_replan", "oracle_full_replan", "lidar_reg_oracle_follow",
+                             "lidar_reg_oracle_re"]
     assert ORACLE_METHODS == ("oracle_full", "ours_oracle_follow", "oracle_cwp",
-                              "lidar_oracle_follow", "oracle_full_replan")
+                              "lidar_oracle_follow", "oracle_full_replan",
+                              "lidar_reg_oracle_follow")
     for name, m in METHODS.items():
         assert m.name == name and m.map in MAP_KINDS and m.follower in FOLLOWERS
         assert m.followed_by == FOLLOWERS[m.follower]
@@ -380,6 +394,8 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
     assert METHODS["sptm"].map == "sptm" and METHODS["ours_oracle_follow"].map == "camera"
     assert METHODS["lidar_scale"].map == METHODS["lidar_oracle_follow"].map == "lidar"
     assert METHODS["lidar_scale_oracle_re"].map == METHODS["lidar_oracle_cwp"].map == "lidar"
+    assert METHODS["lidar_reg_oracle_follow"].map == METHODS["lidar_reg_oracle_re"].map == \
+        "lidar_reg"
     with pytest.raises(ValueError, match="map kind"):
         Method("sonar", map="sonar", follower="camera")
     with pytest.raises(ValueError, match="drive"):
@@ -399,7 +415,8 @@ def _options(tmp_path, **changed) -> argparse.Namespace:
                "batch": 32, "pruned_fractions": "0.3,0.6,1", "pruned_house": None,
                "pruned_method": "ours", "pruned_trials": 20, "pruned_seed": 0, "seed": 0,
                "data": "data", "workers": 1, "ray": None, "out": str(tmp_path), "rescore": None,
-               "map_config": None, "follower": None, "time_limit": 150.0, "json": False,
+               "map_config": None, "follower": None, "time_limit": 150.0, "odometry": "wheel",
+               "json": False,
                "quiet": True}
     return argparse.Namespace(**{**options, **changed})
 
@@ -481,6 +498,23 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
     assert plan_study.plan_time_limit({"t_max_s": 150.0}) is None   # recorded before it
     code, _, err = run_study("planning", "--time-limit", "0", "--out", tmp_path)
     assert code == 2 and "time" in err and err.count("\n") == 1
+
+    # the cars' odometry likewise: wheel odometry that drifts unless the true pose is asked for
+    seen.clear()
+    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, cfg, **kw:
+                        seen.append(plan_study.navigation_config(cfg)) or run_trials(
+                            job, seeds, jobs=jobs, cfg=cfg, **kw))
+    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none"),
+                   "python studies/planning.py")
+    assert doc["config"]["odometry"] == "wheel" and not seen[0].odometry.is_perfect
+    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none",
+                            odometry="perfect"), "python studies/planning.py")
+    assert doc["config"]["odometry"] == "perfect" and seen[1].odometry.is_perfect
+    assert plan_study.navigation_config({}).odometry.is_perfect      # recorded before it
+    with pytest.raises(TopodrakeError, match="odometry must be one of wheel, perfect"):
+        plan_study.navigation_config({"odometry": "gps"})
+    code, _, err = run_study("planning", "--odometry", "gps", "--out", tmp_path)
+    assert code == 2 and "--odometry" in err
 
 
 def test_a_map_written_before_a_setting_it_reads_is_not_the_default_map():
@@ -667,6 +701,9 @@ def test_the_lidar_ablations_swap_one_network_for_its_oracle():
     scale_cwp, scale_re = networks("lidar_scale")
     cwp, re = networks("lidar_scale_oracle_re", world)
     assert cwp is scale_cwp and isinstance(re, GeometricReachability)
+    reg_cwp, reg_re = networks("lidar_reg")
+    cwp, re = networks("lidar_reg_oracle_re", world)
+    assert cwp is reg_cwp and isinstance(re, GeometricReachability) and re is not reg_re
     cwp, re = networks("oracle_cwp_lidar", world)
     assert isinstance(cwp, AStarOracle) and re is networks("lidar")[1]
     assert re.observation == "lidar"
@@ -804,3 +841,17 @@ def test_the_registration_follower_asks_its_tracked_re_and_its_maps_keep_the_col
     assert reach.name == FOLLOWER_REACH["lidar_reg"] == "reach_lidar_reg_tracked"
     assert SHIPPED["lidar_reg"][0] == "reach_lidar_reg"        # what its maps are built with
     assert networks("lidar")[1].name == SHIPPED["lidar"][0]    # the others ask their maps' RE
+
+
+def test_each_trial_draws_its_own_odometry_errors_from_the_seed_and_house():
+    from topodrake.navigation import plan_study
+    from topodrake.odometry import OdometryConfig, odometry_errors
+
+    a = plan_study.odometry_seeds({"seed": 0}, "test-0", 5)
+    assert a == plan_study.odometry_seeds({"seed": 0}, "test-0", 5)          # repeatable
+    assert a[:3] == plan_study.odometry_seeds({"seed": 0}, "test-0", 3)      # a prefix
+    assert len(set(a)) == 5
+    assert plan_study.odometry_seeds({"seed": 0}, "test-1", 5) != a
+    assert plan_study.odometry_seeds({"seed": 1}, "test-0", 5) != a
+    errors = odometry_errors(OdometryConfig.wheel(), a)
+    assert errors.shape == (5, 3) and len(np.unique(errors[:, 0])) == 5

@@ -175,6 +175,79 @@ def test_drake_diagram_and_engine_drive_the_same_path(box_world):
     np.testing.assert_array_equal(drake.modes[:k], res.modes[0, :k])
 
 
+@pytest.mark.parametrize("manoeuvres,start", [(False, [1.0, 1.8, 0.5]),
+                                               (True, [1.88, 1.92, -0.31])])
+def test_drake_diagram_and_engine_drive_alike_on_odometry_that_drifts(box_world, manoeuvres,
+                                                                       start):
+    """Under odometry that drifts the diagram's follower, the registration
+    C_WP and the manoeuvres read the OdometrySensor as the engine's read its
+    Odometry: the same drive, and not the drive on the true pose."""
+    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+    from topodrake.navigation.follower import FollowerConfig
+    from topodrake.odometry import OdometryConfig
+    from topodrake.rollout import RolloutConfig
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+
+    drift = OdometryConfig(scale_std=0.1, turn_scale_std=0.2, heading_bias_std_deg_per_m=5.0)
+    follower = FollowerConfig(manoeuvres=manoeuvres)
+    sc = NavigationScenario(world="box", camera_enabled=False, t_max_s=40.0, follower=follower,
+                            odometry=drift)
+    route, pol, reach = _box_route(box_world)
+    built = make_navigation_diagram(sc, route, world=box_world, policy=pol, reach=reach)
+    assert built.odometry is not None
+    runner = NavigationRunner(built)
+    drake = runner.run(start, seed=3, odometry_seed=5)
+    engine = NavigationEngine(box_world, pol, reach, NavigationConfig(
+        follower=follower, rollout=RolloutConfig(t_max_s=40.0), odometry=drift))
+    res = engine.run(np.array([start]), [route], odometry_seeds=[5])
+    k = int(res.steps[0])
+    assert k == round(drake.time_s / 0.1) and k > 50
+    dev = np.linalg.norm(drake.poses[:k + 1, :2] - res.poses[0, :k + 1, :2], axis=1)
+    assert dev.max() <= 1e-6
+    assert drake.outcome == NAV_OUTCOMES[int(res.outcome[0])]
+    np.testing.assert_array_equal(drake.modes[:k], res.modes[0, :k])
+    # what the follower read had drifted from the true pose
+    ctx = built.odometry.GetMyContextFromRoot(runner.simulator.get_context())
+    odo = built.odometry.odometry_port.Eval(ctx)[:2]
+    assert np.hypot(*(odo - drake.poses[-1, :2])) > 0.05
+
+
+def test_the_odometry_sensor_integrates_what_the_engine_integrates():
+    """Fed a held state per period, OdometrySensor's output in period k is
+    the odometry pose the engine's Odometry reaches after k periods."""
+    from pydrake.systems.analysis import Simulator
+
+    from topodrake.odometry import OdometryConfig, odometry_along
+    from topodrake.systems.odometry import OdometryFrame, OdometrySensor
+
+    t = np.linspace(0.0, 1.0, 21)
+    poses = np.column_stack([2.0 * t, np.sin(3.0 * t), 0.5 + 3.0 * np.cos(3.0 * t) * 0.3])
+    sensor = OdometrySensor(OdometryConfig.wheel(), 0.1)
+    sim = Simulator(sensor)
+    ctx = sim.get_mutable_context()
+    sensor.set_start(ctx, poses[0], seed=11)
+    expected = odometry_along(poses, OdometryConfig.wheel(), 11)
+    sensor.state_port.FixValue(ctx, np.r_[poses[0], 0.2, 0.1])
+    sim.AdvanceTo(0.05)
+    np.testing.assert_allclose(sensor.odometry_port.Eval(ctx), np.r_[poses[0], 0.2, 0.1])
+    for k in range(1, len(poses)):
+        sim.AdvanceTo(k * 0.1 + 0.05)        # the update at k * 0.1 read period k - 1's state
+        sensor.state_port.FixValue(ctx, np.r_[poses[k], 0.2, 0.1])
+        np.testing.assert_allclose(sensor.odometry_port.Eval(ctx)[:3], expected[k], atol=1e-12)
+    assert np.hypot(*(expected[-1, :2] - poses[-1, :2])) > 1e-3      # it drifted
+    # a waypoint 1 m ahead of the odometry pose lies 1 m ahead of the true pose
+    frame = OdometryFrame()
+    fc = frame.CreateDefaultContext()
+    odo = sensor.odometry_port.Eval(ctx)
+    frame.odometry_port.FixValue(fc, odo)
+    frame.state_port.FixValue(fc, np.r_[poses[-1], 0.0, 0.0])
+    frame.waypoint_in_port.FixValue(fc, odo[:2] + [np.cos(odo[2]), np.sin(odo[2])])
+    np.testing.assert_allclose(frame.waypoint_port.Eval(fc),
+                               poses[-1, :2] + [np.cos(poses[-1, 2]), np.sin(poses[-1, 2])],
+                               atol=1e-12)
+
+
 def test_trajectory_following_study_has_a_lidar_reg_entry(tmp_path):
     import json
 

@@ -28,6 +28,8 @@ FOLLOWERS = {"camera": "camera k5 C_WP + learned camera k5 RE",
              "oracle": "A* oracle C_WP + geometric oracle RE",
              "oracle_cwp": "A* oracle C_WP + learned camera k5 RE",
              "lidar_scale_oracle_re": "lidar k5 C_WP trained at scale + geometric oracle RE",
+             "lidar_reg_oracle_re": "registration C_WP (lidar teach and repeat) + geometric "
+                                    "oracle RE",
              "oracle_cwp_lidar": "A* oracle C_WP + learned lidar k5 RE"}
 #: how a method's plans are driven: followed, followed with replanning in
 #: dead reckoning, or followed one trial at a time past unmapped boxes
@@ -86,6 +88,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("lidar_replan", map="lidar", follower="lidar", drive="replan"),
     Method("lidar_reg_replan", map="lidar_reg", follower="lidar_reg", drive="replan"),
     Method("oracle_full_replan", map="oracle", follower="oracle", oracle=True, drive="replan"),
+    Method("lidar_reg_oracle_follow", map="lidar_reg", follower="oracle", oracle=True),
+    Method("lidar_reg_oracle_re", map="lidar_reg", follower="lidar_reg_oracle_re"),
 )}
 #: the perfect-perception ablations (fast: they run ``--oracle-trials`` trials)
 ORACLE_METHODS = tuple(name for name, m in METHODS.items() if m.oracle)
@@ -104,6 +108,7 @@ def networks(modality: str, world=None):
     ``world`` (``"oracle"``: A* C_WP and geometric RE; ``"oracle_cwp"``: A*
     C_WP and the learned camera RE; ``"oracle_cwp_lidar"``: A* C_WP and the
     learned lidar RE; ``"lidar_scale_oracle_re"``: the C_WP at scale and the
+    geometric RE; ``"lidar_reg_oracle_re"``: the registration C_WP and the
     geometric RE; a key of :data:`SCALE_FOLLOWERS`: that C_WP at scale and
     its map kind's learned RE)."""
     from topodrake.topomap.sources import (SHIPPED, load_networks, shipped_checkpoint,
@@ -117,10 +122,10 @@ def networks(modality: str, world=None):
         learned_re = {"oracle_cwp": "camera", "oracle_cwp_lidar": "lidar"}
         return cwp, (networks(learned_re[modality])[1] if modality in learned_re
                      else GeometricReachability(world, k=5))
-    if modality == "lidar_scale_oracle_re":
+    if modality in ("lidar_scale_oracle_re", "lidar_reg_oracle_re"):
         from topodrake.navigation.evaluate import GeometricReachability
 
-        return networks("lidar_scale")[0], GeometricReachability(world, k=5)
+        return networks(modality[:-len("_oracle_re")])[0], GeometricReachability(world, k=5)
     if modality in SCALE_FOLLOWERS and modality not in _NETWORKS:
         # the C_WP at scale drives the map's hops, rated by the RE the map was built with
         from topodrake.learning.reachability.controllers import controller_policy

@@ -192,6 +192,7 @@ def planning(args, command: str) -> dict:
            "experience_rounds": getattr(args, "experience_rounds", 1),
            "experience_prior_weight": getattr(args, "experience_prior_weight", PRIOR_WEIGHT),
            "map_config": map_config, "follower": follower,
+           "odometry": getattr(args, "odometry", "perfect"),
            "t_max_s": getattr(args, "time_limit", None) or T_MAX_S,
            "plan_within_time": not getattr(args, "paper_plans", False)}
     jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}

@@ -33,14 +33,33 @@ def map_config(cfg: dict):
     return MapConfig(**cfg.get("map_config", {}))
 
 
+#: the odometry models the study's cars can drive with (``cfg["odometry"]``)
+ODOMETRY = ("wheel", "perfect")
+
+
 def navigation_config(cfg: dict):
     """The NavigationConfig the study's cars drive with: the follower of
     ``cfg["follower"]`` (a dict of FollowerConfig fields; the defaults when
-    absent)."""
+    absent) and the odometry of ``cfg["odometry"]`` (:data:`ODOMETRY`;
+    configs recorded before the option drove with the true pose)."""
+    from topodrake.errors import TopodrakeError
     from topodrake.navigation.engine import NavigationConfig
     from topodrake.navigation.follower import FollowerConfig
+    from topodrake.odometry import OdometryConfig
 
-    return NavigationConfig(follower=FollowerConfig(**cfg.get("follower", {})).check())
+    odometry = cfg.get("odometry", "perfect")
+    if odometry not in ODOMETRY:
+        raise TopodrakeError(f"odometry must be one of {', '.join(ODOMETRY)}, got {odometry!r}")
+    return NavigationConfig(follower=FollowerConfig(**cfg.get("follower", {})).check(),
+                            odometry=getattr(OdometryConfig, odometry)())
+
+
+def odometry_seeds(cfg: dict, spec: str, n: int) -> list[int]:
+    """Each trial's odometry seed in a house: from the base seed, the
+    house's name and the trial's index (apart from the trials' own seeds)."""
+    key = zlib.crc32(house_key(spec).encode())
+    return [int(np.random.SeedSequence([cfg.get("seed", 0), key, t, 1]).generate_state(1)[0])
+            for t in range(n)]
 
 
 def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
@@ -163,6 +182,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
         method, spec, world, drives, indices, starts[:first], places, pairs[:first, 1], cfg, tag)
     plan_s = time.perf_counter() - t0
     policy, reach = networks(meth.follower, world)
+    odo_seeds = odometry_seeds(cfg, spec, len(pairs))
     if meth.drive == "obstacles":
         from topodrake.navigation.plan_trials import follow_past_obstacles
 
@@ -172,7 +192,8 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                  for t in range(n)]
         res, boxes = follow_past_obstacles(
             world, lambda w: NavigationEngine(w, policy, reach, navigation_config(cfg)), starts,
-            routes, places[pairs[:, 1]], seeds, cfg["obstacles"], time_limit(cfg), SUCCESS_M)
+            routes, places[pairs[:, 1]], seeds, cfg["obstacles"], time_limit(cfg), SUCCESS_M,
+            odometry_seeds=odo_seeds)
         if bar is not None:
             bar.update(n)
     elif meth.drive == "replan":
@@ -180,14 +201,16 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
 
         engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
         res = follow_routes(engine, starts, routes, places[pairs[:, 1]], time_limit(cfg),
-                            cfg["batch"], SUCCESS_M, replan=replan, schedule=ReplanSchedule(**cfg["replan"]))
+                            cfg["batch"], SUCCESS_M, replan=replan,
+                            schedule=ReplanSchedule(**cfg["replan"]), odometry_seeds=odo_seeds)
         if bar is not None:
             bar.update(len(pairs))
     else:
         engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
         res = follow_routes(engine, starts[:first], routes, places[pairs[:first, 1]],
                             time_limit(cfg), cfg["batch"], SUCCESS_M,
-                            progress=None if bar is None else bar.update)
+                            progress=None if bar is None else bar.update,
+                            odometry_seeds=odo_seeds[:first])
         if rounds > 1:
             routes, prob, false_links, res, round_of = _later_rounds(
                 method, spec, world, drives, indices, pairs, starts, places, cfg, tag, engine,
@@ -267,7 +290,8 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, c
                                           places, pairs[sl, 1], cfg, tag,
                                           experience=(passed, failed))
         out = follow_routes(engine, starts[sl], rs, places[pairs[sl, 1]], time_limit(cfg), cfg["batch"],
-                            SUCCESS_M, progress=None if bar is None else bar.update)
+                            SUCCESS_M, progress=None if bar is None else bar.update,
+                            odometry_seeds=odometry_seeds(cfg, spec, len(pairs))[sl])
         learn(rs, out)
         routes += rs
         prob += list(pr)

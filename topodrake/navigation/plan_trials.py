@@ -130,14 +130,17 @@ class FollowResult:
 
 def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
                   t_max_s: float = T_MAX_S, batch: int = 32, radius: float = SUCCESS_M,
-                  progress=None, replan=None, schedule=None) -> FollowResult:
+                  progress=None, replan=None, schedule=None, odometry_seeds=None) -> FollowResult:
     """Drive cars from ``starts`` along ``routes`` (None: no plan, a failed
     trial that is not driven) toward the goal places ``goals`` (n, 3), in
     engine batches of ``batch``. ``progress(n_done)`` is called per batch.
     With ``replan(trial, pose, excluded_edges, vertex=None) -> Route | None``
     (``vertex``: plan from that map vertex instead of the view at ``pose``)
     cars replan while dead reckoning (:mod:`topodrake.navigation.replan`, on
-    ``schedule``), and the result holds ``plans``, ``returns`` and ``excluded``."""
+    ``schedule``), and the result holds ``plans``, ``returns`` and ``excluded``.
+    ``odometry_seeds`` (n,) draw each trial's odometry errors where the
+    engine's odometry drifts (default: the trial's index), so a trial's
+    odometry does not depend on the batch it drives in."""
     from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
     from topodrake.navigation.replan import Replanner
 
@@ -157,8 +160,9 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
             replanner = Replanner(lambda j, pose, ex, part=part, **kw: replan(part[j], pose, ex,
                                                                                **kw),
                                   [routes[i] for i in part], schedule)
+        seeds = [int(odometry_seeds[i]) if odometry_seeds is not None else i for i in part]
         res = engine.run(np.asarray(starts)[part], [routes[i] for i in part], t_max_s=t_max_s,
-                         watch=watch, replanner=replanner)
+                         watch=watch, replanner=replanner, odometry_seeds=seeds)
         for j, i in enumerate(part):
             if replanner is not None:
                 out.plans[i], out.excluded[i] = replanner.plans[j], replanner.excluded[j]
@@ -178,7 +182,8 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
 
 def follow_past_obstacles(world, make_engine, starts: np.ndarray, routes: list,
                           goals: np.ndarray, seeds, n_boxes: int = 3, t_max_s: float = T_MAX_S,
-                          radius: float = SUCCESS_M) -> tuple[FollowResult, list]:
+                          radius: float = SUCCESS_M,
+                          odometry_seeds=None) -> tuple[FollowResult, list]:
     """Each planned trial alone, in its own copy of ``world`` with
     ``n_boxes`` boxes that the map never saw placed on its planned route
     (:func:`topodrake.world.obstacles.boxes_on_path` over the start, the
@@ -186,7 +191,8 @@ def follow_past_obstacles(world, make_engine, starts: np.ndarray, routes: list,
     ``make_engine(world)`` gives the engine. Returns the follow result and
     each trial's boxes (None without a plan, or where the route leaves no
     room to place them without closing the way: outcome ``no_room``, not
-    driven and left out of the success rate by the caller)."""
+    driven and left out of the success rate by the caller). ``odometry_seeds``
+    as for :func:`follow_routes`."""
     from topodrake.world.obstacles import boxes_on_path, with_boxes
 
     n = len(starts)
@@ -203,7 +209,9 @@ def follow_past_obstacles(world, make_engine, starts: np.ndarray, routes: list,
             out.outcome[i] = "no_room"
             continue
         res = follow_routes(make_engine(with_boxes(world, boxes[i])), np.asarray(starts)[[i]],
-                            [routes[i]], np.asarray(goals)[[i]], t_max_s, 1, radius)
+                            [routes[i]], np.asarray(goals)[[i]], t_max_s, 1, radius,
+                            odometry_seeds=None if odometry_seeds is None else
+                            [odometry_seeds[i]])
         out.outcome[i], out.final_distance_m[i] = res.outcome[0], res.final_distance_m[0]
         out.success[i], out.steps[i] = res.success[0], res.steps[0]
     return out, boxes
