@@ -53,7 +53,9 @@ def test_search_takes_the_first_anchor_where_re_passes_it():
     s, _ = step(FollowerState.initial(2), ev, 4, search_first=True)
     assert list(s.active) == [0, 2] and list(s.visited) == [-1, 1]
     assert s.best_p[0] == pytest.approx(0.85)
-    s, _ = step(FollowerState.initial(2), ev, 4)             # off by default: the best anchor
+    s, _ = step(FollowerState.initial(2), ev, 4)             # on by default
+    assert list(s.active) == [0, 2]
+    s, _ = step(FollowerState.initial(2), ev, 4, search_first=False)   # off: the best anchor
     assert list(s.active) == [2, 2]
 
 

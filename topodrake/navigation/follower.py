@@ -112,7 +112,7 @@ class FollowerConfig:
     p_search: float = 0.8           # RE needed to pick the first active anchor (the paper: 0.92;
                                     # from 2 of 40 jittered starts our RE stays below 0.92 toward
                                     # every anchor, yet C_WP follows the route from there)
-    search_first: bool = False      # Search takes the route's first anchor where RE passes
+    search_first: bool = True       # Search takes the route's first anchor where RE passes
                                     # p_search toward it (a plan links the car's view to it; a
                                     # look-alike further on may rate higher), else the best
     p_follow: float = 0.92          # RE needed to keep following the active anchor
@@ -182,7 +182,7 @@ class FollowerConfig:
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
                    odometry_check=False, scan_fix=False, tracked_sure_m=0.0,
                    reverse_inside_turn=-1.0, skip_inside_first=0, legs_m=0.0,
-                   manoeuvres=False)
+                   manoeuvres=False, search_first=False)
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
