@@ -6,13 +6,14 @@ read what a real car measures rather than its true pose:
 
 * :class:`OdometrySensor` integrates each period's true motion of the held
   car state, scaled and biased by the car's systematic errors
-  (:func:`topodrake.odometry.odometry_increment`), onto its odometry pose.
+  (:func:`topodrake.odometry.odometry_step`), onto its odometry pose.
   Its ``odometry`` output is the held state with the pose replaced by the
   odometry pose (speed and steering as measured).
 * :class:`OdometryFrame` carries a waypoint given in the odometry frame
   (where the follower put it, relative to the odometry pose) over to the
   world frame the RMP drives in, relative to the true pose: the car drives
-  toward the waypoint where it sits relative to itself.
+  toward the waypoint where it sits relative to itself
+  (:func:`topodrake.odometry.odometry_to_world`, as the engine does).
 
 Timing (10 Hz, sample and hold, as the ZeroOrderHold): the output during
 period k composes the committed odometry pose with the increment from the
@@ -27,9 +28,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from topodrake.odometry import OdometryConfig, odometry_errors, odometry_increment
-from topodrake.se2 import compose
-from topodrake.vehicle import car_to_world, world_to_car
+from topodrake.odometry import OdometryConfig, odometry_errors, odometry_step, odometry_to_world
 
 # discrete state: the committed odometry pose, the true pose it belongs to, the car's errors
 _ODO, _TRUE, _ERR = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -62,8 +61,7 @@ class OdometrySensor(LeafSystem):
     def _pose(self, context) -> np.ndarray:
         m = context.get_discrete_state(self.memory).get_value()
         held = np.asarray(self.state_port.Eval(context))[None, :3]
-        inc = odometry_increment(m[None, _TRUE], held, m[None, _ERR])
-        return compose(m[None, _ODO], inc)[0]
+        return odometry_step(m[None, _ODO], m[None, _TRUE], held, m[None, _ERR])[0]
 
     def _out(self, context, output: BasicVector) -> None:
         held = np.asarray(self.state_port.Eval(context))
@@ -94,4 +92,4 @@ class OdometryFrame(LeafSystem):
         wp = np.asarray(self.waypoint_in_port.Eval(context))[None, None]
         odo = np.asarray(self.odometry_port.Eval(context))[None]
         car = np.asarray(self.state_port.Eval(context))[None]
-        output.SetFromVector(car_to_world(world_to_car(wp, odo), car)[0, 0])
+        output.SetFromVector(odometry_to_world(wp, odo, car)[0, 0])

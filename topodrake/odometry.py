@@ -80,6 +80,22 @@ def odometry_increment(before: np.ndarray, after: np.ndarray, errors: np.ndarray
                             d[:, 2] * (1 + turn) + bias * step])
 
 
+def odometry_step(odometry: np.ndarray, before: np.ndarray, after: np.ndarray,
+                  errors: np.ndarray) -> np.ndarray:
+    """The odometry poses (N, 3) after the true motion from ``before`` to
+    ``after`` (N, 3), measured with ``errors``, from ``odometry`` (N, 3)."""
+    return compose(odometry, odometry_increment(before, after, errors))
+
+
+def odometry_to_world(points: np.ndarray, odometry: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """Points (N, M, 2) given in the odometry frame, where they lie in the
+    world relative to the cars' true states (N, >= 3): as far and in the
+    same direction from the car as from its odometry pose."""
+    from topodrake.vehicle import car_to_world, world_to_car
+
+    return car_to_world(world_to_car(points, odometry), true)
+
+
 class Odometry:
     """The odometry poses of N cars: they start at the cars' true poses and
     integrate each period's measured increment (:meth:`update`)."""
@@ -97,8 +113,8 @@ class Odometry:
         if self.perfect:
             self.poses[cars] = true_poses
         else:
-            inc = odometry_increment(self.true[cars], true_poses, self.errors[cars])
-            self.poses[cars] = compose(self.poses[cars], inc)
+            self.poses[cars] = odometry_step(self.poses[cars], self.true[cars], true_poses,
+                                             self.errors[cars])
         self.true[cars] = true_poses
 
 

@@ -40,9 +40,9 @@ from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, 
                                            FollowerConfig, FollowerState, follower_step)
 from topodrake.navigation.manoeuvre import Manoeuvres
 from topodrake.navigation.replan import kept_features
-from topodrake.odometry import Odometry, OdometryConfig
+from topodrake.odometry import Odometry, OdometryConfig, odometry_to_world
 from topodrake.rollout import RolloutConfig, standard_normal_noise
-from topodrake.vehicle import car_to_world, in_collision, vehicle_step, world_to_car
+from topodrake.vehicle import in_collision, vehicle_step
 
 RUNNING, NAV_REACHED, NAV_COLLISION, NAV_TIMEOUT, NAV_SEARCH_FAILED, NAV_DR_GAVE_UP, NAV_DIVERGED = \
     range(7)
@@ -201,8 +201,7 @@ class NavigationEngine:
             if manoeuvres is not None:
                 out.waypoint = manoeuvres.step(cars, odo[:, :3], out.waypoint, ranges)
             if not odometry.perfect:        # the waypoint, given in the odometry frame
-                out.waypoint = car_to_world(world_to_car(out.waypoint[:, None], odo),
-                                            st)[:, 0]
+                out.waypoint = odometry_to_world(out.waypoint[:, None], odo, st)[:, 0]
             fs.track = ev.track
             follower.put(cars, fs)
             if replanner is not None:

@@ -214,7 +214,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
         if rounds > 1:
             routes, prob, false_links, res, round_of = _later_rounds(
                 method, spec, world, drives, indices, pairs, starts, places, cfg, tag, engine,
-                routes, prob, false_links, res, rounds, bar)
+                routes, prob, false_links, res, rounds, bar, odo_seeds)
     key = house_key(spec)
     records = [{"house": key, "method": method, "map": tag, "trial": t,
                 "start_place": int(a), "goal_place": int(b),
@@ -263,9 +263,10 @@ def round_bounds(n: int, rounds: int) -> np.ndarray:
 
 
 def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, cfg, tag, engine,
-                  routes, prob, false_links, res, rounds, bar):
+                  routes, prob, false_links, res, rounds, bar, odo_seeds):
     """Rounds 2.. of a method's trials: each planned with every earlier
-    round's drives folded into the map's edges. Returns the whole run's
+    round's drives folded into the map's edges (``odo_seeds``: every
+    trial's odometry seed). Returns the whole run's
     routes, probabilities, false links, follow result and each trial's round."""
     from topodrake.navigation.plan_trials import SUCCESS_M, FollowResult, follow_routes
     from topodrake.navigation.replan import route_traversals
@@ -291,7 +292,7 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, c
                                           experience=(passed, failed))
         out = follow_routes(engine, starts[sl], rs, places[pairs[sl, 1]], time_limit(cfg), cfg["batch"],
                             SUCCESS_M, progress=None if bar is None else bar.update,
-                            odometry_seeds=odometry_seeds(cfg, spec, len(pairs))[sl])
+                            odometry_seeds=odo_seeds[sl])
         learn(rs, out)
         routes += rs
         prob += list(pr)
