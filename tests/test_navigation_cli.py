@@ -25,6 +25,14 @@ def test_navigate_refuses_bad_numbers(capsys, extra, message):
     assert code == 2 and message in err and len(err.splitlines()) == 1
 
 
+def test_navigate_refuses_an_unknown_odometry_model(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["navigate", "test-0", "--start", "16.4,14.9,2.95", "--goal", "3.0,23.6,-0.8",
+              "--odometry", "gps"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and "--odometry: invalid choice: 'gps'" in err[-1]
+
+
 def test_navigate_refuses_a_bad_pose(capsys):
     code = main(["navigate", "test-0", "--start", "16.4,14.9", "--goal", "3.0,23.6,-0.8"])
     err = capsys.readouterr().err
@@ -41,15 +49,19 @@ def test_demo_refuses_bad_places(capsys):
     assert code == 2 and "--start-place" in capsys.readouterr().err
 
 
-def test_navigate_json_prints_the_outcome_keys(capsys, tmp_path):
-    """A short drive of the learned camera follower (time limit 2 s)."""
+@pytest.mark.parametrize("odometry", [None, "perfect"])
+def test_navigate_json_prints_the_outcome_keys(capsys, tmp_path, odometry):
+    """A short drive of the learned camera follower (time limit 2 s), on
+    drifting wheel odometry by default."""
     plot = tmp_path / "nav.png"
     code = main(["navigate", "test-0", "--start", "16.42,14.88,2.95", "--goal", "8.22,14.08,-0.2",
-                 "--t-max", "2", "--json", "--plot", str(plot)])
+                 "--t-max", "2", "--json", "--plot", str(plot)]
+                + ([] if odometry is None else ["--odometry", odometry]))
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert code == 3                        # a drive that did not reach its goal
     assert set(out) == {"outcome", "time_s", "probability", "anchors", "distance_m",
-                        "distance_to_goal_m"}
+                        "distance_to_goal_m", "odometry"}
+    assert out["odometry"] == (odometry or "wheel")
     assert out["outcome"] == "timeout" and out["time_s"] == pytest.approx(2.0)
     assert out["distance_to_goal_m"] > 1.0 and out["anchors"] >= 2
     assert 0.0 < out["probability"] <= 1.0 and out["distance_m"] > 0.1
@@ -196,7 +208,7 @@ def test_the_default_demo_plans_on_the_shipped_map_and_reaches(capsys, tmp_path,
     assert len(lines) == 1
     out = json.loads(lines[0])
     assert code == 0 and out["outcome"] == "reached" and out["distance_to_goal_m"] <= 0.54
-    assert out["map"].endswith("checkpoints/demo_map/map.tdmap")
+    assert out["map"].endswith("checkpoints/demo_map/map.tdmap") and out["odometry"] == "wheel"
     assert out["controller"] == "registration" and 0.0 < out["probability"] < 1.0
     assert out["anchors"] > 10 and (tmp_path / "demo" / "plan.png").stat().st_size > 10_000
     # with a controller named the demo follows one expert drive, as before

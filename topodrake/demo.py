@@ -111,24 +111,28 @@ DEMO_WORLD = "test-0"
 def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_place: int = 6,
                      out_dir: str = "out/demo", seed: int = 0, noise_std: float = 0.0,
                      p: float = 0.99, controller: str = DEMO_CONTROLLER,
-                     reach: str | None = None, meshcat: bool = True, map_path=None) -> dict:
+                     reach: str | None = None, meshcat: bool = True, map_path=None,
+                     odometry: str = "wheel") -> dict:
     """The learned follower between two places: a plan on ``map_path``
     (followed by the controller it was built for), or without a map a chain
     of anchors from one expert drive, followed by ``controller`` (a C_WP
     checkpoint or ``"registration"``) and ``reach`` (default: the RE
-    shipped for it); returns the written files
+    shipped for it), on ``odometry`` (a model of
+    :data:`topodrake.odometry.ODOMETRY_MODELS`, its errors drawn from ``seed``); returns the written files
     and a summary (outcome, times, real-time factor warm and cold)."""
     from topodrake.errors import TopodrakeError
     from topodrake.fileio import atomic_write_bytes
     from topodrake.navigation.cli import chain_from_expert, plan_on_map, success_chance
     from topodrake.navigation.drive import drive_route, plot_drive
     from topodrake.navigation.outcomes import SUCCESS_M, drive_outcome, goal_distance
+    from topodrake.odometry import odometry_model
     from topodrake.outputs import write_kept
     from topodrake.systems.navigation import NavigationScenario, load_networks
     from topodrake.topomap.mapfile import read_map_meta
     from topodrake.world import load_world
 
     wall = time.perf_counter()
+    odometry_cfg = odometry_model(odometry)
     import torch
 
     if reach is None and map_path is None:
@@ -165,7 +169,7 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
         _, route = chain_from_expert(world_name, start, goal, policy, reach_net, p)
     map_s = time.perf_counter() - t0
     scenario = NavigationScenario(world=world_name, noise_std=noise_std, seed=seed,
-                                  controller=controller, reach=reach,
+                                  controller=controller, reach=reach, odometry=odometry_cfg,
                                   camera_enabled=policy.observation == "camera")
     out = Path(out_dir)
     files: dict[str, Path] = {}
@@ -192,7 +196,7 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
                "controller": getattr(policy, "name", None)
                or ("the map's" if map_path else str(controller)),
                "world": world.name, "start_place": start_place,
-               "goal_place": goal_place, "seed": seed, "noise": noise_std,
+               "goal_place": goal_place, "seed": seed, "noise": noise_std, "odometry": odometry,
                "map_s": round(map_s, 2), "startup_s": round(result.startup_s, 2),
                "realtime_factor": round(result.time_s / max(result.wall_time_s, 1e-9), 1),
                "realtime_factor_cold": round(result.time_s / max(result.wall_time_s
@@ -244,7 +248,7 @@ def cmd_demo(args) -> int:
         extra = {"controller": args.controller} if args.controller else {}
         result = run_learned_demo(args.world, args.start_place, args.goal_place, args.out,
                                   args.seed, args.noise or 0.0, map_path=map_path,
-                                  reach=args.reach, **extra)
+                                  reach=args.reach, odometry=args.odometry, **extra)
     if args.json:
         print(json.dumps(result["summary"]))
         return exit_status(result["summary"]["outcome"])
@@ -278,6 +282,7 @@ def demo_map(args):
 
 def add_demo_parser(sub) -> None:
     from topodrake.navigation.cli import EXIT_HELP
+    from topodrake.odometry import ODOMETRY_MODELS
 
     demo = sub.add_parser("demo", help="the learned follower drives a plan between two "
                                        "places in the Drake diagram (--expert: the expert drives)",
@@ -296,6 +301,9 @@ def add_demo_parser(sub) -> None:
     demo.add_argument("--seed", type=int, default=0, help="seed of the actuation noise (default: 0)")
     demo.add_argument("--noise", type=float, default=None,
                       help="actuation noise std, 0 = off (default: 0; with --expert 0.33)")
+    demo.add_argument("--odometry", choices=ODOMETRY_MODELS, default="wheel",
+                      help="what the learned follower's odometry reads: wheel odometry that "
+                           "drifts (errors drawn from --seed) or the true pose (default: wheel)")
     demo.add_argument("--expert", action="store_true",
                       help="drive the A* expert instead of the learned follower (default: off)")
     demo.add_argument("--meshcat", action="store_true",

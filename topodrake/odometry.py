@@ -55,6 +55,17 @@ class OdometryConfig:
         return self
 
 
+#: the odometry models a drive can read, by name (studies, the demo, ``navigate``)
+ODOMETRY_MODELS = ("wheel", "perfect")
+
+
+def odometry_model(name: str) -> OdometryConfig:
+    """The named odometry model (:data:`ODOMETRY_MODELS`)."""
+    if name not in ODOMETRY_MODELS:
+        raise TopodrakeError(f"odometry must be one of {', '.join(ODOMETRY_MODELS)}, got {name!r}")
+    return getattr(OdometryConfig, name)()
+
+
 def odometry_errors(config: OdometryConfig, seeds) -> np.ndarray:
     """(N, 3) per-car errors (distance scale, turn scale, heading bias rad/m)
     drawn from each car's seed."""

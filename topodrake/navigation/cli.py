@@ -26,6 +26,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.navigation.plan_trials import SUCCESS_M
+from topodrake.odometry import ODOMETRY_MODELS, odometry_model
 
 DEFAULT_CONTROLLER = "checkpoints/camera_k5/checkpoint.pt"
 DEFAULT_REACH = "checkpoints/reach_camera_k5/checkpoint.pt"
@@ -240,7 +241,7 @@ def cmd_navigate(args) -> int:
             world, route = chain_from_expert(args.map, start, goal, policy, reach, args.p)
     world.check_pose(start, "start", free=False)
     scenario = NavigationScenario(world=args.map, noise_std=args.noise, seed=args.seed,
-                                  t_max_s=args.t_max,
+                                  t_max_s=args.t_max, odometry=odometry_model(args.odometry),
                                   camera_enabled=policy.observation == "camera")
     replanner = None
     if planner is not None and args.replan:
@@ -266,7 +267,7 @@ def cmd_navigate(args) -> int:
     out = {"outcome": outcome, "time_s": round(result.time_s, 2),
            "probability": round(first_p, 4), "anchors": anchors,
            "distance_m": round(result.distance_m, 2), "distance_to_goal_m": round(goal_m, 3),
-           **extra}
+           "odometry": args.odometry, **extra}
     if args.json:
         print(json.dumps(out), flush=True)
     else:
@@ -344,6 +345,9 @@ def add_navigate_parser(sub) -> None:
     nv.add_argument("--noise", type=float, default=0.0,
                     help="actuation noise std, 0 = off (default: 0)")
     nv.add_argument("--seed", type=int, default=0, help="seed of the actuation noise (default: 0)")
+    nv.add_argument("--odometry", choices=ODOMETRY_MODELS, default="wheel",
+                    help="what the follower's odometry reads: wheel odometry that drifts "
+                         "(errors drawn from --seed) or the true pose (default: wheel)")
     nv.add_argument("--t-max", type=float, default=150.0,
                     help="time limit of the drive in s; on a map the plan is the path most "
                          "likely to be driven within it (default: 150)")

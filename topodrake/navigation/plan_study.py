@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.navigation.plan_methods import METHODS, networks
+from topodrake.odometry import ODOMETRY_MODELS as ODOMETRY  # the models the cars can drive with
 from topodrake.topomap.map_cache import DEMO_SEED, get_map, house_drives, house_key
 
 SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
@@ -33,25 +34,17 @@ def map_config(cfg: dict):
     return MapConfig(**cfg.get("map_config", {}))
 
 
-#: the odometry models the study's cars can drive with (``cfg["odometry"]``)
-ODOMETRY = ("wheel", "perfect")
-
-
 def navigation_config(cfg: dict):
     """The NavigationConfig the study's cars drive with: the follower of
     ``cfg["follower"]`` (a dict of FollowerConfig fields; the defaults when
     absent) and the odometry of ``cfg["odometry"]`` (:data:`ODOMETRY`;
     configs recorded before the option drove with the true pose)."""
-    from topodrake.errors import TopodrakeError
     from topodrake.navigation.engine import NavigationConfig
     from topodrake.navigation.follower import FollowerConfig
-    from topodrake.odometry import OdometryConfig
+    from topodrake.odometry import odometry_model
 
-    odometry = cfg.get("odometry", "perfect")
-    if odometry not in ODOMETRY:
-        raise TopodrakeError(f"odometry must be one of {', '.join(ODOMETRY)}, got {odometry!r}")
     return NavigationConfig(follower=FollowerConfig(**cfg.get("follower", {})).check(),
-                            odometry=getattr(OdometryConfig, odometry)())
+                            odometry=odometry_model(cfg.get("odometry", "perfect")))
 
 
 def odometry_seeds(cfg: dict, spec: str, n: int) -> list[int]:
