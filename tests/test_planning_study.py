@@ -808,11 +808,14 @@ def test_a_cached_map_of_another_re_is_rebuilt_not_refused(tmp_path, monkeypatch
     assert cached_s == 0.0                          # the rebuilt map is reused
 
 
-def test_a_camera_map_keeps_its_drives_lidar_scans_and_one_cached_without_is_rebuilt(
-        tmp_path, monkeypatch):
-    """A camera map built for a study keeps each kept frame's lidar scan as
-    the drive's lidar took it; a cached camera map without scans is built
-    again rather than planned without scan fixes."""
+@pytest.mark.parametrize("modality", ["camera", "oracle"])
+def test_a_map_keeps_its_drives_lidar_scans_and_one_cached_without_is_rebuilt(
+        tmp_path, monkeypatch, modality):
+    """A camera or pose oracle map built for a study keeps each kept frame's
+    lidar scan as the drive's lidar took it (the route tracker's scan fixes;
+    a route planned on it carries them); a cached map without scans is
+    built again rather than planned without scan fixes."""
+    from topodrake.topomap.plan import plan_path
     from types import SimpleNamespace
 
     from topodrake.sensing.lidar import Lidar
@@ -823,12 +826,22 @@ def test_a_camera_map_keeps_its_drives_lidar_scans_and_one_cached_without_is_reb
     world = load_world("test-0")
     drive = SimpleNamespace(poses=np.array([[1.0, 1.0, 0.0], [1.3, 1.0, 0.0], [1.6, 1.0, 0.0]]))
     monkeypatch.setattr(map_cache, "DEMO_SEED", 0)
-    built, _ = map_cache.get_map("test-0", world, "camera", [drive], [0], tmp_path, "all", False)
+    built, _ = map_cache.get_map("test-0", world, modality, [drive], [0], tmp_path, "all", False)
     np.testing.assert_allclose(built.bank.scans, Lidar(world).scan(built.bank.poses))
+    if modality == "oracle":
+        poses = built.bank.poses
+        goal = poses[-1] + [0.1, 0.05, 0.1]
+        route = plan_path(built, poses[0], goal, start_pose=poses[0], goal_pose=goal).route
+        assert route.scans is not None and np.isfinite(route.scans[:-1]).all()
+        # every hop carries a leg, the goal link one from the poses the oracle observes
+        from topodrake.se2 import relative
+
+        assert np.isfinite(route.legs).all()
+        np.testing.assert_allclose(route.legs[-1], relative(route.poses[-2], goal)[0], atol=1e-9)
     path = next(tmp_path.rglob("*.tdmap"))
     built.bank._scans = type(built.bank._scans)()             # as written before scans were kept
     save_map(built, path)
-    again, build_s = map_cache.get_map("test-0", world, "camera", [drive], [0], tmp_path, "all",
+    again, build_s = map_cache.get_map("test-0", world, modality, [drive], [0], tmp_path, "all",
                                        False)
     assert build_s > 0 and again.bank.scans is not None
 

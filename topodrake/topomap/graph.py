@@ -54,7 +54,8 @@ LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False
 LIDAR_ONLY = ("scan_match_cross", "reuse_pinned")
 #: settings only a camera map reads
 CAMERA_ONLY = ("camera_scans", "camera_legs", "camera_junction_scans")
-#: settings only maps that keep lidar scans read (a pose oracle map keeps none)
+#: settings only maps that place joins by lidar scans read (a pose oracle map keeps its
+#: drives' scans for the route tracker only)
 SCANS_ONLY = ("cross_legs",)
 #: settings only planning reads, not building (a map is built alike whatever they say)
 PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "start_near_m",

@@ -19,6 +19,8 @@ import zlib
 from dataclasses import asdict, replace
 from pathlib import Path
 
+import numpy as np
+
 from topodrake.errors import TopodrakeError
 
 DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (noise-free)
@@ -122,22 +124,32 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
                                  f"{key}; delete it to rebuild")
         # the config as written (settings a map predates read as LATER_DEFAULTS)
         same = same_config(read_map_meta(path).get("config"), config, **_kind(modality))
-        scanned = m.modality != "camera" or m.bank.scans is not None
+        scanned = m.modality == "lidar" or m.bank.scans is not None
         if same and scanned:
             # planning settings are the caller's, not the file's
             m.config = replace(m.config, **{k: getattr(config, k) for k in PLAN_ONLY})
             return m, 0.0
         why = "with another map config" if not same else \
-            "before camera maps kept their lidar scans"
+            "before camera and pose oracle maps kept their lidar scans"
         print(f"{path} was built {why}; rebuilding it", file=sys.stderr)
     t0 = time.perf_counter()
     m = TopoMap(scorer, default_embedding(scorer.observation), config, world=spec)
-    items = [(drive_observations(world, scorer, drives[i].poses), drives[i].poses, n)
+    items = [(drive_observations(world, scorer, drives[i].poses), drives[i].poses, n,
+              oracle_scans(world, drives[i].poses))
              for i, n in zip(indices, names)] if modality == "oracle" else \
         _Lazy(world, scorer, drives, indices, names)
     build_map(m, items, progress=progress, desc=f"map {key} {modality} {tag}")
     save_map(m, path)
     return m, time.perf_counter() - t0
+
+
+def oracle_scans(world, poses: np.ndarray) -> np.ndarray:
+    """The lidar scans (T, beams) a pose oracle map keeps of a drive: the
+    route tracker's scan fixes, which every learned system's maps give it,
+    so that perfect perception is not short of them."""
+    from topodrake.sensing.lidar import Lidar
+
+    return Lidar(world).scan(np.asarray(poses, np.float64).reshape(-1, 3))
 
 
 def _same_identity(path: Path, scorer) -> bool:

@@ -46,7 +46,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.navigation.route import Route
-from topodrake.se2 import invert
+from topodrake.se2 import invert, relative
 from topodrake.topomap.graph import EDGE_KINDS, TopoMap
 from topodrake.topomap.route_time import DrivingTime, edge_metres, path_metres
 from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
@@ -207,6 +207,25 @@ def _link_choices(topomap: TopoMap, links_s: list, links_g: list, scans) -> list
     tries = sorted(((i, j) for i in range(len(starts)) for j in range(len(goals))),
                    key=lambda ij: (ij[0] + ij[1], ij))
     return [(starts[i], goals[j]) for i, j in tries]
+
+
+def _pose_legs(topomap: TopoMap, vertices: list[int], goal_pose, legs: np.ndarray,
+               leg_paths: np.ndarray) -> None:
+    """Sets the hops without a leg (joins, the goal link) of a pose oracle
+    map's route in place from the poses it observes, their paths a straight
+    line: perfect perception places a join exactly, as a lidar map places
+    it by registering its scans."""
+    from topodrake.navigation.route import LEG_POINTS
+
+    if not vertices:
+        return
+    poses = np.vstack([topomap.bank.observations[topomap.centers(vertices)].reshape(-1, 3),
+                       np.asarray(goal_pose, np.float64).reshape(1, 3)])
+    hops = relative(poses[:-1], poses[1:])
+    missing = ~np.isfinite(legs).all(axis=1)
+    legs[missing] = hops[missing]
+    line = np.linspace(0.0, 1.0, LEG_POINTS)[None, :, None]
+    leg_paths[missing] = line * hops[missing][:, None]
 
 
 def _goal_leg(topomap: TopoMap, vertices: list[int], goal_scan, legs: np.ndarray,
@@ -387,6 +406,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         legs, leg_paths = m.legs(vertices + [GOAL])
         goal_scan = scans[1] if scans is not None else goal_obs if m.modality == "lidar" else None
         _goal_leg(m, vertices, goal_scan, legs, leg_paths)
+        if m.modality == "pose" and goal_pose is not None:
+            _pose_legs(m, vertices, goal_pose, legs, leg_paths)
         route = Route(
             contexts=np.concatenate([m.bank.observations[m.contexts(vertices)],
                                      goal_context[None]]) if vertices else goal_context[None],
