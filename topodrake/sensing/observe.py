@@ -23,8 +23,13 @@ def camera_scans(world, modality: str, poses: np.ndarray, lidar=None) -> np.ndar
     the route tracker (``lidar``: the car's LidarConfig, default the
     default); None for other modalities (a lidar car's observations are its
     scans, a pose oracle takes none)."""
-    if modality != "camera":
-        return None
+    return lidar_scans(world, poses, lidar) if modality == "camera" else None
+
+
+def lidar_scans(world, poses: np.ndarray, lidar=None) -> np.ndarray:
+    """The lidar scans (N, beams) taken at ``poses`` (N, 3) (``lidar``: a
+    LidarConfig, default the default): what camera and pose oracle maps
+    keep beside their observations for the route tracker."""
     from topodrake.sensing.lidar import Lidar
 
     return Lidar(world, lidar).scan(np.asarray(poses, np.float64).reshape(-1, 3))

@@ -19,8 +19,6 @@ import zlib
 from dataclasses import asdict, replace
 from pathlib import Path
 
-import numpy as np
-
 from topodrake.errors import TopodrakeError
 
 DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (noise-free)
@@ -132,24 +130,19 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
         why = "with another map config" if not same else \
             "before camera and pose oracle maps kept their lidar scans"
         print(f"{path} was built {why}; rebuilding it", file=sys.stderr)
+    from topodrake.sensing.observe import lidar_scans
+
     t0 = time.perf_counter()
     m = TopoMap(scorer, default_embedding(scorer.observation), config, world=spec)
+    # a pose oracle map keeps its drives' scans too: the route tracker's scan
+    # fixes, which the learned maps give it, so perfect perception has them
     items = [(drive_observations(world, scorer, drives[i].poses), drives[i].poses, n,
-              oracle_scans(world, drives[i].poses))
+              lidar_scans(world, drives[i].poses))
              for i, n in zip(indices, names)] if modality == "oracle" else \
         _Lazy(world, scorer, drives, indices, names)
     build_map(m, items, progress=progress, desc=f"map {key} {modality} {tag}")
     save_map(m, path)
     return m, time.perf_counter() - t0
-
-
-def oracle_scans(world, poses: np.ndarray) -> np.ndarray:
-    """The lidar scans (T, beams) a pose oracle map keeps of a drive: the
-    route tracker's scan fixes, which every learned system's maps give it,
-    so that perfect perception is not short of them."""
-    from topodrake.sensing.lidar import Lidar
-
-    return Lidar(world).scan(np.asarray(poses, np.float64).reshape(-1, 3))
 
 
 def _same_identity(path: Path, scorer) -> bool:

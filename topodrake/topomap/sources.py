@@ -285,6 +285,6 @@ def view_scans(world, topomap, poses: np.ndarray) -> np.ndarray | None:
     (:func:`topodrake.topomap.plan.link_scans`); None for other maps."""
     if topomap.modality != "camera" or topomap.bank.scans is None:
         return None
-    from topodrake.sensing.observe import camera_scans
+    from topodrake.sensing.observe import lidar_scans
 
-    return camera_scans(world, "camera", poses)
+    return lidar_scans(world, poses)
