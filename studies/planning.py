@@ -294,6 +294,10 @@ def main(argv=None) -> int:
                     help="run no trials: fit the follower's driving time (the planner's model "
                          "of how long a plan takes) to the trials recorded in these files, "
                          "per method and over all, and print it")
+    ap.add_argument("--trace", type=at.indices, metavar="TRIALS",
+                    help="drive these trials (indices, e.g. 7,68) of the one method and house "
+                         "given, each alone, and write each one's timeline (trace.json) and "
+                         "path (trace-<trial>.png) into --out; prints the timelines")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
@@ -348,7 +352,45 @@ def _fit_driving_time(args) -> int:
     return 0
 
 
+def _trace(args) -> int:
+    """Some trials of one method in one house driven alone, their timelines
+    written and printed."""
+    from topodrake.errors import TopodrakeError
+    from topodrake.navigation.plan_results import study_config
+    from topodrake.navigation.plan_trace import plot_trace, trace_trials
+    from topodrake.world import load_world
+
+    cfg, specs, _, _ = study_config(args)
+    if len(specs) != 1 or len(cfg["methods"]) != 1:
+        raise TopodrakeError("--trace needs one house (--houses H or --world W) and one method "
+                             f"(--methods M), got {len(specs)} and {len(cfg['methods'])}")
+    traces = trace_trials(specs[0], cfg["methods"][0], args.trace, cfg)
+    out, world = Path(args.out), load_world(specs[0])
+    doc = {"command": _command(args), "config": {k: v for k, v in cfg.items() if k != "quiet"},
+           "traces": [t.to_json() for t in traces]}
+    atomic_write_json(out / "trace.json", doc)
+    for t in traces:
+        plot_trace(world, t, out / f"trace-{t.trial}.png")
+    if args.json:
+        print(json.dumps(doc["traces"]))
+        return 0
+    for t in doc["traces"]:
+        print(f"trial {t['trial']}: place {t['start_place']} -> {t['goal_place']}, "
+              f"{len(t['plan_vertices'])} anchors (p {t['plan_probability']:.3f}), "
+              f"{t['outcome']} {t['final_distance_m']:.2f} m from the goal after "
+              f"{t['driven_s']} s")
+        for seg in t["segments"]:
+            a0, a1 = seg["anchors"]
+            x, y, th = seg["end_pose"]
+            print(f"  {seg['from_s']:6.1f}-{seg['to_s']:6.1f} s  {seg['mode']:<15} anchors "
+                  f"{a0:>3}..{a1:<3} ends at ({x:.2f}, {y:.2f}, {th:+.2f})")
+    print(f"wrote {out / 'trace.json'} and {len(traces)} plots", file=sys.stderr)
+    return 0
+
+
 def _run(args) -> int:
+    if args.trace:
+        return _trace(args)
     if args.fit_driving_time:
         return _fit_driving_time(args)
     if args.paired:

@@ -48,6 +48,17 @@ count0 = _parsed(lambda name, v: validate.check_count(name, v, 0), _int, "count0
 seed = _parsed(validate.check_seed, _int, "seed")
 
 
+def indices(text: str) -> list[int]:
+    """A comma-separated list of indices >= 0 (``"7,68"``), at least one."""
+    try:
+        out = [_int(t.strip()) for t in text.split(",") if t.strip()]
+    except ValueError:
+        out = []
+    if not out or min(out) < 0:
+        raise argparse.ArgumentTypeError(f"expected indices >= 0 separated by commas, got {text!r}")
+    return out
+
+
 _ROLE = re.compile(r":[\w:]+:`~?([^`]+)`")
 _LITERAL = re.compile(r"``([^`]+)``|`([^`]+)`")
 

@@ -166,26 +166,21 @@ def _check(args) -> tuple[list[str], list[str], list[str], list[float]]:
     return methods, specs, keys, fractions
 
 
-def planning(args, command: str) -> dict:
-    """The study's result document for its options ``args`` (the study's
-    command line, parsed); ``command`` is recorded."""
-    from topodrake.learning.checkpoint import git_revision
-    from topodrake.montecarlo import run_trials
-    from topodrake.navigation.plan_trials import SUCCESS_M, T_MAX_S, pruned_ratio, summarize
+def study_config(args) -> tuple[dict, list[str], list[str], list[float]]:
+    """(the trials' config, house specs, house keys, pruned fractions) of
+    the study's options ``args``, checked."""
+    from topodrake.navigation.plan_trials import T_MAX_S
     from topodrake.navigation.replan import ReplanSchedule
-
     from topodrake.topomap.map_cli import load_map_config
 
-    t0 = time.perf_counter()
-    code = {"git_revision": git_revision(), "local_changes": local_changes()}   # what runs
     methods, specs, keys, fractions = _check(args)
     map_config = asdict(load_map_config(getattr(args, "map_config", None)))
     follower = follower_fields(getattr(args, "follower", None))
-    pruned_spec = args.pruned_house or specs[0]
     cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
            "oracle_trials": args.oracle_trials,
            "trajectories": args.trajectories, "batch": args.batch, "seed": args.seed,
-           "replan": asdict(ReplanSchedule.from_json(getattr(args, "replan", None))), "obstacle_trials": args.obstacle_trials,
+           "replan": asdict(ReplanSchedule.from_json(getattr(args, "replan", None))),
+           "obstacle_trials": args.obstacle_trials,
            "obstacles": args.obstacles,
            "pruned_fractions": fractions, "pruned_method": args.pruned_method,
            "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed,
@@ -195,6 +190,21 @@ def planning(args, command: str) -> dict:
            "odometry": getattr(args, "odometry", "perfect"),
            "t_max_s": getattr(args, "time_limit", None) or T_MAX_S,
            "plan_within_time": not getattr(args, "paper_plans", False)}
+    return cfg, specs, keys, fractions
+
+
+def planning(args, command: str) -> dict:
+    """The study's result document for its options ``args`` (the study's
+    command line, parsed); ``command`` is recorded."""
+    from topodrake.learning.checkpoint import git_revision
+    from topodrake.montecarlo import run_trials
+    from topodrake.navigation.plan_trials import SUCCESS_M, pruned_ratio, summarize
+
+    t0 = time.perf_counter()
+    code = {"git_revision": git_revision(), "local_changes": local_changes()}   # what runs
+    cfg, specs, keys, fractions = study_config(args)
+    methods = cfg["methods"]
+    pruned_spec = args.pruned_house or specs[0]
     jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
     results = run_trials(house_job, list(jobs), workers=args.workers, ray_address=args.ray,
                          progress=not args.quiet and len(jobs) > 1, desc="houses",

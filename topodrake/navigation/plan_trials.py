@@ -130,7 +130,8 @@ class FollowResult:
 
 def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
                   t_max_s: float = T_MAX_S, batch: int = 32, radius: float = SUCCESS_M,
-                  progress=None, replan=None, schedule=None, odometry_seeds=None) -> FollowResult:
+                  progress=None, replan=None, schedule=None, odometry_seeds=None,
+                  runs: list | None = None) -> FollowResult:
     """Drive cars from ``starts`` along ``routes`` (None: no plan, a failed
     trial that is not driven) toward the goal places ``goals`` (n, 3), in
     engine batches of ``batch``. ``progress(n_done)`` is called per batch.
@@ -140,7 +141,9 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     ``schedule``), and the result holds ``plans``, ``returns`` and ``excluded``.
     ``odometry_seeds`` (n,) draw each trial's odometry errors where the
     engine's odometry drifts (default: the trial's index), so a trial's
-    odometry does not depend on the batch it drives in."""
+    odometry does not depend on the batch it drives in. ``runs``: a list
+    that gets each batch's (trial indices, engine
+    :class:`~topodrake.navigation.engine.NavigationResult`), for traces."""
     from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
     from topodrake.navigation.replan import Replanner
 
@@ -163,6 +166,8 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
         seeds = [int(odometry_seeds[i]) if odometry_seeds is not None else i for i in part]
         res = engine.run(np.asarray(starts)[part], [routes[i] for i in part], t_max_s=t_max_s,
                          watch=watch, replanner=replanner, odometry_seeds=seeds)
+        if runs is not None:
+            runs.append((part, res))
         for j, i in enumerate(part):
             if replanner is not None:
                 out.plans[i], out.excluded[i] = replanner.plans[j], replanner.excluded[j]
