@@ -78,6 +78,7 @@ success with 60% of the drives over the best over all fractions).
     python studies/planning.py --json                      (default: a few trials)
     python studies/planning.py --trials 1000 --pruned-fractions 0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1 --pruned-trials 1000   (the paper's protocol)
     python studies/planning.py --world tests/data/maps/willow_full_0.05/map.yaml
+    python studies/planning.py --houses test-2 --methods oracle_full --trace 7,68   (why trials fail)
 
 The default (20 trials per method and house, 10 of them with obstacles,
 pruned fractions 0.3, 0.6, 1 of the first house) took 38 min on 2 cores
