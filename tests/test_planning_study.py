@@ -868,3 +868,30 @@ def test_each_trial_draws_its_own_odometry_errors_from_the_seed_and_house():
     assert plan_study.odometry_seeds({"seed": 1}, "test-0", 5) != a
     errors = odometry_errors(OdometryConfig.wheel(), a)
     assert errors.shape == (5, 3) and len(np.unique(errors[:, 0])) == 5
+
+
+def test_route_time_gives_each_trial_the_time_its_a_star_length_needs(box_world, tmp_path):
+    """--route-time: the longer of the study's limit and A* length / 0.25 m/s per trial;
+    without it every trial gets the study's limit."""
+    from topodrake.navigation import plan_study
+    from topodrake.navigation.plan_trials import T_MAX_S
+
+    starts = np.array([[1.5, 2.0, 0.0], [1.5, 2.0, 0.0]])
+    goals = np.array([[2.5, 2.0, 0.0], [7.5, 2.0, 0.0]])   # 1 m apart; around the partition
+    fixed = plan_study.trial_time_limits({"t_max_s": 10.0}, box_world, starts, goals)
+    assert fixed.tolist() == [10.0, 10.0]
+    assert plan_study.trial_time_limits({}, box_world, starts, goals).tolist() == [T_MAX_S] * 2
+    route = plan_study.trial_time_limits({"t_max_s": 10.0, "route_time": True}, box_world,
+                                         starts, goals)
+    length = np.hypot(*np.diff(box_world.astar(starts[1], goals[1, :2]), axis=0).T).sum()
+    assert length > 12.0                                     # the way round the partition
+    assert route[0] == 10.0                                  # 1 m needs 4 s: the limit holds
+    assert route[1] == pytest.approx(length / 0.25, abs=0.11)
+    # a run of route times has no one limit to fit the driving time against
+    from topodrake.navigation.plan_timing import driving_time_fit
+
+    run = tmp_path / "planning.json"
+    run.write_text(json.dumps({"config": {"route_time": True, "t_max_s": 150.0}, "houses": {},
+                               "trials": []}))
+    with pytest.raises(TopodrakeError, match="--route-time"):
+        driving_time_fit(str(run), "cmd")

@@ -189,6 +189,7 @@ def study_config(args) -> tuple[dict, list[str], list[str], list[float]]:
            "map_config": map_config, "follower": follower,
            "odometry": getattr(args, "odometry", "perfect"),
            "t_max_s": getattr(args, "time_limit", None) or T_MAX_S,
+           "route_time": getattr(args, "route_time", False),
            "plan_within_time": not getattr(args, "paper_plans", False)}
     return cfg, specs, keys, fractions
 

@@ -105,9 +105,11 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         go = drive_observations(world, m.scorer, places)
         s_scans, g_scans = view_scans(world, m, starts), view_scans(world, m, places)
 
-        limit = plan_time_limit(cfg)
+        limits = trial_time_limits(cfg, world, starts, places[goal_idx]) \
+            if plan_time_limit(cfg) is not None else [None] * len(starts)
 
         def replan(t, pose, excluded, vertex=None):
+            limit = limits[t]
             if vertex is not None:      # the car returns to a vertex of its route
                 p = plan_from_vertex(m, vertex, go[goal_idx[t]], goal_pose=places[goal_idx[t]],
                                      goal_scan=None if g_scans is None else g_scans[goal_idx[t]],
@@ -122,7 +124,7 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
                           (here[0], g_scans[goal_idx[t]]))
             return p.route if p.reachable else None
         plans = [plan_path(m, so[t], go[g], start_pose=starts[t], goal_pose=places[g],
-                           time_limit_s=limit, view_scans=None if s_scans is None else
+                           time_limit_s=limits[t], view_scans=None if s_scans is None else
                            (s_scans[t], g_scans[g]))
                  for t, g in enumerate(goal_idx)]
     routes = [p.route if p.reachable else None for p in plans]
@@ -152,6 +154,22 @@ def time_limit(cfg: dict) -> float:
     return float(cfg.get("t_max_s") or T_MAX_S)
 
 
+def trial_time_limits(cfg: dict, world, starts, goals) -> np.ndarray:
+    """(n,) seconds each trial may drive: the study's limit
+    (:func:`time_limit`), or with ``cfg["route_time"]`` the longer of it
+    and the trial's A* length from start to goal at the RE labels' least
+    speed (A* / v_min, :func:`topodrake.learning.reachability.labels.time_limits`),
+    so that a building's long routes get the time their length needs."""
+    out = np.full(len(starts), time_limit(cfg))
+    if cfg.get("route_time", False) and len(starts):
+        from topodrake.learning.reachability.labels import ReachLabelConfig, time_limits
+
+        out = np.maximum(out, time_limits(world, np.asarray(starts, np.float64),
+                                          np.asarray(goals, np.float64)[:, :2],
+                                          ReachLabelConfig()))
+    return out
+
+
 def plan_time_limit(cfg: dict) -> float | None:
     """The time limit the plans are made for: the trials' own
     (:func:`time_limit`), or None for the paper's most probable paths
@@ -176,6 +194,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
     plan_s = time.perf_counter() - t0
     policy, reach = networks(meth.follower, world)
     odo_seeds = odometry_seeds(cfg, spec, len(pairs))
+    limits = trial_time_limits(cfg, world, starts, places[pairs[:, 1]])
     if meth.drive == "obstacles":
         from topodrake.navigation.plan_trials import follow_past_obstacles
 
@@ -185,7 +204,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                  for t in range(n)]
         res, boxes = follow_past_obstacles(
             world, lambda w: NavigationEngine(w, policy, reach, navigation_config(cfg)), starts,
-            routes, places[pairs[:, 1]], seeds, cfg["obstacles"], time_limit(cfg), SUCCESS_M,
+            routes, places[pairs[:, 1]], seeds, cfg["obstacles"], limits[:n], SUCCESS_M,
             odometry_seeds=odo_seeds)
         if bar is not None:
             bar.update(n)
@@ -193,7 +212,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
         from topodrake.navigation.replan import ReplanSchedule
 
         engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
-        res = follow_routes(engine, starts, routes, places[pairs[:, 1]], time_limit(cfg),
+        res = follow_routes(engine, starts, routes, places[pairs[:, 1]], limits,
                             cfg["batch"], SUCCESS_M, replan=replan,
                             schedule=ReplanSchedule(**cfg["replan"]), odometry_seeds=odo_seeds)
         if bar is not None:
@@ -201,13 +220,13 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
     else:
         engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
         res = follow_routes(engine, starts[:first], routes, places[pairs[:first, 1]],
-                            time_limit(cfg), cfg["batch"], SUCCESS_M,
+                            limits[:first], cfg["batch"], SUCCESS_M,
                             progress=None if bar is None else bar.update,
                             odometry_seeds=odo_seeds[:first])
         if rounds > 1:
             routes, prob, false_links, res, round_of = _later_rounds(
                 method, spec, world, drives, indices, pairs, starts, places, cfg, tag, engine,
-                routes, prob, false_links, res, rounds, bar, odo_seeds)
+                routes, prob, false_links, res, rounds, bar, odo_seeds, limits)
     key = house_key(spec)
     records = [{"house": key, "method": method, "map": tag, "trial": t,
                 "start_place": int(a), "goal_place": int(b),
@@ -222,7 +241,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                 "false_link_m": None if false_links[t] is None else round(false_links[t], 3),
                 "outcome": res.outcome[t], "success": bool(res.success[t]),
                 "final_distance_m": round(float(res.final_distance_m[t]), 3),
-                "steps": int(res.steps[t]),
+                "steps": int(res.steps[t]), "time_limit_s": round(float(limits[t]), 1),
                 **({"plan_vertices": [int(v) for v in routes[t].vertices],
                     "visited": int(res.visited[t]), "active": int(res.active[t])}
                    if routes[t] is not None and meth.map != "sptm" else {}),
@@ -256,10 +275,10 @@ def round_bounds(n: int, rounds: int) -> np.ndarray:
 
 
 def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, cfg, tag, engine,
-                  routes, prob, false_links, res, rounds, bar, odo_seeds):
+                  routes, prob, false_links, res, rounds, bar, odo_seeds, limits):
     """Rounds 2.. of a method's trials: each planned with every earlier
-    round's drives folded into the map's edges (``odo_seeds``: every
-    trial's odometry seed). Returns the whole run's
+    round's drives folded into the map's edges (``odo_seeds``, ``limits``:
+    every trial's odometry seed and time limit). Returns the whole run's
     routes, probabilities, false links, follow result and each trial's round."""
     from topodrake.navigation.plan_trials import SUCCESS_M, FollowResult, follow_routes
     from topodrake.navigation.replan import route_traversals
@@ -283,7 +302,7 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, c
         rs, pr, _, _, links = plan_routes(method, spec, world, drives, indices, starts[sl],
                                           places, pairs[sl, 1], cfg, tag,
                                           experience=(passed, failed))
-        out = follow_routes(engine, starts[sl], rs, places[pairs[sl, 1]], time_limit(cfg), cfg["batch"],
+        out = follow_routes(engine, starts[sl], rs, places[pairs[sl, 1]], limits[sl], cfg["batch"],
                             SUCCESS_M, progress=None if bar is None else bar.update,
                             odometry_seeds=odo_seeds[sl])
         learn(rs, out)

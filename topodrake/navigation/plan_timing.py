@@ -67,6 +67,14 @@ def driving_time_fit(files_text: str, command: str) -> dict:
     for f in files:
         try:
             doc = json.loads(f.read_text())
+            route_time = doc["config"].get("route_time", False)
+        except (OSError, ValueError, KeyError, AttributeError) as e:
+            raise TopodrakeError(f"--fit-driving-time: {f}: not a planning.json with trials "
+                                 f"({type(e).__name__}: {e})") from None
+        if route_time:
+            raise TopodrakeError(f"--fit-driving-time: {f} gave each trial its route's own time "
+                                 f"(--route-time); fit runs of one time limit")
+        try:
             limits.add(time_limit(doc["config"]))
             rows += _route_sizes(doc)
         except (OSError, ValueError, KeyError) as e:

@@ -89,7 +89,7 @@ def trace_trials(spec: str, method: str, trials: list[int], cfg: dict) -> list[T
     from topodrake.navigation.plan_methods import METHODS, networks
     from topodrake.navigation.plan_study import (_house, house_key, house_seed,
                                                  navigation_config, odometry_seeds, plan_routes,
-                                                 time_limit)
+                                                 trial_time_limits)
     from topodrake.navigation.plan_trials import (SUCCESS_M, follow_routes, jittered_starts,
                                                   trial_pairs)
 
@@ -115,7 +115,8 @@ def trace_trials(spec: str, method: str, trials: list[int], cfg: dict) -> list[T
     engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
     odo = np.asarray(odometry_seeds(cfg, spec, count))[sel]
     runs: list = []
-    res = follow_routes(engine, starts[sel], routes, places[pairs[sel, 1]], time_limit(cfg), 1,
+    limits = trial_time_limits(cfg, world, starts[sel], places[pairs[sel, 1]])
+    res = follow_routes(engine, starts[sel], routes, places[pairs[sel, 1]], limits, 1,
                         SUCCESS_M, odometry_seeds=odo, runs=runs)
     driven = {part[0]: run for part, run in runs}
     out = []

@@ -134,7 +134,8 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
                   runs: list | None = None) -> FollowResult:
     """Drive cars from ``starts`` along ``routes`` (None: no plan, a failed
     trial that is not driven) toward the goal places ``goals`` (n, 3), in
-    engine batches of ``batch``. ``progress(n_done)`` is called per batch.
+    engine batches of ``batch``, each trial within ``t_max_s`` seconds (one
+    for all, or (n,) one per trial). ``progress(n_done)`` is called per batch.
     With ``replan(trial, pose, excluded_edges, vertex=None) -> Route | None``
     (``vertex``: plan from that map vertex instead of the view at ``pose``)
     cars replan while dead reckoning (:mod:`topodrake.navigation.replan`, on
@@ -164,7 +165,8 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
                                                                                **kw),
                                   [routes[i] for i in part], schedule)
         seeds = [int(odometry_seeds[i]) if odometry_seeds is not None else i for i in part]
-        res = engine.run(np.asarray(starts)[part], [routes[i] for i in part], t_max_s=t_max_s,
+        limit = t_max_s if np.ndim(t_max_s) == 0 else np.asarray(t_max_s, np.float64)[part]
+        res = engine.run(np.asarray(starts)[part], [routes[i] for i in part], t_max_s=limit,
                          watch=watch, replanner=replanner, odometry_seeds=seeds)
         if runs is not None:
             runs.append((part, res))
@@ -214,7 +216,9 @@ def follow_past_obstacles(world, make_engine, starts: np.ndarray, routes: list,
             out.outcome[i] = "no_room"
             continue
         res = follow_routes(make_engine(with_boxes(world, boxes[i])), np.asarray(starts)[[i]],
-                            [routes[i]], np.asarray(goals)[[i]], t_max_s, 1, radius,
+                            [routes[i]], np.asarray(goals)[[i]],
+                            t_max_s if np.ndim(t_max_s) == 0 else np.asarray(t_max_s)[[i]], 1,
+                            radius,
                             odometry_seeds=None if odometry_seeds is None else
                             [odometry_seeds[i]])
         out.outcome[i], out.final_distance_m[i] = res.outcome[0], res.final_distance_m[0]
