@@ -75,17 +75,22 @@ does this for recorded trials without running new ones), and maps built from 10%
 the drives show how success grows with experience (``pruned_60_over_peak``:
 success with 60% of the drives over the best over all fractions).
 
-    python studies/planning.py --json                      (default: a few trials)
+    python studies/planning.py --json                      (the default run)
     python studies/planning.py --trials 1000 --pruned-fractions 0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1 --pruned-trials 1000   (the paper's protocol)
-    python studies/planning.py --world tests/data/maps/willow_full_0.05/map.yaml
+    python studies/planning.py --world tests/data/maps/willow_full_0.05/map.yaml --methods oracle_full --route-time
     python studies/planning.py --houses test-2 --methods oracle_full --trace 7,68   (why trials fail)
 
-The default (20 trials per method and house, 10 of them with obstacles,
-pruned fractions 0.3, 0.6, 1 of the first house) took 38 min on 2 cores
-beside another study, with the maps cached; building them from an empty
-cache took 80 min more beside other jobs (a camera map takes 5-15 min, a
-lidar one 0.5-2 min, an oracle one and SPTM's graph a few minutes); the
-paper's protocol is ``--trials 1000`` with the ten fractions.
+The default run is 100 trials per method and house of ours, lidar,
+lidar_reg, SPTM, oracle_full, ours_replan and lidar_replan, 10 with
+unmapped obstacles (ours_obstacles) and pruned fractions 0.3, 0.6, 1 of the
+first house (20 trials each); the other methods (the ablations) run when
+named in ``--methods``. Measured with the maps cached, 100 trials a house
+over the five test houses take one core 31 min of driving for ours, 17 for
+SPTM, 10 for lidar_reg, 9 for oracle_full and 7 for lidar; building the
+maps from an empty cache takes about an hour more (a camera map 5-15 min,
+a lidar one 0.5-2 min, an oracle one and SPTM's graph a few minutes).
+``--workers N`` runs N houses at once; the paper's protocol is
+``--trials 1000`` with the ten fractions.
 
 ``--json`` prints ``{"houses": {"test-0": {"ours": s, "lidar": s, "lidar_reg": s, "sptm": s,
 "oracle": s, "oracle_full": s, ..., "vertices": n, "edges": n, "sptm_vertices": n,
@@ -113,7 +118,7 @@ import numpy as np
 
 from topodrake import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.navigation.plan_methods import METHODS, ORACLE_METHODS
+from topodrake.navigation.plan_methods import DEFAULT_METHODS, METHODS, ORACLE_METHODS
 from topodrake.navigation.plan_results import HOUSES, paired_runs, planning, rescore
 from topodrake.navigation.plan_study import ODOMETRY
 from topodrake.navigation.plan_trials import T_MAX_S
@@ -225,8 +230,9 @@ def main(argv=None) -> int:
     ap.add_argument("--houses", default=HOUSES, help="test houses (catalogue names or map YAMLs)")
     ap.add_argument("--world", help="one world (catalogue name or ROS map YAML) instead of "
                                     "--houses")
-    ap.add_argument("--methods", default=",".join(METHODS), help="methods to run")
-    ap.add_argument("--trials", type=at.count, default=20,
+    ap.add_argument("--methods", default=",".join(DEFAULT_METHODS),
+                    help="methods to run, of " + ", ".join(METHODS))
+    ap.add_argument("--trials", type=at.count, default=100,
                     help="trials per method and house (paper: 1000)")
     ap.add_argument("--oracle-trials", type=at.count, default=100,
                     help="trials per house of the oracle ablations (" + ", ".join(ORACLE_METHODS)
