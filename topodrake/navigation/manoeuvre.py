@@ -54,7 +54,7 @@ class ManoeuvreConfig:
     # there reverses into the unknown: the walls its first scan sees at the edges of its field
     # of view (within near) are taken to go on this far into the blind cone (m; None: off) ...
     blind_extend_m: float | None = 1.0
-    blind_near_m: float = 1.5
+    blind_near_m: float = 1.0
     blind_until_m: float = 1.0    # ... until the car is this far from its start or has turned
     # far enough to have seen behind it (its lidar's blind half-angle)
     expert: ExpertConfig = field(default_factory=ExpertConfig)
