@@ -41,7 +41,8 @@ def _stub_house(monkeypatch, world, topomap):
 
     monkeypatch.setattr(plan_study, "_house", lambda seed, jobs, cfg: (jobs[seed], world, [], 0))
 
-    def plan_routes(method, spec, w, drives, indices, starts, places, goals, cfg, tag):
+    def plan_routes(method, spec, w, drives, indices, starts, places, goals, cfg, tag,
+                    limits=None):
         plans = [plan_path(topomap, starts[t], places[g], start_pose=starts[t],
                            goal_pose=places[g]) for t, g in enumerate(goals)]
         return ([p.route if p.reachable else None for p in plans],

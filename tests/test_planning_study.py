@@ -652,11 +652,12 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
         def __len__(self):
             return len(self.vertices)
 
-    seen = []
+    seen, given, timed = [], [], []
 
     def plan_routes(method, spec, world, drives, indices, starts, places, goals, cfg, tag,
-                    experience=None):
+                    experience=None, limits=None):
         seen.append(None if experience is None else (list(experience[0]), list(experience[1])))
+        given.append(list(limits))
         routes = [Planned([1, 2, 3]) for _ in starts]
         return routes, np.full(len(starts), 0.9), {"vertices": 3, "edges": 2}, None, \
             [0.0] * len(starts)
@@ -668,7 +669,12 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
                             np.full(n, 10), visited=np.ones(n, np.int64),
                             active=np.full(n, 2, np.int64))
 
+    def trial_time_limits(cfg, world, starts, goals):     # each trial's A* is done once
+        timed.append(len(starts))
+        return np.arange(len(starts)) + 100.0
+
     monkeypatch.setattr(plan_study, "plan_routes", plan_routes)
+    monkeypatch.setattr(plan_study, "trial_time_limits", trial_time_limits)
     monkeypatch.setattr(plan_trials, "follow_routes", follow_routes)
     monkeypatch.setattr(plan_study, "networks", lambda *a: (None, None))
     monkeypatch.setattr("topodrake.navigation.engine.NavigationEngine",
@@ -679,6 +685,8 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
     stats, records = plan_study.run_method("lidar", "test-0", world, [], [], pairs,
                                            np.zeros((4, 3)), cfg)
     assert seen == [None, ([(1, 2), (1, 2)], [(2, 3), (2, 3)])]
+    assert timed == [4] and given == [[100.0, 101.0], [102.0, 103.0]]
+    assert [r["time_limit_s"] for r in records] == [100.0, 101.0, 102.0, 103.0]
     assert [r["round"] for r in records] == [0, 0, 1, 1]
     assert all(r["plan_vertices"] == [1, 2, 3] and r["visited"] == 1 for r in records)
     assert stats["trials"] == 4 and stats["success"] == 0.0

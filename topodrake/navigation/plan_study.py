@@ -56,13 +56,15 @@ def odometry_seeds(cfg: dict, spec: str, n: int) -> list[int]:
 
 
 def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
-                cfg: dict, tag: str = "all", experience=None):
+                cfg: dict, tag: str = "all", experience=None, limits=None):
     """(plans' routes (None = no plan), plan probabilities, map size dict,
     ``replan(trial, pose, excluded_edges, vertex=None)`` on our maps (None
     for SPTM)).
     ``experience``: ``(passed, failed)`` map edges of earlier drives, folded
     into the map's edges before planning
-    (:func:`topodrake.topomap.recalibrate.record_traversals`)."""
+    (:func:`topodrake.topomap.recalibrate.record_traversals`).
+    ``limits``: each trial's time limit where the caller has them
+    (:func:`trial_time_limits`, computed here otherwise)."""
     from topodrake.navigation.plan_trials import render_pose_route
     from topodrake.topomap.plan import plan_from_vertex, plan_path
     from topodrake.topomap.sources import drive_observations, view_scans
@@ -105,8 +107,10 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         go = drive_observations(world, m.scorer, places)
         s_scans, g_scans = view_scans(world, m, starts), view_scans(world, m, places)
 
-        limits = trial_time_limits(cfg, world, starts, places[goal_idx]) \
-            if plan_time_limit(cfg) is not None else [None] * len(starts)
+        if plan_time_limit(cfg) is None:
+            limits = [None] * len(starts)
+        elif limits is None:
+            limits = trial_time_limits(cfg, world, starts, places[goal_idx])
 
         def replan(t, pose, excluded, vertex=None):
             limit = limits[t]
@@ -189,12 +193,13 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
     first = len(pairs) if rounds == 1 else round_bounds(len(pairs), rounds)[1]
     round_of = None
     t0 = time.perf_counter()
+    limits = trial_time_limits(cfg, world, starts, places[pairs[:, 1]])
     routes, prob, size, replan, false_links = plan_routes(
-        method, spec, world, drives, indices, starts[:first], places, pairs[:first, 1], cfg, tag)
+        method, spec, world, drives, indices, starts[:first], places, pairs[:first, 1], cfg, tag,
+        limits=limits[:first])
     plan_s = time.perf_counter() - t0
     policy, reach = networks(meth.follower, world)
     odo_seeds = odometry_seeds(cfg, spec, len(pairs))
-    limits = trial_time_limits(cfg, world, starts, places[pairs[:, 1]])
     if meth.drive == "obstacles":
         from topodrake.navigation.plan_trials import follow_past_obstacles
 
@@ -301,7 +306,7 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, c
         sl = slice(int(bounds[r]), int(bounds[r + 1]))
         rs, pr, _, _, links = plan_routes(method, spec, world, drives, indices, starts[sl],
                                           places, pairs[sl, 1], cfg, tag,
-                                          experience=(passed, failed))
+                                          experience=(passed, failed), limits=limits[sl])
         out = follow_routes(engine, starts[sl], rs, places[pairs[sl, 1]], limits[sl], cfg["batch"],
                             SUCCESS_M, progress=None if bar is None else bar.update,
                             odometry_seeds=odo_seeds[sl])

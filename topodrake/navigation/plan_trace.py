@@ -109,13 +109,13 @@ def trace_trials(spec: str, method: str, trials: list[int], cfg: dict) -> list[T
     starts = jittered_starts(world, places, pairs, seed)
     sel = np.asarray(trials, np.int64)
     tag = "all" if n == len(drives) else f"first{n}"
+    limits = trial_time_limits(cfg, world, starts[sel], places[pairs[sel, 1]])
     routes, prob, *_ = plan_routes(method, spec, world, drives, list(range(n)), starts[sel],
-                                   places, pairs[sel, 1], cfg, tag)
+                                   places, pairs[sel, 1], cfg, tag, limits=limits)
     policy, reach = networks(meth.follower, world)
     engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
     odo = np.asarray(odometry_seeds(cfg, spec, count))[sel]
     runs: list = []
-    limits = trial_time_limits(cfg, world, starts[sel], places[pairs[sel, 1]])
     res = follow_routes(engine, starts[sel], routes, places[pairs[sel, 1]], limits, 1,
                         SUCCESS_M, odometry_seeds=odo, runs=runs)
     driven = {part[0]: run for part, run in runs}
