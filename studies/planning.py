@@ -81,12 +81,13 @@ success with 60% of the drives over the best over all fractions).
     python studies/planning.py --houses test-2 --methods oracle_full --trace 7,68   (why trials fail)
 
 The default run is 100 trials per method and house of ours, lidar,
-lidar_reg, SPTM, oracle_full, ours_replan and lidar_replan, 10 with
+lidar_scale, lidar_reg, SPTM, oracle_full, ours_replan and lidar_replan, 10 with
 unmapped obstacles (ours_obstacles) and pruned fractions 0.3, 0.6, 1 of the
 first house (20 trials each); the other methods (the ablations) run when
 named in ``--methods``. Measured with the maps cached, 100 trials a house
 over the five test houses take one core 31 min of driving for ours, 17 for
-SPTM, 10 for lidar_reg, 9 for oracle_full and 7 for lidar; building the
+SPTM, 10 for lidar_reg, 9 for oracle_full, 7 for lidar and 6 for
+lidar_scale; building the
 maps from an empty cache takes about an hour more (a camera map 5-15 min,
 a lidar one 0.5-2 min, an oracle one and SPTM's graph a few minutes).
 ``--workers N`` runs N houses at once; the paper's protocol is

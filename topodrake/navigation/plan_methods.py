@@ -94,10 +94,10 @@ METHODS: dict[str, Method] = {m.name: m for m in (
 #: the perfect-perception ablations (fast: they run ``--oracle-trials`` trials)
 ORACLE_METHODS = tuple(name for name, m in METHODS.items() if m.oracle)
 #: the planning study's default run: the paper's Table II (ours, lidar, SPTM), the
-#: registration controller, the ceiling, replanning and unmapped obstacles; the other
-#: ablations run when named
-DEFAULT_METHODS = ("ours", "lidar", "lidar_reg", "sptm", "oracle_full", "ours_replan",
-                   "lidar_replan", "ours_obstacles")
+#: lidar system with its C_WP trained at scale, the registration controller, the
+#: ceiling, replanning and unmapped obstacles; the other ablations run when named
+DEFAULT_METHODS = ("ours", "lidar", "lidar_scale", "lidar_reg", "sptm", "oracle_full",
+                   "ours_replan", "lidar_replan", "ours_obstacles")
 
 _NETWORKS: dict = {}
 #: followers with a C_WP trained at scale: (its checkpoint folder, the map
