@@ -57,6 +57,25 @@ def test_slack_keeps_the_farthest_frame_nearly_as_reachable_as_the_next():
         == [0, 4, 8, 12, 16, 19]
 
 
+def test_a_hop_cap_keeps_anchors_within_reach_along_the_drive():
+    """RE trusts every frame (a corridor); with hops capped at 1 m along a
+    drive of frames 0.3 m apart the anchors fall every 3 frames, and a cap
+    shorter than one frame's step still advances."""
+    from topodrake.topomap.sparsify import hop_caps
+
+    xy = np.c_[0.3 * np.arange(12), np.zeros(12)]
+    caps = hop_caps(xy, 1.0)
+    assert caps.tolist() == [3, 4, 5, 6, 7, 8, 9, 10, 11, 11, 11, 11]
+    assert hop_caps(xy, 0.0) is None
+    trusted = lambda i, js: np.ones(len(js))        # noqa: E731
+    assert sparsify(12, trusted).tolist() == [0, 11]
+    assert sparsify(12, trusted, cap=caps).tolist() == [0, 3, 6, 9, 11]
+    assert sparsify(12, trusted, cap=hop_caps(xy, 0.1)).tolist() == list(range(12))
+    # RE's own limit still holds under a longer cap
+    assert sparsify(12, lambda i, js: np.where(js - i <= 2, 0.999, 0.1),
+                    cap=caps).tolist() == [0, 2, 4, 6, 8, 10, 11]
+
+
 def test_bad_arguments():
     with pytest.raises(TopodrakeError, match="empty"):
         sparsify(0, lambda i, js: js)

@@ -76,6 +76,31 @@ def test_a_drive_becomes_a_chain_of_anchors_linked_in_order():
     assert len(m.bank) == 4 and m.raw_frames == 10
 
 
+def test_max_hop_m_keeps_anchors_within_reach_along_the_drive():
+    """RE trusts 3 frames ahead; with frames 1 m apart and hops capped at
+    2 m (by the drive's odometry, or its poses without one) an anchor falls
+    every 2 frames; uncapped (0), every 3. Camera and pose oracle maps are
+    built alike whatever it says (a lidar-only setting)."""
+    poses = np.c_[np.arange(10.0), np.zeros(10), np.zeros(10)]
+    frames = {}
+    for odometry in ("perfect", "none"):
+        m = table_map(same_drive_hops, max_hop_m=2.0, teach_odometry=odometry)
+        add_trajectory(m, drive(0, 10), poses)
+        frames[odometry] = [m.graph.nodes[v]["frame"] for v in m.trajectories[0].chain]
+    assert frames == {"perfect": [0, 2, 4, 6, 8, 9], "none": [0, 2, 4, 6, 8, 9]}
+    free = table_map(same_drive_hops, max_hop_m=0.0)
+    add_trajectory(free, drive(0, 10), poses)
+    assert [free.graph.nodes[v]["frame"] for v in free.trajectories[0].chain] == [0, 3, 6, 9]
+    from topodrake.topomap.graph import LIDAR_ONLY, same_config
+
+    assert "max_hop_m" in LIDAR_ONLY
+    from dataclasses import asdict
+
+    uncapped = asdict(MapConfig(max_hop_m=0.0))
+    assert same_config(uncapped, MapConfig(), lidar=False)
+    assert not same_config(uncapped, MapConfig(), lidar=True)
+
+
 def parallel_drives(a, b, reach=3):
     """Drives 0 and 1 run side by side: from a frame, frames up to ``reach``
     ahead on either drive are reachable."""
@@ -295,6 +320,8 @@ def test_map_config_is_checked():
         MapConfig(retrieval_k=0).validate()
     with pytest.raises(TopodrakeError, match="retrieval_first"):
         MapConfig(retrieval_first=-1).validate()
+    with pytest.raises(TopodrakeError, match="max_hop_m"):
+        MapConfig(max_hop_m=float("nan")).validate()
 
 
 def test_vertex_index_ranks_nearest_first_and_excludes():

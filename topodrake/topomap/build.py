@@ -64,7 +64,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.se2 import compose, invert, relative
 from topodrake.topomap.graph import TopoMap, Trajectory
 from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
-from topodrake.topomap.sparsify import sparsify, sparsify_chain
+from topodrake.topomap.sparsify import hop_caps, sparsify, sparsify_chain
 
 
 @dataclass
@@ -126,15 +126,20 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     start = len(m.bank)
     t = len(m.trajectories)
     odo = drive_odometry(cfg.teach_odometry, poses, t)
+    along = odo if odo is not None else poses      # where the drive went, by its odometry
+    # (camera and pose oracle maps are built alike whatever it says: LIDAR_ONLY)
+    capped = along is not None and m.modality not in ("camera", "pose")
+    caps = hop_caps(along, cfg.max_hop_m) if capped else None
     rows = m.bank.append(obs, poses, scans=scans)
     m.bank.ensure(rows)
     ctx_local = context_rows(n, np.arange(n), k, step)
     if cfg.reuse and cfg.reuse_rule == "resume":
-        anchors, chain = _resume_chain(m, obs, start, ctx_local, score, stats, odo)
+        anchors, chain = _resume_chain(m, obs, start, ctx_local, score, stats, odo, caps)
         emb = m.embedding.embed(obs[anchors])
     else:
         anchors = sparsify(n, lambda i, js: score(np.full(len(js), start + i), start + ctx_local[js]),
-                           cfg.p_sparsify, cfg.sparsify_window, slack=cfg.sparsify_slack)
+                           cfg.p_sparsify, cfg.sparsify_window, slack=cfg.sparsify_slack,
+                           cap=caps)
         emb = m.embedding.embed(obs[anchors])
         chain = _paper_chain(m, anchors, emb, start, ctx_local, score, stats)
 
@@ -359,7 +364,7 @@ def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,
 
 
 def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray, score,
-                  stats: BuildStats, odo: np.ndarray | None = None
+                  stats: BuildStats, odo: np.ndarray | None = None, caps: np.ndarray | None = None
                   ) -> tuple[np.ndarray, list[tuple[str, int]]]:
     """Reuse as the scan goes (ours): at each anchor frame j an existing vertex
     v stands in for it when RE(source, v) and RE(v, frame j + 1) pass
@@ -372,7 +377,8 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
     the drive's odometry ``odo``, v must also lie where that odometry puts
     it, seen from the vertex the drive reused last (:func:`loop_consistent`).
     With ``reuse_pinned`` a lidar map's v must register onto frame j's scan,
-    pinning the translation, so its hops keep the drive's odometry."""
+    pinning the translation, so its hops keep the drive's odometry.
+    ``caps``: the farthest frame each anchor's hop may reach (``max_hop_m``)."""
     cfg = m.config
     n = len(obs)
     used: set[int] = set()
@@ -412,7 +418,7 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
         return ("v", best)
 
     anchors, sources = sparsify_chain(n, reach, cfg.p_sparsify, cfg.sparsify_window,
-                                      slack=cfg.sparsify_slack, snap=snap)
+                                      slack=cfg.sparsify_slack, snap=snap, cap=caps)
     chain = [src if isinstance(src, tuple) else ("a", i) for i, src in enumerate(sources)]
     return anchors, chain
 

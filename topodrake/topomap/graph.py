@@ -47,11 +47,11 @@ TEACH_ODOMETRY = ("wheel", "perfect", "none")
 LATER_DEFAULTS = {"reuse_ahead": 0, "scan_match": 0.0, "scan_match_cross": False,
                   "camera_scans": False, "camera_legs": False, "loop_check_m": 0.0,
                   "loop_check_per_m": 0.1, "reuse_pinned": False, "cross_legs": False,
-                  "junction_scan_match": 0.8, "camera_junction_scans": True}
+                  "junction_scan_match": 0.8, "camera_junction_scans": True, "max_hop_m": 0.0}
 
 
 #: settings only a lidar map reads (a map of another modality is built alike whatever they say)
-LIDAR_ONLY = ("scan_match_cross", "reuse_pinned")
+LIDAR_ONLY = ("scan_match_cross", "reuse_pinned", "max_hop_m")
 #: settings only a camera map reads
 CAMERA_ONLY = ("camera_scans", "camera_legs", "camera_junction_scans")
 #: settings only maps that place joins by lidar scans read (a pose oracle map keeps its
@@ -118,6 +118,11 @@ class MapConfig:
                                  # look-alike room otherwise joins them in one step)
     goal_mutual: bool = True     # planning: a goal link's p is min(RE(v, goal), RE(goal, v))
     sparsify_window: int = 4     # first window of candidates in the greedy scan
+    max_hop_m: float = 2.5       # ... which takes no frame farther along the drive than this
+                                 # (by its odometry) as the next anchor of a lidar map: the
+                                 # route tracker registers the car's scan onto anchors within
+                                 # 2.5 m (TrackerConfig.scan_range_m), and in a corridor RE
+                                 # trusts hops of 4-6 m (0: off)
     reuse: bool = True
     reuse_rule: str = "resume"   # "paper": a vertex replaces a sparsified anchor; "resume":
                                  # it stands in for an anchor frame and the scan resumes from it
@@ -190,7 +195,7 @@ class MapConfig:
         if not (isinstance(self.legless_p, (int, float)) and 0.0 < self.legless_p <= 1.0):
             raise TopodrakeError(f"{where}: legless_p must be in (0, 1], got {self.legless_p!r}")
         for name in ("loop_check_m", "loop_check_per_m", "start_near_m", "start_near_deg",
-                     "start_near_behind_m"):
+                     "start_near_behind_m", "max_hop_m"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise TopodrakeError(f"{where}: {name} must be a number >= 0, got {v!r}")

@@ -33,20 +33,34 @@ from topodrake.errors import TopodrakeError
 
 
 def sparsify(n_frames: int, reach: Callable[[int, np.ndarray], np.ndarray], p: float = 0.99,
-             window: int = 4, max_window: int = 64, slack: float = 0.0) -> np.ndarray:
+             window: int = 4, max_window: int = 64, slack: float = 0.0,
+             cap: np.ndarray | None = None) -> np.ndarray:
     """Anchor frame indices (increasing, first 0, last ``n_frames - 1``).
 
     Candidates are scored in windows that start at ``window`` frames and
     double up to ``max_window`` while every frame passes, so a short reach
-    costs few queries and a long one few calls."""
-    frames, _ = sparsify_chain(n_frames, reach, p, window, max_window, slack)
+    costs few queries and a long one few calls. ``cap`` (n_frames,): the
+    farthest frame each frame's next anchor may be (:func:`hop_caps`)."""
+    frames, _ = sparsify_chain(n_frames, reach, p, window, max_window, slack, cap=cap)
     return frames
+
+
+def hop_caps(positions: np.ndarray, max_hop_m: float) -> np.ndarray | None:
+    """(n,) for each frame of a drive at ``positions`` (n, 2) the farthest
+    later frame within ``max_hop_m`` along the drive (at least the next
+    one); None where ``max_hop_m`` is 0 (no cap)."""
+    if not max_hop_m > 0:
+        return None
+    xy = np.asarray(positions, np.float64)[:, :2]
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    last = np.searchsorted(along, along + max_hop_m, side="right") - 1
+    return np.maximum(last, np.minimum(np.arange(len(xy)) + 1, len(xy) - 1))
 
 
 def sparsify_chain(n_frames: int, reach: Callable[[object, np.ndarray], np.ndarray],
                    p: float = 0.99, window: int = 4, max_window: int = 64, slack: float = 0.0,
-                   snap: Callable[[int, object], object] | None = None
-                   ) -> tuple[np.ndarray, list]:
+                   snap: Callable[[int, object], object] | None = None,
+                   cap: np.ndarray | None = None) -> tuple[np.ndarray, list]:
     """The greedy scan with an optional ``snap(frame, source)`` hook.
 
     Returns the anchor frames and, for each, the source the scan went on
@@ -54,7 +68,9 @@ def sparsify_chain(n_frames: int, reach: Callable[[object, np.ndarray], np.ndarr
     existing map vertex that stands in for the frame). ``reach(source, js)``
     scores frames ``js`` from a source of either kind, so after a snap the
     next anchor is the farthest frame reachable from the vertex, not from
-    the frame it replaced."""
+    the frame it replaced. ``cap`` (n_frames,): the farthest frame the
+    next anchor after each frame may be (a hop no longer than the route
+    tracker's reach), or None."""
     if n_frames < 1:
         raise TopodrakeError("cannot sparsify an empty trajectory")
     if not 0.0 < p < 1.0:
@@ -73,8 +89,9 @@ def sparsify_chain(n_frames: int, reach: Callable[[object, np.ndarray], np.ndarr
         j_pass = i                       # last frame that passed from the source
         start = i + 1
         size = window
-        while start <= last:
-            js = np.arange(start, min(start + size, last + 1))
+        end = last if cap is None else max(i + 1, min(last, int(cap[i])))
+        while start <= end:
+            js = np.arange(start, min(start + size, end + 1))
             size = min(2 * size, max(max_window, window))
             probs = np.asarray(reach(source, js), np.float64).reshape(-1)
             if probs.shape != js.shape:
