@@ -81,21 +81,24 @@ def test_max_hop_m_keeps_anchors_within_reach_along_the_drive():
     2 m (by the drive's odometry, or its poses without one) an anchor falls
     every 2 frames; uncapped (0), every 3. Camera and pose oracle maps are
     built alike whatever it says (a lidar-only setting)."""
-    poses = np.c_[np.arange(10.0), np.zeros(10), np.zeros(10)]
-    frames = {}
-    for odometry in ("perfect", "none"):
-        m = table_map(same_drive_hops, max_hop_m=2.0, teach_odometry=odometry)
-        add_trajectory(m, drive(0, 10), poses)
-        frames[odometry] = [m.graph.nodes[v]["frame"] for v in m.trajectories[0].chain]
-    assert frames == {"perfect": [0, 2, 4, 6, 8, 9], "none": [0, 2, 4, 6, 8, 9]}
-    free = table_map(same_drive_hops, max_hop_m=0.0)
-    add_trajectory(free, drive(0, 10), poses)
-    assert [free.graph.nodes[v]["frame"] for v in free.trajectories[0].chain] == [0, 3, 6, 9]
-    from topodrake.topomap.graph import LIDAR_ONLY, same_config
-
-    assert "max_hop_m" in LIDAR_ONLY
     from dataclasses import asdict
 
+    from topodrake.topomap.graph import LIDAR_ONLY, same_config
+
+    class LidarTable(TableScorer):
+        observation = "lidar"
+
+    def frames(scorer, **config):
+        m = TopoMap(scorer, FlatEmbedding(), MapConfig(**config), world="table")
+        add_trajectory(m, drive(0, 10), np.c_[np.arange(10.0), np.zeros(10), np.zeros(10)])
+        return [m.graph.nodes[v]["frame"] for v in m.trajectories[0].chain]
+
+    lidar = LidarTable(same_drive_hops)
+    assert frames(lidar, max_hop_m=2.0, teach_odometry="perfect") == [0, 2, 4, 6, 8, 9]
+    assert frames(lidar, max_hop_m=2.0, teach_odometry="none") == [0, 2, 4, 6, 8, 9]
+    assert frames(lidar, max_hop_m=0.0) == [0, 3, 6, 9]
+    assert frames(TableScorer(same_drive_hops), max_hop_m=2.0) == [0, 3, 6, 9]   # not lidar
+    assert "max_hop_m" in LIDAR_ONLY
     uncapped = asdict(MapConfig(max_hop_m=0.0))
     assert same_config(uncapped, MapConfig(), lidar=False)
     assert not same_config(uncapped, MapConfig(), lidar=True)

@@ -127,9 +127,8 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     t = len(m.trajectories)
     odo = drive_odometry(cfg.teach_odometry, poses, t)
     along = odo if odo is not None else poses      # where the drive went, by its odometry
-    # (camera and pose oracle maps are built alike whatever it says: LIDAR_ONLY)
-    capped = along is not None and m.modality not in ("camera", "pose")
-    caps = hop_caps(along, cfg.max_hop_m) if capped else None
+    caps = hop_caps(along, cfg.max_hop_m) if along is not None and m.modality == "lidar" \
+        else None                                  # (a lidar-only setting: LIDAR_ONLY)
     rows = m.bank.append(obs, poses, scans=scans)
     m.bank.ensure(rows)
     ctx_local = context_rows(n, np.arange(n), k, step)
