@@ -471,3 +471,30 @@ def test_a_sure_tracker_refuses_a_goal_c_wp_calls_reached_short_of_it():
     assert modes[0.0] == REACHED                        # C_WP's word alone
     with pytest.raises(TopodrakeError, match="tracked_goal_m"):
         FollowerConfig(tracked_goal_m=-1.0).check()
+
+
+def test_the_tracker_passes_no_anchor_the_car_faces_away_from():
+    """A teach drive that turns on the spot leaves anchors at one place
+    facing every way; a car standing there facing the other way has not
+    driven them. C_WP's overlaps stay low, so only the tracker can pass."""
+
+    class Faint(Straight):
+        def __call__(self, cars, anchors, cwp, re):
+            a = super().__call__(cars, anchors, cwp, re)
+            a.overlap[:] = 0.2
+            return a
+
+    visited = {}
+    for limit in (90.0, 180.0):
+        ev = Faint(6)
+        s = drive_along(ev, (0.0, 0.6, 1.2), pass_turn_deg=limit)
+        assert s.mode[0] == FOLLOW and s.ref[0] >= 0 and s.active[0] == 2
+        turned = np.array([2.1, 0.0, np.pi, 0.0, 0.0])       # on anchor 2, facing back
+        s, _ = drive(ev, s, turned, pass_turn_deg=limit)
+        visited[limit] = s.visited[0]
+    assert visited[90.0] < 2 and visited[180.0] >= 2
+    aligned = drive_along(Faint(6), (0.0, 0.6, 1.2, 1.9))
+    assert aligned.visited[0] >= 2                  # facing the taught way it passes as before
+    with pytest.raises(TopodrakeError, match="pass_turn_deg"):
+        FollowerConfig(pass_turn_deg=0.0).check()
+    assert FollowerConfig.paper().pass_turn_deg == 180.0

@@ -96,6 +96,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.navigation import tracker
+from topodrake.se2 import wrap
 from topodrake.vehicle import VehicleConfig, car_to_world, world_to_car
 
 SEARCH, FOLLOW, DEAD_RECKONING, REACHED, FAILED = 0, 1, 2, 3, 4
@@ -148,6 +149,12 @@ class FollowerConfig:
     tracked_goal_m: float = 0.5     # ... refuses C_WP's "at the goal" where it puts the goal
                                     # farther than this (near a wall C_WP's waypoint is short
                                     # with the goal still 0.7-0.9 m off; 0: off)
+    pass_turn_deg: float = 90.0     # the tracker passes an anchor (near it, or just behind
+                                    # the car) only where the car's heading is within this of
+                                    # the taught one: a teach drive that turns on the spot
+                                    # leaves anchors at one place facing every way, and a car
+                                    # that passed them by position went on facing the wrong
+                                    # way (180: off)
     legs_m: float = 2.0             # a hop without a leg (a join or goal link the scans did
                                     # not place) takes C_WP's answer from the anchor's own view
                                     # toward the next as its leg, where that waypoint is
@@ -182,7 +189,7 @@ class FollowerConfig:
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
                    odometry_check=False, scan_fix=False, tracked_sure_m=0.0,
                    reverse_inside_turn=-1.0, skip_inside_first=0, legs_m=0.0,
-                   manoeuvres=False, search_first=False)
+                   manoeuvres=False, search_first=False, pass_turn_deg=180.0)
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
@@ -203,6 +210,9 @@ class FollowerConfig:
             raise TopodrakeError(f"follower turn_radius_m must be > 0, got {self.turn_radius_m}")
         if not 0.0 < self.check_deg <= 180.0:
             raise TopodrakeError(f"follower check_deg must be in (0, 180], got {self.check_deg}")
+        if not 0.0 < self.pass_turn_deg <= 180.0:
+            raise TopodrakeError(f"follower pass_turn_deg must be in (0, 180] (180: off), got "
+                                 f"{self.pass_turn_deg}")
         if not (np.isfinite(self.tracked_goal_m) and self.tracked_goal_m >= 0.0):
             raise TopodrakeError(f"follower tracked_goal_m must be >= 0 (0: off), got "
                                  f"{self.tracked_goal_m}")
@@ -750,7 +760,9 @@ def _check_waypoints(new: FollowerState, follow: np.ndarray, dead: np.ndarray, l
         tracker.apply_scans(new, moving, frames, scans, TRACKER)
     q, known, aim = tracker.tracked_anchor(new, moving, new.active[moving], frames)
     dist = np.hypot(q[:, 0], q[:, 1])
-    passed = known & ((dist < cfg.visit_m) | ((q[:, 0] < 0.0) & (dist < TRACKED_PASS_M))) \
+    aligned = np.abs(wrap(q[:, 2])) <= np.radians(cfg.pass_turn_deg)
+    passed = known & aligned \
+        & ((dist < cfg.visit_m) | ((q[:, 0] < 0.0) & (dist < TRACKED_PASS_M))) \
         & (new.active[moving] < n_anchors[moving] - 1)
     if passed.any():
         c = moving[passed]
