@@ -493,8 +493,8 @@ def test_the_tracker_passes_no_anchor_the_car_faces_away_from():
         s, _ = drive(ev, s, turned, pass_turn_deg=limit)
         visited[limit] = s.visited[0]
     assert visited[90.0] < 2 and visited[180.0] >= 2
-    aligned = drive_along(Faint(6), (0.0, 0.6, 1.2, 1.9))
+    aligned = drive_along(Faint(6), (0.0, 0.6, 1.2, 1.9), pass_turn_deg=90.0)
     assert aligned.visited[0] >= 2                  # facing the taught way it passes as before
     with pytest.raises(TopodrakeError, match="pass_turn_deg"):
         FollowerConfig(pass_turn_deg=0.0).check()
-    assert FollowerConfig.paper().pass_turn_deg == 180.0
+    assert FollowerConfig().pass_turn_deg == FollowerConfig.paper().pass_turn_deg == 180.0

@@ -149,12 +149,11 @@ class FollowerConfig:
     tracked_goal_m: float = 0.5     # ... refuses C_WP's "at the goal" where it puts the goal
                                     # farther than this (near a wall C_WP's waypoint is short
                                     # with the goal still 0.7-0.9 m off; 0: off)
-    pass_turn_deg: float = 90.0     # the tracker passes an anchor (near it, or just behind
+    pass_turn_deg: float = 180.0    # the tracker passes an anchor (near it, or just behind
                                     # the car) only where the car's heading is within this of
-                                    # the taught one: a teach drive that turns on the spot
-                                    # leaves anchors at one place facing every way, and a car
-                                    # that passed them by position went on facing the wrong
-                                    # way (180: off)
+                                    # the taught one (180: off, the default; 90 mends teach
+                                    # drives that turn on the spot but loses more routes
+                                    # than it saves, docs/figures.md)
     legs_m: float = 2.0             # a hop without a leg (a join or goal link the scans did
                                     # not place) takes C_WP's answer from the anchor's own view
                                     # toward the next as its leg, where that waypoint is
@@ -189,7 +188,7 @@ class FollowerConfig:
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
                    odometry_check=False, scan_fix=False, tracked_sure_m=0.0,
                    reverse_inside_turn=-1.0, skip_inside_first=0, legs_m=0.0,
-                   manoeuvres=False, search_first=False, pass_turn_deg=180.0)
+                   manoeuvres=False, search_first=False)
 
     def check(self) -> "FollowerConfig":
         if self.advance not in ("next", "proximity"):
