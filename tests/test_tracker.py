@@ -498,3 +498,35 @@ def test_the_tracker_passes_no_anchor_the_car_faces_away_from():
     with pytest.raises(TopodrakeError, match="pass_turn_deg"):
         FollowerConfig(pass_turn_deg=0.0).check()
     assert FollowerConfig().pass_turn_deg == FollowerConfig.paper().pass_turn_deg == 180.0
+
+
+def test_merge_turns_leaves_out_a_turn_on_the_spot_and_composes_its_legs():
+    from topodrake.navigation.route import Route, merge_turns, teach_legs
+    from topodrake.navigation.tracker import route_frames
+
+    # a drive east, a turn on the spot at x = 2 (frames 20-29), then north
+    east = np.column_stack([np.linspace(0, 2, 21), np.zeros(21), np.zeros(21)])
+    turn = np.column_stack([np.full(9, 2.0), np.zeros(9), np.linspace(0.16, 1.4, 9)])
+    north = np.column_stack([np.full(20, 2.0), np.linspace(0.1, 2, 20), np.full(20, np.pi / 2)])
+    poses = np.vstack([east, turn, north])
+    anchors = np.array([0, 20, 23, 26, 29, 48])
+    legs, paths = teach_legs(poses, anchors)
+    route = Route(np.zeros((6, 1, 3)), poses[anchors], vertices=np.arange(6),
+                  edge_probability=np.array([0.9, 0.8, 0.8, 0.8, 0.7]), legs=legs, leg_paths=paths)
+    merged = merge_turns(route, 0.5, turn_deg=45.0)
+    assert list(merged.vertices) == [0, 4, 5]
+    assert np.allclose(merged.edge_probability, [0.9 * 0.8 ** 3, 0.7])
+    # the composed legs put the kept anchors where the teach drive was
+    frames, _, approach = route_frames([merged.legs], [merged.leg_paths])
+    assert np.allclose(frames, poses[[0, 29, 48]], atol=1e-9)
+    assert np.allclose(approach[1, -1], poses[29], atol=1e-9)
+    assert merged.leg_paths.shape == route.leg_paths[:2].shape
+    assert merge_turns(route, 0.0) is route
+    assert merge_turns(route, 0.5, turn_deg=100.0) is route     # the turn is 80 deg
+    # a run of short hops into the goal stays: the car stops there
+    tail = Route(np.zeros((5, 1, 3)), poses[anchors[:5]], legs=legs[:4], leg_paths=paths[:4])
+    assert merge_turns(tail, 0.5) is tail
+    # a join (no leg) is never merged across
+    legs[2] = np.nan
+    joined = Route(np.zeros((6, 1, 3)), poses[anchors], legs=legs, leg_paths=paths)
+    assert len(merge_turns(joined, 0.5)) == 4

@@ -166,3 +166,61 @@ def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors
     legs, paths = teach_legs(poses, anchors, odometry, seed)
     return Route(np.asarray(observations)[rows], poses[anchors], modality=modality, legs=legs,
                  leg_paths=paths, scans=scans)
+
+
+def merge_turns(route: Route, radius_m: float, turn_deg: float = 0.0) -> Route:
+    """``route`` without the anchors of its turns on the spot: a run of
+    hops each shorter than ``radius_m`` by the taught leg that ends within
+    ``radius_m`` of where it began, turned by ``turn_deg`` or more (the
+    cluster a teach drive's turn on the spot leaves). The follower drives from the anchor before such a
+    cluster straight to its last anchor, the turn as one manoeuvre. The
+    first anchor and a run into the goal stay; the legs, their taught
+    paths and the hop probabilities are composed over the anchors left
+    out; hops without a leg are never merged. ``radius_m`` 0 returns
+    ``route`` unchanged."""
+    from dataclasses import replace
+
+    from topodrake.se2 import compose
+
+    n = len(route)
+    if radius_m <= 0 or n < 3:
+        return route
+    legs = np.asarray(route.legs, np.float64)
+    short = np.all(np.isfinite(legs), axis=1) & (np.hypot(legs[:, 0], legs[:, 1]) < radius_m)
+    drop = np.zeros(n, bool)
+    i = 1
+    while i < n - 1:
+        if not short[i]:
+            i += 1
+            continue
+        j = i
+        while j + 1 < n - 1 and short[j + 1]:
+            j += 1
+        # hops i..j land on anchor j + 1: anchors i..j are left out
+        net = np.zeros((1, 3))
+        for h in range(i, j + 1):
+            net = compose(net, legs[h][None])
+        if j + 1 < n - 1 and np.hypot(net[0, 0], net[0, 1]) < radius_m and \
+                abs(np.degrees(net[0, 2])) >= turn_deg:
+            drop[i:j + 1] = True
+        i = j + 1
+    if not drop.any():
+        return route
+    keep = np.flatnonzero(~drop)
+    k = route.leg_paths.shape[1]
+    new_legs, new_paths, new_p = [], [], []
+    for a, b in zip(keep[:-1], keep[1:]):
+        pose, points, p = np.zeros((1, 3)), [], 1.0
+        for h in range(a, b):
+            points.append(compose(np.repeat(pose, k, 0), route.leg_paths[h]))
+            pose = compose(pose, legs[h][None])
+            p *= float(route.edge_probability[h])
+        points = np.concatenate(points)
+        pick = np.rint(np.linspace(0, len(points) - 1, k + 1)[1:]).astype(np.int64)
+        new_legs.append(pose[0])
+        new_paths.append(points[pick])
+        new_p.append(p)
+    return replace(route, contexts=route.contexts[keep], poses=route.poses[keep],
+                   vertices=route.vertices[keep], edge_probability=np.array(new_p),
+                   legs=np.array(new_legs), leg_paths=np.array(new_paths),
+                   scans=None if route.scans is None else route.scans[keep])
