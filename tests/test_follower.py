@@ -189,6 +189,10 @@ def test_state_vector_round_trip_and_config_checks():
         FollowerConfig(p_follow=1.5).check()
     with pytest.raises(TopodrakeError, match="lookahead"):
         FollowerConfig(lookahead=0).check()
+    with pytest.raises(TopodrakeError, match="merge_turn_m"):
+        FollowerConfig(merge_turn_m=-0.5).check()
+    with pytest.raises(TopodrakeError, match="merge_turn_deg"):
+        FollowerConfig(merge_turn_deg=270.0).check()
 
 
 def test_an_anchor_not_reached_for_stall_periods_is_skipped_but_never_the_last():

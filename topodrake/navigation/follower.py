@@ -154,10 +154,13 @@ class FollowerConfig:
                                     # the taught one (180: off, the default; 90 mends teach
                                     # drives that turn on the spot but loses more routes
                                     # than it saves, docs/figures.md)
-    merge_turn_m: float = 0.0       # the anchors whose next lies within this by the taught leg
-                                    # (a teach drive's turn on the spot) are left out of the
-                                    # route, the turn driven as one manoeuvre (0: off), where
-    merge_turn_deg: float = 45.0    # ... the run of such hops turns by this much in all
+    merge_turn_m: float = 0.0       # the anchors of a teach drive's turn on the spot (a run of
+    merge_turn_deg: float = 60.0    # hops each shorter than merge_turn_m that ends within it,
+                                    # turned by merge_turn_deg or more) are left out of the
+                                    # plans the planning study follows, the turn driven as one
+                                    # manoeuvre (0: off, the default: it mends turns on the
+                                    # spot in one house and loses routes in another,
+                                    # docs/figures.md)
     legs_m: float = 2.0             # a hop without a leg (a join or goal link the scans did
                                     # not place) takes C_WP's answer from the anchor's own view
                                     # toward the next as its leg, where that waypoint is
@@ -226,6 +229,9 @@ class FollowerConfig:
         if not (np.isfinite(self.merge_turn_m) and self.merge_turn_m >= 0.0):
             raise TopodrakeError(f"follower merge_turn_m must be >= 0 (0: off), got "
                                  f"{self.merge_turn_m}")
+        if not 0.0 <= self.merge_turn_deg <= 180.0:
+            raise TopodrakeError(f"follower merge_turn_deg must be in [0, 180], got "
+                                 f"{self.merge_turn_deg}")
         if not (np.isfinite(self.legs_m) and self.legs_m >= 0.0):
             raise TopodrakeError(f"follower legs_m must be >= 0 (0: off), got {self.legs_m}")
         if self.dr_back_anchors < -1:
