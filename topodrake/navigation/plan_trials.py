@@ -147,7 +147,6 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     :class:`~topodrake.navigation.engine.NavigationResult`), for traces."""
     from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
     from topodrake.navigation.replan import Replanner
-
     from topodrake.navigation.route import merge_turns
 
     fcfg = engine.config.follower

@@ -172,8 +172,9 @@ def merge_turns(route: Route, radius_m: float, turn_deg: float = 0.0) -> Route:
     """``route`` without the anchors of its turns on the spot: a run of
     hops each shorter than ``radius_m`` by the taught leg that ends within
     ``radius_m`` of where it began, turned by ``turn_deg`` or more (the
-    cluster a teach drive's turn on the spot leaves). The follower drives from the anchor before such a
-    cluster straight to its last anchor, the turn as one manoeuvre. The
+    cluster a teach drive's turn on the spot leaves). The follower drives
+    from the anchor before such a cluster straight to its last anchor, the
+    turn as one manoeuvre. The
     first anchor and a run into the goal stay; the legs, their taught
     paths and the hop probabilities are composed over the anchors left
     out; hops without a leg are never merged. ``radius_m`` 0 returns
@@ -197,11 +198,9 @@ def merge_turns(route: Route, radius_m: float, turn_deg: float = 0.0) -> Route:
         while j + 1 < n - 1 and short[j + 1]:
             j += 1
         # hops i..j land on anchor j + 1: anchors i..j are left out
-        net = np.zeros((1, 3))
-        for h in range(i, j + 1):
-            net = compose(net, legs[h][None])
-        if j + 1 < n - 1 and np.hypot(net[0, 0], net[0, 1]) < radius_m and \
-                abs(np.degrees(net[0, 2])) >= turn_deg:
+        net = _chained(legs, i, j + 1)
+        if j + 1 < n - 1 and np.hypot(net[0], net[1]) < radius_m and \
+                abs(np.degrees(net[2])) >= turn_deg:
             drop[i:j + 1] = True
         i = j + 1
     if not drop.any():
@@ -210,17 +209,23 @@ def merge_turns(route: Route, radius_m: float, turn_deg: float = 0.0) -> Route:
     k = route.leg_paths.shape[1]
     new_legs, new_paths, new_p = [], [], []
     for a, b in zip(keep[:-1], keep[1:]):
-        pose, points, p = np.zeros((1, 3)), [], 1.0
-        for h in range(a, b):
-            points.append(compose(np.repeat(pose, k, 0), route.leg_paths[h]))
-            pose = compose(pose, legs[h][None])
-            p *= float(route.edge_probability[h])
-        points = np.concatenate(points)
+        points = np.concatenate([compose(np.repeat(_chained(legs, a, h)[None], k, 0),
+                                         route.leg_paths[h]) for h in range(a, b)])
         pick = np.rint(np.linspace(0, len(points) - 1, k + 1)[1:]).astype(np.int64)
-        new_legs.append(pose[0])
+        new_legs.append(_chained(legs, a, b))
         new_paths.append(points[pick])
-        new_p.append(p)
+        new_p.append(float(np.prod(route.edge_probability[a:b])))
     return replace(route, contexts=route.contexts[keep], poses=route.poses[keep],
                    vertices=route.vertices[keep], edge_probability=np.array(new_p),
                    legs=np.array(new_legs), leg_paths=np.array(new_paths),
                    scans=None if route.scans is None else route.scans[keep])
+
+
+def _chained(legs: np.ndarray, a: int, b: int) -> np.ndarray:
+    """Anchor ``b``'s pose (3,) in anchor ``a``'s frame over ``legs[a:b]``."""
+    from topodrake.se2 import compose
+
+    pose = np.zeros((1, 3))
+    for leg in legs[a:b]:
+        pose = compose(pose, leg[None])
+    return pose[0]
