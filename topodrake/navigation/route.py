@@ -174,10 +174,9 @@ def merge_turns(route: Route, radius_m: float, turn_deg: float = 0.0) -> Route:
     ``radius_m`` of where it began, turned by ``turn_deg`` or more (the
     cluster a teach drive's turn on the spot leaves). The follower drives
     from the anchor before such a cluster straight to its last anchor, the
-    turn as one manoeuvre. The
-    first anchor and a run into the goal stay; the legs, their taught
-    paths and the hop probabilities are composed over the anchors left
-    out; hops without a leg are never merged. ``radius_m`` 0 returns
+    turn as one manoeuvre. The first anchor and a run into the goal stay;
+    the legs, their taught paths and the hop probabilities are composed
+    over the anchors left out; hops without a leg are never merged. ``radius_m`` 0 returns
     ``route`` unchanged."""
     from dataclasses import replace
 
@@ -198,7 +197,7 @@ def merge_turns(route: Route, radius_m: float, turn_deg: float = 0.0) -> Route:
         while j + 1 < n - 1 and short[j + 1]:
             j += 1
         # hops i..j land on anchor j + 1: anchors i..j are left out
-        net = _chained(legs, i, j + 1)
+        net = _chained(legs, i, j + 1)[-1]
         if j + 1 < n - 1 and np.hypot(net[0], net[1]) < radius_m and \
                 abs(np.degrees(net[2])) >= turn_deg:
             drop[i:j + 1] = True
@@ -209,10 +208,11 @@ def merge_turns(route: Route, radius_m: float, turn_deg: float = 0.0) -> Route:
     k = route.leg_paths.shape[1]
     new_legs, new_paths, new_p = [], [], []
     for a, b in zip(keep[:-1], keep[1:]):
-        points = np.concatenate([compose(np.repeat(_chained(legs, a, h)[None], k, 0),
+        chain = _chained(legs, a, b)
+        points = np.concatenate([compose(np.repeat(chain[h - a][None], k, 0),
                                          route.leg_paths[h]) for h in range(a, b)])
         pick = np.rint(np.linspace(0, len(points) - 1, k + 1)[1:]).astype(np.int64)
-        new_legs.append(_chained(legs, a, b))
+        new_legs.append(chain[-1])
         new_paths.append(points[pick])
         new_p.append(float(np.prod(route.edge_probability[a:b])))
     return replace(route, contexts=route.contexts[keep], poses=route.poses[keep],
@@ -222,10 +222,11 @@ def merge_turns(route: Route, radius_m: float, turn_deg: float = 0.0) -> Route:
 
 
 def _chained(legs: np.ndarray, a: int, b: int) -> np.ndarray:
-    """Anchor ``b``'s pose (3,) in anchor ``a``'s frame over ``legs[a:b]``."""
+    """Anchors ``a..b``'s poses (b - a + 1, 3) in anchor ``a``'s frame over
+    ``legs[a:b]``."""
     from topodrake.se2 import compose
 
-    pose = np.zeros((1, 3))
+    poses = [np.zeros((1, 3))]
     for leg in legs[a:b]:
-        pose = compose(pose, leg[None])
-    return pose[0]
+        poses.append(compose(poses[-1], leg[None]))
+    return np.concatenate(poses)
