@@ -93,6 +93,17 @@ def test_waypoint_label_is_in_the_source_frame(box_world):
     assert np.hypot(*wp[0]) <= 0.5 + 1e-9 and wp[0, 0] > 0.45
 
 
+def test_a_source_in_a_walls_margin_drives_out_along_astar_when_snapped(box_world):
+    # 0.15 m from the partition's face (inside its 0.2 m margin), the target behind it
+    src, tgt = np.array([[4.75, 5.0, 0.0]]), np.array([[5.5, 5.0]])
+    _, valid = expert_waypoint_labels(box_world, src, tgt)
+    assert not valid[0]                                  # the labels' rule: no path
+    wp, valid = expert_waypoint_labels(box_world, src, tgt, start_snap_m=0.3)
+    assert valid[0]
+    end = src[0, :2] + wp[0]                             # heading 0: car frame = world frame
+    assert end[0] < 4.9 and end[1] > 5.3                 # up toward the gap, not through the wall
+
+
 def test_context_rows_clamped_and_ordered(samples, trajectories):
     rows = samples.context_rows(2, 3)
     assert rows.shape == (len(samples), 5)

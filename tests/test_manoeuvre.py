@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from topodrake.control import controls_toward
-from topodrake.navigation.manoeuvre import Manoeuvres, local_grid, ray_path, wall_points
+from topodrake.navigation.manoeuvre import (ManoeuvreConfig, Manoeuvres, crosses_walls,
+                                            detour_path, detour_waypoint, local_grid, ray_path,
+                                            wall_points)
 from topodrake.rmp import RmpConfig
 from topodrake.sensing.config import LidarConfig
 from topodrake.sensing.lidar import Lidar
@@ -44,12 +46,12 @@ def test_ray_path_runs_through_the_waypoint_to_its_length():
     assert far[-1] == pytest.approx([5.0, 0.0])
 
 
-def _drive(world, start, waypoint, manoeuvres: bool, periods=150):
+def _drive(world, start, waypoint, manoeuvres: bool, periods=150, config=None):
     lidar_cfg, veh, rmp = LidarConfig(), VehicleConfig(), RmpConfig()
     lidar = Lidar(world, lidar_cfg)
     st = np.zeros((1, 5))
     st[0, :3] = start
-    man = Manoeuvres(1, st[:, :3], lidar_cfg) if manoeuvres else None
+    man = Manoeuvres(1, st[:, :3], lidar_cfg, config) if manoeuvres else None
     for k in range(periods):
         ranges = lidar.scan(st[:, :3])
         wp = np.array([waypoint], float)
@@ -61,6 +63,45 @@ def _drive(world, start, waypoint, manoeuvres: bool, periods=150):
         if np.hypot(*(st[0, :2] - waypoint)) < 0.3:
             return "reached", man
     return "timeout", man
+
+
+def _partition_scan(world, pose):
+    from topodrake.expert.kernel import lidar_world_points
+
+    cfg = LidarConfig()
+    pts, hit = lidar_world_points(np.array([pose]), Lidar(world, cfg).scan(np.array([pose])), cfg)
+    return pts, hit
+
+
+def test_a_segment_through_a_seen_wall_crosses_it(box_world):
+    pts, hit = _partition_scan(box_world, (4.5, 4.5, 0.0))
+    assert crosses_walls(pts, hit, np.array([4.5, 4.5]), np.array([5.5, 4.5]), 0.3)
+    assert not crosses_walls(pts, hit, np.array([4.5, 4.5]), np.array([4.5, 7.0]), 0.3)
+    assert not crosses_walls(pts, np.zeros_like(hit), np.array([4.5, 4.5]),
+                             np.array([5.5, 4.5]), 0.3)
+
+
+def test_a_detour_goes_round_the_seen_wall_and_its_waypoint_is_in_sight(box_world):
+    start, goal = np.array([4.5, 4.5]), np.array([5.5, 4.5])
+    pts, hit = _partition_scan(box_world, (4.5, 4.5, 0.0))
+    grid = local_grid(wall_points(pts, hit, 0.3, 0.025), start, 3.5, 0.05)
+    path = detour_path(grid, start, goal)
+    assert path is not None
+    assert path[0] == pytest.approx(start) and path[-1] == pytest.approx(goal)
+    assert path[:, 1].max() > 6.1                       # round the partition's end
+    wp = detour_waypoint(path, pts, hit, 0.3, 1.0)
+    assert np.hypot(*(wp - start)) <= 1.0 + 1e-9
+    assert wp[1] > start[1] + 0.3                       # up along the partition, not through it
+    assert not crosses_walls(pts, hit, start, wp, 0.3)
+    assert detour_path(grid, start, np.array([20.0, 4.5])) is None     # off the grid
+
+
+def test_a_waypoint_behind_a_seen_wall_is_reached_along_the_detour(box_world):
+    start, goal = (4.5, 4.5, 0.0), (5.5, 4.5)
+    straight, _ = _drive(box_world, start, goal, True, 250, ManoeuvreConfig(detour=False))
+    detour, _ = _drive(box_world, start, goal, True, 250)
+    assert straight != "reached"
+    assert detour == "reached"
 
 
 def test_a_waypoint_the_rmp_circles_is_reached_by_a_manoeuvre(box_world):

@@ -228,16 +228,20 @@ def _snap_free(world, xy: np.ndarray, radius: float) -> np.ndarray | None:
 
 
 def expert_waypoint_labels(world, src_poses: np.ndarray, tgt_xy: np.ndarray,
-                           lookahead_m: float = 5.0, snap_m: float = 0.3
-                           ) -> tuple[np.ndarray, np.ndarray]:
+                           lookahead_m: float = 5.0, snap_m: float = 0.3,
+                           start_snap_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """The A* expert's waypoint from each source pose toward its target.
 
     Returns (waypoints (N, 2) in each source's car frame, valid (N,) bool).
     A* runs from the source position to the target position (snapped to the
     nearest free cell within ``snap_m``); the waypoint is the farthest path
     point within ``lookahead_m`` with a clear line of sight, shortened to the
-    straight-line source-target distance. Also the A* oracle of
-    :class:`topodrake.learning.waypoint.policy.AStarOracle`.
+    straight-line source-target distance. A source inside a wall's c-space
+    margin has no path (invalid) unless ``start_snap_m`` > 0: then A* and
+    the line of sight start from the nearest free cell within it (the car
+    drives out of the margin along the path instead of aiming through the
+    wall). Also the A* oracle
+    of :class:`topodrake.learning.waypoint.policy.AStarOracle`.
     """
     from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints
 
@@ -245,20 +249,24 @@ def expert_waypoint_labels(world, src_poses: np.ndarray, tgt_xy: np.ndarray,
     tgt_xy = np.asarray(tgt_xy, np.float64).reshape(-1, 2)
     n = len(src_poses)
     valid = np.zeros(n, bool)
+    sight = src_poses[:, :2].copy()
     paths = []
     for i in range(n):
         goal = _snap_free(world, tgt_xy[i], snap_m)
         start = src_poses[i, :2]
         path = None
-        if goal is not None and world.grid.is_free(start[None])[0]:
+        free = start if world.grid.is_free(start[None])[0] else \
+            (_snap_free(world, start, start_snap_m) if start_snap_m > 0 else None)
+        if goal is not None and free is not None:
             try:
-                path = world.astar(start, goal)
+                path = world.astar(free, goal)
+                sight[i] = free         # the waypoint is the one in sight from there
                 valid[i] = True
             except TopodrakeError:
                 path = None
         paths.append(path if path is not None else start[None].copy())
     packed = PackedPaths.pack(paths)
-    wp, _ = expert_waypoints(world.grid, packed, packed.offsets[:-1], src_poses[:, :2],
+    wp, _ = expert_waypoints(world.grid, packed, packed.offsets[:-1], sight,
                              ExpertConfig(lookahead_m=lookahead_m))
     vec = wp - src_poses[:, :2]
     length = np.hypot(*vec.T)

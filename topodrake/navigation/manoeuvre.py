@@ -21,6 +21,11 @@ seen them, and the lidar's beams are joined into wall segments where
 neighbouring hits lie close; behind the start, where the car has seen
 nothing, the walls its first scan sees beside it are taken to go on
 (``blind_extend_m``).
+
+A waypoint whose straight line from the car crosses a wall the car has
+seen (the route tracker's pursuit point cut across a corner, an anchor
+behind a jamb) is driven along A* on the sensed grid instead: the
+kernel's check and its waypoint then follow that path (``detour``).
 """
 
 from __future__ import annotations
@@ -57,6 +62,9 @@ class ManoeuvreConfig:
     blind_near_m: float = 1.0
     blind_until_m: float = 1.0    # ... until the car is this far from its start or has turned
     # far enough to have seen behind it (its lidar's blind half-angle)
+    detour: bool = True           # a waypoint behind a seen wall is driven along A* on the grid
+    detour_reach_m: float = 1.0   # ... toward its farthest point in sight within this (or the
+                                  # waypoint's own distance, if farther)
     expert: ExpertConfig = field(default_factory=ExpertConfig)
 
 
@@ -125,6 +133,77 @@ def edge_walls(poses: np.ndarray, ranges: np.ndarray, lidar: LidarConfig, extend
     return out
 
 
+def crosses_walls(points: np.ndarray, mask: np.ndarray, start: np.ndarray, end: np.ndarray,
+                  join_m: float) -> bool:
+    """Whether the segment ``start`` -> ``end`` crosses a wall segment of
+    the scans' hits (S, B, 2) with ``mask`` (neighbouring beams' hits closer
+    than ``join_m``, as :func:`wall_points` joins them)."""
+    a, b = points[:, :-1], points[:, 1:]
+    pair = mask[:, :-1] & mask[:, 1:] & (np.linalg.norm(b - a, axis=-1) < join_m)
+    if not pair.any():
+        return False
+    a, b = a[pair], b[pair]
+    d = end - start
+    e = b - a
+    den = d[0] * e[:, 1] - d[1] * e[:, 0]
+    w = a - start
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / den
+        u = (w[:, 0] * d[1] - w[:, 1] * d[0]) / den
+    return bool(np.any((np.abs(den) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)))
+
+
+def detour_path(grid: LocalGrid, start: np.ndarray, goal: np.ndarray, snap_m: float = 0.3
+                ) -> np.ndarray | None:
+    """A* (K, 2) on the sensed grid from ``start`` to ``goal``, either end
+    moved to the nearest free cell within ``snap_m`` where it lies in a
+    wall's margin (the path keeps the exact ends); None where none joins them."""
+    from topodrake.errors import TopodrakeError
+    from topodrake.world.astar import astar
+    from topodrake.world.grid import OccupancyGrid
+
+    occ = grid.clearance < 0.5 * grid.resolution
+    occ_grid = OccupancyGrid(occ, np.array(grid.origin), grid.resolution, grid.car_radius)
+    free = occ_grid.free_space
+    ends = []
+    for xy in (start, goal):
+        rc = occ_grid.to_cell(xy)
+        if not occ_grid.in_bounds(rc):
+            return None
+        if not free[rc[0], rc[1]]:
+            r = int(np.ceil(snap_m / grid.resolution))
+            lo = np.maximum(rc - r, 0)
+            cells = np.argwhere(free[lo[0]:rc[0] + r + 1, lo[1]:rc[1] + r + 1]) + lo
+            if not len(cells):
+                return None
+            centres = occ_grid.to_world(cells)
+            dist = np.hypot(*(centres - xy).T)
+            if dist.min() > snap_m:
+                return None
+            ends.append(centres[int(np.argmin(dist))])
+        else:
+            ends.append(np.asarray(xy, np.float64))
+    try:
+        path = astar(occ_grid, ends[0], ends[1])
+    except TopodrakeError:
+        return None
+    return np.concatenate([np.asarray(start, np.float64)[None], path,
+                           np.asarray(goal, np.float64)[None]])
+
+
+def detour_waypoint(path: np.ndarray, points: np.ndarray, mask: np.ndarray, join_m: float,
+                    reach_m: float) -> np.ndarray:
+    """The farthest point of ``path`` (K, 2; from the car) within
+    ``reach_m`` of its start whose straight line from the start crosses no
+    wall of the scans (:func:`crosses_walls`); the path's first point past
+    the start where none does."""
+    d = np.hypot(*(path - path[0]).T)
+    for k in np.flatnonzero((d <= reach_m) & (d > 1e-6))[::-1]:
+        if not crosses_walls(points, mask, path[0], path[k], join_m):
+            return path[k]
+    return path[min(1, len(path) - 1)]
+
+
 def ray_path(pose: np.ndarray, waypoint: np.ndarray, ray_m: float, step_m: float = 0.1
              ) -> np.ndarray:
     """Points (K, 2) from the car's position through ``waypoint`` to at least ``ray_m``."""
@@ -183,7 +262,11 @@ class Manoeuvres:
                               cfg.blind_near_m, 0.5 * cfg.resolution_m)
             for car, walls in zip(cars[first], made):
                 self.blind[car] = walls
-        skip = self._unchecked(cars, poses_odo, out)
+        blocked = np.array([cfg.detour and np.isfinite(out[i]).all()
+                            and crosses_walls(self.points[car], self.mask[car], poses_odo[i, :2],
+                                              out[i], cfg.join_m)
+                            for i, car in enumerate(cars)], bool)
+        skip = self._unchecked(cars, poses_odo, out) & ~blocked
         self._leave_start(cars, poses_odo)
         for i, car in enumerate(cars):
             row = self.memory[car:car + 1]          # a view: the kernel updates it in place
@@ -196,7 +279,9 @@ class Manoeuvres:
             if self.blind_on[car]:
                 walls = np.concatenate([walls, self.blind[car]])
             grid = local_grid(walls, poses_odo[i], cfg.half_m, cfg.resolution_m)
-            paths = PackedPaths.pack([ray_path(poses_odo[i], out[i], cfg.ray_m)])
+            path = detour_path(grid, poses_odo[i, :2], out[i]) if blocked[i] else None
+            paths = PackedPaths.pack([ray_path(poses_odo[i], out[i], cfg.ray_m) if path is None
+                                      else path])
             was = row[0, _M_MODE] == 1.0 and row[0, _M_LEFT] > 0
             wp, _ = expert_waypoints(grid, paths, np.zeros(1, np.int64), poses_odo[i:i + 1],
                                      cfg.expert, memory=row, ranges=ranges[i:i + 1],
@@ -204,6 +289,9 @@ class Manoeuvres:
             if row[0, _M_MODE] == 1.0:
                 out[i] = wp[0]
                 self.started[car] += int(not was)
+            elif path is not None:
+                reach = max(float(np.hypot(*(out[i] - poses_odo[i, :2]))), cfg.detour_reach_m)
+                out[i] = detour_waypoint(path, self.points[car], self.mask[car], cfg.join_m, reach)
         return out
 
     def _leave_start(self, cars: np.ndarray, poses: np.ndarray) -> None:
@@ -257,5 +345,6 @@ def _note_pose(mem: np.ndarray, pose: np.ndarray, vehicle: VehicleConfig) -> Non
     mem[_M_PX], mem[_M_PY], mem[_M_PT] = pose
 
 
-__all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "edge_walls", "local_grid", "ray_path",
-           "wall_points"]
+__all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "crosses_walls", "detour_path",
+           "detour_waypoint",
+           "edge_walls", "local_grid", "ray_path", "wall_points"]

@@ -151,13 +151,14 @@ class AStarOracle:
     observation = "pose"
 
     def __init__(self, world, k: int = 0, frame_step: int = 3, camera: CameraConfig | None = None,
-                 lookahead_m: float = 5.0, overlap_rays: int = 100):
+                 lookahead_m: float = 5.0, overlap_rays: int = 100, start_snap_m: float = 0.3):
         self.world = world
         self.k = k
         self.frame_step = frame_step
         self.camera = camera or CameraConfig()
         self.lookahead_m = lookahead_m
         self.overlap_rays = overlap_rays
+        self.start_snap_m = start_snap_m   # a car in a wall's margin drives out along A*
 
     def encode_target(self, context: np.ndarray) -> np.ndarray:
         return centre_pose(context, self.k)
@@ -172,9 +173,10 @@ class AStarOracle:
             tgt = np.repeat(tgt, len(poses), axis=0)
         if len(poses) == 1 and len(tgt) > 1:
             poses = np.repeat(poses, len(tgt), axis=0)
-        wp, valid = expert_waypoint_labels(self.world, poses, tgt[:, :2], self.lookahead_m)
+        wp, valid = expert_waypoint_labels(self.world, poses, tgt[:, :2], self.lookahead_m,
+                                           start_snap_m=self.start_snap_m)
         if not valid.all():
-            # no A* path (e.g. the car is in a wall's c-space margin): aim straight at the target
+            # no A* path (deeper in a wall's margin than start_snap_m): aim straight at the target
             d = tgt[~valid, :2] - poses[~valid, :2]
             c, s = np.cos(poses[~valid, 2]), np.sin(poses[~valid, 2])
             wp[~valid] = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
