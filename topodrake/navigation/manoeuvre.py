@@ -79,15 +79,22 @@ class LocalGrid:
     _cache: dict = field(default_factory=dict)
 
 
+def wall_segments(points: np.ndarray, mask: np.ndarray, join_m: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The ends (P, 2), (P, 2) of the wall segments between neighbouring
+    beams' hits of scans (S, B, 2) with ``mask`` that lie closer than ``join_m``."""
+    a, b = points[:, :-1], points[:, 1:]
+    pair = mask[:, :-1] & mask[:, 1:] & (np.linalg.norm(b - a, axis=-1) < join_m)
+    return a[pair], b[pair]
+
+
 def wall_points(points: np.ndarray, mask: np.ndarray, join_m: float, step_m: float) -> np.ndarray:
     """Hit points (S, B, 2) of S scans with their mask, and points every
     ``step_m`` along the segment between neighbouring beams' hits that lie
     closer than ``join_m``: (P, 2)."""
-    a, b = points[:, :-1], points[:, 1:]
-    pair = mask[:, :-1] & mask[:, 1:] & (np.linalg.norm(b - a, axis=-1) < join_m)
+    a, b = wall_segments(points, mask, join_m)
     m = max(2, int(np.ceil(join_m / step_m)) + 1)
     t = np.linspace(0.0, 1.0, m)[None, :, None]
-    a, b = a[pair], b[pair]
     return np.concatenate([points[mask], (a[:, None] + t * (b - a)[:, None]).reshape(-1, 2)])
 
 
@@ -136,13 +143,10 @@ def edge_walls(poses: np.ndarray, ranges: np.ndarray, lidar: LidarConfig, extend
 def crosses_walls(points: np.ndarray, mask: np.ndarray, start: np.ndarray, end: np.ndarray,
                   join_m: float) -> bool:
     """Whether the segment ``start`` -> ``end`` crosses a wall segment of
-    the scans' hits (S, B, 2) with ``mask`` (neighbouring beams' hits closer
-    than ``join_m``, as :func:`wall_points` joins them)."""
-    a, b = points[:, :-1], points[:, 1:]
-    pair = mask[:, :-1] & mask[:, 1:] & (np.linalg.norm(b - a, axis=-1) < join_m)
-    if not pair.any():
+    the scans' hits (S, B, 2) with ``mask`` (:func:`wall_segments`)."""
+    a, b = wall_segments(points, mask, join_m)
+    if not len(a):
         return False
-    a, b = a[pair], b[pair]
     d = end - start
     e = b - a
     den = d[0] * e[:, 1] - d[1] * e[:, 0]
@@ -346,5 +350,5 @@ def _note_pose(mem: np.ndarray, pose: np.ndarray, vehicle: VehicleConfig) -> Non
 
 
 __all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "crosses_walls", "detour_path",
-           "detour_waypoint",
-           "edge_walls", "local_grid", "ray_path", "wall_points"]
+           "detour_waypoint", "edge_walls", "local_grid", "ray_path", "wall_points",
+           "wall_segments"]
