@@ -81,6 +81,23 @@ def test_a_segment_through_a_seen_wall_crosses_it(box_world):
                              np.array([5.5, 4.5]), 0.3)
 
 
+def test_kept_scans_answer_the_crossing_test_as_their_points_do(box_world):
+    """The segments each car keeps when it remembers a scan give every
+    car's crossing answer in one pass, as :func:`crosses_walls` gives it
+    from that car's own scans."""
+    cfg = LidarConfig()
+    poses = np.array([(4.5, 4.5, 0.0), (2.0, 2.0, 0.5), (6.5, 3.0, 3.0)])
+    man = Manoeuvres(3, poses, cfg, ManoeuvreConfig(every=1, scans=2))
+    man.remember(np.arange(3), poses, Lidar(box_world, cfg).scan(poses))
+    ends = np.array([(5.5, 4.5), (2.0, 2.5), (2.0, 3.0)])
+    got = man._blocked(np.array([0, 1, 2]), poses, ends)
+    want = [crosses_walls(man.points[c], man.mask[c], poses[c, :2], ends[c], 0.3)
+            for c in range(3)]
+    assert got.tolist() == want and got[0] and not got[1]
+    nan = man._blocked(np.array([0]), poses[:1], np.full((1, 2), np.nan))
+    assert not nan[0]
+
+
 def test_a_detour_goes_round_the_seen_wall_and_its_waypoint_is_in_sight(box_world):
     start, goal = np.array([4.5, 4.5]), np.array([5.5, 4.5])
     pts, hit = _partition_scan(box_world, (4.5, 4.5, 0.0))

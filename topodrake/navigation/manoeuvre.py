@@ -79,23 +79,51 @@ class LocalGrid:
     _cache: dict = field(default_factory=dict)
 
 
+def scan_segments(points: np.ndarray, mask: np.ndarray, join_m: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pair of neighbouring beams of scans (..., B, 2) with ``mask``:
+    the segment's ends (..., B-1, 2), (..., B-1, 2) and whether it is a
+    wall (both beams hit, closer than ``join_m``)."""
+    a, b = points[..., :-1, :], points[..., 1:, :]
+    ok = mask[..., :-1] & mask[..., 1:] & (np.linalg.norm(b - a, axis=-1) < join_m)
+    return a, b, ok
+
+
 def wall_segments(points: np.ndarray, mask: np.ndarray, join_m: float
                   ) -> tuple[np.ndarray, np.ndarray]:
     """The ends (P, 2), (P, 2) of the wall segments between neighbouring
     beams' hits of scans (S, B, 2) with ``mask`` that lie closer than ``join_m``."""
-    a, b = points[:, :-1], points[:, 1:]
-    pair = mask[:, :-1] & mask[:, 1:] & (np.linalg.norm(b - a, axis=-1) < join_m)
-    return a[pair], b[pair]
+    a, b, ok = scan_segments(points, mask, join_m)
+    return a[ok], b[ok]
+
+
+def segments_crossed(a: np.ndarray, b: np.ndarray, ok: np.ndarray, start: np.ndarray,
+                     end: np.ndarray) -> np.ndarray:
+    """For M lines ``start`` -> ``end`` (M, 2), whether each crosses one of
+    its own segments ``a`` -> ``b`` (M, K, 2) where ``ok`` (M, K)."""
+    d = (end - start)[:, None, :]
+    e = b - a
+    den = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]
+    w = a - start[:, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[..., 0] * e[..., 1] - w[..., 1] * e[..., 0]) / den
+        u = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den
+    return np.any(ok & (np.abs(den) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1),
+                  axis=1)
 
 
 def wall_points(points: np.ndarray, mask: np.ndarray, join_m: float, step_m: float) -> np.ndarray:
     """Hit points (S, B, 2) of S scans with their mask, and points every
     ``step_m`` along the segment between neighbouring beams' hits that lie
     closer than ``join_m``: (P, 2)."""
-    a, b = wall_segments(points, mask, join_m)
+    return _along_walls(points[mask], *wall_segments(points, mask, join_m), join_m, step_m)
+
+
+def _along_walls(hits: np.ndarray, a: np.ndarray, b: np.ndarray, join_m: float, step_m: float
+                 ) -> np.ndarray:
     m = max(2, int(np.ceil(join_m / step_m)) + 1)
     t = np.linspace(0.0, 1.0, m)[None, :, None]
-    return np.concatenate([points[mask], (a[:, None] + t * (b - a)[:, None]).reshape(-1, 2)])
+    return np.concatenate([hits, (a[:, None] + t * (b - a)[:, None]).reshape(-1, 2)])
 
 
 def local_grid(points: np.ndarray, centre: np.ndarray, half_m: float, resolution_m: float
@@ -144,17 +172,10 @@ def crosses_walls(points: np.ndarray, mask: np.ndarray, start: np.ndarray, end: 
                   join_m: float) -> bool:
     """Whether the segment ``start`` -> ``end`` crosses a wall segment of
     the scans' hits (S, B, 2) with ``mask`` (:func:`wall_segments`)."""
-    a, b = wall_segments(points, mask, join_m)
-    if not len(a):
-        return False
-    d = end - start
-    e = b - a
-    den = d[0] * e[:, 1] - d[1] * e[:, 0]
-    w = a - start
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / den
-        u = (w[:, 0] * d[1] - w[:, 1] * d[0]) / den
-    return bool(np.any((np.abs(den) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)))
+    a, b, ok = scan_segments(points, mask, join_m)
+    return bool(segments_crossed(a.reshape(1, -1, 2), b.reshape(1, -1, 2), ok.reshape(1, -1),
+                                 np.asarray(start, np.float64)[None],
+                                 np.asarray(end, np.float64)[None])[0])
 
 
 def detour_path(grid: LocalGrid, start: np.ndarray, goal: np.ndarray, snap_m: float = 0.3
@@ -232,6 +253,10 @@ class Manoeuvres:
         s, b = self.config.scans, lidar.beams
         self.points = np.zeros((n, s, b, 2))
         self.mask = np.zeros((n, s, b), bool)
+        # each kept scan's wall segments (scan_segments), made once when it is kept
+        self.seg_a = np.zeros((n, s, b - 1, 2))
+        self.seg_b = np.zeros((n, s, b - 1, 2))
+        self.seg_ok = np.zeros((n, s, b - 1), bool)
         self.periods = np.zeros(n, np.int64)
         self.memory = initial_memory(starts_odo)
         self.started = np.zeros(n, np.int64)   # manoeuvres started, per car
@@ -248,6 +273,8 @@ class Manoeuvres:
             slot = (self.periods[c] // self.config.every) % self.config.scans
             self.points[c, slot] = pts
             self.mask[c, slot] = hit
+            a, b, ok = scan_segments(pts, hit, self.config.join_m)
+            self.seg_a[c, slot], self.seg_b[c, slot], self.seg_ok[c, slot] = a, b, ok
         self.periods[cars] += 1
 
     def step(self, cars: np.ndarray, poses_odo: np.ndarray, waypoints: np.ndarray,
@@ -266,10 +293,7 @@ class Manoeuvres:
                               cfg.blind_near_m, 0.5 * cfg.resolution_m)
             for car, walls in zip(cars[first], made):
                 self.blind[car] = walls
-        blocked = np.array([cfg.detour and np.isfinite(out[i]).all()
-                            and crosses_walls(self.points[car], self.mask[car], poses_odo[i, :2],
-                                              out[i], cfg.join_m)
-                            for i, car in enumerate(cars)], bool)
+        blocked = self._blocked(cars, poses_odo, out) if cfg.detour else np.zeros(len(cars), bool)
         skip = self._unchecked(cars, poses_odo, out) & ~blocked
         self._leave_start(cars, poses_odo)
         for i, car in enumerate(cars):
@@ -278,8 +302,9 @@ class Manoeuvres:
                 _note_pose(row[0], poses_odo[i], self.vehicle)
                 row[0, _M_TRUST] = max(row[0, _M_TRUST] - 1, 0)
                 continue
-            walls = wall_points(self.points[car], self.mask[car], cfg.join_m,
-                                0.5 * cfg.resolution_m)
+            ok = self.seg_ok[car]
+            walls = _along_walls(self.points[car][self.mask[car]], self.seg_a[car][ok],
+                                 self.seg_b[car][ok], cfg.join_m, 0.5 * cfg.resolution_m)
             if self.blind_on[car]:
                 walls = np.concatenate([walls, self.blind[car]])
             grid = local_grid(walls, poses_odo[i], cfg.half_m, cfg.resolution_m)
@@ -296,6 +321,19 @@ class Manoeuvres:
             elif path is not None:
                 reach = max(float(np.hypot(*(out[i] - poses_odo[i, :2]))), cfg.detour_reach_m)
                 out[i] = detour_waypoint(path, self.points[car], self.mask[car], cfg.join_m, reach)
+        return out
+
+    def _blocked(self, cars: np.ndarray, poses: np.ndarray, waypoints: np.ndarray) -> np.ndarray:
+        """Whether each car's straight line to its waypoint crosses a wall it has seen."""
+        out = np.zeros(len(cars), bool)
+        live = np.flatnonzero(np.isfinite(waypoints).all(axis=1))
+        if len(live):
+            c = cars[live]
+            k = self.seg_ok.shape[1] * self.seg_ok.shape[2]
+            out[live] = segments_crossed(self.seg_a[c].reshape(len(c), k, 2),
+                                         self.seg_b[c].reshape(len(c), k, 2),
+                                         self.seg_ok[c].reshape(len(c), k),
+                                         poses[live, :2], waypoints[live])
         return out
 
     def _leave_start(self, cars: np.ndarray, poses: np.ndarray) -> None:
@@ -350,5 +388,6 @@ def _note_pose(mem: np.ndarray, pose: np.ndarray, vehicle: VehicleConfig) -> Non
 
 
 __all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "crosses_walls", "detour_path",
+           "scan_segments", "segments_crossed",
            "detour_waypoint", "edge_walls", "local_grid", "ray_path", "wall_points",
            "wall_segments"]
