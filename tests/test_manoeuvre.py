@@ -219,6 +219,31 @@ def test_the_kernel_sees_the_start_walls_until_the_car_leaves(box_world, monkeyp
     assert not man.blind_on[0] and nearest(seen[-1]) > 0.05
     off = Manoeuvres(1, start, lidar_cfg, manoeuvre.ManoeuvreConfig(blind_extend_m=None))
     assert not off.blind_on[0]
+
+
+def test_the_blind_cone_behind_the_start_is_walled_at_blind_back_m(box_world, monkeypatch):
+    import topodrake.navigation.manoeuvre as manoeuvre
+    from topodrake.navigation.manoeuvre import blind_arc
+
+    lidar_cfg = LidarConfig()
+    pose = np.array([[2.5, 5.0, 0.0]])                  # heading +x, nothing near it
+    arc = blind_arc(pose, lidar_cfg, 0.6, 0.025)[0]
+    assert np.allclose(np.hypot(*(arc - pose[0, :2]).T), 0.6)
+    bearing = np.degrees(np.abs(np.arctan2(arc[:, 1] - 5.0, arc[:, 0] - 2.5)))
+    assert bearing.min() == pytest.approx(120.0) and bearing.max() == pytest.approx(180.0, abs=2)
+    seen = []
+    real = manoeuvre.local_grid
+    monkeypatch.setattr(manoeuvre, "local_grid",
+                        lambda points, *a, **kw: seen.append(points) or real(points, *a, **kw))
+    man = Manoeuvres(1, pose, lidar_cfg)
+    man.step(np.array([0]), pose, np.array([[1.5, 5.0]]), Lidar(box_world, lidar_cfg).scan(pose))
+    assert np.min(np.hypot(*(seen[-1] - [1.9, 5.0]).T)) < 0.03      # straight behind, 0.6 m
+    open_cfg = manoeuvre.ManoeuvreConfig(blind_back_m=None)
+    man = Manoeuvres(1, pose, lidar_cfg, open_cfg)
+    man.step(np.array([0]), pose, np.array([[1.5, 5.0]]), Lidar(box_world, lidar_cfg).scan(pose))
+    assert np.min(np.hypot(*(seen[-1] - [1.9, 5.0]).T)) > 0.3
+
+
 def test_the_blind_arc_goes_once_the_car_leaves_its_start_or_turns(box_world):
     lidar_cfg = LidarConfig()
     lidar = Lidar(box_world, lidar_cfg)

@@ -68,3 +68,17 @@ def test_calibrated_oracle_never_claims_certainty():
          "overlap": np.ones(1), "sight": np.ones(1, bool)}
     assert 0.95 < reach_from_geometry(g, CALIBRATED_ORACLE)[0] < 0.99
     assert reach_from_geometry(g, OracleConfig())[0] > 0.99
+
+
+def test_the_maps_oracle_rates_short_reverses_as_reachable():
+    """A target close behind the car (a turn on the spot, a three-point
+    turn's reverse) is rated by distance, overlap and sight alone; one
+    farther behind than ``reverse_m`` still counts as hard."""
+    g = {"distance": np.array([0.5, 0.5, 3.0]), "turn": np.zeros(3),
+         "bearing": np.array([math.pi, 0.0, math.pi]), "overlap": np.ones(3),
+         "sight": np.ones(3, bool)}
+    p = reach_from_geometry(g, OracleConfig())
+    assert p[0] == pytest.approx(p[1], abs=5e-3) and p[0] > 0.99
+    assert p[2] < 0.6
+    fitted = reach_from_geometry(g, OracleConfig(reverse_m=0.0))
+    assert fitted[0] < 0.6 and fitted[2] < 0.6

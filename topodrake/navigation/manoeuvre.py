@@ -20,7 +20,10 @@ frame it came in. Walls behind the car are known only as far as it has
 seen them, and the lidar's beams are joined into wall segments where
 neighbouring hits lie close; behind the start, where the car has seen
 nothing, the walls its first scan sees beside it are taken to go on
-(``blind_extend_m``).
+(``blind_extend_m``) and the blind cone counts as walled a short way
+behind it (``blind_back_m``): a turn-around at the start then begins
+forward, into what the car sees, rather than with a long reverse into
+what it has not seen.
 
 A waypoint whose straight line from the car crosses a wall the car has
 seen (the route tracker's pursuit point cut across a corner, an anchor
@@ -61,7 +64,9 @@ class ManoeuvreConfig:
     blind_extend_m: float | None = 1.0
     blind_near_m: float = 1.0
     blind_until_m: float = 1.0    # ... until the car is this far from its start or has turned
-    # far enough to have seen behind it (its lidar's blind half-angle)
+    # far enough to have seen behind it (its lidar's blind half-angle); and the blind cone
+    # counts as walled this far from the start (m; None: open), so that a reverse there stays short
+    blind_back_m: float | None = 0.6
     detour: bool = True           # a waypoint behind a seen wall is driven along A* on the grid
     detour_reach_m: float = 1.0   # ... toward its farthest point in sight within this (or the
                                   # waypoint's own distance, if farther)
@@ -166,6 +171,18 @@ def edge_walls(poses: np.ndarray, ranges: np.ndarray, lidar: LidarConfig, extend
                 walls.append(pts[i, edge] + t[:, None] * (d / n))
         out.append(np.concatenate(walls) if walls else np.zeros((0, 2)))
     return out
+
+
+def blind_arc(poses: np.ndarray, lidar: LidarConfig, radius_m: float, step_m: float
+              ) -> np.ndarray:
+    """Points (S, K, 2) every ``step_m`` on the arc ``radius_m`` round each
+    pose's position (S, 3) across its lidar's blind cone behind it."""
+    half = 0.5 * np.radians(lidar.fov_deg)
+    span = 2.0 * np.pi - 2.0 * half
+    k = max(2, int(np.ceil(span * radius_m / step_m)) + 1)
+    a = poses[:, 2:3] + half + np.linspace(0.0, span, k)[None, :]
+    return np.stack([poses[:, 0:1] + radius_m * np.cos(a),
+                     poses[:, 1:2] + radius_m * np.sin(a)], axis=-1)
 
 
 def crosses_walls(points: np.ndarray, mask: np.ndarray, start: np.ndarray, end: np.ndarray,
@@ -291,6 +308,10 @@ class Manoeuvres:
         if cfg.blind_extend_m is not None and first.any():
             made = edge_walls(poses_odo[first], ranges[first], self.lidar, cfg.blind_extend_m,
                               cfg.blind_near_m, 0.5 * cfg.resolution_m)
+            if cfg.blind_back_m is not None:
+                arcs = blind_arc(poses_odo[first], self.lidar, cfg.blind_back_m,
+                                 0.5 * cfg.resolution_m)
+                made = [np.concatenate([w, arc]) for w, arc in zip(made, arcs)]
             for car, walls in zip(cars[first], made):
                 self.blind[car] = walls
         blocked = self._blocked(cars, poses_odo, out) if cfg.detour else np.zeros(len(cars), bool)
@@ -387,7 +408,6 @@ def _note_pose(mem: np.ndarray, pose: np.ndarray, vehicle: VehicleConfig) -> Non
     mem[_M_PX], mem[_M_PY], mem[_M_PT] = pose
 
 
-__all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "crosses_walls", "detour_path",
-           "scan_segments", "segments_crossed",
-           "detour_waypoint", "edge_walls", "local_grid", "ray_path", "wall_points",
-           "wall_segments"]
+__all__ = ["Manoeuvres", "ManoeuvreConfig", "LocalGrid", "blind_arc", "crosses_walls",
+           "detour_path", "detour_waypoint", "edge_walls", "local_grid", "ray_path",
+           "scan_segments", "segments_crossed", "wall_points", "wall_segments"]

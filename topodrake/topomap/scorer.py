@@ -86,7 +86,10 @@ class OracleConfig:
     logistic of its softness, times ``hidden`` where no straight line keeps
     ``sight_clearance_m`` from walls (``d``: distance, ``bearing``: where the
     target lies seen from the source's heading, ``dtheta``: heading change,
-    ``overlap``: the smaller mutual image overlap).
+    ``overlap``: the smaller mutual image overlap). Targets nearer than
+    ``reverse_m`` are rated whatever their bearing: the follower reverses
+    onto them (its manoeuvres), as the expert's turns on the spot and
+    three-point turns do, where the fitted controller alone did not.
 
     The defaults are the map's oracle: the shape fitted to rollouts of the
     A* oracle C_WP (:data:`CALIBRATED_ORACLE` and ``studies/oracle_reach.py``:
@@ -103,6 +106,7 @@ class OracleConfig:
     reach_soft_m: float = 0.1
     bearing_rad: float = 3.2
     bearing_soft_rad: float = 0.2
+    reverse_m: float = 1.0
     turn_rad: float = 2.0
     turn_soft_rad: float = 0.2
     min_overlap: float = 0.0
@@ -117,7 +121,8 @@ class OracleConfig:
 #: (the controller's own success where everything is in its favour).
 CALIBRATED_ORACLE = OracleConfig(p_max=0.9995, reach_m=10.0, reach_soft_m=0.2, bearing_rad=3.2,
                                  bearing_soft_rad=0.8, turn_rad=2.0, turn_soft_rad=0.4,
-                                 min_overlap=0.02, overlap_soft=0.01, hidden=0.5)
+                                 min_overlap=0.02, overlap_soft=0.01, hidden=0.5,
+                                 reverse_m=0.0)
 
 
 #: The same fit with every softness held sharp (at most 0.2), so that the
@@ -126,7 +131,7 @@ CALIBRATED_ORACLE = OracleConfig(p_max=0.9995, reach_m=10.0, reach_soft_m=0.2, b
 #: of the follower's oracle RE, whose thresholds (0.92) are the paper's.
 TRUSTING_ORACLE = OracleConfig(p_max=0.9995, reach_m=10.0, reach_soft_m=0.1, bearing_rad=3.2,
                                bearing_soft_rad=0.2, turn_rad=2.0, turn_soft_rad=0.2,
-                               min_overlap=0.0, overlap_soft=0.1, hidden=0.2)
+                               min_overlap=0.0, overlap_soft=0.1, hidden=0.2, reverse_m=0.0)
 
 
 def _logistic(x: np.ndarray) -> np.ndarray:
@@ -169,7 +174,10 @@ def _shape(g: dict, c: OracleConfig) -> np.ndarray:
     p = (c.p_max * _logistic((c.reach_m - g["distance"]) / c.reach_soft_m)
          * _logistic((c.turn_rad - g["turn"]) / c.turn_soft_rad))
     if math.isfinite(c.bearing_rad):
-        p = p * _logistic((c.bearing_rad - g["bearing"]) / c.bearing_soft_rad)
+        behind = 1.0 - _logistic((c.bearing_rad - g["bearing"]) / c.bearing_soft_rad)
+        if c.reverse_m > 0.0:
+            behind = behind * _logistic((g["distance"] - c.reverse_m) / c.reach_soft_m)
+        p = p * (1.0 - behind)
     return p
 
 
