@@ -115,6 +115,34 @@ def test_tracks_with_odometry_and_holds_through_a_failed_registration(house, dri
     assert np.hypot(*fresh.waypoint[0]) < 0.5
 
 
+def test_an_unregistered_anchor_is_approached_from_the_last_tracked_one(house, drives, policy):
+    """The follower may skip an anchor (it advances to the one after the
+    next): an anchor the car cannot register yet is approached along the exit
+    of the nearest earlier anchor it tracks, not only the one just before,
+    and straight ahead only when it tracks none."""
+    from topodrake.sensing.lidar import Lidar
+
+    poses = drives[0]
+    a = 60
+    feats = policy.encode_target(_contexts(house, poses, [a])[0])
+    lidar = Lidar(house)
+    track = policy.initial_track(1)
+    cars = np.zeros(1, np.int64)
+    for i in range(a - 12, a + 1, 2):
+        policy.predict_tracked(lidar.scan(poses[i][None]), feats, track, cars, np.array([7]),
+                               poses[i][None])
+    blind = np.full((1, policy.sensor.beams), np.inf)      # registers to nothing
+    car = compose(poses[a], np.array([0.3, 0.0, 0.0]))
+    answers = {}
+    for key in (8, 9):
+        t = track.copy()
+        answers[key] = policy.predict_tracked(blind, feats, t, cars, np.array([key]), car).waypoint[0]
+    np.testing.assert_allclose(answers[9], answers[8])
+    assert not np.allclose(answers[9], [policy.config.lookahead_m, 0.0])
+    cold = policy.predict_tracked(blind, feats, policy.initial_track(1), cars, np.array([9]), car)
+    np.testing.assert_allclose(cold.waypoint[0], [policy.config.lookahead_m, 0.0])
+
+
 def test_follows_taught_routes_in_the_house(house, drives, policy):
     """A route of anchors every 25 frames of an expert drive, followed by
     the batched engine from a jittered start with the geometric oracle RE:

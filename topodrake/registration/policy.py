@@ -56,9 +56,10 @@ next two) is linked to that one instead: the earlier anchor's last taught
 frames and this one's first, frames of the same drive where the contexts
 overlap, are registered to each other, and the car's prediction in the
 earlier anchor's frame carries over. An anchor
-without any estimate is approached along the exit of the previous anchor's
-taught path (``exit_m`` on past its last frame) when the car tracks that
-one, else straight ahead. The policy reads the scans and the motion between odometry
+without any estimate is approached along the exit of the taught path of the
+nearest earlier anchor the car tracks (``exit_m`` on past its last frame;
+the follower may have skipped the one just before), else straight ahead.
+The policy reads the scans and the motion between odometry
 poses, never the map or the car's true pose. ``predict`` (the stateless
 :class:`~topodrake.learning.waypoint.policy.WaypointPolicy` call) answers each query
 from a fresh state.
@@ -541,16 +542,16 @@ class RegistrationPolicy:
 
     def _approach(self, row_flat: np.ndarray, key: int, odo: np.ndarray
                   ) -> tuple[np.ndarray, float]:
-        """Toward an anchor not yet registered: on from the previous anchor
-        (key - 1) along its taught path's exit (its centre, its last usable
-        frame and on straight), with that anchor's estimate moved by odometry,
-        when the car tracked it; else straight ahead."""
+        """Toward an anchor not yet registered: on from the nearest earlier
+        anchor the car tracks along its taught path's exit (its centre, its
+        last usable frame and on straight), with that anchor's estimate moved
+        by odometry; else straight ahead."""
         cfg = self.config
         row = row_flat.reshape(cfg.slots, SLOT)
-        prev = np.flatnonzero((row[:, _KEY] == key - 1) & np.all(np.isfinite(row[:, _EST]), axis=1)
+        prev = np.flatnonzero((row[:, _KEY] < key) & np.all(np.isfinite(row[:, _EST]), axis=1)
                               & np.all(np.isfinite(row[:, _EXIT]), axis=1))
         if prev.size:
-            s = row[prev[0]]
+            s = row[prev[np.argmax(row[prev, _KEY])]]
             est = compose(s[_EST], self._motion(s[_ODO], odo))[0]
             ahead = compose(s[_EXIT], np.array([cfg.exit_m, 0.0, 0.0]))[0]
             path = np.array([[0.0, 0.0], s[_EXIT][:2], ahead[:2]])
