@@ -488,7 +488,7 @@ def test_plans_count_hops_without_legs_at_legless_p(three_drives):
         add_trajectory(m, scans[d], poses[d])
     alike = _cross(m, 0, 1)
     assert alike and not any("leg" in d for _, _, d in alike)
-    m.config = replace(m.config, legless_p=1.0)
+    m.config = replace(m.config, legless_p=1.0, switch_p=1.0)    # switch_p apart
     plain = plan_path(m, scans[0][0], scans[1][9])
     m.config = replace(m.config, legless_p=0.9)
     counted = plan_path(m, scans[0][0], scans[1][9])

@@ -316,6 +316,43 @@ def test_plan_avoids_excluded_edges():
     assert r2.reachable and tuple(banned[0]) not in set(zip(r2.vertices[:-1], r2.vertices[1:]))
 
 
+def test_switch_p_keeps_a_plan_on_one_drive_where_switching_gains_little():
+    """RE rates the hops between two side-by-side drives above each drive's
+    own, so the most probable path zigzags between them; each switch hands
+    the follower's tracker over to another drive's frames, and with
+    ``switch_p`` each counts its p times it, in the choice and the plan's
+    probability: the plan stays on one drive."""
+    from dataclasses import replace
+
+    def across_surer(a, b):
+        if not 0 <= b[1] - a[1] <= 3:
+            return 0.1
+        return 0.95 if a[0] == b[0] else 0.999
+
+    m = table_map(across_surer, reuse=False)
+    add_trajectory(m, drive(0, 13))
+    add_trajectory(m, drive(1, 13))
+
+    def switches(r):
+        return [m.graph.edges[e]["kind"] for e in zip(r.vertices[:-1], r.vertices[1:])
+                if m.graph.edges[e]["kind"] != "trajectory"]
+
+    start, goal = np.array([0, 0]), np.array([0, 12])
+    m.config = replace(m.config, switch_p=1.0)          # off
+    plain = plan_path(m, start, goal)
+    assert plain.reachable and switches(plain)          # the zigzag
+    m.config = replace(m.config, switch_p=0.9)
+    kept = plan_path(m, start, goal)
+    assert kept.reachable and not switches(kept)
+    drives = {m.graph.nodes[v]["traj"] for v in kept.vertices}
+    assert len(drives) == 1
+    hops = [m.graph.edges[e]["p"] for e in zip(kept.vertices[:-1], kept.vertices[1:])]
+    assert kept.probability == pytest.approx(kept.route.start_probability * np.prod(hops)
+                                             * kept.route.edge_probability[-1])
+    with pytest.raises(TopodrakeError, match="switch_p"):
+        MapConfig(switch_p=1.5).validate()
+
+
 def test_map_config_is_checked():
     with pytest.raises(TopodrakeError, match="p_edge"):
         MapConfig(p_edge=1.5).validate()

@@ -58,7 +58,7 @@ CAMERA_ONLY = ("camera_scans", "camera_legs", "camera_junction_scans")
 #: drives' scans for the route tracker only)
 SCANS_ONLY = ("cross_legs",)
 #: settings only planning reads, not building (a map is built alike whatever they say)
-PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "start_near_m",
+PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "switch_p", "start_near_m",
              "start_near_deg", "start_near_behind_m")
 LINK_ORDERS = ("probability", "support")
 
@@ -165,6 +165,9 @@ class MapConfig:
     legless_p: float = 0.98      # planning, on such maps: a hop of the map without a leg (a
                                  # join its scans could not place) counts its p times this: the
                                  # follower cannot track across it and fails it more often
+    switch_p: float = 0.9        # planning: a hop between drives (a cross or junction edge)
+                                 # counts its p times this (1: off): each switch hands the
+                                 # route tracker over to another drive's frames
     start_near_m: float = 2.0    # planning, where the links are checked by scans: plans start
                                  # first from the vertices the start's scan registers onto
                                  # within this (0: off), then from every link: at the anchor
@@ -192,8 +195,10 @@ class MapConfig:
             if not isinstance(getattr(self, name), bool):
                 raise TopodrakeError(f"{where}: {name} must be true or false, got "
                                      f"{getattr(self, name)!r}")
-        if not (isinstance(self.legless_p, (int, float)) and 0.0 < self.legless_p <= 1.0):
-            raise TopodrakeError(f"{where}: legless_p must be in (0, 1], got {self.legless_p!r}")
+        for name in ("legless_p", "switch_p"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0.0 < v <= 1.0):
+                raise TopodrakeError(f"{where}: {name} must be in (0, 1], got {v!r}")
         for name in ("loop_check_m", "loop_check_per_m", "start_near_m", "start_near_deg",
                      "start_near_behind_m", "max_hop_m"):
             v = getattr(self, name)

@@ -29,7 +29,8 @@ registers to on the last vertex's, where the fit pins it.
 Dijkstra on the edge weights -log p gives the most probable path; its
 probability is exp(-cost). On a map that places joins by scans a map edge
 without a leg counts its p times ``legless_p``: the follower cannot track
-across such a hop. Given a time limit, the plan is the path most
+across such a hop; with ``switch_p`` below 1 each hop between drives
+counts its p times it. Given a time limit, the plan is the path most
 likely to be driven within it: the most probable path, or where that one
 would likely run out of time, a shorter one found by pricing each metre
 (:mod:`topodrake.topomap.route_time`). An unreachable goal is a result
@@ -56,6 +57,8 @@ START, GOAL = -1, -2
 METRE_PRICES = (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)
 #: a path this likely to be driven in time is kept without looking for shorter ones
 ON_TIME_ENOUGH = 0.999
+#: map edges between drives (``switch_p``)
+SWITCH_KINDS = ("cross", "junction")
 
 
 @dataclass
@@ -247,16 +250,21 @@ def _goal_leg(topomap: TopoMap, vertices: list[int], goal_scan, legs: np.ndarray
 def _hop_weight(topomap: TopoMap, banned: set):
     """Dijkstra's weight of a hop: -log p, none for a ``banned`` map edge,
     and on a map that places joins by scans a map edge without a leg counts
-    its p times ``legless_p`` (the follower cannot track across it)."""
+    its p times ``legless_p`` (the follower cannot track across it); a hop
+    between drives (a cross or junction edge) counts its p times
+    ``switch_p``."""
     from topodrake.topomap.build import joins_carry_legs
 
     extra = -math.log(topomap.config.legless_p) if joins_carry_legs(topomap) else 0.0
+    switch = -math.log(topomap.config.switch_p)
 
     def weight(u, v, d):
         if (u, v) in banned:
             return None
-        legless = extra > 0 and d.get("kind") in EDGE_KINDS and "leg" not in d
-        return d["weight"] + (extra if legless else 0.0)
+        kind = d.get("kind")
+        legless = extra > 0 and kind in EDGE_KINDS and "leg" not in d
+        return (d["weight"] + (extra if legless else 0.0)
+                + (switch if kind in SWITCH_KINDS else 0.0))
     return weight
 
 
