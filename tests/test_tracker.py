@@ -419,6 +419,38 @@ def test_dead_reckoning_refuses_an_anchor_a_sure_tracker_puts_far_away():
     assert jumped.mode[0] == FOLLOW and jumped.active[0] == 5
 
 
+def test_a_sure_tracker_keeps_following_where_re_doubts_a_near_anchor():
+    """RE's rating of every anchor falls below p_follow (a view it doubts);
+    a tracker the scans pin puts the active anchor within ``sure_follow_m``,
+    so the car keeps following instead of driving its held waypoint blind."""
+
+    class Doubting(Scanned):
+        doubt = False
+
+        def __call__(self, cars, anchors, cwp, re):
+            a = super().__call__(cars, anchors, cwp, re)
+            if self.doubt:
+                a.probability[:] = 0.5
+            return a
+
+    modes = {}
+    for reach in (2.5, 0.0):
+        ev = Doubting(7)
+        car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+        s = FollowerState.initial(1)
+        for x in (0.0, 0.6):
+            car[0] = x
+            s, _ = drive(ev, s, car, sure_follow_m=reach)
+        assert s.mode[0] == FOLLOW and s.ref[0] >= 0
+        ev.doubt = True
+        car[0] = 0.8
+        s, _ = drive(ev, s, car, sure_follow_m=reach)
+        modes[reach] = s.mode[0]
+    assert modes[2.5] == FOLLOW and modes[0.0] == DEAD_RECKONING
+    with pytest.raises(TopodrakeError, match="sure_follow_m"):
+        FollowerConfig(sure_follow_m=-1.0).check()
+
+
 def test_a_sure_tracker_ends_the_route_at_the_goal():
     """C_WP's overlaps toward the goal (0.7) stay below p_goal: only the
     tracker, pinned by the scans, can tell the car stands on the goal."""

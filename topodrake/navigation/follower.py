@@ -148,7 +148,10 @@ class FollowerConfig:
                                     # this (RE's look-alike anchors further on; 0: off), and ...
     tracked_goal_m: float = 0.5     # ... refuses C_WP's "at the goal" where it puts the goal
                                     # farther than this (near a wall C_WP's waypoint is short
-                                    # with the goal still 0.7-0.9 m off; 0: off)
+                                    # with the goal still 0.7-0.9 m off; 0: off), and ...
+    sure_follow_m: float = 0.0      # ... keeps a car in Follow where RE doubts an active
+                                    # anchor it puts within this (the scans place the car;
+                                    # RE rates the view, not the place; 0: off)
     pass_turn_deg: float = 180.0    # the tracker passes an anchor (near it, or just behind
                                     # the car) only where the car's heading is within this of
                                     # the taught one (180: off, the default; 90 mends teach
@@ -222,6 +225,9 @@ class FollowerConfig:
         if not (np.isfinite(self.tracked_goal_m) and self.tracked_goal_m >= 0.0):
             raise TopodrakeError(f"follower tracked_goal_m must be >= 0 (0: off), got "
                                  f"{self.tracked_goal_m}")
+        if not (np.isfinite(self.sure_follow_m) and self.sure_follow_m >= 0.0):
+            raise TopodrakeError(f"follower sure_follow_m must be >= 0 (0: off), got "
+                                 f"{self.sure_follow_m}")
         if not (self.tracked_reach_m >= 0.0 and self.tracked_sure_m >= 0.0):
             raise TopodrakeError(f"follower tracked_reach_m and tracked_sure_m must be >= 0 "
                                  f"(0: off), got {self.tracked_reach_m} and "
@@ -574,7 +580,8 @@ def _follow(per: _Period, f: np.ndarray) -> None:
                 per.have_wp[fk[r]] = True
         same = (new.active[fk] == state.active[fk]) & (visited[keep] == state.visited[fk])
         new.stall[fk] = np.where(same, state.stall[fk] + 1, 0)
-        lost = p_active <= cfg.p_follow
+        lost = (p_active <= cfg.p_follow) & ~_tracked_near(per, fk, new.active[fk],
+                                                           cfg.sure_follow_m)
         new.mode[fk[lost]] = DEAD_RECKONING
         new.dr_count[fk[lost]] = 0
         per.need[fk] = True         # (entering Dead reckoning holds this period's waypoint)
@@ -812,11 +819,30 @@ def _tracked_far(per: _Period, cars: np.ndarray, anchors: np.ndarray, reach_m: f
     after the last period's scan fixes: C_WP's answers hold it at their
     floor) puts each car's anchor farther than ``reach_m``; none where the
     route has no legs or the rule is off (``tracked_sure_m`` or ``reach_m`` 0)."""
-    if per.frames is None or per.cfg.tracked_sure_m <= 0 or reach_m <= 0:
+    if reach_m <= 0:
         return np.zeros(len(cars), bool)
+    return _sure_distance(per, cars, anchors) > reach_m
+
+
+def _tracked_near(per: _Period, cars: np.ndarray, anchors: np.ndarray, reach_m: float
+                  ) -> np.ndarray:
+    """(M,) whether a sure tracker puts each car's anchor within ``reach_m``
+    (none where the route has no legs or the rule is off)."""
+    if reach_m <= 0:
+        return np.zeros(len(cars), bool)
+    return _sure_distance(per, cars, anchors) <= reach_m
+
+
+def _sure_distance(per: _Period, cars: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """(M,) the distance a sure tracker puts between each car and its anchor
+    (NaN where it is not sure or does not know, or the route has no legs)."""
+    out = np.full(len(cars), np.nan)
+    if per.frames is None or per.cfg.tracked_sure_m <= 0:
+        return out
     q, known, _ = tracker.tracked_anchor(per.new, cars, anchors, per.frames)
-    sure = _position_sigma(per.state.var[cars]) < per.cfg.tracked_sure_m
-    return known & sure & (np.hypot(q[:, 0], q[:, 1]) > reach_m)
+    sure = known & (_position_sigma(per.state.var[cars]) < per.cfg.tracked_sure_m)
+    out[sure] = np.hypot(q[sure, 0], q[sure, 1])
+    return out
 
 
 def _position_sigma(var: np.ndarray) -> np.ndarray:
