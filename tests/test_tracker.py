@@ -436,15 +436,10 @@ def test_a_sure_tracker_keeps_following_where_re_doubts_a_near_anchor():
     modes = {}
     for reach in (2.5, 0.0):
         ev = Doubting(7)
-        car = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
-        s = FollowerState.initial(1)
-        for x in (0.0, 0.6):
-            car[0] = x
-            s, _ = drive(ev, s, car, sure_follow_m=reach)
+        s = drive_along(ev, (0.0, 0.6), sure_follow_m=reach)
         assert s.mode[0] == FOLLOW and s.ref[0] >= 0
         ev.doubt = True
-        car[0] = 0.8
-        s, _ = drive(ev, s, car, sure_follow_m=reach)
+        s, _ = drive(ev, s, np.array([0.8, 0.0, 0.0, 0.0, 0.0]), sure_follow_m=reach)
         modes[reach] = s.mode[0]
     assert modes[2.5] == FOLLOW and modes[0.0] == DEAD_RECKONING
     with pytest.raises(TopodrakeError, match="sure_follow_m"):
