@@ -442,8 +442,38 @@ def test_a_sure_tracker_keeps_following_where_re_doubts_a_near_anchor():
         s, _ = drive(ev, s, np.array([0.8, 0.0, 0.0, 0.0, 0.0]), sure_follow_m=reach)
         modes[reach] = s.mode[0]
     assert modes[2.5] == FOLLOW and modes[0.0] == DEAD_RECKONING
+    # left None, the setting is the C_WP's own (the evaluator's, from its policy)
+    for own, mode in ((2.5, FOLLOW), (None, DEAD_RECKONING)):
+        ev = Doubting(7)
+        if own is not None:
+            ev.sure_follow_m = own
+        s = drive_along(ev, (0.0, 0.6))
+        ev.doubt = True
+        s, _ = drive(ev, s, np.array([0.8, 0.0, 0.0, 0.0, 0.0]))
+        assert s.mode[0] == mode
     with pytest.raises(TopodrakeError, match="sure_follow_m"):
         FollowerConfig(sure_follow_m=-1.0).check()
+    assert FollowerConfig.paper().sure_follow_m == 0.0
+
+
+def test_the_registration_cwp_chooses_its_own_sure_follow_reach():
+    """The registration C_WP turns the rule on through its evaluator; a
+    learned or oracle C_WP leaves it off."""
+    from topodrake.navigation.evaluate import Evaluator
+    from topodrake.navigation.follower import sure_follow_m
+    from topodrake.registration.policy import RegistrationPolicy
+
+    class Plain:
+        observation = "lidar"
+
+    default = FollowerConfig()
+    reg = Evaluator.__new__(Evaluator)
+    reg.policy = RegistrationPolicy()
+    plain = Evaluator.__new__(Evaluator)
+    plain.policy = Plain()
+    assert sure_follow_m(default, reg) == RegistrationPolicy.sure_follow_m > 0
+    assert sure_follow_m(default, plain) == 0.0
+    assert sure_follow_m(FollowerConfig(sure_follow_m=0.0), reg) == 0.0
 
 
 def test_a_sure_tracker_ends_the_route_at_the_goal():

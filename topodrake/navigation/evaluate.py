@@ -289,6 +289,11 @@ class Evaluator:
                                                                           np.nan)
         return f.frames[rows], f.segments[rows], f.approach[rows]
 
+    @property
+    def sure_follow_m(self) -> float:
+        """The C_WP's own ``sure_follow_m`` for the follower (0: none)."""
+        return float(getattr(self.policy, "sure_follow_m", 0.0) or 0.0)
+
     # the route tracker's frames (a stateful C_WP, the registration one, keeps its
     # own estimates too: its answers are fixes like any C_WP's)
     anchor_frames = leg_frames

@@ -149,9 +149,13 @@ class FollowerConfig:
     tracked_goal_m: float = 0.5     # ... refuses C_WP's "at the goal" where it puts the goal
                                     # farther than this (near a wall C_WP's waypoint is short
                                     # with the goal still 0.7-0.9 m off; 0: off), and ...
-    sure_follow_m: float = 0.0      # ... keeps a car in Follow where RE doubts an active
-                                    # anchor it puts within this (the scans place the car;
-                                    # RE rates the view, not the place; 0: off)
+    sure_follow_m: float | None = None  # ... keeps a car in Follow where RE doubts an
+                                    # active anchor it puts within this (the scans place the
+                                    # car; RE rates the view, not the place; 0: off; None:
+                                    # the C_WP's own choice, its ``sure_follow_m`` attribute,
+                                    # off where it has none: a C_WP whose waypoints come
+                                    # from registration trusts the scans, a learned one
+                                    # needs Dead reckoning to catch its wrong answers)
     pass_turn_deg: float = 180.0    # the tracker passes an anchor (near it, or just behind
                                     # the car) only where the car's heading is within this of
                                     # the taught one (180: off, the default; 90 mends teach
@@ -196,7 +200,7 @@ class FollowerConfig:
         be turned off and stays)."""
         return cls(p_search=0.92, visit_m=1e9, goal_m=1e9, p_visited_close=1.0, p_goal=0.65,
                    lookahead=5, dr_back_anchors=-1, dr_max_window=10 ** 6, stall_periods=10 ** 9,
-                   odometry_check=False, scan_fix=False, tracked_sure_m=0.0,
+                   odometry_check=False, scan_fix=False, tracked_sure_m=0.0, sure_follow_m=0.0,
                    reverse_inside_turn=-1.0, skip_inside_first=0, legs_m=0.0,
                    manoeuvres=False, search_first=False)
 
@@ -225,9 +229,10 @@ class FollowerConfig:
         if not (np.isfinite(self.tracked_goal_m) and self.tracked_goal_m >= 0.0):
             raise TopodrakeError(f"follower tracked_goal_m must be >= 0 (0: off), got "
                                  f"{self.tracked_goal_m}")
-        if not (np.isfinite(self.sure_follow_m) and self.sure_follow_m >= 0.0):
-            raise TopodrakeError(f"follower sure_follow_m must be >= 0 (0: off), got "
-                                 f"{self.sure_follow_m}")
+        if self.sure_follow_m is not None and not (np.isfinite(self.sure_follow_m)
+                                                   and self.sure_follow_m >= 0.0):
+            raise TopodrakeError(f"follower sure_follow_m must be >= 0 (0: off) or None (the "
+                                 f"C_WP's choice), got {self.sure_follow_m}")
         if not (self.tracked_reach_m >= 0.0 and self.tracked_sure_m >= 0.0):
             raise TopodrakeError(f"follower tracked_reach_m and tracked_sure_m must be >= 0 "
                                  f"(0: off), got {self.tracked_reach_m} and "
@@ -581,7 +586,7 @@ def _follow(per: _Period, f: np.ndarray) -> None:
         same = (new.active[fk] == state.active[fk]) & (visited[keep] == state.visited[fk])
         new.stall[fk] = np.where(same, state.stall[fk] + 1, 0)
         lost = (p_active <= cfg.p_follow) & ~_tracked_near(per, fk, new.active[fk],
-                                                           cfg.sure_follow_m)
+                                                           sure_follow_m(cfg, evaluate))
         new.mode[fk[lost]] = DEAD_RECKONING
         new.dr_count[fk[lost]] = 0
         per.need[fk] = True         # (entering Dead reckoning holds this period's waypoint)
@@ -822,6 +827,15 @@ def _tracked_far(per: _Period, cars: np.ndarray, anchors: np.ndarray, reach_m: f
     if reach_m <= 0:
         return np.zeros(len(cars), bool)
     return _sure_distance(per, cars, anchors) > reach_m
+
+
+def sure_follow_m(cfg: FollowerConfig, evaluate) -> float:
+    """The reach within which a sure tracker keeps a doubted car in Follow:
+    ``cfg.sure_follow_m``, or where that is None the C_WP's own choice (the
+    evaluator's ``sure_follow_m``, from its policy; 0, off, where it has none)."""
+    if cfg.sure_follow_m is not None:
+        return float(cfg.sure_follow_m)
+    return float(getattr(evaluate, "sure_follow_m", 0.0) or 0.0)
 
 
 def _tracked_near(per: _Period, cars: np.ndarray, anchors: np.ndarray, reach_m: float

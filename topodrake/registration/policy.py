@@ -168,6 +168,10 @@ class RegistrationPolicy:
     whether it is usable, and its ranges."""
 
     observation = "lidar"
+    # the follower keeps a car in Follow where RE doubts an active anchor that
+    # a sure tracker puts within this (FollowerConfig.sure_follow_m None): its
+    # waypoints are registrations, right where the scans pin the car
+    sure_follow_m = 2.5
 
     def __init__(self, config: RegistrationConfig | None = None, lidar: LidarConfig | None = None):
         self.config = (config or RegistrationConfig()).check()

@@ -67,6 +67,10 @@ class TargetContext:
 
 @runtime_checkable
 class WaypointPolicy(Protocol):
+    """What a C_WP offers the follower. Optional attributes: ``track_size``
+    (per-car tracking state, a stateful C_WP) and ``sure_follow_m`` (the
+    follower's :attr:`FollowerConfig.sure_follow_m` where that is None)."""
+
     observation: str      # "camera" | "lidar" | "pose"
     k: int
     frame_step: int
