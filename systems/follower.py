@@ -238,7 +238,8 @@ class FollowerFsm(LeafSystem):
             encoded: dict = {}
             for _, new, start in self.replanner.step(
                     np.zeros(1, np.int64), fs, car[:, :3],
-                    startable=self._startable(context, car, encoded), fresh=self._initial_state):
+                    startable=self._startable(context, car, encoded), fresh=self._initial_state,
+                    odometry=self._odometry(context, car)[:, :3]):
                 self._encode(new, kept_features(encoded, new))
                 state.get_mutable_abstract_state(self.route_index).set_value(len(self._routes) - 1)
                 fs = start

@@ -562,6 +562,50 @@ def test_a_tracked_car_with_no_plan_from_its_view_returns_to_its_anchor_and_plan
     np.testing.assert_allclose(start.waypoint[0], [4.0, 1.0])
 
 
+def test_the_oracle_relocalizes_a_car_no_plan_starts_for_at_the_vertex_it_sees():
+    """With oracle_relocalize, a car no plan starts for from its view asks for
+    a plan from the vertex the oracle locates it at, and dead reckons to that
+    vertex's taught position given in its odometry frame; the oracle takes
+    the nearest vertex the car sees and would face, never one behind a wall
+    or turned away."""
+    from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
+    from topodrake.navigation.replan import (NEAREST, Replanner, ReplanSchedule,
+                                             nearest_seen_vertex)
+    from topodrake.navigation.route import Route
+
+    cur = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([1, 2, 3]), probability=0.5)
+    there = Route(np.zeros((2, 1)), np.array([[3.0, 1.0, 0.0], [5.0, 1.0, 0.0]]),
+                  vertices=np.array([7, 8]), probability=0.3)
+    asked = []
+
+    def plan(i, pose, excluded, vertex=None):
+        asked.append(vertex)
+        return there if vertex == NEAREST else None
+
+    st = FollowerState.initial(1, 2)
+    st.mode[:], st.visited[:], st.active[:], st.dr_count[:] = DEAD_RECKONING, 1, 2, 190
+    true, odo = np.array([[1.0, 1.0, 0.0]]), np.array([[11.0, 1.0, np.pi / 2]])
+    assert Replanner(plan, [cur]).step(np.array([0]), st, true, odometry=odo) == []
+    rp = Replanner(plan, [cur], ReplanSchedule(oracle_relocalize=True))
+    (_, route, start), = rp.step(np.array([0]), st, true, odometry=odo)
+    assert route is there and asked[-2:] == [None, NEAREST] and rp.returns[0] == 1
+    assert start.mode[0] == DEAD_RECKONING and start.active[0] == 0 and start.visited[0] == -1
+    # 2 m ahead of the car in truth is 2 m ahead of its odometry pose, which faces +y
+    np.testing.assert_allclose(start.waypoint[0], [11.0, 3.0], atol=1e-12)
+
+    free = lambda xy: np.where(np.abs(np.asarray(xy)[..., 0] - 2.0) < 0.1, 0.0, 1.0)  # noqa: E731
+    vertices = np.array([[1.5, 0.0, 0.0],      # 1.5 m ahead, facing on: the nearest seen
+                         [3.0, 0.0, 0.0],      # behind the wall at x = 2
+                         [-1.0, 0.0, 0.0],     # behind the car, facing away from the way there
+                         [0.0, 3.0, 1.5]])     # to the left, facing the way there
+    assert nearest_seen_vertex(vertices, np.zeros(3), free) == 0
+    assert nearest_seen_vertex(vertices[1:], np.zeros(3), free) == 2
+    assert nearest_seen_vertex(vertices[1:3], np.zeros(3), free) is None
+    assert nearest_seen_vertex(vertices, np.zeros(3), free, max_m=1.0) is None
+    with pytest.raises(TopodrakeError, match="oracle_relocalize"):
+        ReplanSchedule.from_json('{"oracle_relocalize": 1}')
+
+
 def _anchor_offset(odo, rel):
     """Where an anchor lies from the car's odometry position, the car being
     at ``rel`` in the anchor's frame (worked out by hand)."""

@@ -209,7 +209,7 @@ class NavigationEngine:
                 startable = self._startable(ev.observations, st, odo, ranges, encoded)
                 fresh = lambda: FollowerState.initial(1, initial_track(self.policy, 1))  # noqa: E731
                 for i, new, start in replanner.step(cars, fs, st[:, :3], startable=startable,
-                                                    fresh=fresh):
+                                                    fresh=fresh, odometry=odo[:, :3]):
                     feats = kept_features(encoded, new)
                     if feats is None:
                         feats = encode_routes([new], self.policy, self.reach,

@@ -58,7 +58,9 @@ def odometry_seeds(cfg: dict, spec: str, n: int) -> list[int]:
 def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
                 cfg: dict, tag: str = "all", experience=None, limits=None):
     """(plans' routes (None = no plan), plan probabilities, map size dict,
-    ``replan(trial, pose, excluded_edges, vertex=None)`` on our maps (None
+    ``replan(trial, pose, excluded_edges, vertex=None)`` on our maps (``vertex``:
+    plan from that map vertex, or from the one the oracle locates the car at
+    where it is :data:`~topodrake.navigation.replan.NEAREST`; None
     for SPTM)).
     ``experience``: ``(passed, failed)`` map edges of earlier drives, folded
     into the map's edges before planning
@@ -66,6 +68,7 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     ``limits``: each trial's time limit where the caller has them
     (:func:`trial_time_limits`, computed here otherwise)."""
     from topodrake.navigation.plan_trials import render_pose_route
+    from topodrake.navigation.replan import NEAREST, nearest_seen_vertex
     from topodrake.topomap.plan import plan_from_vertex, plan_path
     from topodrake.topomap.sources import drive_observations, view_scans
 
@@ -114,6 +117,12 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
 
         def replan(t, pose, excluded, vertex=None):
             limit = limits[t]
+            if vertex == NEAREST:       # the oracle locates the car at a vertex it sees
+                vs = np.array(sorted(m.graph.nodes), np.int64)
+                k = nearest_seen_vertex(m.pose(vs), pose, world.grid.clearance_at)
+                if k is None:
+                    return None
+                vertex = int(vs[k])
             if vertex is not None:      # the car returns to a vertex of its route
                 p = plan_from_vertex(m, vertex, go[goal_idx[t]], goal_pose=places[goal_idx[t]],
                                      goal_scan=None if g_scans is None else g_scans[goal_idx[t]],

@@ -33,6 +33,13 @@ the map has no way on from that vertex but the failing hop (a drive's
 vertex has one edge out, to the next anchor), the plan retries that hop
 once.
 
+``oracle_relocalize`` (an ablation that measures what relocalization
+limits) gives such a car its place by truth instead: the callback is asked
+with ``vertex=NEAREST``, plans from the map vertex nearest the car's true
+pose that it sees (:func:`nearest_seen_vertex`), and the car dead reckons to
+that vertex, its pose given in the car's odometry frame
+(:func:`located_state`).
+
 :class:`Replanner` keeps this per-car bookkeeping for one run
 (:func:`topodrake.navigation.plan_trials.follow_routes` with ``replan=``
 makes one per engine batch). Both
@@ -57,6 +64,7 @@ from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
 from topodrake.se2 import compose, invert
 
 GIVE_UP = ("dead_reckoning_gave_up", "search_failed")
+NEAREST = "nearest"     # ``vertex`` of a plan callback: the vertex the oracle locates the car at
 
 
 @dataclass
@@ -72,6 +80,9 @@ class ReplanSchedule:
     return_to_anchor: bool = False  # where no plan starts from the car's view, the car
                                     # returns to its last visited anchor and drives a plan
                                     # from that vertex (an ablation; see Replanner.step)
+    oracle_relocalize: bool = False  # where no plan starts from the car's view, an oracle
+                                     # names the vertex it sees nearest in truth and the car
+                                     # drives a plan from it (an ablation; see Replanner.step)
 
     @classmethod
     def paper(cls) -> "ReplanSchedule":
@@ -86,9 +97,10 @@ class ReplanSchedule:
                                  f"and {self.every}")
         if not 0.0 < self.discount <= 1.0:
             raise TopodrakeError(f"the replanning discount must be in (0, 1], got {self.discount}")
-        if not isinstance(self.return_to_anchor, bool):
-            raise TopodrakeError(f"return_to_anchor must be true or false, got "
-                                 f"{self.return_to_anchor!r}")
+        for name in ("return_to_anchor", "oracle_relocalize"):
+            if not isinstance(getattr(self, name), bool):
+                raise TopodrakeError(f"{name} must be true or false, got "
+                                     f"{getattr(self, name)!r}")
         if self.max_replans < 0:
             raise TopodrakeError(f"max_replans must be >= 0, got {self.max_replans}")
         return self
@@ -203,6 +215,48 @@ def returning_state(state: FollowerState, row: int, fresh: FollowerState) -> Fol
     return out
 
 
+def located_state(route, pose: np.ndarray, odometry: np.ndarray,
+                  fresh: FollowerState) -> FollowerState:
+    """The follower state (one car) that starts ``route`` dead reckoning to
+    its first anchor, where the oracle located the car: the anchor's taught
+    position (``route.poses[0]``, in the world) given in the car's odometry
+    frame from its true ``pose`` and odometry pose ``odometry`` (3,)."""
+    from topodrake.odometry import odometry_to_world
+
+    out = fresh.copy()
+    out.mode[0], out.active[0], out.visited[0] = DEAD_RECKONING, 0, -1
+    # odometry_to_world with the frames swapped: world -> odometry
+    def state(p):
+        return np.concatenate([np.asarray(p, np.float64)[:3], np.zeros(2)])[None]
+
+    target = np.asarray(route.poses[0, :2], np.float64)[None, None]
+    out.waypoint[0] = odometry_to_world(target, state(pose), state(odometry))[0, 0]
+    return out
+
+
+def nearest_seen_vertex(vertex_poses: np.ndarray, pose: np.ndarray, clearance_at,
+                        max_m: float = 4.0, max_turn_deg: float = 60.0,
+                        step_m: float = 0.05) -> int | None:
+    """The oracle's relocalization: the index into ``vertex_poses`` (V, 3)
+    of the vertex nearest the car's true ``pose`` (3,) within ``max_m``
+    that the car sees (the straight way to it free: ``clearance_at``, the
+    world grid's, above 0 at every ``step_m``) and would face on arrival
+    (its taught heading within ``max_turn_deg`` of the way there, or of the
+    car's heading where it stands on the vertex); None where none."""
+    vp = np.asarray(vertex_poses, np.float64).reshape(-1, 3)
+    pose = np.asarray(pose, np.float64)
+    d = vp[:, :2] - pose[:2]
+    dist = np.hypot(d[:, 0], d[:, 1])
+    way = np.where(dist > 0.3, np.arctan2(d[:, 1], d[:, 0]), pose[2])
+    turn = np.abs(np.angle(np.exp(1j * (vp[:, 2] - way))))
+    ok = np.isfinite(dist) & (dist <= max_m) & (turn <= np.radians(max_turn_deg))
+    for v in np.flatnonzero(ok)[np.argsort(dist[ok], kind="stable")]:
+        t = np.linspace(0.0, 1.0, max(2, int(np.ceil(dist[v] / step_m)) + 1))[:, None]
+        if np.all(clearance_at(pose[:2] + t * d[v]) > 0):
+            return int(v)
+    return None
+
+
 def _tracked(state: FollowerState, row: int) -> bool:
     """Whether the route tracker places the car in ``row`` relative to an anchor."""
     return bool(state.ref[row] >= 0 and np.isfinite(state.odo[row]).all())
@@ -268,12 +322,13 @@ class Replanner:
         n = len(self.routes)
         self.tries = np.zeros(n, np.int64)
         self.plans = np.ones(n, np.int64)
-        self.returns = np.zeros(n, np.int64)      # of them plans from an anchor returned to
+        self.returns = np.zeros(n, np.int64)      # of them plans from a vertex driven back to
         self.excluded: list[list[tuple[int, int]]] = [[] for _ in range(n)]
 
     def step(self, cars: np.ndarray, state, poses: np.ndarray, p_start: float = 0.0,
              startable: Callable[[int, object], bool] | None = None,
-             fresh: Callable[[], FollowerState] | None = None
+             fresh: Callable[[], FollowerState] | None = None,
+             odometry: np.ndarray | None = None
              ) -> list[tuple[int, object, FollowerState]]:
         """After a period's decision ``state`` (FollowerState of ``cars``,
         rows in the same order; ``poses`` (len(cars), 3)): ask the planner
@@ -292,8 +347,13 @@ class Replanner:
         (:func:`return_anchor`) instead (``plan(car, pose, excluded,
         vertex=v)``; where none avoids the failing edge, one that may take
         it once more) and starts it dead reckoning back to that anchor
-        (:func:`returning_state`)."""
+        (:func:`returning_state`); with ``oracle_relocalize`` it takes a
+        plan from the vertex the oracle locates it at (``plan(car, pose,
+        excluded, vertex=NEAREST)``) and dead reckons to that vertex
+        (:func:`located_state`; ``odometry``: the cars' odometry poses,
+        default ``poses``)."""
         cars = np.asarray(cars, np.int64)
+        odometry = poses if odometry is None else odometry
         if fresh is None:
             fresh = lambda: FollowerState.initial(1, state.track.shape[1])   # noqa: E731
         due = np.flatnonzero((state.mode == DEAD_RECKONING) & self.schedule.due(state.dr_count))
@@ -317,6 +377,11 @@ class Replanner:
                 new = self._plan_back(i, state, int(r), poses[r], excluded)
                 if new is not None and self._accepts(new, i):
                     start = returning_state(state, int(r), fresh())
+                    self.returns[i] += 1
+            elif self.schedule.oracle_relocalize:
+                new = self.plan(i, np.array(poses[r], np.float64), excluded, vertex=NEAREST)
+                if new is not None and self._accepts(new, i):
+                    start = located_state(new, poses[r], odometry[r], fresh())
                     self.returns[i] += 1
             if start is None:
                 continue
