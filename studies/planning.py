@@ -63,7 +63,8 @@ plan more than 0.54 m from the goal.
 A trial starts at one place jittered (0.3 m sideways, 9 deg) and gets the
 observation at another place as its goal; it succeeds when the car comes
 within 0.54 m of the goal within 150 s (1,500 steps) at <= 0.5 m/s without
-colliding. A goal without a plan is a failed trial. Every method of a house
+colliding; in one ``--world`` building each trial gets at least its A* length
+at 0.25 m/s (``--time-rule``). A goal without a plan is a failed trial. Every method of a house
 runs the same trials. The cars' odometry drifts as a small car's wheel
 odometry does (each trial's errors from its seed; ``--odometry perfect``
 reads the true pose, an ablation), as the drives' odometry stored on the
@@ -77,7 +78,7 @@ success with 60% of the drives over the best over all fractions).
 
     python studies/planning.py --json                      (the default run)
     python studies/planning.py --trials 1000 --pruned-fractions 0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1 --pruned-trials 1000   (the paper's protocol)
-    python studies/planning.py --world tests/data/maps/willow_full_0.05/map.yaml --methods oracle_full --route-time
+    python studies/planning.py --world tests/data/maps/willow_full_0.05/map.yaml --methods oracle_full
     python studies/planning.py --houses test-2 --methods oracle_full --trace 7,68   (why trials fail)
 
 The default run is 100 trials per method and house of ours, lidar,
@@ -248,16 +249,20 @@ def main(argv=None) -> int:
     ap.add_argument("--time-limit", type=at.positive, default=T_MAX_S, metavar="S",
                     help="seconds a trial may drive before it times out (long plans in a "
                          "large building need more)")
-    ap.add_argument("--route-time", action="store_true",
-                    help="give each trial the longer of --time-limit and its A* length from "
-                         "start to goal at 0.25 m/s (the RE labels' rule), for buildings whose "
-                         "routes are longer than the limit drives")
+    ap.add_argument("--time-rule", choices=["fixed", "route"],
+                    help="'fixed': every trial gets --time-limit; 'route': each trial gets the "
+                         "longer of --time-limit and its A* length from start to goal at "
+                         "0.25 m/s (the RE labels' rule, A* / v_min), for buildings whose routes "
+                         "are longer than the limit drives (default: fixed for --houses, route "
+                         "for --world)")
+    ap.add_argument("--route-time", action="store_true", help="the same as --time-rule route")
     ap.add_argument("--paper-plans", action="store_true",
                     help="plan the most probable path as the paper does, not the path most "
                          "likely to be driven within the time limit")
-    ap.add_argument("--pruned-fractions", default="0.3,0.6,1",
+    ap.add_argument("--pruned-fractions",
                     help="fractions of the drives for the pruned maps, or 'none' "
-                         "(paper: 0.1,0.2,...,1)")
+                         "(paper: 0.1,0.2,...,1; default: 0.3,0.6,1 for --houses, none for "
+                         "--world)")
     ap.add_argument("--pruned-house", help="house of the pruned maps (default: the first)")
     ap.add_argument("--pruned-method", choices=["ours", "lidar", "oracle"], default="ours",
                     help="map of the pruned study")

@@ -903,3 +903,24 @@ def test_route_time_gives_each_trial_the_time_its_a_star_length_needs(box_world,
                                "trials": []}))
     with pytest.raises(TopodrakeError, match="--route-time"):
         driving_time_fit(str(run), "cmd")
+
+
+def test_a_building_s_trials_get_their_route_time_and_the_houses_a_fixed_limit(tmp_path):
+    """The time rule's default follows what is run: the test houses keep one
+    limit, one --world building gives each trial its A* length's time; an
+    explicit rule wins and a contradiction is named."""
+    from topodrake.navigation.plan_results import pruned_fraction_text, study_config, time_rule
+
+    houses = _options(tmp_path, pruned_fractions=None)
+    world = _options(tmp_path, world="test-0", methods="lidar", pruned_fractions=None)
+    assert time_rule(houses) == "fixed" and time_rule(world) == "route"
+    assert time_rule(_options(tmp_path, world="test-0", time_rule="fixed")) == "fixed"
+    assert time_rule(_options(tmp_path, route_time=True)) == "route"
+    with pytest.raises(TopodrakeError, match="contradict"):
+        time_rule(_options(tmp_path, route_time=True, time_rule="fixed"))
+    assert pruned_fraction_text(houses) == "0.3,0.6,1"
+    assert pruned_fraction_text(world) == "none"
+    cfg, _, _, fractions = study_config(world)
+    assert cfg["route_time"] is True and fractions == []
+    cfg, _, _, fractions = study_config(_options(tmp_path, methods="lidar"))
+    assert cfg["route_time"] is False and fractions == [0.3, 0.6, 1.0]

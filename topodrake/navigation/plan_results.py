@@ -56,6 +56,35 @@ def pruned_fractions(text: str) -> list[float]:
     return sorted(set(out))
 
 
+HOUSE_PRUNED_FRACTIONS = "0.3,0.6,1"
+
+
+def pruned_fraction_text(args) -> str:
+    """``--pruned-fractions`` as given, or its default: the pruned maps of
+    the first house for a run of the test houses, none for one ``--world``
+    (a building's learned maps are not the pruned study's)."""
+    text = getattr(args, "pruned_fractions", None)
+    if text is not None:
+        return text
+    return "none" if getattr(args, "world", None) is not None else HOUSE_PRUNED_FRACTIONS
+
+
+def time_rule(args) -> str:
+    """How long each trial may drive: ``--time-rule``, ``--route-time`` for
+    'route', or the default: 'fixed' (every trial ``--time-limit``) for the
+    test houses, 'route' (each trial at least its A* length at the RE
+    labels' least speed) for one ``--world``, whose routes can be longer
+    than the limit drives."""
+    rule, route = getattr(args, "time_rule", None), getattr(args, "route_time", False)
+    if route and rule == "fixed":
+        raise TopodrakeError("--route-time and --time-rule fixed contradict each other; give one")
+    if route:
+        return "route"
+    if rule is not None:
+        return rule
+    return "route" if getattr(args, "world", None) is not None else "fixed"
+
+
 def _calibration_summary(cal: dict) -> dict:
     return {"plan_probability_ece_by_method": {m: c["ece"] for m, c in cal.items()},
             "raw_plan_probability_ece": {m: c["ece_raw"] for m, c in cal.items()}}
@@ -152,7 +181,7 @@ def _check(args) -> tuple[list[str], list[str], list[str], list[float]]:
         specs = [h for h in args.houses.split(",") if h]
     if not specs:
         raise TopodrakeError("--houses names no house")
-    fractions = pruned_fractions(args.pruned_fractions)
+    fractions = pruned_fractions(pruned_fraction_text(args))
     for spec in specs:
         w = load_world(spec)               # a bad name or file fails here, in one line
         if len(w.places) < 2:
@@ -189,7 +218,7 @@ def study_config(args) -> tuple[dict, list[str], list[str], list[float]]:
            "map_config": map_config, "follower": follower,
            "odometry": getattr(args, "odometry", "perfect"),
            "t_max_s": getattr(args, "time_limit", None) or T_MAX_S,
-           "route_time": getattr(args, "route_time", False),
+           "route_time": time_rule(args) == "route",
            "plan_within_time": not getattr(args, "paper_plans", False)}
     return cfg, specs, keys, fractions
 
