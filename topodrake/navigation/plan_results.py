@@ -59,6 +59,10 @@ def pruned_fractions(text: str) -> list[float]:
 HOUSE_PRUNED_FRACTIONS = "0.3,0.6,1"
 
 
+def _one_world(args) -> bool:
+    return getattr(args, "world", None) is not None
+
+
 def pruned_fraction_text(args) -> str:
     """``--pruned-fractions`` as given, or its default: the pruned maps of
     the first house for a run of the test houses, none for one ``--world``
@@ -66,7 +70,7 @@ def pruned_fraction_text(args) -> str:
     text = getattr(args, "pruned_fractions", None)
     if text is not None:
         return text
-    return "none" if getattr(args, "world", None) is not None else HOUSE_PRUNED_FRACTIONS
+    return "none" if _one_world(args) else HOUSE_PRUNED_FRACTIONS
 
 
 def time_rule(args) -> str:
@@ -82,7 +86,7 @@ def time_rule(args) -> str:
         return "route"
     if rule is not None:
         return rule
-    return "route" if getattr(args, "world", None) is not None else "fixed"
+    return "route" if _one_world(args) else "fixed"
 
 
 def _calibration_summary(cal: dict) -> dict:

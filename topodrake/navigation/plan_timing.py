@@ -73,7 +73,8 @@ def driving_time_fit(files_text: str, command: str) -> dict:
                                  f"({type(e).__name__}: {e})") from None
         if route_time:
             raise TopodrakeError(f"--fit-driving-time: {f} gave each trial its route's own time "
-                                 f"(--route-time); fit runs of one time limit")
+                                 f"(--time-rule route or --route-time, a --world run's default); fit "
+                                 f"runs of one time limit (--time-rule fixed)")
         try:
             limits.add(time_limit(doc["config"]))
             rows += _route_sizes(doc)
