@@ -29,10 +29,10 @@ import json
 import sys
 from pathlib import Path
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.learning.waypoint.success_table import CONTROLLERS, PAPER, success_table
-from topodrake.montecarlo import add_study_arguments, study_main
+from topodrake.experiments.success_table import CONTROLLERS, PAPER, success_table
+from topodrake.apps.study_args import add_study_arguments, study_main
 
 
 def plot(summary: dict, details: dict, path: Path) -> None:

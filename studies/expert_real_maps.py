@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.demonstrations import CollectConfig, plan_jobs
 from topodrake.fileio import atomic_write_json
 from topodrake.montecarlo import trial_seeds

@@ -58,7 +58,7 @@ def draw_navigation_diagram(out: Path) -> Path:
 
     import numpy as np
 
-    from topodrake.navigation.route import route_from_trajectory
+    from topodrake.contract.route import route_from_trajectory
     from topodrake.systems.navigation import NavigationScenario, load_networks, make_navigation_diagram
     from topodrake.world import load_world
 

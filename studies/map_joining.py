@@ -5,7 +5,7 @@ map (camera and lidar, the shipped RE and place embedding; a camera map
 keeps the lidar scans its drives took, as ``topodrake map build`` makes
 it) is built from only the expert drive a -> b and the drive b -> c, and a
 plan is made from the view at place a to the view at place c
-(:func:`topodrake.topomap.joining.join_trial`). A triple is joined when the
+(:func:`topodrake.experiments.joining.join_trial`). A triple is joined when the
 plan exists without a false step: no link (a start, goal or direct link,
 a cross or junction edge; not the drives' own hops) longer than 5 m in
 truth; ``strict_`` figures hold every link to 2 m.
@@ -24,13 +24,13 @@ import json
 import sys
 from pathlib import Path
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.topomap.joining import MODALITIES, joining_study
+from topodrake.experiments.joining import MODALITIES, joining_study
 
 
 def main(argv=None) -> int:
-    from topodrake.montecarlo import study_main
+    from topodrake.apps.study_args import study_main
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--houses", default="test-0,test-1,test-2,test-3,test-4",

@@ -45,9 +45,9 @@ from pathlib import Path
 
 import numpy as np
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.topomap.scalability import HOUSES, scalability
+from topodrake.experiments.map_scalability import HOUSES, scalability
 
 
 def plot(houses: dict, path: Path, modality: str) -> None:
@@ -77,7 +77,7 @@ def plot(houses: dict, path: Path, modality: str) -> None:
 
 
 def main(argv=None) -> int:
-    from topodrake.montecarlo import study_main
+    from topodrake.apps.study_args import study_main
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--worlds", default=HOUSES, help="comma-separated houses")

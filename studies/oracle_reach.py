@@ -4,7 +4,7 @@ In each test house, ``--pairs`` (source, target) pairs are drawn on the
 house's ordered-pair demonstrations as the learned RE's labels are (jittered
 sources; targets on the same drive at -1..8 m of arc, or on another drive
 within 8 m) and rolled out with the A* oracle C_WP + RMP under the labels'
-rules (:mod:`topodrake.navigation.oracle_reach`; cached in
+rules (:mod:`topodrake.experiments.oracle_reach`; cached in
 ``DATA/oracle_reach/``). The geometric oracle's parameters are fitted to the
 outcomes (maximum likelihood), and every oracle is rated against them:
 
@@ -29,13 +29,13 @@ import json
 import sys
 from pathlib import Path
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.navigation.oracle_reach import HOUSES, oracle_study
+from topodrake.experiments.oracle_reach import HOUSES, oracle_study
 
 
 def main(argv=None) -> int:
-    from topodrake.montecarlo import study_main
+    from topodrake.apps.study_args import study_main
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--houses", default=HOUSES, help="test houses (catalogue names or map YAMLs)")

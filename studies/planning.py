@@ -118,12 +118,12 @@ from pathlib import Path
 
 import numpy as np
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.navigation.plan_methods import DEFAULT_METHODS, METHODS, ORACLE_METHODS
-from topodrake.navigation.plan_results import HOUSES, paired_runs, planning, rescore
-from topodrake.navigation.plan_study import ODOMETRY
-from topodrake.navigation.plan_trials import T_MAX_S
+from topodrake.experiments.plan_methods import DEFAULT_METHODS, METHODS, ORACLE_METHODS
+from topodrake.experiments.plan_results import HOUSES, paired_runs, planning, rescore
+from topodrake.experiments.plan_study import ODOMETRY
+from topodrake.experiments.plan_trials import T_MAX_S
 from topodrake.topomap.recalibrate import PRIOR_WEIGHT
 
 
@@ -226,7 +226,7 @@ def plot_pruned(pruned: dict | None, path: Path) -> None:
 # ---------------------------------------------------------------- main
 
 def main(argv=None) -> int:
-    from topodrake.montecarlo import study_main
+    from topodrake.apps.study_args import study_main
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--houses", default=HOUSES, help="test houses (catalogue names or map YAMLs)")
@@ -356,7 +356,7 @@ def _paired(args) -> int:
 
 def _fit_driving_time(args) -> int:
     """The planner's driving-time model fitted to recorded trials (no new trials)."""
-    from topodrake.navigation.plan_timing import driving_time_fit
+    from topodrake.experiments.plan_timing import driving_time_fit
 
     doc = driving_time_fit(args.fit_driving_time, _command(args))
     if args.json:
@@ -373,8 +373,8 @@ def _trace(args) -> int:
     """Some trials of one method in one house driven alone, their timelines
     written and printed."""
     from topodrake.errors import TopodrakeError
-    from topodrake.navigation.plan_results import study_config
-    from topodrake.navigation.plan_trace import plot_trace, trace_trials
+    from topodrake.experiments.plan_results import study_config
+    from topodrake.experiments.plan_trace import plot_trace, trace_trials
     from topodrake.world import load_world
 
     cfg, specs, _, _ = study_config(args)

@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.learning.reachability.calibration_trials import calibration_trials
-from topodrake.montecarlo import add_study_arguments, study_main
+from topodrake.experiments.calibration_trials import calibration_trials
+from topodrake.apps.study_args import add_study_arguments, study_main
 
 DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
            "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")

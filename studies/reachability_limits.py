@@ -19,7 +19,7 @@ C_WP), in the test houses, with the batched engine
   run each: the controller's success rate by hop length.
 * **keep ratio the controller allows**: ``--keep-drives`` expert drives per
   house sparsified with the controller's own outcomes in RE's place
-  (:func:`topodrake.topomap.hops.controller_sparsify`: a frame passes when
+  (:func:`topodrake.experiments.hops.controller_sparsify`: a frame passes when
   all ``--keep-runs`` noisy runs toward it are made, hops capped at 2 m),
   each resulting hop then driven ``--keep-runs`` more times with fresh
   seeds (``hop_success``, which should be about p_sparsify) and RE's own
@@ -39,16 +39,16 @@ import json
 import sys
 from pathlib import Path
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.learning.reachability.limits import reach_limits
+from topodrake.experiments.reach_limits import reach_limits
 
 DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
            "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
 
 
 def main(argv=None) -> int:
-    from topodrake.montecarlo import study_main
+    from topodrake.apps.study_args import study_main
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")

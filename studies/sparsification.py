@@ -7,7 +7,7 @@ C_WP it was trained for). A controller that reaches farther needs fewer
 anchors. Each anchor promises that its controller gets there from the
 previous one; ``hop_success`` checks the promise: ``--hop-runs`` noisy
 closed-loop rollouts of every hop in the batched engine
-(:func:`topodrake.topomap.hops.anchor_hop_success`). ``--check-drives N``
+(:func:`topodrake.experiments.hops.anchor_hop_success`). ``--check-drives N``
 adds the same check over the first N drives of every test house
 (``test_houses`` in the output: keep ratio, hops, share made).
 
@@ -25,9 +25,9 @@ import json
 import sys
 from pathlib import Path
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.topomap.sparsify_compare import compare_estimators, summarize
+from topodrake.experiments.sparsify_compare import compare_estimators, summarize
 
 DEFAULT = ("camera_k2=checkpoints/reach_camera_k2/checkpoint.pt:checkpoints/camera_k2/checkpoint.pt,"
            "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
@@ -52,7 +52,7 @@ def plot(world, poses, results: dict, path: Path, p: float) -> None:
 
 
 def main(argv=None) -> int:
-    from topodrake.montecarlo import study_main
+    from topodrake.apps.study_args import study_main
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--world", default="test-0", help="test house (its demonstrations must exist)")

@@ -60,10 +60,10 @@ import json
 import sys
 from pathlib import Path
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.navigation.follow_study import following
-from topodrake.navigation.follow_trials import CONTROLLERS
+from topodrake.experiments.follow_study import following
+from topodrake.experiments.follow_trials import CONTROLLERS
 
 
 def plot(results: dict, path: Path, n_traj: int) -> None:
@@ -97,7 +97,7 @@ def plot(results: dict, path: Path, n_traj: int) -> None:
 
 
 def main(argv=None) -> int:
-    from topodrake.montecarlo import study_main
+    from topodrake.apps.study_args import study_main
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--trajectories", type=at.count, default=8, help="test trajectories (paper: 500)")

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
 
 

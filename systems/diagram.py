@@ -70,7 +70,7 @@ def add_chassis(b: DiagramBuilder, scenario: Scenario, world, *, camera: bool,
         b.ExportOutput(cam.image_port, "image")
     if meshcat is not None:
         from topodrake.systems.visualization import MeshcatCar
-        from topodrake.world.scenegraph import add_meshcat_world, frame_whole_world
+        from topodrake.sensing.scenegraph import add_meshcat_world, frame_whole_world
 
         add_meshcat_world(meshcat, world)
         frame_whole_world(meshcat, world)

@@ -44,7 +44,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
-from topodrake.learning.waypoint.policy import TargetContext, WaypointPrediction
+from topodrake.contract.waypoint import TargetContext, WaypointPrediction
 from topodrake.navigation.evaluate import (Evaluator, encode_routes, initial_track,
                                            network_context, take_rows)
 from topodrake.navigation.follower import (FAILED, MODES, REACHED, REASONS,

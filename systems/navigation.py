@@ -79,7 +79,7 @@ class NavigationDiagram:
 def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *, world=None,
                             policy=None, reach=None, replanner=None) -> NavigationDiagram:
     """CarPlant + sensors + FollowerFsm + WaypointNet + RmpController +
-    ActuationNoise following ``plan`` (a :class:`~topodrake.navigation.route.Route`).
+    ActuationNoise following ``plan`` (a :class:`~topodrake.contract.route.Route`).
     ``policy`` and ``reach`` default to the scenario's checkpoints (pass
     oracles or loaded networks to skip loading). ``replanner``: a
     :class:`~topodrake.navigation.replan.Replanner` of one car over

@@ -37,7 +37,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
-from topodrake.learning.waypoint.policy import TargetContext, WaypointPrediction, target_input
+from topodrake.contract.waypoint import TargetContext, WaypointPrediction, target_input
 from topodrake.vehicle import car_to_world
 
 

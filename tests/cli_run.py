@@ -1,6 +1,6 @@
 """Running the CLI in-process in tests: exit status, output, and the one-line error."""
 
-from topodrake.cli import main
+from topodrake.apps.cli import main
 
 
 def run(capsys, *argv):

@@ -46,7 +46,7 @@ def small_map(tmp_path_factory):
     import contextlib
     import io
 
-    from topodrake.cli import main
+    from topodrake.apps.cli import main
 
     built = {}
 

@@ -6,7 +6,7 @@ import shutil
 import numpy as np
 import pytest
 
-from topodrake.cli import main
+from topodrake.apps.cli import main
 
 MAPS = __import__("pathlib").Path(__file__).parent / "data" / "maps"
 

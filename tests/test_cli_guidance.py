@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from topodrake.argtypes import Parser
+from topodrake.apps.argtypes import Parser
 from cli_run import one_line, run
-from topodrake.cli import build_parser, main
+from topodrake.apps.cli import build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -112,7 +112,7 @@ def test_the_drive_help_points_to_the_docs(capsys):
 def test_a_recording_starts_no_listening_line(caplog):
     import logging
 
-    from topodrake.navigation.drive import make_recorder
+    from topodrake.apps.drive import make_recorder
 
     with caplog.at_level(logging.INFO, logger="drake"):
         make_recorder()

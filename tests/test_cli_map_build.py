@@ -3,7 +3,7 @@ the JSON holds each drive's time."""
 
 import json
 
-from topodrake.cli import main
+from topodrake.apps.cli import main
 
 BUILD = ["map", "build", "test-0", "--modality", "oracle", "--places", "4,5,9", "--quiet", "--json"]
 

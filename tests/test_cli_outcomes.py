@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from topodrake.cli import main
+from topodrake.apps.cli import main
 from topodrake.navigation.outcomes import EXIT_FAILED, drive_outcome, exit_status
-from topodrake.navigation.plan_trials import SUCCESS_M, judge_outcome
+from topodrake.experiments.plan_trials import SUCCESS_M, judge_outcome
 
 
 @pytest.fixture

@@ -7,9 +7,9 @@ import json
 import pytest
 
 from cli_run import one_line, run
-from topodrake.cli import main
+from topodrake.apps.cli import main
 from topodrake.errors import TopodrakeError
-from topodrake.outputs import check_output, sniff, write_kept
+from topodrake.apps.outputs import check_output, sniff, write_kept
 
 POSE = ["--start", "16.42,14.88,2.95", "--goal", "8.22,14.08,-0.2"]
 PNG = b"\x89PNG\r\n\x1a\n" + b"\0" * 32

@@ -5,7 +5,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.quiver import Quiver
 
-from topodrake.navigation.drive import MODE_COLORS
+from topodrake.apps.drive import MODE_COLORS
 from topodrake.topomap.plot import VERTEX_COLOR, draw_map
 from topodrake.world import load_world
 from topodrake.world.plot import legend_below

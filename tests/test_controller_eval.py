@@ -11,7 +11,7 @@ from study_run import run_study
 from topodrake.errors import TopodrakeError
 from topodrake.learning.samples import TrajectorySet
 from topodrake.learning.waypoint.evaluation import PairConfig, sample_controller_pair
-from topodrake.learning.waypoint.success_table import run_block, summarize, wilson
+from topodrake.experiments.success_table import run_block, summarize, wilson
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +61,7 @@ def oracle_runner(box_world):
 
 
 def _target(pose, key):
-    from topodrake.learning.waypoint.policy import TargetContext
+    from topodrake.contract.waypoint import TargetContext
 
     return TargetContext(key=key, poses=np.asarray([pose], float))
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.sensing.textures import FLOOR_TEXTURES, FURNITURE_TEXTURES, WALL_TEXTURES
+from topodrake.world.textures import FLOOR_TEXTURES, FURNITURE_TEXTURES, WALL_TEXTURES
 from topodrake.world import load_world as load_world_pkg
 from topodrake.world.catalogue import CATALOGUE, catalogue_names, load_world
 from topodrake.world.houses import HouseConfig, generate_house, generate_house_with_layout

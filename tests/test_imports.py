@@ -49,10 +49,10 @@ def _cycles(graph: nx.DiGraph) -> list[list[str]]:
 
 def test_graph_sees_known_edges():
     g = import_graph()
-    assert g.has_edge("topodrake.cli", "topodrake.errors")
+    assert g.has_edge("topodrake.apps.cli", "topodrake.errors")
     assert g.has_edge("topodrake.systems.run", "topodrake.vehicle")
     # a deferred import inside a function counts
-    assert g.has_edge("topodrake.cli", "topodrake.world.plot")
+    assert g.has_edge("topodrake.apps.cli", "topodrake.world.plot")
 
 
 def test_no_import_cycles_at_module_level():

@@ -10,7 +10,7 @@ import pytest
 from topodrake.errors import TopodrakeError
 from topodrake.topomap.build import add_trajectory
 from topodrake.topomap.graph import MapConfig, TopoMap
-from topodrake.topomap.joining import join_trial, joining_triples, summarize
+from topodrake.experiments.joining import join_trial, joining_triples, summarize
 from topodrake.topomap.mapfile import load_map, save_map
 from topodrake.topomap.plan import link_groups, plan_path
 
@@ -274,7 +274,7 @@ def test_a_hop_through_a_vertex_reused_in_a_look_alike_place_is_a_false_step():
     drive's odometry (the hop's leg) puts it, or, without a leg, far away."""
     import networkx as nx
 
-    from topodrake.topomap.joining import plan_links
+    from topodrake.experiments.joining import plan_links
 
     poses = {0: [0.0, 0.0, 0.0], 1: [1.0, 0.0, 0.0], 2: [20.0, 5.0, 0.0], 3: [21.0, 5.0, 0.0]}
     g = nx.DiGraph()

@@ -491,7 +491,7 @@ def test_waypoint_net_oracle_drives_to_target(box_world):
 @pytest.mark.parametrize("modality,output", [("camera", "waypoint"), ("lidar", "waypoint"),
                                              ("camera", "control")])
 def test_waypoint_net_matches_policy(box_world, modality, output):
-    from topodrake.learning.frames import context_frames
+    from topodrake.contract.frames import context_frames
     from topodrake.learning.waypoint.policy import LearnedWaypointPolicy, make_target_context
     from topodrake.sensing.config import CameraConfig, LidarConfig
     from topodrake.systems.scenario import Scenario
@@ -564,7 +564,7 @@ def test_waypoint_net_reuses_what_the_target_carries_only_for_its_own_policy_and
 def test_cli_parsers_refuse_a_missing_config(tmp_path):
     import argparse
 
-    from topodrake.learning.cli import add_bench_parser, add_train_parser
+    from topodrake.apps.train_cli import add_bench_parser, add_train_parser
 
     p = argparse.ArgumentParser()
     sub = p.add_subparsers(dest="command", required=True)

@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from topodrake.errors import TopodrakeError
-from topodrake.sensing.textures import WALL_TEXTURES
+from topodrake.world.textures import WALL_TEXTURES
 from topodrake.world.houseexpo import load_houseexpo
 from topodrake.world.raster import occupied_boxes, world_from_occupancy
 from topodrake.world.rosmap import classify, load_ros_map, read_gray

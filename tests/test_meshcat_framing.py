@@ -10,7 +10,7 @@ import struct
 import numpy as np
 import pytest
 
-from topodrake.world.scenegraph import MESHCAT_FOV_DEG, framing_camera_pose, view_angles
+from topodrake.sensing.scenegraph import MESHCAT_FOV_DEG, framing_camera_pose, view_angles
 
 
 @pytest.mark.parametrize("world_name", ["test-0", "train-07"])

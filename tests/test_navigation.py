@@ -28,14 +28,14 @@ def oracles(box_world):
 
 @pytest.fixture(scope="module")
 def route(box_world, drive, oracles):
-    from topodrake.navigation.route import route_from_trajectory
+    from topodrake.contract.route import route_from_trajectory
 
     anchors = np.r_[np.arange(0, len(drive) - 1, 10), len(drive) - 1]
     return route_from_trajectory(box_world, drive, anchors, oracles[0])
 
 
 def test_route_from_observations_takes_clamped_context_frames():
-    from topodrake.navigation.route import route_from_observations
+    from topodrake.contract.route import route_from_observations
 
     obs = np.arange(20)[:, None] * np.ones((1, 4))          # "lidar" frames numbered 0..19
     poses = np.column_stack([np.arange(20.0), np.zeros(20), np.zeros(20)])
@@ -195,7 +195,7 @@ def test_runner_refuses_a_start_in_a_wall(box_world, route, oracles):
 
 def _bad_route(route):
     """A plan whose second anchor (the goal) lies behind the partition."""
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
 
     return Route(route.contexts[[0, -1]], route.poses[[0, -1]], vertices=np.array([7, 8]),
                  modality=route.modality)
@@ -207,7 +207,7 @@ def test_a_car_in_dead_reckoning_is_replanned_without_the_failing_edge(box_world
     (7, 8), takes it and reaches the goal; without replanning it gives up."""
     from topodrake.navigation.engine import NavigationConfig, NavigationEngine
     from topodrake.navigation.follower import FollowerConfig
-    from topodrake.navigation.plan_trials import follow_routes
+    from topodrake.experiments.plan_trials import follow_routes
     from topodrake.navigation.replan import ReplanSchedule
 
     bad = _bad_route(route)
@@ -277,7 +277,7 @@ def test_a_new_plan_is_taken_only_where_the_follower_s_search_would_start_it(box
     from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
     from topodrake.navigation.follower import FollowerConfig
     from topodrake.navigation.replan import Replanner, ReplanSchedule
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
     from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
                                               make_navigation_diagram)
 
@@ -356,7 +356,7 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     more than max_replans new plans."""
     from topodrake.navigation.follower import DEAD_RECKONING, FOLLOW, SEARCH, FollowerState
     from topodrake.navigation.replan import Replanner, ReplanSchedule
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
 
     sched = ReplanSchedule.paper()
     assert np.flatnonzero(sched.due(np.arange(15))).tolist() == [5, 8, 11, 14]
@@ -402,7 +402,7 @@ def test_the_default_schedule_asks_only_before_dead_reckoning_gives_up_and_takes
     try; the paper's schedule asks from the 5th period."""
     from topodrake.navigation.follower import DEAD_RECKONING, FollowerConfig, FollowerState
     from topodrake.navigation.replan import Replanner, ReplanSchedule
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
 
     give_up = FollowerConfig().dr_max_iterations
     tries = np.flatnonzero(ReplanSchedule().due(np.arange(give_up + 1))).tolist()
@@ -461,7 +461,7 @@ def test_a_camera_follower_fsm_hands_the_car_s_lidar_scan_to_the_evaluator(box_w
     ``ranges`` port (the diagram connects the lidar) and gives it to the
     Evaluator for the tracker's scan fixes; unconnected, it gives none."""
     import topodrake.systems.follower as follower_system
-    from topodrake.navigation.route import Route, route_from_trajectory
+    from topodrake.contract.route import Route, route_from_trajectory
     from topodrake.sensing.config import LidarConfig
     from topodrake.sensing.lidar import Lidar
 
@@ -473,7 +473,7 @@ def test_a_camera_follower_fsm_hands_the_car_s_lidar_scan_to_the_evaluator(box_w
             return np.zeros((len(ctx), 1))
 
         def predict(self, observation, target):
-            from topodrake.learning.waypoint.policy import WaypointPrediction
+            from topodrake.contract.waypoint import WaypointPrediction
 
             n = len(observation)
             return WaypointPrediction(np.tile([[1.0, 0.0]], (n, 1)), np.zeros(n),
@@ -517,7 +517,7 @@ def test_a_tracked_car_with_no_plan_from_its_view_returns_to_its_anchor_and_plan
     without return_to_anchor, it takes nothing."""
     from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
     from topodrake.navigation.replan import Replanner, ReplanSchedule
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
 
     cur = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([1, 2, 3]), probability=0.5)
     back = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([2, 5, 3]),
@@ -571,7 +571,7 @@ def test_the_oracle_relocalizes_a_car_no_plan_starts_for_at_the_vertex_it_sees()
     from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
     from topodrake.navigation.replan import (NEAREST, Replanner, ReplanSchedule,
                                              nearest_seen_vertex)
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
 
     cur = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([1, 2, 3]), probability=0.5)
     there = Route(np.zeros((2, 1)), np.array([[3.0, 1.0, 0.0], [5.0, 1.0, 0.0]]),
@@ -618,7 +618,7 @@ def _anchor_offset(odo, rel):
 def _sub_route(route, rows, vertices, leg_rows):
     """Anchors ``rows`` of ``route`` as map ``vertices``; hop i keeps the
     route's leg ``leg_rows[i]`` (None: a hop without a leg)."""
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
 
     nan = np.full_like(route.leg_paths[0], np.nan)
     paths = np.stack([nan if j is None else route.leg_paths[j] for j in leg_rows])

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from topodrake.cli import main
+from topodrake.apps.cli import main
 
 
 @pytest.mark.parametrize("extra, message", [
@@ -179,7 +179,7 @@ def test_each_shipped_controller_finds_its_shipped_re():
 def test_a_teach_drive_ends_at_its_first_closest_pass_of_the_goal():
     """An expert told to come within 0.1 m of the goal circles it; the teach
     drive ends where it first passed closest within the expert's own 0.27 m."""
-    from topodrake.navigation.cli import TEACH_STOP_M, teach_end
+    from topodrake.apps.navigate_cli import TEACH_STOP_M, teach_end
 
     goal = np.array([0.0, 0.0])
     x = np.array([2.0, 1.0, 0.5, 0.26, 0.15, 0.12, 0.2, 0.3, 0.25, 0.1])
@@ -212,7 +212,7 @@ def test_the_default_demo_plans_on_the_shipped_map_and_reaches(capsys, tmp_path,
     assert out["controller"] == "registration" and 0.0 < out["probability"] < 1.0
     assert out["anchors"] > 10 and (tmp_path / "demo" / "plan.png").stat().st_size > 10_000
     # with a controller named the demo follows one expert drive, as before
-    from topodrake.demo import add_demo_parser, demo_map
+    from topodrake.apps.demo import add_demo_parser, demo_map
     import argparse
 
     parser = argparse.ArgumentParser()

@@ -118,7 +118,7 @@ def test_without_error_it_is_the_a_star_oracle_exactly(box_world):
 
 
 def test_the_spec_names_a_c_wp_wherever_a_checkpoint_does(box_world):
-    from topodrake.learning.onpolicy.bench import CONTROLLERS, parse_controllers
+    from topodrake.experiments.bench_onpolicy import CONTROLLERS, parse_controllers
     from topodrake.learning.reachability.controllers import controller_policy
 
     got = parse_controllers("lidar_k5", ["lidar_k5=oracle:anchor=0.3"], must_exist=True)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.sensing.textures import FURNITURE_TEXTURES
+from topodrake.world.textures import FURNITURE_TEXTURES
 from topodrake.world.obstacles import boxes_on_path, with_boxes
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.route import teach_legs
+from topodrake.contract.route import teach_legs
 from topodrake.odometry import Odometry, OdometryConfig, odometry_along, odometry_errors
 from topodrake.se2 import compose, invert, relative
 

@@ -162,7 +162,7 @@ def test_dagger_refuses_an_output_folder_of_another_run(tmp_path):
 
 
 def test_follower_bench_controllers_parse_with_overrides(tmp_path):
-    from topodrake.learning.onpolicy.bench import CONTROLLERS, parse_controllers
+    from topodrake.experiments.bench_onpolicy import CONTROLLERS, parse_controllers
 
     got = parse_controllers("lidar_k5", ["lidar_k5=x.pt"])
     assert got == {"lidar_k5": ("x.pt", *CONTROLLERS["lidar_k5"][1:])}

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from topodrake.navigation.oracle_reach import calibration_scores, fit_oracle, oracle_reach_pairs
+from topodrake.experiments.oracle_reach import calibration_scores, fit_oracle, oracle_reach_pairs
 from topodrake.topomap.scorer import (CALIBRATED_ORACLE, OracleConfig, geometric_reach,
                                       pair_geometry, reach_from_geometry)
 

@@ -57,7 +57,7 @@ def _policy_parity(box_world, policy, target_poses, noise_std, t_max):
     goal = target_poses[len(target_poses) // 2]
     drake = TargetRunner(build_waypoint_diagram(sc, policy, world=box_world)).run(
         start, goal, target, seed=4, t_max_s=t_max)
-    from topodrake.learning.waypoint.policy import target_input
+    from topodrake.contract.waypoint import target_input
     feats = policy.encode_target(target_input(policy, target))
     noise = np.zeros((1, int(round(t_max / 0.1)), 2))
     noise[0, :len(drake.noise)] = drake.noise

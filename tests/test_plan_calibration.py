@@ -8,7 +8,7 @@ import pytest
 
 from cli_run import one_line, run
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.plan_trials import calibration
+from topodrake.experiments.plan_trials import calibration
 from topodrake.topomap.plan_calibration import (FILENAME, PlanCalibration, calibration_beside,
                                                 fit_from_records, fit_plan_calibration)
 
@@ -165,7 +165,7 @@ def test_a_plan_on_a_map_reports_the_chance_of_the_calibration_beside_its_re(cap
 
 
 def test_the_planning_study_reports_the_calibrated_ece_where_every_plan_has_a_chance():
-    from topodrake.navigation import plan_methods as planning
+    from topodrake.experiments import plan_methods as planning
 
     recs = [{"method": "lidar", "planned": True, "plan_probability": 0.9,
              "success_probability": 0.5, "success": t % 2 == 0} for t in range(40)]
@@ -179,7 +179,7 @@ def test_the_planning_study_reports_the_calibrated_ece_where_every_plan_has_a_ch
 
 
 def test_each_learned_method_has_one_place_for_its_plan_calibration():
-    from topodrake.navigation.plan_methods import plan_calibration_path
+    from topodrake.experiments.plan_methods import plan_calibration_path
     from topodrake.topomap.sources import ROOT
 
     ck = ROOT / "checkpoints"

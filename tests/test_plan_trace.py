@@ -36,7 +36,7 @@ def placed_box():
 
 def _stub_house(monkeypatch, world, topomap):
     """The planning study's house and plans, in the placed box world."""
-    from topodrake.navigation import plan_study
+    from topodrake.experiments import plan_study
     from topodrake.topomap.plan import plan_path
 
     monkeypatch.setattr(plan_study, "_house", lambda seed, jobs, cfg: (jobs[seed], world, [], 0))
@@ -53,10 +53,10 @@ def _stub_house(monkeypatch, world, topomap):
 
 
 def test_a_trace_drives_the_study_s_trial_and_times_its_modes(placed_box, monkeypatch, tmp_path):
-    from topodrake.navigation import plan_study
+    from topodrake.experiments import plan_study
     from topodrake.navigation.follower import MODES
-    from topodrake.navigation.plan_trace import plot_trace, trace_trials
-    from topodrake.navigation.plan_trials import jittered_starts, trial_pairs
+    from topodrake.experiments.plan_trace import plot_trace, trace_trials
+    from topodrake.experiments.plan_trials import jittered_starts, trial_pairs
 
     world, topomap = placed_box
     _stub_house(monkeypatch, world, topomap)
@@ -91,7 +91,7 @@ def test_a_trace_drives_the_study_s_trial_and_times_its_modes(placed_box, monkey
 
 
 def test_a_trace_refuses_what_it_cannot_drive_in_one_line(placed_box, monkeypatch, tmp_path):
-    from topodrake.navigation.plan_trace import trace_trials
+    from topodrake.experiments.plan_trace import trace_trials
 
     cfg = {"seed": 0, "data": str(tmp_path), "quiet": True}
     with pytest.raises(TopodrakeError, match="unknown method 'nope'"):

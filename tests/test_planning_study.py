@@ -1,4 +1,4 @@
-"""The planning study's pieces (studies/planning.py, topodrake.navigation.plan_trials,
+"""The planning study's pieces (studies/planning.py, topodrake.experiments.plan_trials,
 plan_methods, plan_study and plan_results): trials, subsets, calibration, the summary, the
 methods, and a tiny planned-and-followed run in the box world with the oracles."""
 
@@ -10,7 +10,7 @@ import pytest
 
 from study_run import run_study
 from topodrake.errors import TopodrakeError
-from topodrake.navigation import plan_trials as pt
+from topodrake.experiments import plan_trials as pt
 
 
 # ---------------------------------------------------------------- trials
@@ -129,7 +129,7 @@ def test_replanning_gains_pair_each_method_with_its_replanning_twin_per_house():
 
 
 def test_longest_link_is_the_longest_true_step_of_start_anchors_and_goal():
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
 
     route = Route(np.zeros((3, 1)), np.array([[1.0, 0, 0], [2.0, 0, 0], [np.nan, np.nan, np.nan]]))
     # start (0, 0) -> 1 -> 2 -> (unknown pose, skipped) -> goal place (8, 0)
@@ -162,7 +162,7 @@ def test_goal_watch_stops_cars_at_their_goal():
 
 
 def test_render_pose_route_gives_camera_contexts(box_world):
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
 
     ctx = np.repeat(np.array([[[2.0, 2.0, 0.0]], [[3.0, 2.0, 0.0]]]), 3, axis=1)   # (2, 3, 3)
     r = pt.render_pose_route(box_world, Route(ctx, ctx[:, 1], probability=0.7, modality="pose"))
@@ -194,8 +194,8 @@ def test_study_refuses_bad_input_in_one_line(tmp_path):
 
 
 def test_house_keys_and_seeds():
-    from topodrake.navigation.plan_study import house_seed
-    from topodrake.topomap.map_cache import house_key
+    from topodrake.experiments.plan_study import house_seed
+    from topodrake.experiments.map_cache import house_key
 
     assert house_key("/x/maps/willow/map.yaml") == "willow-map"
     assert house_seed(0, "test-0") == house_seed(0, "test-0") != house_seed(1, "test-0")
@@ -310,7 +310,7 @@ def test_pose_oracles_follow_a_route_of_images_by_its_anchor_poses(box_world):
     from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.navigation.engine import NavigationEngine
     from topodrake.navigation.evaluate import GeometricReachability, encode_routes
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
 
     poses = np.array([[2.0, 2.0, 0.0], [3.0, 2.0, 0.0], [4.0, 2.5, 0.5]])
     images = np.zeros((3, 11, 8, 8, 3), np.uint8)          # stands for camera contexts
@@ -350,7 +350,7 @@ def test_summary_reports_each_map_methods_anchors_per_metre():
 
 
 def test_false_links_count_links_only_and_long_steps_count_every_step():
-    from topodrake.navigation import plan_study as study
+    from topodrake.experiments import plan_study as study
 
     rec = lambda longest, false: {"outcome": "diverged", "success": False, "planned": True,
                                   "plan_probability": 0.5, "longest_link_m": longest,
@@ -368,7 +368,7 @@ def test_false_links_count_links_only_and_long_steps_count_every_step():
 def test_the_method_registry_names_each_method_s_map_follower_and_drive():
     from dataclasses import FrozenInstanceError
 
-    from topodrake.navigation.plan_methods import (FOLLOWERS, MAP_KINDS, METHODS,
+    from topodrake.experiments.plan_methods import (FOLLOWERS, MAP_KINDS, METHODS,
                                                    ORACLE_METHODS, Method)
 
     assert list(METHODS) == ["ours", "lidar", "lidar_reg", "sptm", "oracle", "ours_replan",
@@ -407,8 +407,8 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
 def _options(tmp_path, **changed) -> argparse.Namespace:
     """The study's options as its command line parses ``--out TMP --quiet``,
     with ``changed`` ones."""
-    from topodrake.navigation.plan_methods import METHODS
-    from topodrake.navigation.plan_results import HOUSES
+    from topodrake.experiments.plan_methods import METHODS
+    from topodrake.experiments.plan_results import HOUSES
 
     options = {"houses": HOUSES, "world": None, "methods": ",".join(METHODS), "trials": 20,
                "oracle_trials": 100, "trajectories": None, "obstacle_trials": 10, "obstacles": 3,
@@ -426,10 +426,10 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
     house job, and planning.json's config describes each method's follower
     as its Method does."""
     import topodrake.montecarlo as mc
-    from topodrake.navigation import plan_study
-    from topodrake.navigation.plan_methods import METHODS
+    from topodrake.experiments import plan_study
+    from topodrake.experiments.plan_methods import METHODS
     from topodrake.navigation.follower import FollowerConfig
-    from topodrake.navigation.plan_results import planning
+    from topodrake.experiments.plan_results import planning
 
     jobs_run = []
 
@@ -544,7 +544,7 @@ def test_a_map_written_before_a_setting_it_reads_is_not_the_default_map():
 
 def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
     from topodrake.topomap.graph import MapConfig
-    from topodrake.topomap.map_cache import config_tag, map_path
+    from topodrake.experiments.map_cache import config_tag, map_path
 
     assert config_tag("all", None) == config_tag("all", MapConfig()) == "all"
     off = config_tag("all", MapConfig(scan_match=0.0))
@@ -572,7 +572,7 @@ def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
 def test_the_lidar_scale_follower_drives_the_scale_c_wp_with_the_lidar_re():
     """``lidar_scale`` follows the lidar map with the C_WP trained at scale,
     its hops rated by the RE of the lidar k5 C_WP the map was built for."""
-    from topodrake.navigation.plan_methods import networks
+    from topodrake.experiments.plan_methods import networks
     from topodrake.topomap.sources import shipped_checkpoint
 
     cwp, reach = networks("lidar_scale")
@@ -589,7 +589,7 @@ def test_ours_scale_drives_the_camera_c_wp_at_scale_on_the_camera_map():
     C_WP trained at scale; its plan calibration ships beside that C_WP."""
     import torch
 
-    from topodrake.navigation.plan_methods import METHODS, networks, plan_calibration_path
+    from topodrake.experiments.plan_methods import METHODS, networks, plan_calibration_path
 
     assert METHODS["ours_scale"].map == METHODS["ours"].map == "camera"
     cwp, reach = networks("camera_scale")
@@ -610,8 +610,8 @@ def test_rescore_sets_the_shipped_calibration_against_recorded_trials(tmp_path):
     import json
 
     from topodrake.errors import TopodrakeError
-    from topodrake.navigation.plan_methods import plan_calibration_of
-    from topodrake.navigation.plan_results import rescore
+    from topodrake.experiments.plan_methods import plan_calibration_of
+    from topodrake.experiments.plan_results import rescore
 
     rng = np.random.default_rng(0)
     recs = [{"house": "test-0", "method": m, "map": "all", "trial": t, "planned": True,
@@ -641,8 +641,8 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
     failed edges of rounds < r, and the records keep each trial's round."""
     from types import SimpleNamespace
 
-    from topodrake.navigation import plan_study, plan_trials
-    from topodrake.navigation.plan_trials import FollowResult
+    from topodrake.experiments import plan_study, plan_trials
+    from topodrake.experiments.plan_trials import FollowResult
 
     class Planned:
         def __init__(self, vertices):
@@ -702,7 +702,7 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
 def test_the_lidar_ablations_swap_one_network_for_its_oracle():
     from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.navigation.evaluate import GeometricReachability
-    from topodrake.navigation.plan_methods import networks
+    from topodrake.experiments.plan_methods import networks
     from topodrake.world import load_world
 
     world = load_world("test-0")
@@ -728,7 +728,7 @@ def _recorded(path, method, successes):
 
 def test_paired_runs_compare_the_same_trials_within_houses(tmp_path):
     from topodrake.errors import TopodrakeError
-    from topodrake.navigation.plan_results import paired_runs
+    from topodrake.experiments.plan_results import paired_runs
 
     before = _recorded(tmp_path / "a.json", "lidar", {"h0": [0] * 40, "h1": [1] * 20 + [0] * 20})
     after = _recorded(tmp_path / "b.json", "lidar", {"h0": [1] * 30 + [0] * 10,
@@ -770,7 +770,7 @@ def test_a_cached_map_plans_with_the_callers_planning_settings(tmp_path, monkeyp
     in planning settings, and plans with the caller's."""
     from types import SimpleNamespace
 
-    from topodrake.topomap import map_cache
+    from topodrake.experiments import map_cache
     from topodrake.topomap.graph import MapConfig
     from topodrake.world import load_world
 
@@ -790,7 +790,8 @@ def test_a_cached_map_of_another_re_is_rebuilt_not_refused(tmp_path, monkeypatch
     stale: the cache builds the map again for the RE it is given."""
     from types import SimpleNamespace
 
-    from topodrake.topomap import map_cache, sources
+    from topodrake.experiments import map_cache
+    from topodrake.topomap import sources
     from topodrake.world import load_world
 
     world = load_world("test-0")
@@ -827,7 +828,7 @@ def test_a_map_keeps_its_drives_lidar_scans_and_one_cached_without_is_rebuilt(
     from types import SimpleNamespace
 
     from topodrake.sensing.lidar import Lidar
-    from topodrake.topomap import map_cache
+    from topodrake.experiments import map_cache
     from topodrake.topomap.mapfile import save_map
     from topodrake.world import load_world
 
@@ -855,7 +856,7 @@ def test_a_map_keeps_its_drives_lidar_scans_and_one_cached_without_is_rebuilt(
 
 
 def test_the_registration_follower_asks_its_tracked_re_and_its_maps_keep_the_cold_one():
-    from topodrake.navigation.plan_methods import FOLLOWER_REACH, networks
+    from topodrake.experiments.plan_methods import FOLLOWER_REACH, networks
     from topodrake.topomap.sources import SHIPPED
 
     policy, reach = networks("lidar_reg")
@@ -865,7 +866,7 @@ def test_the_registration_follower_asks_its_tracked_re_and_its_maps_keep_the_col
 
 
 def test_each_trial_draws_its_own_odometry_errors_from_the_seed_and_house():
-    from topodrake.navigation import plan_study
+    from topodrake.experiments import plan_study
     from topodrake.odometry import OdometryConfig, odometry_errors
 
     a = plan_study.odometry_seeds({"seed": 0}, "test-0", 5)
@@ -881,8 +882,8 @@ def test_each_trial_draws_its_own_odometry_errors_from_the_seed_and_house():
 def test_route_time_gives_each_trial_the_time_its_a_star_length_needs(box_world, tmp_path):
     """--route-time: the longer of the study's limit and A* length / 0.25 m/s per trial;
     without it every trial gets the study's limit."""
-    from topodrake.navigation import plan_study
-    from topodrake.navigation.plan_trials import T_MAX_S
+    from topodrake.experiments import plan_study
+    from topodrake.experiments.plan_trials import T_MAX_S
 
     starts = np.array([[1.5, 2.0, 0.0], [1.5, 2.0, 0.0]])
     goals = np.array([[2.5, 2.0, 0.0], [7.5, 2.0, 0.0]])   # 1 m apart; around the partition
@@ -896,7 +897,7 @@ def test_route_time_gives_each_trial_the_time_its_a_star_length_needs(box_world,
     assert route[0] == 10.0                                  # 1 m needs 4 s: the limit holds
     assert route[1] == pytest.approx(length / 0.25, abs=0.11)
     # a run of route times has no one limit to fit the driving time against
-    from topodrake.navigation.plan_timing import driving_time_fit
+    from topodrake.experiments.plan_timing import driving_time_fit
 
     run = tmp_path / "planning.json"
     run.write_text(json.dumps({"config": {"route_time": True, "t_max_s": 150.0}, "houses": {},
@@ -909,7 +910,7 @@ def test_a_building_s_trials_get_their_route_time_and_the_houses_a_fixed_limit(t
     """The time rule's default follows what is run: the test houses keep one
     limit, one --world building gives each trial its A* length's time; an
     explicit rule wins and a contradiction is named."""
-    from topodrake.navigation.plan_results import pruned_fraction_text, study_config, time_rule
+    from topodrake.experiments.plan_results import pruned_fraction_text, study_config, time_rule
 
     houses = _options(tmp_path, pruned_fractions=None)
     world = _options(tmp_path, world="test-0", methods="lidar", pruned_fractions=None)

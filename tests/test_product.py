@@ -11,8 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from topodrake import argtypes, jitcache, validate
-from topodrake.cli import build_parser, main
+from topodrake import jitcache, validate
+from topodrake.apps import argtypes
+from topodrake.apps.cli import build_parser, main
 from topodrake.errors import TopodrakeError
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -112,7 +112,7 @@ def test_labels_resume_and_refuse_another_config(box_world, two_lines, tmp_path)
 
 def test_anchor_hops_are_checked_by_closed_loop_rollouts(box_world):
     from topodrake.learning.waypoint.policy import AStarOracle
-    from topodrake.topomap.hops import anchor_hop_success
+    from topodrake.experiments.hops import anchor_hop_success
 
     # a 'drive' along y = 2 whose last frame lies behind the partition wall
     # (x in [4.9, 5.1], y < 6): that hop starts with nothing in common in view
@@ -129,7 +129,7 @@ def test_anchor_hops_are_checked_by_closed_loop_rollouts(box_world):
 
 def test_controller_sparsify_passes_frames_by_the_controllers_own_runs(box_world):
     from topodrake.learning.waypoint.policy import AStarOracle
-    from topodrake.topomap.hops import controller_sparsify
+    from topodrake.experiments.hops import controller_sparsify
 
     # frames 0.2 m apart along y = 2, the last one behind the partition wall:
     # every hop is made except those to the last frame (a blind start)

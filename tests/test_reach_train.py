@@ -259,7 +259,7 @@ def test_reach_config_is_checked(tmp_path):
 
 
 def test_cli_refuses_bad_reach_configs(tmp_path, capsys):
-    from topodrake.cli import main
+    from topodrake.apps.cli import main
 
     assert main(["train", "reachability", "--config", str(tmp_path / "none.yaml"),
                  "--out", str(tmp_path / "o")]) == 2
@@ -372,7 +372,7 @@ def test_reachability_estimator_system_matches_the_batched_call(mirror_average):
 
     from topodrake.learning.networks import NetworkConfig, WaypointNetwork
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.learning.waypoint.policy import TargetContext
+    from topodrake.contract.waypoint import TargetContext
     from topodrake.sensing.camera import Camera
     from topodrake.sensing.config import CameraConfig
     from topodrake.systems.diagram import add_chassis
@@ -417,7 +417,7 @@ def test_reachability_estimator_system_matches_the_batched_call(mirror_average):
 
 
 def test_bench_reachability_cli_refuses_a_missing_controller(tmp_path, capsys):
-    from topodrake.cli import main
+    from topodrake.apps.cli import main
 
     assert main(["bench", "reachability", "--controller", str(tmp_path / "no.pt")]) == 2
     assert "no.pt does not exist" in capsys.readouterr().err
@@ -445,7 +445,7 @@ def tiny_re(tmp_path_factory):
 
 
 def test_sparsify_cli_end_to_end(tiny_re, tmp_path, capsys):
-    from topodrake.cli import main
+    from topodrake.apps.cli import main
 
     demos, re_path, ctrl = tiny_re
     args = ["sparsify", "test-1", "--reach", str(re_path), "--controller", str(ctrl),
@@ -512,7 +512,7 @@ def test_sparsification_study_compares_estimators_on_the_longest_drive(tiny_re, 
 
 def test_houses_are_sparsified_under_other_calibrations_from_the_same_features(tiny_re, tmp_path):
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.topomap.hops import sparsify_houses
+    from topodrake.experiments.hops import sparsify_houses
 
     demos, re_path, ctrl = tiny_re
     (tmp_path / "test-1").symlink_to(demos)
@@ -528,7 +528,7 @@ def test_houses_are_sparsified_under_other_calibrations_from_the_same_features(t
 def test_houses_report_the_share_of_hops_that_advance_one_frame(tiny_re, tmp_path):
     from topodrake.demonstrations import load_demos
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.topomap.hops import sparsify_houses
+    from topodrake.experiments.hops import sparsify_houses
     from topodrake.world import load_world
 
     demos, re_path, ctrl = tiny_re
@@ -559,7 +559,7 @@ def test_calibration_study_refuses_bad_estimators(tmp_path):
 
 
 def test_calibration_study_splits_auroc_by_how_pairs_start():
-    from topodrake.learning.reachability.calibration_trials import summarise_trials
+    from topodrake.experiments.calibration_trials import summarise_trials
 
     # reached pairs (p 0.6-0.9), two driven failures ranked among them,
     # blind starts (no overlap) all below every reached pair
@@ -644,7 +644,7 @@ def test_anchor_calibration_config_is_checked():
 
 def test_limits_study_ceiling_and_hop_bins(tmp_path):
     from study_run import run_study
-    from topodrake.learning.reachability.limits import oracle_auroc, success_by_distance
+    from topodrake.experiments.reach_limits import oracle_auroc, success_by_distance
 
     # deterministic outcomes: the other runs predict each run perfectly
     fixed = np.array([[1, 1, 1], [0, 0, 0], [1, 1, 1], [0, 0, 0]])
@@ -668,7 +668,7 @@ def test_limits_study_ceiling_and_hop_bins(tmp_path):
 def test_limits_study_compares_res_keep_ratio_with_the_controllers_own(tiny_re):
     from topodrake.demonstrations import load_demos
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.learning.reachability.limits import controller_keep
+    from topodrake.experiments.reach_limits import controller_keep
     from topodrake.learning.samples import TrajectorySet
     from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.world import load_world

@@ -153,7 +153,7 @@ def test_agrees_with_kiss_icp(house):
 def test_throughput_one_core(house):
     """The acceptance figure is 5,000 registrations per second on one core;
     the test asks for a fifth of it (a loaded test machine)."""
-    from topodrake.registration.bench import registration_rate
+    from topodrake.experiments.bench_registration import registration_rate
 
     rng = np.random.default_rng(5)
     path = house.astar(house.sample_free_pose(rng), house.sample_free_pose(rng))
@@ -218,7 +218,7 @@ def test_camera_routes_keep_their_anchors_lidar_scans(house):
     from types import SimpleNamespace
 
     from topodrake.navigation.evaluate import encode_routes
-    from topodrake.navigation.route import Route, route_from_trajectory
+    from topodrake.contract.route import Route, route_from_trajectory
 
     rng = np.random.default_rng(3)
     poses = np.array([house.sample_free_pose(rng) for _ in range(6)])

@@ -38,7 +38,7 @@ def policy():
 
 
 def _contexts(house, poses, anchors):
-    from topodrake.learning.frames import context_frames
+    from topodrake.contract.frames import context_frames
     from topodrake.sensing.lidar import Lidar
 
     rows = context_frames(len(poses), np.asarray(anchors), K, STEP)
@@ -168,7 +168,7 @@ def _box_route(box_world):
     """(route, registration C_WP, geometric RE): an expert drive across the
     box world as a route of every 10th frame."""
     from topodrake.navigation.evaluate import GeometricReachability
-    from topodrake.navigation.route import route_from_trajectory
+    from topodrake.contract.route import route_from_trajectory
     from topodrake.rollout import ExpertRollout, RolloutConfig
 
     drive = ExpertRollout(box_world, RolloutConfig(t_max_s=60.0)).run(

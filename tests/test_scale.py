@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.cli import expand_worlds
+from topodrake.apps.train_cli import expand_worlds
 from topodrake.learning.networks import NetworkConfig
 from topodrake.learning.samples import TrajectorySet
 from topodrake.learning.trajpack import load_packed_trajectories, pack_trajectories

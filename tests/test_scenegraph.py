@@ -12,7 +12,7 @@ pytest.importorskip("pydrake")
 
 from topodrake.sensing.config import CameraConfig  # noqa: E402
 from topodrake.world import WallSet, world_from_walls  # noqa: E402
-from topodrake.world.scenegraph import (  # noqa: E402
+from topodrake.sensing.scenegraph import (  # noqa: E402
     add_meshcat_world, register_world, tiled_png_path, visible_walls, vtk_depth_renderer)
 
 CAM = CameraConfig()

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.topomap import sparsify
+from topodrake.learning.reachability import sparsify
 
 
 def test_anchors_every_reach_limit():
@@ -61,7 +61,7 @@ def test_a_hop_cap_keeps_anchors_within_reach_along_the_drive():
     """RE trusts every frame (a corridor); with hops capped at 1 m along a
     drive of frames 0.3 m apart the anchors fall every 3 frames, and a cap
     shorter than one frame's step still advances."""
-    from topodrake.topomap.sparsify import hop_caps
+    from topodrake.learning.reachability.sparsify import hop_caps
 
     xy = np.c_[0.3 * np.arange(12), np.zeros(12)]
     caps = hop_caps(xy, 1.0)

@@ -459,7 +459,7 @@ def test_map_files_that_do_not_fit_are_refused_in_one_line(oracle_map, tmp_path)
 
 
 def test_map_cli_info_plan_and_plot(oracle_map, tmp_path, capsys):
-    from topodrake.cli import main
+    from topodrake.apps.cli import main
 
     world, m, path = oracle_map
     assert main(["map", "info", str(path), "--json"]) == 0
@@ -484,7 +484,7 @@ def test_map_cli_info_plan_and_plot(oracle_map, tmp_path, capsys):
 
 
 def test_a_map_built_for_one_re_is_refused_with_another(tmp_path, capsys):
-    from topodrake.cli import main
+    from topodrake.apps.cli import main
     from topodrake.topomap.sources import make_scorer, shipped_checkpoint
     from topodrake.topomap.sources import drive_observations
     from topodrake.topomap.embedding import ThumbnailEmbedding
@@ -737,7 +737,7 @@ def test_a_map_file_opens_with_the_world_scorer_and_checkpoints_it_was_built_for
     the shipped lidar map its recorded RE and C_WP and the plan calibration
     beside that RE; a map whose RE is not here is refused in the one line
     every command that opens a map prints."""
-    from topodrake.cli import main
+    from topodrake.apps.cli import main
     from topodrake.learning.reachability.estimator import Reachability
     from topodrake.topomap.scorer import LearnedScorer, OracleScorer
     from topodrake.topomap.sources import REGISTRATION, ROOT, open_map

@@ -250,7 +250,7 @@ class _FixedAnswer:
         return np.asarray(context, np.float64)
 
     def predict(self, observation, target):
-        from topodrake.learning.waypoint.policy import WaypointPrediction
+        from topodrake.contract.waypoint import WaypointPrediction
 
         n = len(np.asarray(observation))
         return WaypointPrediction(np.repeat(self.waypoint[None], n, 0), np.full(n, self.heading),
@@ -258,7 +258,7 @@ class _FixedAnswer:
 
 
 def _route_with_a_gap(n=5, gap=2):
-    from topodrake.navigation.route import Route, teach_legs
+    from topodrake.contract.route import Route, teach_legs
 
     poses = np.column_stack([np.arange(4 * n) * 0.25, np.zeros(4 * n), np.zeros(4 * n)])
     anchors = np.arange(0, 4 * n, 4)
@@ -296,7 +296,7 @@ def test_hops_without_a_leg_take_c_wps_answer_as_their_leg():
 def test_an_a_star_c_wp_estimates_a_missing_leg_where_it_sees_the_anchor():
     from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.navigation.evaluate import encode_routes
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
     from topodrake.world import load_world
 
     world = load_world("test-0")
@@ -558,7 +558,7 @@ def test_the_tracker_passes_no_anchor_the_car_faces_away_from():
 
 
 def test_merge_turns_leaves_out_a_turn_on_the_spot_and_composes_its_legs():
-    from topodrake.navigation.route import Route, merge_turns, teach_legs
+    from topodrake.contract.route import Route, merge_turns, teach_legs
     from topodrake.navigation.tracker import route_frames
 
     # a drive east, a turn on the spot at x = 2 (frames 20-29), then north

@@ -1,5 +1,5 @@
 """studies/trajectory_following.py resumes: finished chains and follows are
-kept with the settings that made them (topodrake.navigation.follow_trials)
+kept with the settings that made them (topodrake.experiments.follow_trials)
 and reused only under those settings."""
 
 import argparse
@@ -8,8 +8,8 @@ import json
 import pytest
 
 from study_run import run_study
-from topodrake.navigation import follow_trials
-from topodrake.navigation.follow_study import following
+from topodrake.experiments import follow_trials
+from topodrake.experiments.follow_study import following
 
 
 def _options(tmp_path, **changed) -> argparse.Namespace:
@@ -192,8 +192,8 @@ def test_the_placing_re_is_named_per_controller_and_must_fit_its_c_wp(tmp_path):
 
 
 def test_the_registration_system_places_anchors_with_one_re_and_follows_with_another():
-    from topodrake.navigation.follow_study import parse_chain_reach
-    from topodrake.navigation.follow_trials import CONTROLLERS
+    from topodrake.experiments.follow_study import parse_chain_reach
+    from topodrake.experiments.follow_trials import CONTROLLERS
 
     specs = {"lidar_reg": CONTROLLERS["lidar_reg"], "lidar_k5": CONTROLLERS["lidar_k5"]}
     assert specs["lidar_reg"][1] == "checkpoints/reach_lidar_reg_tracked/checkpoint.pt"

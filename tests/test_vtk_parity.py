@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from topodrake.sensing.parity import depth_errors, parity_summary
+from topodrake.experiments.vtk_parity import depth_errors, parity_summary
 from topodrake.world import load_world
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.waypoint.error_anatomy import anatomy, bench_waypoint, paired_difference
+from topodrake.experiments.waypoint_anatomy import anatomy, bench_waypoint, paired_difference
 
 
 def _labels(n=400, seed=0):
@@ -63,7 +63,7 @@ def test_paired_difference_sees_a_shift_and_not_noise():
 def test_shipped_lidar_cwp_points_where_the_labels_point(test0_drives):
     from topodrake.learning.checkpoint import load_checkpoint
     from topodrake.learning.samples import make_samples
-    from topodrake.learning.waypoint.error_anatomy import predict_waypoints
+    from topodrake.experiments.waypoint_anatomy import predict_waypoints
 
     _, drives = test0_drives
     samples = make_samples(drives, 60, 1)

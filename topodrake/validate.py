@@ -3,7 +3,7 @@
 Each check returns the value (converted) or raises a one-line
 :class:`~topodrake.errors.TopodrakeError` that names the setting and the
 allowed range, for example ``--noise must be a finite number >= 0, got -1``.
-The command line wraps them as argparse types (:mod:`topodrake.argtypes`);
+The command line wraps them as argparse types (:mod:`topodrake.apps.argtypes`);
 config dataclasses call them from their ``validate`` methods.
 """
 

@@ -58,8 +58,8 @@ import numpy as np
 import torch
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.frames import context_frames
-from topodrake.navigation.route import Route
+from topodrake.contract.frames import context_frames
+from topodrake.contract.route import Route
 from topodrake.topomap.plan import PlanResult
 
 

@@ -10,10 +10,10 @@ Shared by C_WP and RE (RE is the C_WP network with one logit), at this level:
 * :mod:`~topodrake.learning.inference`  the lean batch-1 inference path
 * :mod:`~topodrake.learning.config`     TrainConfig, YAML loading
 * :mod:`~topodrake.learning.checkpoint` checkpoint files, checked loading
-* :mod:`~topodrake.learning.frames`, :mod:`~topodrake.learning.tagged`,
+* :mod:`~topodrake.contract.frames`, :mod:`~topodrake.learning.tagged`,
   :mod:`~topodrake.learning.trajpack`   context frames, small tagged checkpoints, packed drives
-* :mod:`~topodrake.learning.bench`      training / inference throughput of C_WP and RE
-* :mod:`~topodrake.learning.cli`        the ``train`` and ``bench`` parsers
+* :mod:`~topodrake.experiments.bench_learning`      training / inference throughput of C_WP and RE
+* :mod:`~topodrake.apps.train_cli`        the ``train`` and ``bench`` parsers
 
 Subpackages, one idea each:
 

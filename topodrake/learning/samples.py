@@ -51,7 +51,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes
-from topodrake.learning.frames import context_frames
+from topodrake.contract.frames import context_frames
 
 FORMAT = "topodrake-samples"
 VERSION = 1

@@ -80,7 +80,7 @@ def follow_chains_once(engine, references: list[np.ndarray], observations: list,
     given, sees every car's state after each period. Returns the engine's
     :class:`~topodrake.navigation.engine.NavigationResult` and the
     :class:`PathWatch` (its ``cover(m)``)."""
-    from topodrake.navigation.route import route_from_observations
+    from topodrake.contract.route import route_from_observations
     from topodrake.rollout import standard_normal_noise
     from topodrake.sensing.observe import camera_scans
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.frames import centre_pose
+from topodrake.contract.frames import centre_pose
 from topodrake.navigation.follower import Answers
 from topodrake.registration.icp import IcpConfig, register_points, scan_points
 from topodrake.sensing.config import LidarConfig
@@ -155,7 +155,7 @@ def cwp_legs(routes, policy, features, offsets: np.ndarray, route_k: int | None,
     is a direction along the way, not the target's place); the leg's path
     a straight line. ``features``: ``policy``'s target features of every
     anchor (rows ``offsets``)."""
-    from topodrake.navigation.route import LEG_POINTS
+    from topodrake.contract.route import LEG_POINTS
     from topodrake.navigation.tracker import pad_points
 
     out = []

@@ -2,7 +2,7 @@
 
 ``navigate``, ``demo`` and ``drive`` name an outcome with one vocabulary,
 judged by the studies' success rule
-(:func:`~topodrake.navigation.plan_trials.judge_outcome`), and exit with
+(:func:`~topodrake.experiments.plan_trials.judge_outcome`), and exit with
 status 0 only when the car reached its goal:
 
 - ``reached``: within the success radius of the goal (exit 0);
@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from topodrake.navigation.plan_trials import SUCCESS_M, judge_outcome
+
+#: the relaxed goal radius of the paper's planning protocol (m)
+SUCCESS_M = 0.54
 
 OUTCOMES = ("reached", "false_reached", "collision", "timeout", "search_failed",
             "dead_reckoning_gave_up")
@@ -42,3 +44,10 @@ def exit_status(outcome: str) -> int:
 
 __all__ = ["OUTCOMES", "EXIT_FAILED", "SUCCESS_M", "drive_outcome", "exit_status",
            "goal_distance"]
+
+
+def judge_outcome(outcome: str, distance_to_goal_m: float, radius: float = SUCCESS_M) -> str:
+    """A follower's outcome under the success rule: ``reached`` farther than
+    ``radius`` from the goal is ``false_reached`` (the follower ended its
+    plan away from the goal)."""
+    return "false_reached" if outcome == "reached" and distance_to_goal_m > radius else outcome

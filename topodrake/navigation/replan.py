@@ -41,7 +41,7 @@ that vertex, its pose given in the car's odometry frame
 (:func:`located_state`).
 
 :class:`Replanner` keeps this per-car bookkeeping for one run
-(:func:`topodrake.navigation.plan_trials.follow_routes` with ``replan=``
+(:func:`topodrake.experiments.plan_trials.follow_routes` with ``replan=``
 makes one per engine batch). Both
 executors call :meth:`Replanner.step` after each period's follower decision:
 the batched engine (:meth:`~topodrake.navigation.engine.NavigationEngine.run`

@@ -72,7 +72,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.waypoint.policy import WaypointPrediction
+from topodrake.contract.waypoint import WaypointPrediction
 from topodrake.registration.icp import IcpConfig, Registration, register_points, scan_points
 from topodrake.se2 import compose, invert, relative
 from topodrake.sensing.config import LidarConfig

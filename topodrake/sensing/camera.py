@@ -19,7 +19,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.sensing.config import CameraConfig
 from topodrake.sensing.raycast import cast
 from topodrake.sensing.scene import scene_of
-from topodrake.sensing.textures import TEXELS, TILE_M
+from topodrake.world.textures import TEXELS, TILE_M
 
 FOG = 0.06          # colour *= exp(-FOG * distance)
 SKY = np.array([0.5, 0.5, 0.55], np.float32)  # outside the map

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from topodrake.sensing.textures import texture_bank
+from topodrake.world.textures import texture_bank
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """Topological maps: sparsified trajectories, graph building, planning, map files."""
 
-from topodrake.topomap.sparsify import sparsify
+from topodrake.learning.reachability.sparsify import sparsify
 
 __all__ = ["sparsify"]

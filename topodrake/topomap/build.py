@@ -4,7 +4,7 @@ For each new drive, from its observations only:
 
 1. **Sparsify** it into anchors at ``p_sparsify``, with ``sparsify_slack``
    where RE passes not even the next frame
-   (:func:`topodrake.topomap.sparsify.sparsify`).
+   (:func:`topodrake.learning.reachability.sparsify.sparsify`).
 2. **Reuse** vertices, by ``reuse_rule``:
    - ``"resume"`` (ours, the default): sparsifying, at each anchor frame j
      an existing vertex v stands in for it when RE(source, v) and
@@ -64,7 +64,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.se2 import compose, invert, relative
 from topodrake.topomap.graph import TopoMap, Trajectory
 from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
-from topodrake.topomap.sparsify import hop_caps, sparsify, sparsify_chain
+from topodrake.learning.reachability.sparsify import hop_caps, sparsify, sparsify_chain
 
 
 @dataclass
@@ -88,7 +88,7 @@ class BuildStats:
 
 
 def context_rows(n_frames: int, frames: np.ndarray, k: int, step: int) -> np.ndarray:
-    from topodrake.learning.frames import context_frames
+    from topodrake.contract.frames import context_frames
 
     return context_frames(n_frames, np.asarray(frames, np.int64), k, step).reshape(-1, 2 * k + 1)
 
@@ -236,7 +236,7 @@ def _teach_legs(odo, chain, anchors, positions, offsets: dict | None = None) -> 
     between its frames at the two nodes; a reused vertex at node ``j`` needs
     its pose in the drive's frame there (``offsets[j]``, from
     :func:`_reuse_offsets`), else (None, None)."""
-    from topodrake.navigation.route import teach_legs
+    from topodrake.contract.route import teach_legs
 
     offsets = offsets or {}
     if odo is None:
@@ -325,7 +325,7 @@ def join_legs(source_scans, target_scans, wide: bool = True) -> list:
     source's scan onto the target's pins it (:func:`_pinned_poses`; with
     ``wide`` the search of :func:`join_icp` held to :data:`JOIN_SHARE`, else
     a reuse's; the path a straight line), else (None, None)."""
-    from topodrake.navigation.route import LEG_POINTS
+    from topodrake.contract.route import LEG_POINTS
 
     line = np.linspace(0.0, 1.0, LEG_POINTS)[:, None]
     poses = _pinned_poses(source_scans, target_scans, join_icp() if wide else None,

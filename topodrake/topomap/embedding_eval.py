@@ -73,7 +73,7 @@ def re_relevance(world, split: dict, reach, queries: np.ndarray, threshold: floa
     """(len(queries), D) bool: RE(query -> vertex) > ``threshold``, the vertex
     seen with its context in its own drive; the RE's general calibration
     (temperature), as query and vertex come from different drives."""
-    from topodrake.learning.frames import context_frames
+    from topodrake.contract.frames import context_frames
     from topodrake.sensing.observe import observe
 
     drives = split["drives"]

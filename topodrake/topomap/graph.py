@@ -33,7 +33,7 @@ import networkx as nx
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.route import LEG_POINTS
+from topodrake.contract.route import LEG_POINTS
 from topodrake.topomap.bank import FrameBank
 from topodrake.topomap.retrieval import VertexIndex
 
@@ -347,3 +347,11 @@ class TopoMap:
                 "kept_frames": len(self.bank),
                 "checkpoints": {k: v for k, v in self.identity.items()},
                 "embedding": self.embedding.name, "config": asdict(self.config)}
+
+
+def load_map_config(path):
+    """A MapConfig from YAML (every key optional), or the defaults for None."""
+    from topodrake.typed_yaml import load_typed
+
+    return (load_typed(MapConfig, path, "map config") if path else MapConfig()).validate(
+        f"map config {path}" if path else "map config")

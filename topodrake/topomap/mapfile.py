@@ -52,7 +52,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes
-from topodrake.navigation.route import LEG_POINTS
+from topodrake.contract.route import LEG_POINTS
 from topodrake.topomap.graph import EDGE_KINDS, LATER_DEFAULTS, MapConfig, TopoMap, Trajectory
 
 FORMAT = "topodrake-map"

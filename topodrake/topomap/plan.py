@@ -46,7 +46,7 @@ import networkx as nx
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.route import Route
+from topodrake.contract.route import Route
 from topodrake.se2 import invert, relative
 from topodrake.topomap.graph import EDGE_KINDS, TopoMap
 from topodrake.topomap.route_time import DrivingTime, edge_metres, path_metres
@@ -218,7 +218,7 @@ def _pose_legs(topomap: TopoMap, vertices: list[int], goal_pose, legs: np.ndarra
     map's route in place from the poses it observes, their paths a straight
     line: perfect perception places a join exactly, as a lidar map places
     it by registering its scans."""
-    from topodrake.navigation.route import LEG_POINTS
+    from topodrake.contract.route import LEG_POINTS
 
     if not vertices:
         return

@@ -153,8 +153,6 @@ def fit_from_records(records: list[dict], method: str, source: str = "",
     """Fit ``method``'s calibration on a planning study's per-trial records
     (its planned trials). Records of test houses are refused: a calibration
     judged on the test houses must not have seen them."""
-    from topodrake.navigation.plan_trials import calibration
-
     mine = [r for r in records if r.get("method") == method]
     if not mine:
         have = sorted({str(r.get("method")) for r in records})
@@ -198,3 +196,30 @@ def read_trial_records(files) -> tuple[list[dict], list[str]]:
             records.append(r)
         commands.append(str(study.get("command", "")))
     return records, commands
+
+
+def calibration(probability, success, bins: int = 10) -> tuple[list[dict], float | None]:
+    """Predicted plan probability against observed success: ``bins`` equal
+    bins over [0, 1] (the last one closed), each {lo, hi, count, predicted
+    (mean probability), observed (success rate)}, and the expected
+    calibration error sum_b n_b / n |predicted_b - observed_b| (None
+    without trials). NaN probabilities (SPTM's) are left out."""
+    p = np.asarray(probability, np.float64).reshape(-1)
+    s = np.asarray(success, np.float64).reshape(-1)
+    if len(p) != len(s):
+        raise TopodrakeError(f"{len(p)} probabilities for {len(s)} outcomes")
+    keep = np.isfinite(p)
+    p, s = np.clip(p[keep], 0.0, 1.0), s[keep]
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    idx = np.minimum((p * bins).astype(np.int64), bins - 1)
+    rows, ece = [], 0.0
+    for b in range(bins):
+        m = idx == b
+        c = int(m.sum())
+        row = {"lo": round(float(edges[b]), 4), "hi": round(float(edges[b + 1]), 4), "count": c,
+               "predicted": round(float(p[m].mean()), 4) if c else None,
+               "observed": round(float(s[m].mean()), 4) if c else None}
+        if c:
+            ece += c * abs(float(p[m].mean()) - float(s[m].mean()))
+        rows.append(row)
+    return rows, (round(ece / len(p), 4) if len(p) else None)

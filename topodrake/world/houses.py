@@ -40,7 +40,7 @@ import numpy as np
 from scipy import ndimage
 
 from topodrake.errors import TopodrakeError
-from topodrake.sensing.textures import (CEILING_TEXTURES, FLOOR_TEXTURES,
+from topodrake.world.textures import (CEILING_TEXTURES, FLOOR_TEXTURES,
                                         FURNITURE_TEXTURES, WALL_TEXTURES)
 from topodrake.world.grid import CAR_RADIUS
 from topodrake.world.places import choose_places

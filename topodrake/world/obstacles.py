@@ -16,7 +16,7 @@ from dataclasses import replace
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.sensing.textures import FURNITURE_TEXTURES
+from topodrake.world.textures import FURNITURE_TEXTURES
 from topodrake.world.grid import OccupancyGrid, rasterize_walls
 from topodrake.world.walls import Faces, WallSet
 from topodrake.world.world import World

@@ -13,7 +13,7 @@ def plot_world(world, ax=None, *, places: bool = True, show_free: bool = True):
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection, PolyCollection
 
-    from topodrake.sensing.textures import texture_bank
+    from topodrake.world.textures import texture_bank
 
     if ax is None:
         w, h = world.bbox[1] - world.bbox[0]

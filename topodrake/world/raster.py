@@ -34,7 +34,7 @@ import numpy as np
 from scipy import ndimage
 
 from topodrake.errors import TopodrakeError
-from topodrake.sensing.textures import CEILING_TEXTURES, FLOOR_TEXTURES, WALL_TEXTURES
+from topodrake.world.textures import CEILING_TEXTURES, FLOOR_TEXTURES, WALL_TEXTURES
 from topodrake.world.grid import OccupancyGrid
 from topodrake.world.places import choose_places
 from topodrake.world.walls import Faces, WallSet

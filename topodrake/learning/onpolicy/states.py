@@ -9,7 +9,7 @@ state it drives through with the anchor it was aiming at
 that anchor and the one after it (:func:`onpolicy_samples`), as C_WP samples
 of the usual format (:class:`~topodrake.learning.samples.SampleSet`).
 
-The follower benchmark (:mod:`topodrake.learning.onpolicy.bench`) scores a
+The follower benchmark (:mod:`topodrake.experiments.bench_onpolicy`) scores a
 controller on such states; on-policy training (DAgger,
 :mod:`topodrake.learning.onpolicy.dagger`) aggregates them round after round.
 

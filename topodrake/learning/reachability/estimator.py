@@ -10,7 +10,7 @@ therefore computes the first layer's two halves once per image (the current
 half ``W_c * o`` and the target half ``W_t * o + b``), and
 :meth:`Reachability.pairwise` adds them for any list of (source frame,
 context frames) without touching an image again. :meth:`sparsify` runs the
-greedy anchor selection of :mod:`topodrake.topomap.sparsify` on top of it.
+greedy anchor selection of :mod:`topodrake.learning.reachability.sparsify` on top of it.
 
 An RE calibrated with ``mirror_average`` (see
 :mod:`topodrake.learning.reachability.train`) answers with the mean of the pair's
@@ -193,7 +193,7 @@ class Reachability(ObservationNetwork):
 
     def context_rows(self, n_frames: int, targets: np.ndarray) -> np.ndarray:
         """(M, 2k+1) clamped context frames of target frames ``targets`` of one trajectory."""
-        from topodrake.learning.frames import context_frames
+        from topodrake.contract.frames import context_frames
 
         return context_frames(n_frames, np.asarray(targets, np.int64), self.k, self.frame_step)
 
@@ -202,8 +202,8 @@ class Reachability(ObservationNetwork):
                  platt: tuple[float, float] | None = None, slack: float = 0.0) -> np.ndarray:
         """Anchor frames of one trajectory's observations (T, ...) (with
         the anchor calibration, or ``platt``; ``slack``: see
-        :func:`topodrake.topomap.sparsify.sparsify`)."""
-        from topodrake.topomap.sparsify import sparsify
+        :func:`topodrake.learning.reachability.sparsify.sparsify`)."""
+        from topodrake.learning.reachability.sparsify import sparsify
 
         feats = feats or self.frame_features(observations)
         n = len(feats)

@@ -33,7 +33,7 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 
 if TYPE_CHECKING:
-    from topodrake.learning.waypoint.policy import WaypointPrediction
+    from topodrake.contract.waypoint import WaypointPrediction
 
 __all__ = ["NoisyOracle", "OracleError", "is_oracle_spec", "parse_oracle_spec"]
 

@@ -1,7 +1,7 @@
 """Traces of single planning trials: what the car did, period by period.
 
 A planning study's trial ``t`` in a house is fixed by the study's seed and
-the house's name (:mod:`topodrake.navigation.plan_study`), so it can be
+the house's name (:mod:`topodrake.experiments.plan_study`), so it can be
 driven again alone: :func:`trace_trials` plans the same trials of one
 method on the same cached map and drives each one in its own engine run,
 keeping the car's poses, the follower's mode and active anchor in every
@@ -81,16 +81,16 @@ class TrialTrace:
 
 def trace_trials(spec: str, method: str, trials: list[int], cfg: dict) -> list[TrialTrace]:
     """Trials ``trials`` of ``method`` in the house ``spec`` under the
-    planning study's config ``cfg`` (:func:`topodrake.navigation.plan_results.study_config`),
+    planning study's config ``cfg`` (:func:`topodrake.experiments.plan_results.study_config`),
     each planned as the study plans it and driven alone. Methods that
     replan or place obstacles are not traced (their drives are not one
     engine run)."""
     from topodrake.navigation.engine import NavigationEngine
-    from topodrake.navigation.plan_methods import METHODS, networks
-    from topodrake.navigation.plan_study import (_house, house_key, house_seed,
+    from topodrake.experiments.plan_methods import METHODS, networks
+    from topodrake.experiments.plan_study import (_house, house_key, house_seed,
                                                  navigation_config, odometry_seeds, plan_routes,
                                                  trial_time_limits)
-    from topodrake.navigation.plan_trials import (SUCCESS_M, follow_routes, jittered_starts,
+    from topodrake.experiments.plan_trials import (SUCCESS_M, follow_routes, jittered_starts,
                                                   trial_pairs)
 
     if method not in METHODS:

@@ -19,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.errors import TopodrakeError
+from topodrake.topomap.graph import load_map_config
 from topodrake.topomap.recalibrate import PRIOR_WEIGHT
-from topodrake.outputs import add_force_option, check_output, check_output_folder, write_kept
+from topodrake.apps.outputs import add_force_option, check_output, check_output_folder, write_kept
 
 
 class Unreachable(TopodrakeError):
@@ -40,15 +41,6 @@ def parse_pose(text: str, what: str) -> np.ndarray:
     if len(values) != 3 or not np.all(np.isfinite(values)):
         raise TopodrakeError(f"--{what} must be X,Y,YAW (three finite numbers), got {text!r}")
     return np.array(values)
-
-
-def load_map_config(path):
-    """A MapConfig from YAML (every key optional), or the defaults for None."""
-    from topodrake.topomap.graph import MapConfig
-    from topodrake.typed_yaml import load_typed
-
-    return (load_typed(MapConfig, path, "map config") if path else MapConfig()).validate(
-        f"map config {path}" if path else "map config")
 
 
 def cmd_map_build(args) -> None:
@@ -236,7 +228,7 @@ STUDY_METHODS = {"camera": "ours", "lidar": "lidar", "lidar_reg": "lidar_reg",
 
 
 def cmd_map_calibrate(args) -> None:
-    from topodrake.navigation.plan_methods import plan_calibration_path
+    from topodrake.experiments.plan_methods import plan_calibration_path
     from topodrake.topomap.plan_calibration import fit_from_records, read_trial_records
 
     name = STUDY_METHODS[args.method]
@@ -260,7 +252,7 @@ def cmd_map_calibrate(args) -> None:
 def cmd_map_refit(args) -> None:
     """Fold a planning study's recorded drives on a map into its edges."""
     from topodrake.navigation.replan import traversals_of_records
-    from topodrake.topomap.map_cache import house_key
+    from topodrake.experiments.map_cache import house_key
     from topodrake.topomap.mapfile import save_map
     from topodrake.topomap.plan_calibration import read_trial_records
     from topodrake.topomap.recalibrate import experience_summary, record_traversals

@@ -28,7 +28,7 @@ Drake's box fits its diffuse map once over every face, and the uv-scale
 property (``("phong", "diffuse_scale")``, an ``Eigen::Vector2d``) cannot be
 created from Python (pydrake stores a numpy array as a Python object and VTK
 then rejects it). So the texture PNG of each box is pre-tiled at the world's
-1 texture tile per :data:`~topodrake.sensing.textures.TILE_M` metres for that
+1 texture tile per :data:`~topodrake.world.textures.TILE_M` metres for that
 box's long faces: one PNG per (texture, face size), written once into a cache
 directory (:func:`texture_cache_dir`) under a name hashed from its parameters
 and the texture bank, with an atomic rename. Textures run from z = 0 upwards
@@ -92,7 +92,7 @@ def texture_cache_dir() -> Path:
 
 @lru_cache(maxsize=1)
 def _bank_digest() -> str:
-    from topodrake.sensing.textures import texture_bank
+    from topodrake.world.textures import texture_bank
 
     return hashlib.sha1(np.ascontiguousarray(texture_bank()).tobytes()).hexdigest()
 
@@ -128,7 +128,7 @@ def _png_bytes(rgb: np.ndarray) -> bytes:
 
 def texture_png_path(tid: int) -> str:
     """Path of one texture tile's PNG (:func:`texture_png_bytes`), written once."""
-    from topodrake.sensing.textures import texture_png_bytes
+    from topodrake.world.textures import texture_png_bytes
 
     return _write_once(f"tex{int(tid):02d}", ("tile", int(tid)),
                        lambda: texture_png_bytes(int(tid)))
@@ -156,7 +156,7 @@ def tiled_png_path(tid: int, width_m: float, height_m: float,
 
 
 def _tiled_png(tid, width_m, height_m, u_start, v_start, w, h) -> bytes:
-    from topodrake.sensing.textures import TEXELS, TILE_M, texture_bank
+    from topodrake.world.textures import TEXELS, TILE_M, texture_bank
 
     scale = TEXELS / TILE_M
     u = u_start + (np.arange(w) + 0.5) / w * width_m
@@ -169,7 +169,7 @@ def _tiled_png(tid, width_m, height_m, u_start, v_start, w, h) -> bytes:
 
 def texture_rgba(tid: int) -> tuple[float, float, float]:
     """Mean colour of a texture tile (r, g, b) in [0, 1]."""
-    from topodrake.sensing.textures import texture_bank
+    from topodrake.world.textures import texture_bank
 
     return tuple(float(c) for c in texture_bank()[int(tid)].reshape(-1, 3).mean(axis=0))
 
@@ -262,7 +262,7 @@ def atlas_png_path(tids: tuple, width_m: float, height_m: float, u_start: float,
 
 
 def _atlas_png(tids, width_m, height_m, u_start, w, hb) -> bytes:
-    from topodrake.sensing.textures import TEXELS, TILE_M, texture_bank
+    from topodrake.world.textures import TEXELS, TILE_M, texture_bank
 
     scale = TEXELS / TILE_M
     u = u_start + (np.arange(w) + 0.5) / w * width_m
@@ -286,7 +286,7 @@ def _merged_walls(world, idx: np.ndarray) -> tuple[str, tuple]:
     texture id covering ``[u_start, u_start + width_m] x [0, wall_height]``.
     Top and bottom faces are left out: the floor and ceiling slabs hide them.
     """
-    from topodrake.sensing.textures import TILE_M
+    from topodrake.world.textures import TILE_M
 
     walls = world.walls
     h = float(world.wall_height)

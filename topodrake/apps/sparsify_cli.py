@@ -8,20 +8,20 @@ Reads the world's demonstrations (``topodrake collect``; default folder
 anchors greedily while RE > ``--p`` and prints the anchor count and keep
 ratio (and plots them on the floor plan with ``--plot``). ``--hop-runs N``
 also drives every anchor hop N times with the controller and actuation
-noise (:mod:`topodrake.topomap.hops`) and prints the share it made.
+noise (:mod:`topodrake.experiments.hops`) and prints the share it made.
 """
 
 from __future__ import annotations
 
 import json
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.errors import TopodrakeError
-from topodrake.outputs import add_force_option
+from topodrake.apps.outputs import add_force_option
 
 
 def cmd_sparsify(args) -> None:
-    from topodrake.outputs import check_output
+    from topodrake.apps.outputs import check_output
     from topodrake.topomap.sources import check_controller, demo_folder
 
     check_output(args.plot, "image", force=args.force, option="--plot")
@@ -47,7 +47,7 @@ def cmd_sparsify(args) -> None:
               "p_sparsify": args.p, "anchor_frames": anchors.tolist()}
     if args.hop_runs:
         from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
-        from topodrake.topomap.hops import anchor_hop_success, share_made
+        from topodrake.experiments.hops import anchor_hop_success, share_made
 
         ok = anchor_hop_success(world, LearnedWaypointPolicy.from_checkpoint(args.controller),
                                 poses, anchors, runs=args.hop_runs, seed=args.seed)
@@ -60,7 +60,7 @@ def cmd_sparsify(args) -> None:
         print(f"{len(anchors)} anchors of {len(poses)} frames "
               f"(keep ratio {result['keep_ratio']:.3f}{hops})", flush=True)
     if args.plot:
-        from topodrake.outputs import write_kept
+        from topodrake.apps.outputs import write_kept
         from topodrake.topomap.plot import plot_anchors
 
         title = f"{re.name or 'RE'}: {len(anchors)} anchors of {len(poses)} frames (p = {args.p})"

@@ -28,9 +28,9 @@ def bench_sensors(world_name: str = "test-0", batch: int = 4096, vtk_poses: int 
     """Camera and lidar throughput, Drake VTK throughput, depth parity."""
     from topodrake.sensing.camera import Camera
     from topodrake.sensing.lidar import Lidar
-    from topodrake.sensing.parity import depth_errors, parity_summary
+    from topodrake.experiments.vtk_parity import depth_errors, parity_summary
     from topodrake.world import load_world
-    from topodrake.world.scenegraph import vtk_depth_renderer
+    from topodrake.sensing.scenegraph import vtk_depth_renderer
 
     world = load_world(world_name)
     rng = np.random.default_rng(seed)

@@ -26,7 +26,7 @@ def keep_ratios(reach: str, controller: str, data_dir: str, p: float,
     with RE's anchor-hop calibration and with its temperature (as for any
     other pair), from one pass over the drives."""
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.topomap.hops import sparsify_houses
+    from topodrake.experiments.hops import sparsify_houses
 
     re = Reachability.from_checkpoint(reach, controller)
     out = sparsify_houses(re, list(WORLDS), Path(data_dir) / "demos" / "pairs-s0", p,

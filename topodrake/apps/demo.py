@@ -36,7 +36,7 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
 
     from topodrake.fileio import atomic_write_bytes
     from topodrake.navigation.outcomes import drive_outcome
-    from topodrake.outputs import write_kept
+    from topodrake.apps.outputs import write_kept
     from topodrake.sensing.camera import Camera
     from topodrake.sensing.lidar import Lidar
     from topodrake.systems.diagram import build_expert_diagram
@@ -51,7 +51,7 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
                         noise_std=noise_std, seed=seed, t_max_s=150.0)
     viewer = None
     if meshcat:
-        from topodrake.navigation.drive import make_recorder
+        from topodrake.apps.drive import make_recorder
 
         viewer = make_recorder()
     built = build_expert_diagram(scenario, world=world, meshcat=viewer)
@@ -122,11 +122,11 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
     and a summary (outcome, times, real-time factor warm and cold)."""
     from topodrake.errors import TopodrakeError
     from topodrake.fileio import atomic_write_bytes
-    from topodrake.navigation.cli import chain_from_expert, plan_on_map, success_chance
-    from topodrake.navigation.drive import drive_route, plot_drive
+    from topodrake.apps.navigate_cli import chain_from_expert, plan_on_map, success_chance
+    from topodrake.apps.drive import drive_route, plot_drive
     from topodrake.navigation.outcomes import SUCCESS_M, drive_outcome, goal_distance
     from topodrake.odometry import odometry_model
-    from topodrake.outputs import write_kept
+    from topodrake.apps.outputs import write_kept
     from topodrake.systems.navigation import NavigationScenario, load_networks
     from topodrake.topomap.mapfile import read_map_meta
     from topodrake.world import load_world
@@ -210,7 +210,7 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
 
 def check_outputs(args) -> None:
     """The demo's folder and the files it writes there, checked before the drive."""
-    from topodrake.outputs import check_output, check_output_folder
+    from topodrake.apps.outputs import check_output, check_output_folder
 
     out = check_output_folder(args.out)
     files = ["plan.png"] + (["camera.png"] if args.expert else []) \
@@ -281,7 +281,7 @@ def demo_map(args):
 
 
 def add_demo_parser(sub) -> None:
-    from topodrake.navigation.cli import EXIT_HELP
+    from topodrake.apps.navigate_cli import EXIT_HELP
     from topodrake.odometry import ODOMETRY_MODELS
 
     demo = sub.add_parser("demo", help="the learned follower drives a plan between two "
@@ -318,7 +318,7 @@ def add_demo_parser(sub) -> None:
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     demo.add_argument("--json", action="store_true",
                       help="print only the summary as one JSON object (default: off)")
-    from topodrake.outputs import add_force_option
+    from topodrake.apps.outputs import add_force_option
 
     add_force_option(demo)
     demo.set_defaults(func=cmd_demo)

@@ -2,7 +2,7 @@
 
 Every bad input ends in one line on stderr (``topodrake: error: ...``) and
 exit status 2; see :mod:`topodrake.errors`. Numbers are checked where they
-enter (:mod:`topodrake.argtypes`, :mod:`topodrake.validate`).
+enter (:mod:`topodrake.apps.argtypes`, :mod:`topodrake.validate`).
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import argparse
 import json
 import sys
 
-from topodrake import argtypes as at
+from topodrake.apps import argtypes as at
 from topodrake.errors import TopodrakeError
-from topodrake.outputs import add_force_option, check_output, check_output_folder
+from topodrake.apps.outputs import add_force_option, check_output, check_output_folder
 
 DESCRIPTION = ("topodrake: visual topological navigation on Drake. Drive, collect "
                "demonstrations, train, sparsify, inspect worlds and benchmark.")
@@ -136,13 +136,13 @@ def cmd_world_plot(args) -> None:
 
 
 def cmd_bench_expert(args) -> None:
-    from topodrake.bench import bench_expert
+    from topodrake.experiments.bench_sim import bench_expert
 
     _print_result(bench_expert(args.pairs, args.seed, args.batch), args.json)
 
 
 def cmd_bench_sensors(args) -> None:
-    from topodrake.bench import bench_sensors
+    from topodrake.experiments.bench_sim import bench_sensors
 
     _print_result(bench_sensors(args.world, args.batch, args.vtk_poses, args.seed), args.json)
 
@@ -157,8 +157,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = at.subcommands(p, dest="command", metavar="COMMAND")
     p.set_defaults(func=lambda args: _welcome(p))
 
-    from topodrake.demo import add_demo_parser
-    from topodrake.navigation.cli import add_navigate_parser
+    from topodrake.apps.demo import add_demo_parser
+    from topodrake.apps.navigate_cli import add_navigate_parser
 
     add_demo_parser(sub)
     add_navigate_parser(sub)
@@ -214,12 +214,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_force_option(wp)
     wp.set_defaults(func=cmd_world_plot)
 
-    from topodrake.learning.cli import add_bench_parser, add_train_parser
-    from topodrake.topomap.cli import add_sparsify_parser
+    from topodrake.apps.train_cli import add_bench_parser, add_train_parser
+    from topodrake.apps.sparsify_cli import add_sparsify_parser
 
     add_train_parser(sub)
     add_sparsify_parser(sub)
-    from topodrake.topomap.map_cli import add_map_parser
+    from topodrake.apps.map_cli import add_map_parser
 
     add_map_parser(sub)
 
@@ -241,7 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     be.set_defaults(func=cmd_bench_expert)
     add_bench_parser(bsub)
-    from topodrake.topomap.map_cli import add_map_bench_parser
+    from topodrake.apps.map_cli import add_map_bench_parser
 
     add_map_bench_parser(bsub)
     return p

@@ -28,7 +28,7 @@ HOUSES = "test-0,test-1,test-2,test-3,test-4"
 def dense_edges(scorer, world, drives, p_edge: float, samples: int, seed: int,
                 radius_m: float = 4.0, turn_rad: float = np.radians(100)) -> dict:
     """Estimated edges of the dense graph over all frames of ``drives``."""
-    from topodrake.learning.frames import context_frames
+    from topodrake.contract.frames import context_frames
     from topodrake.topomap.sources import drive_observations
 
     poses = np.concatenate([d.poses for d in drives])
@@ -65,7 +65,7 @@ def run_house(house: str, args, policy_for) -> dict:
     from topodrake.learning.samples import collect_trajectories
     from topodrake.topomap.build import BuildStats, add_trajectory
     from topodrake.topomap.graph import TopoMap
-    from topodrake.topomap.hops import map_hop_success
+    from topodrake.experiments.hops import map_hop_success
     from topodrake.topomap.mapfile import save_map
     from topodrake.topomap.retrieval import default_embedding
     from topodrake.topomap.sources import drive_observations, make_scorer
@@ -124,8 +124,8 @@ def scalability(args, command: str) -> dict:
     import torch
 
     from topodrake.learning.waypoint.policy import AStarOracle, LearnedWaypointPolicy
-    from topodrake.topomap.map_cache import config_tag
-    from topodrake.topomap.map_cli import load_map_config
+    from topodrake.experiments.map_cache import config_tag
+    from topodrake.topomap.graph import load_map_config
     from topodrake.topomap.sources import SHIPPED, shipped_checkpoint
 
     torch.set_num_threads(1)

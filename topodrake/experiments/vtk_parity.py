@@ -11,7 +11,7 @@ from topodrake.sensing.config import CameraConfig
 def depth_errors(world, poses: np.ndarray, camera: CameraConfig | None = None,
                  vtk=None) -> np.ndarray:
     """|ours - VTK| z-depth (m) on every pixel where both see a surface."""
-    from topodrake.world.scenegraph import vtk_depth_renderer
+    from topodrake.sensing.scenegraph import vtk_depth_renderer
 
     camera = camera or CameraConfig()
     ours = Camera(world, camera).render_depth(poses)

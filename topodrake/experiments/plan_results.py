@@ -2,10 +2,10 @@
 
 :func:`planning` checks a study's options (houses or one world, methods,
 pruned fractions: :func:`pruned_fractions`), runs every house
-(:func:`topodrake.navigation.plan_study.house_job`) and the pruned maps
-(:func:`~topodrake.navigation.plan_study.pruned_job`), sets plan
+(:func:`topodrake.experiments.plan_study.house_job`) and the pruned maps
+(:func:`~topodrake.experiments.plan_study.pruned_job`), sets plan
 probabilities and calibrated chances against success
-(:func:`topodrake.navigation.plan_methods.calibration_table`) and assembles
+(:func:`topodrake.experiments.plan_methods.calibration_table`) and assembles
 the result document, with the code that ran (:func:`local_changes`).
 :func:`rescore` does the calibration part for trials recorded before.
 """
@@ -21,10 +21,10 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.navigation.follower import follower_fields
-from topodrake.navigation.plan_methods import (METHODS, attach_success_probability,
+from topodrake.experiments.plan_methods import (METHODS, attach_success_probability,
                                                calibration_houses, calibration_table)
-from topodrake.navigation.plan_study import house_job, house_seed, pruned_job, success_by_round
-from topodrake.topomap.map_cache import DEMO_SEED, house_key
+from topodrake.experiments.plan_study import house_job, house_seed, pruned_job, success_by_round
+from topodrake.experiments.map_cache import DEMO_SEED, house_key
 from topodrake.topomap.recalibrate import PRIOR_WEIGHT
 
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
@@ -202,9 +202,9 @@ def _check(args) -> tuple[list[str], list[str], list[str], list[float]]:
 def study_config(args) -> tuple[dict, list[str], list[str], list[float]]:
     """(the trials' config, house specs, house keys, pruned fractions) of
     the study's options ``args``, checked."""
-    from topodrake.navigation.plan_trials import T_MAX_S
+    from topodrake.experiments.plan_trials import T_MAX_S
     from topodrake.navigation.replan import ReplanSchedule
-    from topodrake.topomap.map_cli import load_map_config
+    from topodrake.topomap.graph import load_map_config
 
     methods, specs, keys, fractions = _check(args)
     map_config = asdict(load_map_config(getattr(args, "map_config", None)))
@@ -232,7 +232,7 @@ def planning(args, command: str) -> dict:
     command line, parsed); ``command`` is recorded."""
     from topodrake.learning.checkpoint import git_revision
     from topodrake.montecarlo import run_trials
-    from topodrake.navigation.plan_trials import SUCCESS_M, pruned_ratio, summarize
+    from topodrake.experiments.plan_trials import SUCCESS_M, pruned_ratio, summarize
 
     t0 = time.perf_counter()
     code = {"git_revision": git_revision(), "local_changes": local_changes()}   # what runs

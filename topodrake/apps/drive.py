@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.navigation.follower import MODES
-from topodrake.navigation.route import Route, route_from_observations
+from topodrake.contract.route import Route, route_from_observations
 
 #: the driven path by follower mode, in colours the map (blues) and the plan (purple) do not use
 MODE_COLORS = {"search": "tab:olive", "follow": "tab:green", "dead_reckoning": "tab:orange",

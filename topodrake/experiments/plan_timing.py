@@ -20,9 +20,9 @@ from topodrake.errors import TopodrakeError
 def _route_sizes(doc: dict) -> list[tuple[str, float, int, float, bool]]:
     """(method, metres, hops, seconds, timed out) of a run's planned trials
     that arrived or timed out, on the maps the run planned on."""
-    from topodrake.navigation.plan_methods import METHODS
-    from topodrake.navigation.plan_study import _house, map_config
-    from topodrake.topomap.map_cache import get_map
+    from topodrake.experiments.plan_methods import METHODS
+    from topodrake.experiments.plan_study import _house, map_config
+    from topodrake.experiments.map_cache import get_map
     from topodrake.topomap.plan import GOAL, START
     from topodrake.topomap.route_time import edge_metres, path_metres
     from topodrake.vehicle import VehicleConfig
@@ -57,7 +57,7 @@ def driving_time_fit(files_text: str, command: str) -> dict:
     import json
     from dataclasses import asdict
 
-    from topodrake.navigation.plan_study import time_limit
+    from topodrake.experiments.plan_study import time_limit
     from topodrake.topomap.route_time import fit_driving_time
 
     files = [Path(f) for f in files_text.split(",") if f]

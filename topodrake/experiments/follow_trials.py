@@ -21,7 +21,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes, atomic_write_json
-from topodrake.learning.onpolicy.bench import CONTROLLERS as BENCH_CONTROLLERS
+from topodrake.experiments.bench_onpolicy import CONTROLLERS as BENCH_CONTROLLERS
 from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec
 from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, follow_chains_once, path_length
 
@@ -161,7 +161,7 @@ class RunCache:
 def chains_of(obs, reach, ps, cache: RunCache | None = None, tag: str = "",
               slack: float = 0.0) -> dict:
     """RE anchors of every trajectory at every p: {p: [anchors, ...]}
-    (``slack``: see :func:`topodrake.topomap.sparsify.sparsify`)."""
+    (``slack``: see :func:`topodrake.learning.reachability.sparsify.sparsify`)."""
     out = {}
     for p in ps:
         got = cache.get(f"{tag}chains-p{p}", {"p": p}) if cache else None

@@ -1,4 +1,4 @@
-"""Command-line pieces of the learning package, for :mod:`topodrake.cli` to mount.
+"""Command-line pieces of the learning package, for :mod:`topodrake.apps.cli` to mount.
 
 ``add_train_parser(sub)`` adds ``train waypoint`` / ``train reachability`` and ``add_bench_parser(bsub)``
 adds ``networks`` under ``bench``::
@@ -16,8 +16,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from topodrake import argtypes as at
-from topodrake.outputs import add_force_option, check_folder, check_output, check_output_folder
+from topodrake.apps import argtypes as at
+from topodrake.apps.outputs import add_force_option, check_folder, check_output, check_output_folder
 
 
 def _check_folders(args, out=None) -> None:
@@ -281,7 +281,7 @@ def cmd_train_sptm(args) -> None:
 
 
 def cmd_bench_networks(args) -> None:
-    from topodrake.learning.bench import bench_networks
+    from topodrake.experiments.bench_learning import bench_networks
 
     cfg = None
     if args.config:
@@ -301,7 +301,7 @@ def _print_figures(args, result: dict) -> None:
 
 
 def cmd_bench_reachability(args) -> None:
-    from topodrake.learning.bench import bench_reachability
+    from topodrake.experiments.bench_learning import bench_reachability
 
     cfg = None
     if args.config:
@@ -391,7 +391,7 @@ def cmd_bench_follower(args) -> None:
 
     import torch
 
-    from topodrake.learning.onpolicy.bench import bench_follower, parse_controllers
+    from topodrake.experiments.bench_onpolicy import bench_follower, parse_controllers
 
     torch.set_num_threads(args.threads)
     result = bench_follower(parse_controllers(args.controllers, args.cwp, args.re), data=args.data,
@@ -415,7 +415,7 @@ def cmd_bench_waypoint(args) -> None:
 
     import torch
 
-    from topodrake.learning.waypoint.error_anatomy import bench_waypoint
+    from topodrake.experiments.waypoint_anatomy import bench_waypoint
 
     torch.set_num_threads(args.threads)
     result = bench_waypoint(args.checkpoints, expand_worlds(args.worlds), samples=args.samples,

@@ -5,7 +5,7 @@ odometry, runs, controllers with their ``--cwp``/``--re`` replacements, the
 ``--chain-re`` REs that place a controller's anchors instead of its own, and
 the ``--sensitivity`` sweep: :func:`parse_sensitivity`), follows each
 controller's chains of the test drives
-(:func:`topodrake.navigation.follow_trials.run_controller`) and assembles
+(:func:`topodrake.experiments.follow_trials.run_controller`) and assembles
 the result document: per-controller figures, the summary at the headline p
 and the sensitivity tables.
 """
@@ -20,7 +20,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, path_length
-from topodrake.navigation.follow_trials import (CONTROLLERS, load_trajectories, run_controller,
+from topodrake.experiments.follow_trials import (CONTROLLERS, load_trajectories, run_controller,
                                                 trajectories_name)
 
 RUNS = ("re", "subsampled", "noisy", "oracle", "oracle_re")
@@ -49,7 +49,7 @@ def parse_chain_reach(items: list[str] | None, specs: dict, reach: list[str] | N
     NAME's own RE answers the follower (the two roles of RE apart). A
     controller of :data:`CHAIN_REACH` keeps its own placing RE unless
     ``--re`` (``reach``) replaces its RE, which then does both."""
-    from topodrake.navigation.follow_trials import CHAIN_REACH
+    from topodrake.experiments.follow_trials import CHAIN_REACH
 
     replaced = {o.partition("=")[0] for o in reach or []}
     out = {n: p for n, p in CHAIN_REACH.items() if n in specs and n not in replaced}
@@ -104,7 +104,7 @@ def following(args, command: str) -> dict:
     its ``summary`` with its ``sensitivity`` tables, where there are any."""
     from tqdm import tqdm
 
-    from topodrake.learning.onpolicy.bench import parse_controllers
+    from topodrake.experiments.bench_onpolicy import parse_controllers
     from topodrake.world import load_world
 
     ps = _check(args)

@@ -69,7 +69,7 @@ def controller_keep(re, policy, trajs, drives_per_house: int, runs: int, seed: i
     those hops on fresh seeds, and RE's keep ratio on the same drives."""
     from tqdm import tqdm
 
-    from topodrake.topomap.hops import (anchor_hop_success, controller_sparsify, keep_ratio,
+    from topodrake.experiments.hops import (anchor_hop_success, controller_sparsify, keep_ratio,
                                         share_made)
     from topodrake.world import load_world
 

@@ -4,7 +4,7 @@ A trial starts at one of a world's places, jittered (0.3 m to a random
 side, turned 9 deg to a random side: :func:`topodrake.baselines.sptm.jittered_start`),
 and is given the observation at another place as its goal. The planner
 (ours on a topological map, or SPTM) turns the two observations into a
-:class:`~topodrake.navigation.route.Route`, which the batched navigation
+:class:`~topodrake.contract.route.Route`, which the batched navigation
 engine follows. A trial succeeds when the car comes within ``SUCCESS_M``
 (0.54 m, the relaxed radius) of the goal place within ``T_MAX_S``
 (150 s = 1,500 steps) without colliding; a :class:`GoalWatch` stops the
@@ -25,8 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.navigation.outcomes import SUCCESS_M, judge_outcome
+from topodrake.topomap.plan_calibration import calibration
 
-SUCCESS_M = 0.54        # the relaxed goal radius of the paper's planning protocol
 T_MAX_S = 150.0         # 1,500 control periods of 0.1 s
 FALSE_LINK_M = 5.0      # a plan step longer than this in truth joins look-alike places
 
@@ -75,13 +76,6 @@ def pruned_subset(n_trajectories: int, fraction: float, seed: int) -> np.ndarray
 
 
 # ---------------------------------------------------------------- following
-
-def judge_outcome(outcome: str, distance_to_goal_m: float, radius: float = SUCCESS_M) -> str:
-    """A follower's outcome under the success rule: ``reached`` farther than
-    ``radius`` from the goal is ``false_reached`` (the follower ended its
-    plan away from the goal)."""
-    return "false_reached" if outcome == "reached" and distance_to_goal_m > radius else outcome
-
 
 class GoalWatch:
     """The engine's ``watch``: stops a car within ``radius`` of its goal
@@ -147,7 +141,7 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     :class:`~topodrake.navigation.engine.NavigationResult`), for traces."""
     from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
     from topodrake.navigation.replan import Replanner
-    from topodrake.navigation.route import merge_turns
+    from topodrake.contract.route import merge_turns
 
     fcfg = engine.config.follower
     routes = [None if r is None else merge_turns(r, fcfg.merge_turn_m, fcfg.merge_turn_deg)
@@ -245,7 +239,7 @@ def longest_link_m(start, route, goal) -> float:
 def render_pose_route(world, route, sensor=None):
     """A route planned on an oracle (pose) map, its contexts rendered as
     camera images at their poses, for a camera follower."""
-    from topodrake.navigation.route import Route
+    from topodrake.contract.route import Route
     from topodrake.sensing.observe import observe
 
     ctx = np.asarray(route.contexts, np.float64)
@@ -260,33 +254,6 @@ def render_pose_route(world, route, sensor=None):
 
 
 # ---------------------------------------------------------------- analysis
-
-def calibration(probability, success, bins: int = 10) -> tuple[list[dict], float | None]:
-    """Predicted plan probability against observed success: ``bins`` equal
-    bins over [0, 1] (the last one closed), each {lo, hi, count, predicted
-    (mean probability), observed (success rate)}, and the expected
-    calibration error sum_b n_b / n |predicted_b - observed_b| (None
-    without trials). NaN probabilities (SPTM's) are left out."""
-    p = np.asarray(probability, np.float64).reshape(-1)
-    s = np.asarray(success, np.float64).reshape(-1)
-    if len(p) != len(s):
-        raise TopodrakeError(f"{len(p)} probabilities for {len(s)} outcomes")
-    keep = np.isfinite(p)
-    p, s = np.clip(p[keep], 0.0, 1.0), s[keep]
-    edges = np.linspace(0.0, 1.0, bins + 1)
-    idx = np.minimum((p * bins).astype(np.int64), bins - 1)
-    rows, ece = [], 0.0
-    for b in range(bins):
-        m = idx == b
-        c = int(m.sum())
-        row = {"lo": round(float(edges[b]), 4), "hi": round(float(edges[b + 1]), 4), "count": c,
-               "predicted": round(float(p[m].mean()), 4) if c else None,
-               "observed": round(float(s[m].mean()), 4) if c else None}
-        if c:
-            ece += c * abs(float(p[m].mean()) - float(s[m].mean()))
-        rows.append(row)
-    return rows, (round(ece / len(p), 4) if len(p) else None)
-
 
 def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None) -> dict:
     """The study's summary: per house the methods' success rates, our map's

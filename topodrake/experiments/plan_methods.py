@@ -200,7 +200,7 @@ def calibration_table(methods: list[str], records: list[dict]) -> dict:
     """Per map method, over its planned trials: the plan probability against
     success (bins and ECE) and, where a calibration ships, its
     ``success_probability`` against success (``ece``; else the raw ECE)."""
-    from topodrake.navigation.plan_trials import calibration
+    from topodrake.experiments.plan_trials import calibration
 
     cal = {}
     for m in methods:

@@ -3,8 +3,8 @@
 :func:`compare_estimators` reduces the same test-house drive (the longest,
 or the one asked for: :func:`pick_drive`) to anchors once per RE and, where
 asked, drives every anchor hop with the RE's controller
-(:func:`topodrake.topomap.hops.anchor_hop_success`) and checks the first
-drives of every test house (:func:`topodrake.topomap.hops.sparsify_houses`);
+(:func:`topodrake.experiments.hops.anchor_hop_success`) and checks the first
+drives of every test house (:func:`topodrake.experiments.hops.sparsify_houses`);
 it returns the study's result document, with the world and the drive's
 poses its figure draws.
 """
@@ -52,7 +52,7 @@ def compare_estimators(args, command: str) -> tuple[dict, object, np.ndarray]:
     from topodrake.learning.reachability.estimator import Reachability, parse_estimators
     from topodrake.learning.samples import collect_trajectories
     from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
-    from topodrake.topomap.hops import anchor_hop_success, share_made, sparsify_houses
+    from topodrake.experiments.hops import anchor_hop_success, share_made, sparsify_houses
     from topodrake.world import load_world
 
     if args.hop_runs < 0 or args.check_drives < 0:

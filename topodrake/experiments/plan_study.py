@@ -3,9 +3,9 @@
 :func:`house_job` runs every method of a study's config in one house on
 the same trials (a Monte Carlo runner job, one per house): each method's
 plans are made on its map (:func:`plan_routes`; maps cached by
-:mod:`topodrake.topomap.map_cache`) and followed by its networks
+:mod:`topodrake.experiments.map_cache`) and followed by its networks
 (:func:`run_method`, the methods of
-:mod:`topodrake.navigation.plan_methods`). :func:`pruned_job` does the
+:mod:`topodrake.experiments.plan_methods`). :func:`pruned_job` does the
 same for maps of fractions of one house's drives. Trial seeds come from
 the base seed and the house's name (:func:`house_seed`), so a house's trials
 do not depend on which other houses run.
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from topodrake.navigation.plan_methods import METHODS, networks
+from topodrake.experiments.plan_methods import METHODS, networks
 from topodrake.odometry import ODOMETRY_MODELS as ODOMETRY  # the models the cars can drive with
-from topodrake.topomap.map_cache import DEMO_SEED, get_map, house_drives, house_key
+from topodrake.experiments.map_cache import DEMO_SEED, get_map, house_drives, house_key
 
 SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
 
@@ -67,7 +67,7 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     (:func:`topodrake.topomap.recalibrate.record_traversals`).
     ``limits``: each trial's time limit where the caller has them
     (:func:`trial_time_limits`, computed here otherwise)."""
-    from topodrake.navigation.plan_trials import render_pose_route
+    from topodrake.experiments.plan_trials import render_pose_route
     from topodrake.navigation.replan import NEAREST, nearest_seen_vertex
     from topodrake.topomap.plan import plan_from_vertex, plan_path
     from topodrake.topomap.sources import drive_observations, view_scans
@@ -142,7 +142,7 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
                  for t, g in enumerate(goal_idx)]
     routes = [p.route if p.reachable else None for p in plans]
     if meth.map != "sptm":        # each plan's false steps (links, hops into look-alikes), in truth
-        from topodrake.topomap.joining import plan_links
+        from topodrake.experiments.joining import plan_links
 
         links = [plan_links(m, p, starts[t], places[g])["false_link_m"] if p.reachable else None
                  for t, (p, g) in enumerate(zip(plans, goal_idx))]
@@ -162,7 +162,7 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
 def time_limit(cfg: dict) -> float:
     """Seconds a trial may drive (the study's ``--time-limit``; configs
     recorded before it existed used the default)."""
-    from topodrake.navigation.plan_trials import T_MAX_S
+    from topodrake.experiments.plan_trials import T_MAX_S
 
     return float(cfg.get("t_max_s") or T_MAX_S)
 
@@ -194,7 +194,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
                tag: str = "all", bar=None) -> tuple[dict, list[dict]]:
     """One method's trials in one house: (stats, per-trial records)."""
     from topodrake.navigation.engine import NavigationEngine
-    from topodrake.navigation.plan_trials import SUCCESS_M, follow_routes, longest_link_m
+    from topodrake.experiments.plan_trials import SUCCESS_M, follow_routes, longest_link_m
 
     places = np.asarray(world.places, np.float64)
     meth = METHODS[method]
@@ -210,7 +210,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
     policy, reach = networks(meth.follower, world)
     odo_seeds = odometry_seeds(cfg, spec, len(pairs))
     if meth.drive == "obstacles":
-        from topodrake.navigation.plan_trials import follow_past_obstacles
+        from topodrake.experiments.plan_trials import follow_past_obstacles
 
         n = min(cfg["obstacle_trials"], len(pairs))
         pairs, starts, routes, prob = pairs[:n], starts[:n], routes[:n], prob[:n]
@@ -294,7 +294,7 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, c
     round's drives folded into the map's edges (``odo_seeds``, ``limits``:
     every trial's odometry seed and time limit). Returns the whole run's
     routes, probabilities, false links, follow result and each trial's round."""
-    from topodrake.navigation.plan_trials import SUCCESS_M, FollowResult, follow_routes
+    from topodrake.experiments.plan_trials import SUCCESS_M, FollowResult, follow_routes
     from topodrake.navigation.replan import route_traversals
 
     bounds = round_bounds(len(pairs), rounds)
@@ -349,7 +349,7 @@ def _rates(records: list[dict]) -> dict:
     of plans with a false link (a link, not a drive's own hop, longer than
     FALSE_LINK_M in truth; SPTM: any step) and of plans with any step that
     long (``long_step_plans``: also the lidar maps' long anchor hops)."""
-    from topodrake.navigation.plan_trials import FALSE_LINK_M
+    from topodrake.experiments.plan_trials import FALSE_LINK_M
 
     outcomes = [r["outcome"] for r in records]
     planned = [r for r in records if r["planned"]]
@@ -391,7 +391,7 @@ def house_job(seed: int, jobs: dict, cfg: dict) -> dict:
     """Every method's trials in one house (a Monte Carlo runner job)."""
     from tqdm import tqdm
 
-    from topodrake.navigation.plan_trials import jittered_starts, trial_pairs
+    from topodrake.experiments.plan_trials import jittered_starts, trial_pairs
 
     spec, world, drives, n = _house(seed, jobs, cfg)
     indices = list(range(n))
@@ -437,7 +437,7 @@ def pruned_job(seed: int, jobs: dict, cfg: dict) -> dict:
     """Our maps from fractions of one house's drives, and their trials."""
     from tqdm import tqdm
 
-    from topodrake.navigation.plan_trials import jittered_starts, pruned_subset, trial_pairs
+    from topodrake.experiments.plan_trials import jittered_starts, pruned_subset, trial_pairs
 
     spec, world, drives, n = _house(seed, jobs, cfg)
     places = np.asarray(world.places, np.float64)

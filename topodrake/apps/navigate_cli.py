@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.plan_trials import SUCCESS_M
+from topodrake.experiments.plan_trials import SUCCESS_M
 from topodrake.odometry import ODOMETRY_MODELS, odometry_model
 
 DEFAULT_CONTROLLER = "checkpoints/camera_k5/checkpoint.pt"
@@ -134,7 +134,7 @@ def plan_on_map(path: Path, start, goal, reach_path=None, controller_path=None,
 def chain_from_demos(folder: Path, start, goal, drive, policy, reach, p):
     """(world, route, drive index) of a demonstration folder's drive."""
     from topodrake.demonstrations import load_demos
-    from topodrake.navigation.drive import chain_route
+    from topodrake.apps.drive import chain_route
     from topodrake.world import load_world
 
     manifest, demos = load_demos(folder, successful_only=True)
@@ -173,7 +173,7 @@ def chain_from_expert(world_spec: str, start, goal, policy, reach, p):
     """(world, route) of one noise-free expert drive from ``start`` to
     ``goal``, ended at its closest pass of the goal (:func:`teach_end`: the
     route's last anchor is the goal's view)."""
-    from topodrake.navigation.drive import chain_route
+    from topodrake.apps.drive import chain_route
     from topodrake.rollout import ExpertRollout, RolloutConfig
     from topodrake.world import load_world
 
@@ -192,7 +192,7 @@ def chain_from_expert(world_spec: str, start, goal, policy, reach, p):
 
 def check_outputs(args) -> None:
     """Every file navigate writes, checked before the drive."""
-    from topodrake.outputs import check_folder, check_output
+    from topodrake.apps.outputs import check_folder, check_output
 
     check_output(args.plot, "image", force=args.force, option="--plot")
     check_output(args.meshcat, "html", force=args.force, option="--meshcat")
@@ -201,7 +201,7 @@ def check_outputs(args) -> None:
 
 
 def cmd_navigate(args) -> int:
-    from topodrake.navigation.drive import drive_route
+    from topodrake.apps.drive import drive_route
     from topodrake.navigation.outcomes import drive_outcome, exit_status, goal_distance
     from topodrake.systems.navigation import NavigationScenario
     from topodrake.topomap.sources import check_controller
@@ -286,8 +286,8 @@ def _write_drive_files(args, world, route, result, start, goal, layers, outcome,
     """The plot and the Meshcat recording of a drive (each kept elsewhere when
     its file cannot be written)."""
     from topodrake.fileio import atomic_write_bytes
-    from topodrake.navigation.drive import plot_drive
-    from topodrake.outputs import write_kept
+    from topodrake.apps.drive import plot_drive
+    from topodrake.apps.outputs import write_kept
 
     if args.meshcat:
         write_kept(args.meshcat, lambda p: atomic_write_bytes(p, result.recording.encode()),
@@ -308,7 +308,7 @@ def _write_drive_files(args, world, route, result, start, goal, layers, outcome,
 
 def _plan_or_refuse(plan, source):
     """The route of a plan; no plan ends the command with exit status 1."""
-    from topodrake.topomap.map_cli import Unreachable
+    from topodrake.apps.map_cli import Unreachable
 
     if not plan.reachable:
         raise Unreachable(f"no plan from the start to the goal on {source}: {plan.reason}")
@@ -375,7 +375,7 @@ def add_navigate_parser(sub) -> None:
                     help="save a Meshcat recording of the drive (default: none)")
     nv.add_argument("--json", action="store_true",
                     help="print the outcome as one JSON object (default: off)")
-    from topodrake.outputs import add_force_option
+    from topodrake.apps.outputs import add_force_option
 
     add_force_option(nv)
     nv.set_defaults(func=cmd_navigate)

@@ -12,7 +12,7 @@ prints:
 * ``infer_*_batch_per_s``: the same per sample at batch ``batch`` (the
   batched engine), and ``cached_speedup`` = cached / naive at batch 1;
 * ``registration_per_s``: lidar scan pairs registered per second by the
-  compiled ICP (:mod:`topodrake.registration.bench`).
+  compiled ICP (:mod:`topodrake.experiments.bench_registration`).
 
 Naive and cached are timed in alternating windows (median of 5 each), so a
 change of load during the run affects both figures alike.
@@ -87,7 +87,7 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
     from topodrake.learning.samples import make_samples
     from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
     from topodrake.learning.waypoint.train import waypoint_loss
-    from topodrake.registration.bench import registration_rate
+    from topodrake.experiments.bench_registration import registration_rate
     from topodrake.world import load_world
 
     cfg = config or TrainConfig()

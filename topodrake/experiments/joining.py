@@ -12,7 +12,7 @@ every house and map kind of a study's options, with its result document.
 A plan's steps are judged in truth (privileged poses, evaluation only).
 Every step that is not one of the drives' own hops (a start, goal or
 direct link, a cross or junction edge) is a link. A link longer than
-:data:`~topodrake.navigation.plan_trials.FALSE_LINK_M` (5 m, the planning
+:data:`~topodrake.experiments.plan_trials.FALSE_LINK_M` (5 m, the planning
 study's rule) joins places that only look alike: a ``false step``. So
 does a drive's own hop into or out of a vertex that the drive reused in a
 look-alike place: the vertex lies more than that from where the hop's leg
@@ -96,7 +96,7 @@ def plan_links(topomap, result, start_pose, goal_pose) -> dict:
     ``longest_link_kind`` (steps that are not trajectory edges),
     ``false_link_m`` and ``false_link_kind`` (the longest false link; 0 and
     "" for none)."""
-    from topodrake.navigation.plan_trials import FALSE_LINK_M
+    from topodrake.experiments.plan_trials import FALSE_LINK_M
 
     vs = list(result.vertices)
     poses = topomap.pose(vs).reshape(-1, 3)
@@ -224,7 +224,7 @@ def joining_study(args, command: str) -> dict:
     """The study's result document for its options ``args`` (houses,
     modalities, triples, seed, config, quiet); ``command`` is recorded."""
     from topodrake.montecarlo import trial_seeds
-    from topodrake.topomap.map_cli import load_map_config
+    from topodrake.topomap.graph import load_map_config
     from topodrake.world import load_world
 
     houses = [h for h in args.houses.split(",") if h]

@@ -122,7 +122,7 @@ def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network
     ``k``, ``frame_step`` and ``sensor``; a pose oracle gets the poses) and
     its legs from the drive's odometry (:func:`teach_legs`). A camera
     route keeps each anchor's lidar scan (``lidar``'s, default the car's)."""
-    from topodrake.learning.frames import context_frames
+    from topodrake.contract.frames import context_frames
 
     poses = np.asarray(poses, np.float64)
     anchors = np.asarray(anchors, np.int64)
@@ -154,7 +154,7 @@ def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors
     each anchor's 2k + 1 context frames, clamped to the trajectory; legs as
     in :func:`route_from_trajectory`; ``scans``: the anchors' lidar scans
     a camera route keeps (A, beams)."""
-    from topodrake.learning.frames import context_frames
+    from topodrake.contract.frames import context_frames
 
     poses = np.asarray(poses, np.float64)
     anchors = np.asarray(anchors, np.int64)

@@ -68,9 +68,9 @@ def controller_sparsify(world, policy, poses: np.ndarray, runs: int = 16, failur
     their noise seeds, so one unlucky seed does not stop the scan at random)
     and j - i <= ``max_hop`` (which bounds the cost; the keep ratio cannot
     fall below 1 / max_hop). The greedy scan is RE's
-    (:func:`topodrake.topomap.sparsify.sparsify`)."""
+    (:func:`topodrake.learning.reachability.sparsify.sparsify`)."""
     from topodrake.montecarlo import trial_seeds
-    from topodrake.topomap.sparsify import sparsify
+    from topodrake.learning.reachability.sparsify import sparsify
 
     poses = np.asarray(poses, np.float64)
     if runs < 1 or not 0 <= failures < runs or max_hop < 1:
