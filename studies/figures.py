@@ -1,14 +1,16 @@
-"""Regenerate every figure the README shows, each with the command that makes it.
+"""Regenerate every figure the README and the docs show, each with the command that makes it.
 
-    python studies/figures.py --list          # the figures and their commands
+    python studies/figures.py --list          # the figures, their files and their commands
     python studies/figures.py                 # make them all (long: runs every study)
     python studies/figures.py --only navigation_diagram map_scalability
 
-Each entry names the image(s) the README links and the one command that
-writes them (a study script, ``topodrake demo`` or the navigation diagram
-drawn here from Drake's Graphviz export, which needs the ``dot`` program of
-Debian's graphviz package). The commands run one after the other; a failing
-one is reported and the rest still run.
+Each entry names the files it keeps (the JSON and PNG under ``results/``
+and the images under ``docs/`` that the pages link) and the one command
+that writes them: a study script, a ``topodrake`` command, or the
+navigation diagram drawn here from Drake's Graphviz export (which needs the
+``dot`` program of Debian's graphviz package). ``results/`` holds exactly
+these files. The commands run one after the other; a failing one is
+reported and the rest still run.
 """
 
 from __future__ import annotations
@@ -22,32 +24,53 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
+TF = f"{PY} studies/trajectory_following.py --trajectories 300 --p 0.99"
+PLAN = f"{PY} studies/planning.py"
 
-#: name -> (images the README links, command that writes them)
+#: name -> (files the command writes that the README and the docs show, the command)
 FIGURES = {
     "navigation_diagram": (["docs/navigation_diagram.png"],
                            f"{PY} studies/figures.py --diagram docs/navigation_diagram.png"),
-    "demo": (["docs/demo/plan.png"], "topodrake demo --out docs/demo --seed 0"),
-    "controller_success": (["results/controller_success.png"],
+    "demo": (["docs/demo/plan.png", "docs/demo/meshcat.html"],
+             "topodrake demo --out docs/demo --seed 0"),
+    "willow_plan": (["docs/willow.png"], "topodrake world plot tests/data/maps/willow_full_0.05/"
+                                         "map.yaml --out docs/willow.png --astar 0 7"),
+    "yujin_plan": (["docs/yujin.png"], "topodrake world plot tests/data/maps/yujin_rnd_extended/"
+                                       "map.yaml --out docs/yujin.png --astar 0 7"),
+    "controller_success": (["results/controller_success.json",
+                            "results/controller_success_details.json",
+                            "results/controller_success.png"],
                            f"{PY} studies/controller_success.py --trials 400 --json"),
-    "reachability_calibration": (["results/reachability_calibration.png"],
+    "reachability_calibration": (["results/reachability_calibration.json",
+                                  "results/reachability_calibration.png"],
                                  f"{PY} studies/reachability_calibration.py --pairs 1000 --json"),
-    "sparsification": (["results/sparsification.png"],
+    "sparsification": (["results/sparsification.json", "results/sparsification.png"],
                        f"{PY} studies/sparsification.py --check-drives 3 --json"),
-    "map_scalability": (["results/map_scalability.png"],
+    "oracle_reach": (["results/oracle_reach.json"], f"{PY} studies/oracle_reach.py --json"),
+    "map_scalability": (["results/map_scalability.json", "results/map_scalability.png"],
                         f"{PY} studies/map_scalability.py --json"),
-    "trajectory_following": (["results/trajectory_following.png"],
-                             f"{PY} studies/trajectory_following.py --json"),
-    "planning": (["results/planning.png", "results/pruned_maps.png"],
-                 f"{PY} studies/planning.py --json"),
-    "plan_calibration": (["results/plan_calibration/plan_calibration.png"],
-                         f"{PY} studies/planning.py --rescore "
-                         + ",".join(["results/joining/planning/planning.json",
-                                     "results/lidar_planning/test-0-2.json",
-                                     "results/lidar_planning/test-3-4.json"]
-                                    + [f"results/plan_calibration/test_ours/planning_{t}.json"
-                                       for t in "abc"])
-                         + " --out results/plan_calibration --json"),
+    "map_joining": (["results/map_joining.json"], f"{PY} studies/map_joining.py --json"),
+    "following_lidar_reg": (["results/following/lidar_reg/trajectory_following.json"],
+                            f"{TF} --controllers lidar_reg --out results/following/lidar_reg --json"),
+    "following_lidar_scale": (["results/following/lidar_k5_scale/trajectory_following.json"],
+                              f"{TF} --controllers lidar_k5_scale --runs re "
+                              "--out results/following/lidar_k5_scale --json"),
+    "table2": (["results/table2/planning.json", "results/table2/planning.png",
+                "results/table2/plan_calibration.png"],
+               f"{PLAN} --methods lidar_reg,lidar,oracle_full --pruned-fractions none "
+               "--out results/table2 --json"),
+    "table2_ours": (["results/table2_ours/planning.json"],
+                    f"{PLAN} --methods ours --pruned-fractions none --trials 100 "
+                    "--out results/table2_ours --json"),
+    "table2_sptm": (["results/table2_sptm/planning.json"],
+                    f"{PLAN} --methods sptm --pruned-fractions none --trials 100 "
+                    "--out results/table2_sptm --json"),
+    "willow": (["results/willow/planning.json"],
+               f"{PLAN} --world tests/data/maps/willow_full_0.05/map.yaml --methods oracle_full "
+               "--out results/willow --json"),
+    "yujin": (["results/yujin/planning.json"],
+              f"{PLAN} --world tests/data/maps/yujin_rnd_extended/map.yaml --methods oracle_full "
+              "--out results/yujin --json"),
 }
 
 
@@ -79,8 +102,9 @@ def draw_navigation_diagram(out: Path) -> Path:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description="Regenerate the README's figures.")
-    ap.add_argument("--list", action="store_true", help="print the figures and their commands")
+    ap = argparse.ArgumentParser(description="Regenerate the figures of the README and the docs.")
+    ap.add_argument("--list", action="store_true",
+                    help="print the figures, their files and their commands")
     ap.add_argument("--only", nargs="+", choices=sorted(FIGURES), help="make only these figures")
     ap.add_argument("--diagram", metavar="PNG", help="draw only the navigation diagram into PNG")
     args = ap.parse_args(argv)
@@ -88,12 +112,12 @@ def main(argv=None) -> int:
         print(f"wrote {draw_navigation_diagram(Path(args.diagram))}")
         return 0
     if args.list:
-        for name, (images, command) in FIGURES.items():
-            print(f"{name}: {', '.join(images)}\n    {command}")
+        for name, (files, command) in FIGURES.items():
+            print(f"{name}: {', '.join(files)}\n    {command}")
         return 0
     failed = []
     for name in args.only or FIGURES:
-        images, command = FIGURES[name]
+        _, command = FIGURES[name]
         wall = time.perf_counter()
         print(f"[{name}] {command}", flush=True)
         code = subprocess.run(shlex.split(command), cwd=ROOT).returncode

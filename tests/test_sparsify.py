@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.reachability import sparsify
+from topodrake.learning.reachability.sparsify import sparsify
 
 
 def test_anchors_every_reach_limit():

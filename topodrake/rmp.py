@@ -47,8 +47,7 @@ tangential and centripetal terms). ``pddot`` is affine in ``u``:
 At ``v = 0`` the steering column vanishes: the steering rate moves no point
 until the car rolls (the steering servo below decides the steering there).
 
-Leaf RMPs, all in the car frame (the authors' laser RMP controller,
-REFERENCE.md section 2):
+Leaf RMPs, all in the car frame (the authors' laser RMP controller):
 
 * goal attractor on the control points flagged ``goal_points`` (the nose and
   the two front corners): ``a = k_g (x_g - x)/(|x_g - x| + eps) - c_g xdot``,

@@ -1,4 +1,4 @@
-"""Training samples for the waypoint network C_WP (REFERENCE.md section 2).
+"""Training samples for the waypoint network C_WP (the paper's "Designing a Robust Local Controller").
 
 A sample pairs a *source* frame i and a *target* frame j of one successful
 expert trajectory:

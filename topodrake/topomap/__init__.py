@@ -1,5 +1,1 @@
-"""Topological maps: sparsified trajectories, graph building, planning, map files."""
-
-from topodrake.learning.reachability.sparsify import sparsify
-
-__all__ = ["sparsify"]
+"""Topological maps: graph building, planning, map files."""

@@ -1,6 +1,6 @@
 """Training loop of the waypoint network (and the direct-control baseline).
 
-Loss per sample (REFERENCE.md section 2)::
+Loss per sample (the paper's C_WP loss)::
 
     |w_hat - w|^2 / max(|w|, 0.1)  +  BCE(sigmoid(overlap logits), overlaps)
                                     +  MSE((cos, sin)_hat, (cos, sin))
