@@ -31,8 +31,9 @@ from pathlib import Path
 
 from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.success_table import CONTROLLERS, PAPER, success_table
-from topodrake.apps.study_args import add_study_arguments, study_main
+from topodrake.experiments.success_table import (CONTROLLERS, PAPER, SuccessTableStudy,
+                                                  success_table)
+from topodrake.apps.study_args import add_study_arguments, study_main, typed_from_args
 
 
 def plot(summary: dict, details: dict, path: Path) -> None:
@@ -73,12 +74,13 @@ def main(argv=None) -> int:
                          "('oracle' = the A* oracle, 'lidar_reg' = the registration C_WP)")
     ap.add_argument("--checkpoints", default="checkpoints", help="folder of the checkpoints")
     add_study_arguments(ap, "cache of the test houses' demonstrations")
-    return study_main(_run, ap.parse_args(argv))
+    return study_main(lambda a: _run(a, typed_from_args(SuccessTableStudy, a)), ap.parse_args(argv))
 
 
-def _run(args) -> int:
+def _run(args, study: SuccessTableStudy) -> int:
     summary, details = success_table(
-        args, "python studies/controller_success.py " + " ".join(sys.argv[1:]))
+        study, "python studies/controller_success.py " + " ".join(sys.argv[1:]), args.out,
+        quiet=args.quiet)
     names = list(summary)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

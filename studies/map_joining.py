@@ -26,11 +26,11 @@ from pathlib import Path
 
 from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.joining import MODALITIES, joining_study
+from topodrake.experiments.joining import MODALITIES, JoiningStudy, joining_study
 
 
 def main(argv=None) -> int:
-    from topodrake.apps.study_args import study_main
+    from topodrake.apps.study_args import study_main, typed_from_args
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--houses", default="test-0,test-1,test-2,test-3,test-4",
@@ -44,11 +44,12 @@ def main(argv=None) -> int:
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     args = ap.parse_args(argv)
-    return study_main(_run, args)
+    return study_main(lambda a: _run(a, typed_from_args(JoiningStudy, a)), args)
 
 
-def _run(args) -> int:
-    doc = joining_study(args, "python studies/map_joining.py " + " ".join(sys.argv[1:]))
+def _run(args, study: JoiningStudy) -> int:
+    doc = joining_study(study, "python studies/map_joining.py " + " ".join(sys.argv[1:]),
+                        quiet=args.quiet)
     out, summary = Path(args.out) / "map_joining.json", doc["summary"]
     atomic_write_json(out, doc)
     if args.json:

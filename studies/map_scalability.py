@@ -47,7 +47,7 @@ import numpy as np
 
 from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.map_scalability import HOUSES, scalability
+from topodrake.experiments.map_scalability import HOUSES, ScalabilityStudy, scalability
 
 
 def plot(houses: dict, path: Path, modality: str) -> None:
@@ -77,7 +77,7 @@ def plot(houses: dict, path: Path, modality: str) -> None:
 
 
 def main(argv=None) -> int:
-    from topodrake.apps.study_args import study_main
+    from topodrake.apps.study_args import study_main, typed_from_args
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--worlds", default=HOUSES, help="comma-separated houses")
@@ -102,11 +102,12 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
-    return study_main(_run, args)
+    return study_main(lambda a: _run(a, typed_from_args(ScalabilityStudy, a)), args)
 
 
-def _run(args) -> int:
-    doc = scalability(args, "python studies/map_scalability.py " + " ".join(sys.argv[1:]))
+def _run(args, study: ScalabilityStudy) -> int:
+    doc = scalability(study, "python studies/map_scalability.py " + " ".join(sys.argv[1:]),
+                      args.out, quiet=args.quiet)
     out, summary = Path(args.out), doc["summary"]
     atomic_write_json(out / "map_scalability.json", doc)
     plot(doc["houses"], out / "map_scalability.png", args.modality)

@@ -31,11 +31,11 @@ from pathlib import Path
 
 from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.oracle_reach import HOUSES, oracle_study
+from topodrake.experiments.oracle_reach import HOUSES, OracleReachStudy, oracle_study
 
 
 def main(argv=None) -> int:
-    from topodrake.apps.study_args import study_main
+    from topodrake.apps.study_args import study_main, typed_from_args
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--houses", default=HOUSES, help="test houses (catalogue names or map YAMLs)")
@@ -47,11 +47,12 @@ def main(argv=None) -> int:
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
-    return study_main(_run, args)
+    return study_main(lambda a: _run(a, typed_from_args(OracleReachStudy, a)), args)
 
 
-def _run(args) -> int:
-    doc = oracle_study(args, "python studies/oracle_reach.py " + " ".join(args.argv))
+def _run(args, study: OracleReachStudy) -> int:
+    doc = oracle_study(study, "python studies/oracle_reach.py " + " ".join(args.argv),
+                       quiet=args.quiet)
     out, summary = Path(args.out), doc["summary"]
     atomic_write_json(out / "oracle_reach.json", doc)
     oracles = summary["oracles"]

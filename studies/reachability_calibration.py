@@ -31,11 +31,9 @@ import numpy as np
 
 from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.calibration_trials import calibration_trials
-from topodrake.apps.study_args import add_study_arguments, study_main
-
-DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
-           "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
+from topodrake.experiments.calibration_trials import (DEFAULT_ESTIMATORS, CalibrationStudy,
+                                                      calibration_trials)
+from topodrake.apps.study_args import add_study_arguments, study_main, typed_from_args
 
 
 def plot(details: dict, path: Path) -> None:
@@ -68,16 +66,17 @@ def plot(details: dict, path: Path) -> None:
 def main(argv=None) -> int:
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--pairs", type=at.count, default=1000, help="labelled pairs per estimator")
-    ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")
+    ap.add_argument("--estimators", default=DEFAULT_ESTIMATORS, help="name=RE.pt:CWP.pt, comma-separated")
     ap.add_argument("--p", type=at.probability, default=0.99, help="p_sparsify for keep_ratio")
     ap.add_argument("--keep-drives", type=at.count, help="drives per house for keep_ratio (default all)")
     add_study_arguments(ap, "cache of demonstrations (test houses)")
-    return study_main(_run, ap.parse_args(argv))
+    return study_main(lambda a: _run(a, typed_from_args(CalibrationStudy, a)), ap.parse_args(argv))
 
 
-def _run(args) -> int:
+def _run(args, study: CalibrationStudy) -> int:
     doc = calibration_trials(
-        args, "python studies/reachability_calibration.py " + " ".join(sys.argv[1:]))
+        study, "python studies/reachability_calibration.py " + " ".join(sys.argv[1:]),
+        quiet=args.quiet)
     out, summary = Path(args.out), doc["summary"]
     atomic_write_json(out / "reachability_calibration.json", doc)
     plot(doc["details"], out / "reachability_calibration.png")

@@ -41,17 +41,14 @@ from pathlib import Path
 
 from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.reach_limits import reach_limits
-
-DEFAULT = ("camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
-           "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
+from topodrake.experiments.reach_limits import DEFAULT_ESTIMATORS, ReachLimitsStudy, reach_limits
 
 
 def main(argv=None) -> int:
-    from topodrake.apps.study_args import study_main
+    from topodrake.apps.study_args import study_main, typed_from_args
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
-    ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")
+    ap.add_argument("--estimators", default=DEFAULT_ESTIMATORS, help="name=RE.pt:CWP.pt, comma-separated")
     ap.add_argument("--pairs", type=at.count, default=1000, help="pairs for the noise ceiling")
     ap.add_argument("--runs", type=at.count, default=8, help="noisy runs per pair")
     ap.add_argument("--hop-pairs", type=at.count, default=2000, help="anchor hops (one run each)")
@@ -65,11 +62,12 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
-    return study_main(_run, args)
+    return study_main(lambda a: _run(a, typed_from_args(ReachLimitsStudy, a)), args)
 
 
-def _run(args) -> int:
-    doc = reach_limits(args, "python studies/reachability_limits.py " + " ".join(sys.argv[1:]))
+def _run(args, study: ReachLimitsStudy) -> int:
+    doc = reach_limits(study, "python studies/reachability_limits.py " + " ".join(sys.argv[1:]),
+                       quiet=args.quiet)
     summary = doc["summary"]
     atomic_write_json(Path(args.out) / "reachability_limits.json", doc)
     if args.json:

@@ -27,11 +27,8 @@ from pathlib import Path
 
 from topodrake.apps import argtypes as at
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.sparsify_compare import compare_estimators, summarize
-
-DEFAULT = ("camera_k2=checkpoints/reach_camera_k2/checkpoint.pt:checkpoints/camera_k2/checkpoint.pt,"
-           "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
-           "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
+from topodrake.experiments.sparsify_compare import (DEFAULT_ESTIMATORS, SparsifyStudy,
+                                                    compare_estimators, summarize)
 
 
 def plot(world, poses, results: dict, path: Path, p: float) -> None:
@@ -52,12 +49,12 @@ def plot(world, poses, results: dict, path: Path, p: float) -> None:
 
 
 def main(argv=None) -> int:
-    from topodrake.apps.study_args import study_main
+    from topodrake.apps.study_args import study_main, typed_from_args
 
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     ap.add_argument("--world", default="test-0", help="test house (its demonstrations must exist)")
     ap.add_argument("--drive", type=at.count0, help="index among its successful drives (default: longest)")
-    ap.add_argument("--estimators", default=DEFAULT, help="name=RE.pt:CWP.pt, comma-separated")
+    ap.add_argument("--estimators", default=DEFAULT_ESTIMATORS, help="name=RE.pt:CWP.pt, comma-separated")
     ap.add_argument("--p", type=at.probability, default=0.99, help="p_sparsify")
     ap.add_argument("--hop-runs", type=at.count0, default=4,
                     help="noisy rollouts of each anchor hop (0: do not check the hops)")
@@ -71,12 +68,12 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="results", help="folder of the JSON and PNG results")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     args = ap.parse_args(argv)
-    return study_main(_run, args)
+    return study_main(lambda a: _run(a, typed_from_args(SparsifyStudy, a)), args)
 
 
-def _run(args) -> int:
+def _run(args, study: SparsifyStudy) -> int:
     doc, world, poses = compare_estimators(
-        args, "python studies/sparsification.py " + " ".join(sys.argv[1:]))
+        study, "python studies/sparsification.py " + " ".join(sys.argv[1:]))
     out, results, check_worlds = Path(args.out), doc["results"], doc["check_worlds"]
     atomic_write_json(out / "sparsification.json", doc)
     plot(world, poses, results, out / "sparsification.png", args.p)

@@ -112,7 +112,8 @@ class ManoeuvreGuard(LeafSystem):
     (:class:`topodrake.navigation.manoeuvre.Manoeuvres`, the object the
     batched engine steps, here for one car). Inputs ``state`` (held),
     ``waypoint`` (the follower's, world xy), ``ranges`` (held lidar);
-    output ``waypoint``.
+    output ``waypoint``. ``config``: the manoeuvre settings (the follower's
+    ``manoeuvre``; default: their defaults).
 
     Timing as FollowerFsm's: the period's decision is a cache entry of the
     held inputs and the abstract state (the car's kept scans and expert
@@ -120,10 +121,11 @@ class ManoeuvreGuard(LeafSystem):
     the next period."""
 
     def __init__(self, lidar: LidarConfig | None = None, rmp: RmpConfig | None = None,
-                 vehicle: VehicleConfig | None = None, period: float = 0.1):
+                 vehicle: VehicleConfig | None = None, period: float = 0.1, config=None):
         from pydrake.systems.framework import ValueProducer
 
         super().__init__()
+        self.config = config
         self.lidar = lidar or LidarConfig()
         self.rmp = rmp or RmpConfig()
         self.vehicle = vehicle or VehicleConfig()
@@ -154,7 +156,7 @@ class ManoeuvreGuard(LeafSystem):
         pose = np.asarray(self.state_port.Eval(context))[None, :3]
         held = context.get_abstract_state(self.memory_index).get_value()
         man = copy.deepcopy(held) if held is not None else \
-            Manoeuvres(1, pose, self.lidar, rmp=self.rmp, vehicle=self.vehicle)
+            Manoeuvres(1, pose, self.lidar, self.config, rmp=self.rmp, vehicle=self.vehicle)
         wp = man.step(np.zeros(1, np.int64), pose, self.waypoint_in_port.Eval(context)[None],
                       np.asarray(self.ranges_port.Eval(context))[None])
         value.set_value((man, wp[0]))

@@ -47,8 +47,8 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 from topodrake.contract.waypoint import TargetContext, WaypointPrediction
 from topodrake.navigation.evaluate import (Evaluator, encode_routes, initial_track,
                                            network_context, take_rows)
-from topodrake.navigation.follower import (FAILED, MODES, REACHED, REASONS,
-                                           FollowerConfig, FollowerState, follower_step)
+from topodrake.navigation.follower import (MODES, REASONS, FollowerConfig, FollowerState, Mode,
+                                           follower_step)
 from topodrake.navigation.replan import kept_features
 
 
@@ -73,7 +73,7 @@ class FollowerFsm(LeafSystem):
         self.reach = reach
         self.config = (config or FollowerConfig()).check()
         if replanner is not None:
-            replanner.schedule.check_against(self.config.dr_max_iterations)
+            replanner.schedule.check_against(self.config.dead_reckoning.dr_max_iterations)
         self.replanner = replanner
         self._routes: list[_EncodedRoute] = []
         self._encode(route)
@@ -132,7 +132,8 @@ class FollowerFsm(LeafSystem):
         wide = self.policy if self.policy.k >= self.reach.k else self.reach
         base = self._routes[-1].key_base + len(self._routes[-1].route) if self._routes else 0
         if features is None:
-            features = encode_routes([route], self.policy, self.reach, legs_m=self.config.legs_m)
+            features = encode_routes([route], self.policy, self.reach,
+                                     legs_m=self.config.tracker.legs_m)
         self._routes.append(_EncodedRoute(
             route, features, network_context(route.contexts, wide.k, wide.frame_step, self.policy),
             base))
@@ -245,9 +246,9 @@ class FollowerFsm(LeafSystem):
                 fs = start
         state.get_mutable_abstract_state(self.fsm_index).set_value(fs)
         m = int(fs.mode[0])
-        if m == REACHED:
+        if m == Mode.REACHED:
             return EventStatus.ReachedTermination(self, "reached the last anchor")
-        if m == FAILED:
+        if m == Mode.FAILED:
             return EventStatus.ReachedTermination(self, REASONS[int(fs.reason[0])])
         return EventStatus.Succeeded()
 

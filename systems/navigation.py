@@ -135,7 +135,8 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     waypoint = select.waypoint_port
     if scenario.follower.manoeuvres:
         guard = b.AddNamedSystem("manoeuvres", ManoeuvreGuard(scenario.lidar, scenario.rmp,
-                                                              scenario.vehicle, dt))
+                                                              scenario.vehicle, dt,
+                                                              scenario.follower.manoeuvre))
         b.Connect(odo_port, guard.state_port)
         b.Connect(select.waypoint_port, guard.waypoint_in_port)
         b.Connect(c.lidar.ranges_port, guard.ranges_port)
@@ -196,7 +197,7 @@ class NavigationRunner(DiagramRunner):
         planning study's goal watch), whether or not the follower has
         declared arrival yet. Where the scenario's odometry drifts, its
         errors come from ``odometry_seed`` (default: ``seed``)."""
-        from topodrake.navigation.follower import REACHED, REASONS, FAILED
+        from topodrake.navigation.follower import REASONS, Mode
         from topodrake.vehicle import in_collision
 
         b = self.built
@@ -227,9 +228,9 @@ class NavigationRunner(DiagramRunner):
         mode = int(fs.mode[0])
         if r["collision"]:
             result = "collision"
-        elif mode == REACHED or r["success"]:
+        elif mode == Mode.REACHED or r["success"]:
             result = "reached"
-        elif mode == FAILED:
+        elif mode == Mode.FAILED:
             result = REASONS[int(fs.reason[0])]
         else:
             result = "timeout"

@@ -122,8 +122,6 @@ def test_study_refuses_a_missing_checkpoint(tmp_path):
 
 
 def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatch):
-    import argparse
-
     import topodrake.montecarlo as mc
 
     calls = []
@@ -133,18 +131,18 @@ def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatc
         return [{"outcome": "success", "time_s": 1.0, "seed": s} for s in seeds]
 
     monkeypatch.setattr(mc, "run_trials", fake_run_trials)
-    args = argparse.Namespace(seed=0, data="data", out=str(tmp_path), workers=1, ray=None, quiet=True)
-    first = run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], args)
-    again = run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], args)
+    args = {"seed": 0, "data": "data", "runs_dir": tmp_path, "workers": 1, "quiet": True}
+    first = run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], **args)
+    again = run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], **args)
     assert first == again and calls == [0.0]
-    run_block("oracle", "clean", "oracle", 0.33, [1, 2, 3], args)     # other noise: rerun
-    run_block("oracle", "clean", "oracle", 0.33, [1, 2, 3, 4], args)  # other trials: rerun
+    run_block("oracle", "clean", "oracle", 0.33, [1, 2, 3], **args)     # other noise: rerun
+    run_block("oracle", "clean", "oracle", 0.33, [1, 2, 3, 4], **args)  # other trials: rerun
     assert calls == [0.0, 0.33, 0.33]
     ck = tmp_path / "ck.pt"
     ck.write_bytes(b"weights-a")
-    run_block("net", "clean", str(ck), 0.0, [1], args)
+    run_block("net", "clean", str(ck), 0.0, [1], **args)
     ck.write_bytes(b"weights-b")                                            # retrained: rerun
-    run_block("net", "clean", str(ck), 0.0, [1], args)
+    run_block("net", "clean", str(ck), 0.0, [1], **args)
     assert len(calls) == 5
 
 

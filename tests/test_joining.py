@@ -29,7 +29,7 @@ def meeting_drives(a, b, both_ways=(0.95, 0.95)):
 
 
 def table_map(rule, **config):
-    return TopoMap(TableScorer(rule), FlatEmbedding(), MapConfig(**config), world="table")
+    return TopoMap(TableScorer(rule), FlatEmbedding(), MapConfig.from_dict(config), world="table")
 
 
 def test_an_arrival_and_a_departure_at_one_place_join_by_a_junction_edge():
@@ -67,9 +67,9 @@ def test_a_junction_needs_the_views_to_agree_both_ways():
     add_trajectory(m, drive(0, 10))
     assert add_trajectory(m, drive(1, 10)).junctions == 1
     with pytest.raises(TopodrakeError, match="p_join"):
-        MapConfig(p_join=1.0).validate()
+        MapConfig().updated(p_join=1.0).validate()
     with pytest.raises(TopodrakeError, match="join_ends"):
-        MapConfig(join_ends="yes").validate()
+        MapConfig().updated(join_ends="yes").validate()
 
 
 def test_map_files_keep_junction_edges_and_refuse_unknown_edge_kinds(tmp_path):
@@ -106,7 +106,7 @@ def test_start_links_agree_on_one_place_and_skip_a_look_alike_far_along_the_map(
     frame = lambda r: [m.graph.nodes[v]["frame"] for v in r.vertices]
     r = plan_path(m, np.array([5, 0]), np.array([0, 29]))
     assert frame(r)[0] == 24                          # the look-alike: a shorter plan
-    m.config = MapConfig(link_consensus=True)
+    m.config = MapConfig().updated(link_consensus=True)
     r = plan_path(m, np.array([5, 0]), np.array([0, 29]))
     assert frame(r)[0] in (0, 3) and r.start_links == 2
     assert r.probability < 0.999 ** 3                 # the whole drive, hop by hop
@@ -158,7 +158,7 @@ def test_a_direct_start_goal_link_needs_the_ends_links_to_be_one_place():
     add_trajectory(far, drive(0, 30))
     r = plan_path(far, start, goal)
     assert r.reachable and r.vertices == []           # the look-alike: straight to the goal
-    far.config = MapConfig(direct_check=True)
+    far.config = MapConfig().updated(direct_check=True)
     r = plan_path(far, start, goal)
     assert r.reachable and [far.graph.nodes[v]["frame"] for v in r.vertices][0] in (0, 3)
     assert far.graph.nodes[r.vertices[-1]]["frame"] in (24, 27)
@@ -167,20 +167,7 @@ def test_a_direct_start_goal_link_needs_the_ends_links_to_be_one_place():
     add_trajectory(near, drive(0, 30))
     assert plan_path(near, start, goal).vertices == []
     with pytest.raises(TopodrakeError, match="direct_check"):
-        MapConfig(direct_check="yes").validate()
-
-
-def test_link_groups_by_support_put_a_place_seen_from_several_anchors_first():
-    m = table_map(same_drive_hops)
-    add_trajectory(m, drive(0, 30))                   # ten anchors, frames 0, 3, ..., 27
-    v = m.trajectories[0].chain
-    links = [(v[0], 0.8), (v[1], 0.75), (v[2], 0.7), (v[8], 0.85)]
-    by_p = link_groups(m, links, hops=3)
-    by_support = link_groups(m, links, hops=3, order="support")
-    assert [[u for u, _ in g] for g in by_p] == [[v[8]], [v[0], v[1], v[2]]]
-    assert [[u for u, _ in g] for g in by_support] == [[v[0], v[1], v[2]], [v[8]]]
-    with pytest.raises(TopodrakeError, match="link_order"):
-        MapConfig(link_order="nearest").validate()
+        MapConfig().updated(direct_check="yes").validate()
 
 
 # ---------------------------------------------------------------- the joining study
@@ -311,7 +298,8 @@ def test_a_lidar_junction_carries_the_departure_s_pose_registered_in_the_arrival
     onward = np.array([np.cos(start[2]), np.sin(start[2])])
     depart = np.column_stack([start[:2] + np.outer(s, onward), np.full(16, start[2])])
     scorer = make_scorer("lidar", world)
-    m = TopoMap(scorer, default_embedding(scorer.observation), MapConfig(reuse=False), world="test-0")
+    m = TopoMap(scorer, default_embedding(scorer.observation), MapConfig().updated(reuse=False),
+                world="test-0")
     for name, poses in (("arrive", arrive), ("depart", depart)):
         add_trajectory(m, drive_observations(world, scorer, poses), poses, name)
     u, x = m.trajectories[0].chain[-1], m.trajectories[1].chain[0]
@@ -320,5 +308,5 @@ def test_a_lidar_junction_carries_the_departure_s_pose_registered_in_the_arrival
     np.testing.assert_allclose(leg, truth, atol=0.01)
     np.testing.assert_allclose(path[0], 0.0)
     np.testing.assert_allclose(path[-1], leg)
-    m.config = MapConfig(teach_odometry="none")                # a map that keeps no odometry
+    m.config = MapConfig().updated(teach_odometry="none")      # a map that keeps no odometry
     assert _junction_legs(m, np.array([u]), np.array([x])) == [(None, None)]

@@ -63,7 +63,7 @@ def test_network_context_takes_the_middle_frames():
 
 def test_engine_follows_a_route_to_its_end(box_world, route, oracles):
     from topodrake.navigation.engine import NAV_REACHED, NavigationEngine
-    from topodrake.navigation.follower import FOLLOW
+    from topodrake.navigation.follower import Mode
 
     starts = np.array([[1.0, 1.8, 0.5], [1.1, 1.4, 0.2]])
     res = NavigationEngine(box_world, *oracles).run(starts, [route, route], seeds=[1, 2])
@@ -71,12 +71,12 @@ def test_engine_follows_a_route_to_its_end(box_world, route, oracles):
     assert (res.distance_to_goal_m < 1.0).all()
     assert res.distance_driven_m(0) > 8.0                  # around the partition
     k = int(res.steps[0])
-    assert (res.modes[0, :k] == FOLLOW).mean() > 0.5
+    assert (res.modes[0, :k] == Mode.FOLLOW).mean() > 0.5
     assert res.active[0, k - 1] >= len(route) - 2
 
 
 def test_follower_fsm_on_one_context(box_world, route, oracles, drive):
-    from topodrake.navigation.follower import FOLLOW, FollowerState
+    from topodrake.navigation.follower import FollowerState, Mode
     from topodrake.systems.follower import FollowerFsm
 
     from topodrake.navigation.follower import FollowerConfig
@@ -97,7 +97,7 @@ def test_follower_fsm_on_one_context(box_world, route, oracles, drive):
     held = backing.held_waypoint_port.Eval(backing_ctx)
     ahead = np.array([np.cos(car[2]), np.sin(car[2])])
     assert np.dot(held - car[:2], ahead) == pytest.approx(-1.0)
-    assert fsm.mode_port.Eval(ctx)[0] == FOLLOW
+    assert fsm.mode_port.Eval(ctx)[0] == Mode.FOLLOW
     # the decision is a cache entry: nothing is committed before the periodic update
     s = fsm.follower_state(ctx)
     assert isinstance(s, FollowerState) and s.mode[0] == 0 and s.active[0] == -1
@@ -106,7 +106,7 @@ def test_follower_fsm_on_one_context(box_world, route, oracles, drive):
 def test_follower_fsm_commit_and_termination(box_world, route, oracles, drive):
     from pydrake.systems.analysis import Simulator
 
-    from topodrake.navigation.follower import FOLLOW, REACHED
+    from topodrake.navigation.follower import Mode
     from topodrake.systems.follower import FollowerFsm
 
     fsm = FollowerFsm(route, *oracles)
@@ -115,13 +115,13 @@ def test_follower_fsm_commit_and_termination(box_world, route, oracles, drive):
     fsm.state_port.FixValue(ctx, np.array([*drive[0], 0.0, 0.0]))
     sim.AdvanceTo(0.15)                                  # one commit at t = 0.1
     s = fsm.follower_state(ctx)
-    assert s.mode[0] == FOLLOW and s.active[0] == 0
+    assert s.mode[0] == Mode.FOLLOW and s.active[0] == 0
     # at the goal the follower visits the last anchor and ends the run
     fsm.state_port.FixValue(ctx, np.array([*drive[-1], 0.0, 0.0]))
     s.visited[:] = len(route) - 2
     s.active[:] = len(route) - 1
     status = sim.AdvanceTo(5.0)
-    assert fsm.follower_state(ctx).mode[0] == REACHED
+    assert fsm.follower_state(ctx).mode[0] == Mode.REACHED
     assert status.reason() == status.ReturnReason.kReachedTerminationCondition
     assert ctx.get_time() < 1.0
 
@@ -211,8 +211,8 @@ def test_a_car_in_dead_reckoning_is_replanned_without_the_failing_edge(box_world
     from topodrake.navigation.replan import ReplanSchedule
 
     bad = _bad_route(route)
-    engine = NavigationEngine(box_world, *oracles,
-                              NavigationConfig(follower=FollowerConfig(dr_max_iterations=20)))
+    follower = FollowerConfig.from_dict({"dr_max_iterations": 20})
+    engine = NavigationEngine(box_world, *oracles, NavigationConfig(follower=follower))
     goal = route.poses[-1][None]
     asked = []
 
@@ -245,7 +245,7 @@ def test_replanning_in_the_drake_diagram_matches_the_engine(box_world, route, or
 
     bad = _bad_route(route)
     plan = lambda i, pose, excluded: route if (7, 8) in excluded else None   # noqa: E731
-    follower = FollowerConfig(dr_max_iterations=20)
+    follower = FollowerConfig.from_dict({"dr_max_iterations": 20})
     start = np.array([1.0, 1.6, 0.4])
     sc = NavigationScenario(world="box", camera_enabled=False, follower=follower, t_max_s=60.0)
     with pytest.raises(TopodrakeError, match="gives up at 20"):
@@ -290,7 +290,7 @@ def test_a_new_plan_is_taken_only_where_the_follower_s_search_would_start_it(box
         asked.append(i)
         return far
 
-    follower = FollowerConfig(dr_max_iterations=20)
+    follower = FollowerConfig.from_dict({"dr_max_iterations": 20})
     start = np.array([1.0, 1.6, 0.4])
     engine = NavigationEngine(box_world, *oracles, NavigationConfig(follower=follower))
     replanner = Replanner(plan, [bad], ReplanSchedule.paper())
@@ -304,10 +304,10 @@ def test_a_new_plan_is_taken_only_where_the_follower_s_search_would_start_it(box
                                                      replanner=fsm_replanner)).run(start)
     assert drake.outcome != "reached" and drake.plans == 1 and drake.route is bad
     # the planner's start link alone (0.99 > p_search) would have taken it
-    from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
+    from topodrake.navigation.follower import FollowerState, Mode
 
     lost = FollowerState.initial(1, np.zeros((1, 0)))
-    lost.mode[:], lost.dr_count[:] = DEAD_RECKONING, 5
+    lost.mode[:], lost.dr_count[:] = Mode.DEAD_RECKONING, 5
     lone = Replanner(plan, [bad], ReplanSchedule.paper())
     assert [r for _, r, _ in lone.step(np.zeros(1, np.int64), lost, start[None],
                                     p_start=follower.p_search)] == [far]
@@ -354,7 +354,7 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     """Tries at Dead reckoning periods 5, 8, 11, ...; a worse plan is taken
     once 0.99 ** tries brings the current plan's probability below it; no
     more than max_replans new plans."""
-    from topodrake.navigation.follower import DEAD_RECKONING, FOLLOW, SEARCH, FollowerState
+    from topodrake.navigation.follower import FollowerState, Mode
     from topodrake.navigation.replan import Replanner, ReplanSchedule
     from topodrake.contract.route import Route
 
@@ -366,7 +366,7 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     rp = Replanner(lambda i, pose, ex: calls.append(list(ex)) or worse, [cur],
                    ReplanSchedule(first=5, every=3, discount=0.99, max_replans=1))
     st = FollowerState.initial(1)
-    st.mode[:], st.visited[:], st.active[:] = DEAD_RECKONING, 0, 1
+    st.mode[:], st.visited[:], st.active[:] = Mode.DEAD_RECKONING, 0, 1
     taken = []
     for count in range(5, 5 + 3 * 6, 3):
         st.dr_count[:] = count
@@ -377,10 +377,10 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     # 0.5 * 0.99 ** t < 0.48 first at t = 5: four rejected tries, then taken
     assert len(calls) == 5 and calls[0] == [(1, 2)]
     assert rp.plans[0] == 2 and rp.routes[0] is worse and rp.excluded[0] == [(1, 2)]
-    st.mode[:] = FOLLOW
+    st.mode[:] = Mode.FOLLOW
     st.dr_count[:] = 5
     assert rp.step(np.array([0]), st, np.zeros((1, 3))) == []    # not dead reckoning
-    st.mode[:] = DEAD_RECKONING
+    st.mode[:] = Mode.DEAD_RECKONING
     assert rp.step(np.array([0]), st, np.zeros((1, 3))) == []    # max_replans reached
     assert len(calls) == 5
     rp.reset()
@@ -391,7 +391,7 @@ def test_replanner_asks_on_schedule_and_discounts_the_current_plan():
     st.dr_count[:] = 5
     assert rp.step(np.array([0]), st, np.zeros((1, 3)), p_start=0.8) == []
     (car, route, start), = rp.step(np.array([0]), st, np.zeros((1, 3)), p_start=0.6)
-    assert car == 0 and route is better and start.mode[0] == SEARCH   # it starts in Search
+    assert car == 0 and route is better and start.mode[0] == Mode.SEARCH   # it starts in Search
     with pytest.raises(TopodrakeError, match="discount"):
         ReplanSchedule(discount=1.5).check()
 
@@ -400,11 +400,11 @@ def test_the_default_schedule_asks_only_before_dead_reckoning_gives_up_and_takes
     """Tries fall in the last 10 periods before the follower's default
     give-up; a plan far worse than the current one is taken at the first
     try; the paper's schedule asks from the 5th period."""
-    from topodrake.navigation.follower import DEAD_RECKONING, FollowerConfig, FollowerState
+    from topodrake.navigation.follower import FollowerConfig, FollowerState, Mode
     from topodrake.navigation.replan import Replanner, ReplanSchedule
     from topodrake.contract.route import Route
 
-    give_up = FollowerConfig().dr_max_iterations
+    give_up = FollowerConfig().dead_reckoning.dr_max_iterations
     tries = np.flatnonzero(ReplanSchedule().due(np.arange(give_up + 1))).tolist()
     assert tries and all(give_up - 10 <= t < give_up for t in tries)
     assert np.flatnonzero(ReplanSchedule.paper().due(np.arange(12))).tolist() == [5, 8, 11]
@@ -414,7 +414,7 @@ def test_the_default_schedule_asks_only_before_dead_reckoning_gives_up_and_takes
     cur = Route(np.zeros((3, 1)), np.zeros((3, 3)), vertices=np.array([1, 2, 3]), probability=0.9)
     poor = Route(np.zeros((2, 1)), np.zeros((2, 3)), vertices=np.array([4, 3]), probability=0.1)
     st = FollowerState.initial(1)
-    st.mode[:], st.visited[:], st.active[:] = DEAD_RECKONING, 0, 1
+    st.mode[:], st.visited[:], st.active[:] = Mode.DEAD_RECKONING, 0, 1
     st.dr_count[:] = tries[0]
     assert [r for _, r, _ in Replanner(lambda i, pose, ex: poor, [cur]).step(
         np.array([0]), st, np.zeros((1, 3)))] == [poor]
@@ -515,7 +515,7 @@ def test_a_tracked_car_with_no_plan_from_its_view_returns_to_its_anchor_and_plan
     tracked from the new route's first anchor; a car the tracker lost
     returns to the odometry pose of its last visit; without either, or
     without return_to_anchor, it takes nothing."""
-    from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
+    from topodrake.navigation.follower import FollowerState, Mode
     from topodrake.navigation.replan import Replanner, ReplanSchedule
     from topodrake.contract.route import Route
 
@@ -529,7 +529,7 @@ def test_a_tracked_car_with_no_plan_from_its_view_returns_to_its_anchor_and_plan
         return back if vertex == 2 else None
 
     st = FollowerState.initial(1, 2)
-    st.mode[:], st.visited[:], st.active[:], st.dr_count[:] = DEAD_RECKONING, 1, 2, 190
+    st.mode[:], st.visited[:], st.active[:], st.dr_count[:] = Mode.DEAD_RECKONING, 1, 2, 190
     st.ref[:], st.rel[:], st.odo[:] = 1, [1.0, 0.5, 0.3], [2.0, 3.0, 0.1]
     st.var[:] = np.eye(3).ravel() * 0.01
     assert Replanner(plan, [cur]).step(np.array([0]), st, np.zeros((1, 3))) == []
@@ -537,7 +537,7 @@ def test_a_tracked_car_with_no_plan_from_its_view_returns_to_its_anchor_and_plan
     rp = Replanner(plan, [cur], ReplanSchedule(return_to_anchor=True))
     (car, route, start), = rp.step(np.array([0]), st, np.zeros((1, 3)))
     assert route is back and asked[-1] == (2, [(2, 3)]) and rp.excluded[0] == [(2, 3)]
-    assert start.mode[0] == DEAD_RECKONING and start.active[0] == 0 and start.visited[0] == -1
+    assert start.mode[0] == Mode.DEAD_RECKONING and start.active[0] == 0 and start.visited[0] == -1
     assert start.ref[0] == 0 and start.dr_count[0] == 0 and start.track.shape == (1, 2)
     np.testing.assert_allclose(start.rel[0], st.rel[0])
     np.testing.assert_allclose(start.var[0], st.var[0])
@@ -558,7 +558,7 @@ def test_a_tracked_car_with_no_plan_from_its_view_returns_to_its_anchor_and_plan
     assert rp.step(np.array([0]), st, np.zeros((1, 3))) == [] and rp.plans[0] == 1
     st.seen[:] = [4.0, 1.0, 0.2]      # ... with it, the car returns to where it marked it visited
     (_, route, start), = rp.step(np.array([0]), st, np.zeros((1, 3)))
-    assert route is back and start.ref[0] == -1 and start.mode[0] == DEAD_RECKONING
+    assert route is back and start.ref[0] == -1 and start.mode[0] == Mode.DEAD_RECKONING
     np.testing.assert_allclose(start.waypoint[0], [4.0, 1.0])
 
 
@@ -568,7 +568,7 @@ def test_the_oracle_relocalizes_a_car_no_plan_starts_for_at_the_vertex_it_sees()
     vertex's taught position given in its odometry frame; the oracle takes
     the nearest vertex the car sees and would face, never one behind a wall
     or turned away."""
-    from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
+    from topodrake.navigation.follower import FollowerState, Mode
     from topodrake.navigation.replan import (NEAREST, Replanner, ReplanSchedule,
                                              nearest_seen_vertex)
     from topodrake.contract.route import Route
@@ -583,13 +583,13 @@ def test_the_oracle_relocalizes_a_car_no_plan_starts_for_at_the_vertex_it_sees()
         return there if vertex == NEAREST else None
 
     st = FollowerState.initial(1, 2)
-    st.mode[:], st.visited[:], st.active[:], st.dr_count[:] = DEAD_RECKONING, 1, 2, 190
+    st.mode[:], st.visited[:], st.active[:], st.dr_count[:] = Mode.DEAD_RECKONING, 1, 2, 190
     true, odo = np.array([[1.0, 1.0, 0.0]]), np.array([[11.0, 1.0, np.pi / 2]])
     assert Replanner(plan, [cur]).step(np.array([0]), st, true, odometry=odo) == []
     rp = Replanner(plan, [cur], ReplanSchedule(oracle_relocalize=True))
     (_, route, start), = rp.step(np.array([0]), st, true, odometry=odo)
     assert route is there and asked[-2:] == [None, NEAREST] and rp.returns[0] == 1
-    assert start.mode[0] == DEAD_RECKONING and start.active[0] == 0 and start.visited[0] == -1
+    assert start.mode[0] == Mode.DEAD_RECKONING and start.active[0] == 0 and start.visited[0] == -1
     # 2 m ahead of the car in truth is 2 m ahead of its odometry pose, which faces +y
     np.testing.assert_allclose(start.waypoint[0], [11.0, 3.0], atol=1e-12)
 
@@ -650,7 +650,7 @@ def test_a_car_lost_on_a_hop_returns_to_its_anchor_and_drives_a_plan_from_it(box
         asked.append((vertex, list(excluded)))
         return good if vertex == 12 and (12, 99) in excluded else None
 
-    follower = FollowerConfig(dr_max_iterations=40)
+    follower = FollowerConfig.from_dict({"dr_max_iterations": 40})
     # 0.2 rad left of the route's start pose: from that pose the walled blind cone turns
     # the car forward, and Follow and Dead reckoning then alternate without a give-up (limits.md)
     start = np.array([1.0, 1.5, 0.5])

@@ -39,10 +39,11 @@ def _stub_house(monkeypatch, world, topomap):
     from topodrake.experiments import plan_study
     from topodrake.topomap.plan import plan_path
 
-    monkeypatch.setattr(plan_study, "_house", lambda seed, jobs, cfg: (jobs[seed], world, [], 0))
+    monkeypatch.setattr(plan_study, "_house",
+                        lambda seed, jobs, sc, quiet=True: (jobs[seed], world, [], 0))
 
-    def plan_routes(method, spec, w, drives, indices, starts, places, goals, cfg, tag,
-                    limits=None):
+    def plan_routes(method, spec, w, drives, indices, starts, places, goals, sc, tag,
+                    limits=None, progress=False):
         plans = [plan_path(topomap, starts[t], places[g], start_pose=starts[t],
                            goal_pose=places[g]) for t, g in enumerate(goals)]
         return ([p.route if p.reachable else None for p in plans],
@@ -55,14 +56,14 @@ def _stub_house(monkeypatch, world, topomap):
 def test_a_trace_drives_the_study_s_trial_and_times_its_modes(placed_box, monkeypatch, tmp_path):
     from topodrake.experiments import plan_study
     from topodrake.navigation.follower import MODES
+    from topodrake.experiments.plan_scenario import PlanningScenario
     from topodrake.experiments.plan_trace import plot_trace, trace_trials
     from topodrake.experiments.plan_trials import jittered_starts, trial_pairs
 
     world, topomap = placed_box
     _stub_house(monkeypatch, world, topomap)
-    cfg = {"seed": 0, "data": str(tmp_path), "quiet": True, "odometry": "wheel",
-           "t_max_s": 60.0}
-    traces = trace_trials("placed-box", "oracle_full", [2, 0], cfg)
+    sc = PlanningScenario(seed=0, data=str(tmp_path), odometry="wheel", time_limit=60.0)
+    traces = trace_trials("placed-box", "oracle_full", [2, 0], sc)
     assert [t.trial for t in traces] == [2, 0]
 
     # the study's own trials: its pairs and jittered starts for this house's seed
@@ -91,15 +92,16 @@ def test_a_trace_drives_the_study_s_trial_and_times_its_modes(placed_box, monkey
 
 
 def test_a_trace_refuses_what_it_cannot_drive_in_one_line(placed_box, monkeypatch, tmp_path):
+    from topodrake.experiments.plan_scenario import PlanningScenario
     from topodrake.experiments.plan_trace import trace_trials
 
-    cfg = {"seed": 0, "data": str(tmp_path), "quiet": True}
+    sc = PlanningScenario(seed=0, data=str(tmp_path))
     with pytest.raises(TopodrakeError, match="unknown method 'nope'"):
-        trace_trials("placed-box", "nope", [0], cfg)
+        trace_trials("placed-box", "nope", [0], sc)
     with pytest.raises(TopodrakeError, match="'ours_replan' is not traced"):
-        trace_trials("placed-box", "ours_replan", [0], cfg)
+        trace_trials("placed-box", "ours_replan", [0], sc)
     with pytest.raises(TopodrakeError, match="'sptm' is not traced"):
-        trace_trials("placed-box", "sptm", [0], cfg)
+        trace_trials("placed-box", "sptm", [0], sc)
 
 
 def test_the_study_traces_one_method_in_one_house(placed_box, monkeypatch, tmp_path, capsys):
@@ -119,7 +121,7 @@ def test_the_study_traces_one_method_in_one_house(placed_box, monkeypatch, tmp_p
     printed = capsys.readouterr().out
     assert printed.startswith("trial 1: place ") and " follow " in printed
     doc = json.loads((tmp_path / "trace.json").read_text())
-    assert [t["trial"] for t in doc["traces"]] == [1] and doc["config"]["t_max_s"] == 60.0
+    assert [t["trial"] for t in doc["traces"]] == [1] and doc["scenario"]["time_limit"] == 60.0
     assert (tmp_path / "trace-1.png").exists()
     # two methods, or a bad trial list, are refused in one line
     assert study.main(["--world", "placed-box", "--methods", "oracle_full,lidar", "--trace", "1",

@@ -2,7 +2,6 @@
 plan_methods, plan_study and plan_results): trials, subsets, calibration, the summary, the
 methods, and a tiny planned-and-followed run in the box world with the oracles."""
 
-import argparse
 import json
 
 import numpy as np
@@ -190,7 +189,76 @@ def test_study_refuses_bad_input_in_one_line(tmp_path):
     code, _, err = run_study("planning", "--trials", "0")     # refused by the option's type
     assert code == 2
     code, _, err = run_study("planning", "--experience-prior-weight", "0", "--out", tmp_path)
-    assert code == 2 and "--experience-prior-weight must be > 0" in err
+    assert code == 2 and "experience_prior_weight must be > 0" in err
+
+
+# ---------------------------------------------------------------- the study's scenarios
+
+def test_table2_is_the_default_run_and_every_named_scenario_loads():
+    from topodrake.experiments.plan_scenario import HOUSES, PlanningScenario
+    from topodrake.experiments.scenarios import load_scenario, scenario_names
+
+    path = "studies/scenarios/planning.yaml"
+    names = scenario_names(path)
+    assert {"table2", "paper_protocol", "ceiling", "real_buildings"} <= set(names)
+    assert load_scenario(PlanningScenario, path, "table2") == PlanningScenario()
+    for name in names:
+        load_scenario(PlanningScenario, path, name).resolved()
+    paper = load_scenario(PlanningScenario, path, "paper_protocol")
+    assert paper.trials == paper.pruned_trials == 1000 and len(paper.pruned_fractions) == 10
+    assert load_scenario(PlanningScenario, path, "ceiling").methods == ["oracle_full"]
+    real = load_scenario(PlanningScenario, path, "real_buildings").resolved()
+    assert real.specs == [real.world] and real.world.endswith("map.yaml")
+    assert real.time_rule == "route" and real.pruned_fractions == [] and real.houses == []
+    # the text changes fields over the scenario, nested ones key by key
+    sc = load_scenario(PlanningScenario, path, "table2",
+                       "{trials: 7, changes: {boxes: 5}, follower: {legs_m: 0}}")
+    assert (sc.trials, sc.changes.boxes, sc.changes.trials, sc.houses) == (7, 5, 10, HOUSES)
+    # a planning.json gives back the scenario it ran (one written before scenarios: its config)
+    from dataclasses import asdict
+
+    assert PlanningScenario.from_record({"scenario": asdict(real)}) == real
+    old = PlanningScenario.from_record({"config": {"houses": ["test-1"], "t_max_s": 300.0,
+                                                   "route_time": True, "trials": 7}})
+    assert (old.specs, old.time_limit, old.route_time, old.trials) == (["test-1"], 300.0, True, 7)
+    with pytest.raises(TopodrakeError, match="unknown scenario 'nope'"):
+        load_scenario(PlanningScenario, path, "nope")
+    with pytest.raises(TopodrakeError, match="tirals"):
+        load_scenario(PlanningScenario, path, "table2", "{tirals: 7}")
+
+
+def test_the_command_line_builds_its_scenario_and_flags_change_it(tmp_path):
+    """``--scenario table2 --json`` is the default run (printed, not run,
+    with --print-config); flags and --scenario-text change it."""
+    import yaml
+
+    from topodrake.experiments.plan_scenario import PlanningScenario
+
+    code, out, err = run_study("planning", "--scenario", "table2", "--json", "--print-config")
+    assert code == 0, err
+    assert yaml.safe_load(out) == yaml.safe_load(run_study("planning", "--print-config")[1])
+    from dataclasses import asdict
+
+    assert yaml.safe_load(out) == asdict(PlanningScenario().resolved())
+    code, out, err = run_study(
+        "planning", "--houses", "test-0", "--methods", "lidar_reg,oracle_full", "--trials", "100",
+        "--pruned-fractions", "none", "--print-config")
+    assert code == 0, err
+    assert yaml.safe_load(out) == yaml.safe_load(
+        run_study("planning", "--scenario", "outcome_check", "--print-config")[1])
+    code, out, err = run_study(
+        "planning", "--scenario", "real_buildings", "--scenario-text", "{trials: 20}",
+        "--obstacles", "4", "--follower", '{"legs_m": 0}', "--replan", "paper", "--houses",
+        "test-1", "--print-config")
+    assert code == 0, err
+    sc = yaml.safe_load(out)
+    assert sc["world"] is None and sc["houses"] == ["test-1"] and sc["trials"] == 20
+    assert sc["changes"] == {"trials": 10, "boxes": 4} and sc["follower"] == {"legs_m": 0}
+    assert sc["replan"]["first"] == 5 and sc["time_rule"] == "route"
+    (tmp_path / "off.yaml").write_text("scan_match: 0\n")
+    code, out, err = run_study("planning", "--map-config", tmp_path / "off.yaml",
+                               "--print-config")
+    assert code == 0 and yaml.safe_load(out)["map"] == {"scan_match": 0.0}
 
 
 def test_house_keys_and_seeds():
@@ -404,27 +472,20 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
         METHODS["ours"].map = "lidar"
 
 
-def _options(tmp_path, **changed) -> argparse.Namespace:
-    """The study's options as its command line parses ``--out TMP --quiet``,
-    with ``changed`` ones."""
+def _scenario(tmp_path, **changed):
+    """The study's scenario (every method, 20 trials, pruned maps at 0.3, 0.6
+    and 1) with ``changed`` fields."""
     from topodrake.experiments.plan_methods import METHODS
-    from topodrake.experiments.plan_results import HOUSES
+    from topodrake.experiments.plan_scenario import PlanningScenario
 
-    options = {"houses": HOUSES, "world": None, "methods": ",".join(METHODS), "trials": 20,
-               "oracle_trials": 100, "trajectories": None, "obstacle_trials": 10, "obstacles": 3,
-               "batch": 32, "pruned_fractions": "0.3,0.6,1", "pruned_house": None,
-               "pruned_method": "ours", "pruned_trials": 20, "pruned_seed": 0, "seed": 0,
-               "data": "data", "workers": 1, "ray": None, "out": str(tmp_path), "rescore": None,
-               "map_config": None, "follower": None, "time_limit": 150.0, "odometry": "wheel",
-               "json": False,
-               "quiet": True}
-    return argparse.Namespace(**{**options, **changed})
+    return PlanningScenario(**{"methods": list(METHODS), "trials": 20,
+                               "pruned_fractions": [0.3, 0.6, 1.0], **changed})
 
 
 def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monkeypatch):
     """The study's run with the houses' trials stubbed: it runs the library's
-    house job, and planning.json's config describes each method's follower
-    as its Method does."""
+    house job, and planning.json records the scenario and describes each
+    method's follower as its Method does."""
     import topodrake.montecarlo as mc
     from topodrake.experiments import plan_study
     from topodrake.experiments.plan_methods import METHODS
@@ -433,18 +494,18 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
 
     jobs_run = []
 
-    def run_trials(job, seeds, *, jobs, cfg, **_):
+    def run_trials(job, seeds, *, jobs, scenario, **_):
         jobs_run.append(job)
         recs = [{"house": "test-0", "method": m, "planned": True, "plan_probability": 0.8,
                  "plan_anchors": 5, "success": t % 2 == 0, "outcome": "goal"}
-                for m in cfg["methods"] for t in range(4)]
+                for m in scenario.methods for t in range(4)]
         return [{"house": "test-0", "world": jobs[s], "seed": s, "drives": 90, "records": recs,
-                 "methods": {m: {"success": 0.5, "trials": 4} for m in cfg["methods"]}}
+                 "methods": {m: {"success": 0.5, "trials": 4} for m in scenario.methods}}
                 for s in seeds]
 
     monkeypatch.setattr(mc, "run_trials", run_trials)
-    doc = planning(_options(tmp_path, world="test-0", methods="oracle_full,lidar_reg",
-                            pruned_fractions="none", json=True), "python studies/planning.py")
+    doc = planning(_scenario(tmp_path, world="test-0", methods=["oracle_full", "lidar_reg"],
+                             pruned_fractions=[]), "python studies/planning.py", quiet=True)
     assert jobs_run == [plan_study.house_job]
     assert doc["summary"]["houses"]["test-0"] == {"oracle_full": 0.5, "lidar_reg": 0.5}
     assert doc["config"]["followers"] == {
@@ -454,84 +515,78 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
     assert all(r["success_probability"] is not None for r in doc["trials"]
                if r["method"] == "lidar_reg")                     # its calibration ships
     json.dumps(doc)                                                # planning.json holds it
-    assert doc["config"]["map_config"]["scan_match"] == 0.8        # the library's defaults
+    assert doc["config"]["map"]["scan_match"] == 0.8               # the library's defaults
+    assert doc["scenario"]["world"] == "test-0" and doc["scenario"]["houses"] == []
+    assert doc["scenario"]["time_rule"] == "route"                 # a world's, resolved
 
     # other map settings reach the house jobs and the record
     seen = []
-    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, cfg, **kw:
-                        seen.append(plan_study.map_config(cfg)) or run_trials(
-                            job, seeds, jobs=jobs, cfg=cfg, **kw))
-    (tmp_path / "off.yaml").write_text("scan_match: 0\n")
-    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none",
-                            map_config=str(tmp_path / "off.yaml")), "python studies/planning.py")
-    assert doc["config"]["map_config"]["scan_match"] == 0
-    assert seen[0].scan_match == 0 and seen[0].p_reuse == 0.99
+    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, scenario, **kw:
+                        seen.append(scenario.map_config()) or run_trials(
+                            job, seeds, jobs=jobs, scenario=scenario, **kw))
+    doc = planning(_scenario(tmp_path, world="test-0", methods=["lidar"], pruned_fractions=[],
+                             map={"scan_match": 0}), "python studies/planning.py", quiet=True)
+    assert doc["config"]["map"]["scan_match"] == 0 and doc["scenario"]["map"] == {"scan_match": 0}
+    assert seen[0].scan_match == 0 and seen[0].reuse.p == 0.99
 
     # follower settings likewise; the engines drive with them
     seen.clear()
-    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, cfg, **kw:
-                        seen.append(plan_study.navigation_config(cfg)) or run_trials(
-                            job, seeds, jobs=jobs, cfg=cfg, **kw))
-    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none",
-                            follower='{"legs_m": 0}'), "python studies/planning.py")
-    assert doc["config"]["follower"] == {"legs_m": 0}
-    assert seen[0].follower.legs_m == 0 and seen[0].follower.lookahead == 2
-    assert plan_study.navigation_config({}).follower.legs_m == FollowerConfig().legs_m
+    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, scenario, **kw:
+                        seen.append(plan_study.navigation_config(scenario)) or run_trials(
+                            job, seeds, jobs=jobs, scenario=scenario, **kw))
+    doc = planning(_scenario(tmp_path, world="test-0", methods=["lidar"], pruned_fractions=[],
+                             follower={"legs_m": 0}), "python studies/planning.py", quiet=True)
+    assert doc["scenario"]["follower"] == {"legs_m": 0}
+    assert seen[0].follower.tracker.legs_m == 0 and seen[0].follower.lookahead == 2
+    assert plan_study.navigation_config(_scenario(tmp_path)).follower == FollowerConfig()
     code, _, err = run_study("planning", "--follower", '{"legs_m": -1}', "--out", tmp_path)
     assert code == 2 and "legs_m must be >= 0" in err and err.count("\n") == 1
 
     # the time limit likewise
     seen.clear()
-    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, cfg, **kw:
-                        seen.append(plan_study.time_limit(cfg)) or run_trials(
-                            job, seeds, jobs=jobs, cfg=cfg, **kw))
-    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none",
-                            time_limit=300.0), "python studies/planning.py")
-    assert seen == [300.0] and doc["config"]["t_max_s"] == 300.0
-    assert plan_study.time_limit({}) == 150.0                   # configs recorded before it
+    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, scenario, **kw:
+                        seen.append(scenario.time_limit) or run_trials(
+                            job, seeds, jobs=jobs, scenario=scenario, **kw))
+    doc = planning(_scenario(tmp_path, world="test-0", methods=["lidar"], pruned_fractions=[],
+                             time_limit=300.0), "python studies/planning.py", quiet=True)
+    assert seen == [300.0] and doc["scenario"]["time_limit"] == 300.0
     # plans are made for that limit, unless the paper's most probable paths are asked for
-    assert doc["config"]["plan_within_time"] is True
-    assert plan_study.plan_time_limit(doc["config"]) == 300.0
-    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none",
-                            paper_plans=True), "python studies/planning.py")
-    assert plan_study.plan_time_limit(doc["config"]) is None
-    assert plan_study.plan_time_limit({"t_max_s": 150.0}) is None   # recorded before it
+    sc = _scenario(tmp_path, time_limit=300.0)
+    assert plan_study.plan_time_limit(sc) == 300.0
+    assert plan_study.plan_time_limit(_scenario(tmp_path, paper_plans=True)) is None
     code, _, err = run_study("planning", "--time-limit", "0", "--out", tmp_path)
     assert code == 2 and "time" in err and err.count("\n") == 1
 
     # the cars' odometry likewise: wheel odometry that drifts unless the true pose is asked for
     seen.clear()
-    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, cfg, **kw:
-                        seen.append(plan_study.navigation_config(cfg)) or run_trials(
-                            job, seeds, jobs=jobs, cfg=cfg, **kw))
-    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none"),
-                   "python studies/planning.py")
-    assert doc["config"]["odometry"] == "wheel" and not seen[0].odometry.is_perfect
-    doc = planning(_options(tmp_path, world="test-0", methods="lidar", pruned_fractions="none",
-                            odometry="perfect"), "python studies/planning.py")
-    assert doc["config"]["odometry"] == "perfect" and seen[1].odometry.is_perfect
-    assert plan_study.navigation_config({}).odometry.is_perfect      # recorded before it
+    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, scenario, **kw:
+                        seen.append(plan_study.navigation_config(scenario)) or run_trials(
+                            job, seeds, jobs=jobs, scenario=scenario, **kw))
+    doc = planning(_scenario(tmp_path, world="test-0", methods=["lidar"], pruned_fractions=[]),
+                   "python studies/planning.py", quiet=True)
+    assert doc["scenario"]["odometry"] == "wheel" and not seen[0].odometry.is_perfect
+    doc = planning(_scenario(tmp_path, world="test-0", methods=["lidar"], pruned_fractions=[],
+                             odometry="perfect"), "python studies/planning.py", quiet=True)
+    assert doc["scenario"]["odometry"] == "perfect" and seen[1].odometry.is_perfect
     with pytest.raises(TopodrakeError, match="odometry must be one of wheel, perfect"):
-        plan_study.navigation_config({"odometry": "gps"})
+        _scenario(tmp_path, odometry="gps").validate()
     code, _, err = run_study("planning", "--odometry", "gps", "--out", tmp_path)
     assert code == 2 and "--odometry" in err
 
 
 def test_a_map_written_before_a_setting_it_reads_is_not_the_default_map():
-    from dataclasses import asdict
-
     from topodrake.topomap.graph import LATER_DEFAULTS, MapConfig, same_config
 
-    stored = {k: v for k, v in asdict(MapConfig()).items() if k not in LATER_DEFAULTS}
+    stored = {k: v for k, v in MapConfig().flat().items() if k not in LATER_DEFAULTS}
     stored["reuse_ahead"] = 0
     assert not same_config(stored, MapConfig())                 # scan_match reads as 0 (off)
     assert not same_config(stored, MapConfig(), lidar=False)    # camera_scans as off
     # written with every later setting it reads at today's default, a map is the default map;
     # a lidar map ignores the camera-only ones
-    today = {k: getattr(MapConfig(), k) for k in LATER_DEFAULTS}
+    today = {k: MapConfig().flat()[k] for k in LATER_DEFAULTS}
     camera = {**stored, **today}
     assert same_config(camera, MapConfig(), lidar=False)
-    other_legs = {**camera, "camera_legs": not MapConfig().camera_legs}
+    other_legs = {**camera, "camera_legs": not MapConfig().camera.legs}
     assert same_config(other_legs, MapConfig())
     assert not same_config(other_legs, MapConfig(), lidar=False)
     assert not same_config({**camera, "p_join": 0.5}, MapConfig(), lidar=False)
@@ -550,19 +605,21 @@ def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
     off = config_tag("all", MapConfig(scan_match=0.0))
     assert off.startswith("all-cfg") and off == config_tag("all", MapConfig(scan_match=0.0))
     assert off != config_tag("all", MapConfig(scan_match=0.5))
+    assert off == "all-cfg90c04386"                 # as before the settings were grouped
     assert map_path(tmp_path, "test-0", "lidar", off) != map_path(tmp_path, "test-0", "lidar", "all")
     # a camera map reads no lidar-only setting, a lidar map no camera-only one: each keeps
     # its name and its file
-    assert config_tag("all", MapConfig(scan_match_cross=True), "camera") == "all"
-    assert config_tag("all", MapConfig(scan_match_cross=True, p_join=0.5), "camera") == \
-        config_tag("all", MapConfig(p_join=0.5), "camera") != "all"
-    flipped = MapConfig(camera_scans=not MapConfig().camera_scans)
+    uncapped = MapConfig().updated(max_hop_m=0.0)
+    assert config_tag("all", uncapped, "camera") == "all"
+    assert config_tag("all", uncapped.updated(p_join=0.5), "camera") == \
+        config_tag("all", MapConfig().updated(p_join=0.5), "camera") != "all"
+    flipped = MapConfig().updated(camera_scans=not MapConfig().camera.scans)
     assert config_tag("all", flipped, "lidar") == "all"
     assert config_tag("all", flipped, "camera") != "all"
     assert config_tag("all", MapConfig(scan_match=0.0), "camera") != "all"   # camera reads it too
     assert config_tag("all", MapConfig(scan_match=0.0), "lidar_reg") == off
     # settings only planning reads share the default map's file
-    assert config_tag("all", MapConfig(direct_check=False, link_order="support")) == "all"
+    assert config_tag("all", MapConfig().updated(direct_check=False, switch_p=1.0)) == "all"
     (tmp_path / "bad.yaml").write_text("scan_match: 2\n")
     code, _, err = run_study("planning", "--map-config", str(tmp_path / "bad.yaml"), "--out",
                              tmp_path)
@@ -642,6 +699,7 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
     from types import SimpleNamespace
 
     from topodrake.experiments import plan_study, plan_trials
+    from topodrake.experiments.plan_scenario import PlanningScenario
     from topodrake.experiments.plan_trials import FollowResult
 
     class Planned:
@@ -654,8 +712,8 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
 
     seen, given, timed = [], [], []
 
-    def plan_routes(method, spec, world, drives, indices, starts, places, goals, cfg, tag,
-                    experience=None, limits=None):
+    def plan_routes(method, spec, world, drives, indices, starts, places, goals, sc, tag,
+                    experience=None, limits=None, progress=False):
         seen.append(None if experience is None else (list(experience[0]), list(experience[1])))
         given.append(list(limits))
         routes = [Planned([1, 2, 3]) for _ in starts]
@@ -669,7 +727,7 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
                             np.full(n, 10), visited=np.ones(n, np.int64),
                             active=np.full(n, 2, np.int64))
 
-    def trial_time_limits(cfg, world, starts, goals):     # each trial's A* is done once
+    def trial_time_limits(sc, world, starts, goals):      # each trial's A* is done once
         timed.append(len(starts))
         return np.arange(len(starts)) + 100.0
 
@@ -681,9 +739,9 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
                         lambda *a, **k: SimpleNamespace())
     world = SimpleNamespace(places=np.zeros((3, 3)))
     pairs = np.array([[0, 1], [1, 2], [2, 0], [0, 2]])
-    cfg = {"experience_rounds": 2, "batch": 4, "data": "unused", "quiet": True}
+    sc = PlanningScenario(experience_rounds=2, batch=4, data="unused")
     stats, records = plan_study.run_method("lidar", "test-0", world, [], [], pairs,
-                                           np.zeros((4, 3)), cfg)
+                                           np.zeros((4, 3)), sc)
     assert seen == [None, ([(1, 2), (1, 2)], [(2, 3), (2, 3)])]
     assert timed == [4] and given == [[100.0, 101.0], [102.0, 103.0]]
     assert [r["time_limit_s"] for r in records] == [100.0, 101.0, 102.0, 103.0]
@@ -692,10 +750,10 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
     assert stats["trials"] == 4 and stats["success"] == 0.0
     assert plan_study.success_by_round(records) == {"lidar": [0.0, 0.0]}
     # replanning and SPTM run as built; rounds below 1 are refused
-    assert plan_study.experience_rounds("ours_replan", cfg) == 1
-    assert plan_study.experience_rounds("sptm", cfg) == 1
+    assert plan_study.experience_rounds("ours_replan", sc) == 1
+    assert plan_study.experience_rounds("sptm", sc) == 1
     with pytest.raises(ValueError, match=">= 1"):
-        plan_study.experience_rounds("lidar", {"experience_rounds": 0})
+        plan_study.experience_rounds("lidar", PlanningScenario(experience_rounds=0))
     assert plan_study.round_bounds(10, 3).tolist() == [0, 3, 7, 10]
 
 
@@ -778,11 +836,11 @@ def test_a_cached_map_plans_with_the_callers_planning_settings(tmp_path, monkeyp
     drive = SimpleNamespace(poses=np.array([[1.0, 1.0, 0.0], [1.3, 1.0, 0.0], [1.6, 1.0, 0.0]]))
     monkeypatch.setattr(map_cache, "DEMO_SEED", 0)
     built, _ = map_cache.get_map("test-0", world, "oracle", [drive], [0], tmp_path, "all", False,
-                                 MapConfig(direct_check=True))
+                                 MapConfig().updated(direct_check=True))
     again, build_s = map_cache.get_map("test-0", world, "oracle", [drive], [0], tmp_path, "all",
-                                       False, MapConfig(direct_check=False, link_order="support"))
+                                       False, MapConfig().updated(direct_check=False, switch_p=1.0))
     assert build_s == 0.0 and len(again) == len(built)
-    assert not again.config.direct_check and again.config.link_order == "support"
+    assert not again.config.links.direct_check and again.config.plan.switch_p == 1.0
 
 
 def test_a_cached_map_of_another_re_is_rebuilt_not_refused(tmp_path, monkeypatch, capsys):
@@ -867,14 +925,15 @@ def test_the_registration_follower_asks_its_tracked_re_and_its_maps_keep_the_col
 
 def test_each_trial_draws_its_own_odometry_errors_from_the_seed_and_house():
     from topodrake.experiments import plan_study
+    from topodrake.experiments.plan_scenario import PlanningScenario as Sc
     from topodrake.odometry import OdometryConfig, odometry_errors
 
-    a = plan_study.odometry_seeds({"seed": 0}, "test-0", 5)
-    assert a == plan_study.odometry_seeds({"seed": 0}, "test-0", 5)          # repeatable
-    assert a[:3] == plan_study.odometry_seeds({"seed": 0}, "test-0", 3)      # a prefix
+    a = plan_study.odometry_seeds(Sc(seed=0), "test-0", 5)
+    assert a == plan_study.odometry_seeds(Sc(seed=0), "test-0", 5)          # repeatable
+    assert a[:3] == plan_study.odometry_seeds(Sc(seed=0), "test-0", 3)      # a prefix
     assert len(set(a)) == 5
-    assert plan_study.odometry_seeds({"seed": 0}, "test-1", 5) != a
-    assert plan_study.odometry_seeds({"seed": 1}, "test-0", 5) != a
+    assert plan_study.odometry_seeds(Sc(seed=0), "test-1", 5) != a
+    assert plan_study.odometry_seeds(Sc(seed=1), "test-0", 5) != a
     errors = odometry_errors(OdometryConfig.wheel(), a)
     assert errors.shape == (5, 3) and len(np.unique(errors[:, 0])) == 5
 
@@ -883,14 +942,15 @@ def test_route_time_gives_each_trial_the_time_its_a_star_length_needs(box_world,
     """--route-time: the longer of the study's limit and A* length / 0.25 m/s per trial;
     without it every trial gets the study's limit."""
     from topodrake.experiments import plan_study
+    from topodrake.experiments.plan_scenario import PlanningScenario as Sc
     from topodrake.experiments.plan_trials import T_MAX_S
 
     starts = np.array([[1.5, 2.0, 0.0], [1.5, 2.0, 0.0]])
     goals = np.array([[2.5, 2.0, 0.0], [7.5, 2.0, 0.0]])   # 1 m apart; around the partition
-    fixed = plan_study.trial_time_limits({"t_max_s": 10.0}, box_world, starts, goals)
+    fixed = plan_study.trial_time_limits(Sc(time_limit=10.0), box_world, starts, goals)
     assert fixed.tolist() == [10.0, 10.0]
-    assert plan_study.trial_time_limits({}, box_world, starts, goals).tolist() == [T_MAX_S] * 2
-    route = plan_study.trial_time_limits({"t_max_s": 10.0, "route_time": True}, box_world,
+    assert plan_study.trial_time_limits(Sc(), box_world, starts, goals).tolist() == [T_MAX_S] * 2
+    route = plan_study.trial_time_limits(Sc(time_limit=10.0, time_rule="route"), box_world,
                                          starts, goals)
     length = np.hypot(*np.diff(box_world.astar(starts[1], goals[1, :2]), axis=0).T).sum()
     assert length > 12.0                                     # the way round the partition
@@ -910,18 +970,14 @@ def test_a_building_s_trials_get_their_route_time_and_the_houses_a_fixed_limit(t
     """The time rule's default follows what is run: the test houses keep one
     limit, one --world building gives each trial its A* length's time; an
     explicit rule wins and a contradiction is named."""
-    from topodrake.experiments.plan_results import pruned_fraction_text, study_config, time_rule
+    houses = _scenario(tmp_path, pruned_fractions=None)
+    world = _scenario(tmp_path, world="test-0", methods=["lidar"], pruned_fractions=None)
+    assert houses.resolved().time_rule == "fixed" and world.resolved().time_rule == "route"
+    assert not houses.route_time and world.route_time
+    assert _scenario(tmp_path, world="test-0", time_rule="fixed").resolved().time_rule == "fixed"
+    assert houses.resolved().pruned_fractions == [0.3, 0.6, 1.0]
+    assert houses.resolved().pruned_house == "test-0"
+    assert world.resolved().pruned_fractions == [] and world.resolved().houses == []
+    code, _, err = run_study("planning", "--route-time", "--time-rule", "fixed", "--out", tmp_path)
+    assert code == 2 and "contradict" in err
 
-    houses = _options(tmp_path, pruned_fractions=None)
-    world = _options(tmp_path, world="test-0", methods="lidar", pruned_fractions=None)
-    assert time_rule(houses) == "fixed" and time_rule(world) == "route"
-    assert time_rule(_options(tmp_path, world="test-0", time_rule="fixed")) == "fixed"
-    assert time_rule(_options(tmp_path, route_time=True)) == "route"
-    with pytest.raises(TopodrakeError, match="contradict"):
-        time_rule(_options(tmp_path, route_time=True, time_rule="fixed"))
-    assert pruned_fraction_text(houses) == "0.3,0.6,1"
-    assert pruned_fraction_text(world) == "none"
-    cfg, _, _, fractions = study_config(world)
-    assert cfg["route_time"] is True and fractions == []
-    cfg, _, _, fractions = study_config(_options(tmp_path, methods="lidar"))
-    assert cfg["route_time"] is False and fractions == [0.3, 0.6, 1.0]

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.follower import (DEAD_RECKONING, FOLLOW, Answers, FollowerConfig,
-                                           FollowerState, follower_step)
+from topodrake.navigation.follower import (Answers, FollowerConfig, FollowerState, Mode,
+                                           follower_step)
 from topodrake.navigation.tracker import (TrackerConfig, anchor_in_car, diagonal_cov, fix, fix_pose,
                                           propagate, pursuit_point, reanchor, reanchor_cov, route_frames,
                                           start_from_answer)
@@ -105,7 +105,7 @@ class Straight:
 def drive(ev, state, car, **cfg):
     ev.car = car[None, :3]
     return follower_step(state, np.array([len(ev.frames)]), car[None], ev,
-                         FollowerConfig(**cfg))
+                         FollowerConfig.from_dict(cfg))
 
 
 def drive_along(ev, xs, **cfg):
@@ -125,7 +125,7 @@ def test_the_follower_replaces_a_waypoint_that_disagrees_with_the_tracked_anchor
     for x in (0.0, 0.6, 1.2):                     # the tracker starts and follows anchors 1, 2
         car[0] = x
         s, out = drive(ev, s, car, odometry_check=True)
-    assert s.mode[0] == FOLLOW and s.ref[0] >= 0
+    assert s.mode[0] == Mode.FOLLOW and s.ref[0] >= 0
     car[0] = 2.2                                  # past anchor 2: anchor 3 is active, C_WP wrong
     before = s.copy()
     s, out = drive(ev, s, car, odometry_check=True)
@@ -146,7 +146,7 @@ def test_dead_reckoning_drives_to_the_tracked_anchor():
     for x in (0.0, 0.6):
         car[0] = x
         s, _ = drive(ev, s, car, odometry_check=True)
-    s.mode[:] = DEAD_RECKONING
+    s.mode[:] = Mode.DEAD_RECKONING
     s.waypoint[:] = [[0.0, 5.0]]
     car[0] = 0.4
 
@@ -158,8 +158,9 @@ def test_dead_reckoning_drives_to_the_tracked_anchor():
 
     low = LowRe(6)
     low.car = car[None, :3]
-    s, out = follower_step(s, np.array([6]), car[None], low, FollowerConfig(odometry_check=True))
-    assert s.mode[0] == DEAD_RECKONING
+    s, out = follower_step(s, np.array([6]), car[None], low,
+                           FollowerConfig.from_dict({"odometry_check": True}))
+    assert s.mode[0] == Mode.DEAD_RECKONING
     np.testing.assert_allclose(out.waypoint[0], low.frames[s.active[0], :2], atol=0.05)
 
 
@@ -180,13 +181,14 @@ def test_the_pursuit_point_follows_the_taught_path_round_a_corner():
 
 def test_the_papers_follower_turns_our_rules_off():
     paper = FollowerConfig.paper().check()
-    assert not paper.odometry_check and FollowerConfig().odometry_check
-    assert paper.lookahead == 5 and paper.p_search == 0.92 and paper.dr_back_anchors == -1
+    assert not paper.tracker.odometry_check and FollowerConfig().tracker.odometry_check
+    assert paper.lookahead == 5 and paper.p_search == 0.92
+    assert paper.dead_reckoning.dr_back_anchors == -1
     # no distance condition: an anchor 2 m off with high proximity counts as visited
     ev = Straight(6)
     ev.car = np.zeros((1, 3))
     s = FollowerState.initial(1)
-    s.mode[:], s.active[:], s.visited[:] = FOLLOW, 1, 0
+    s.mode[:], s.active[:], s.visited[:] = Mode.FOLLOW, 1, 0
     ours, _ = follower_step(s, np.array([6]), np.zeros((1, 5)), ev, FollowerConfig())
     theirs, _ = follower_step(s, np.array([6]), np.zeros((1, 5)), ev, paper)
     assert ours.visited[0] == 0 and theirs.visited[0] >= 2
@@ -320,9 +322,9 @@ def test_legs_m_is_checked_and_off_for_the_paper():
 
     from topodrake.errors import TopodrakeError
 
-    assert FollowerConfig().legs_m > 0 and FollowerConfig.paper().legs_m == 0
+    assert FollowerConfig().tracker.legs_m > 0 and FollowerConfig.paper().tracker.legs_m == 0
     with pytest.raises(TopodrakeError, match="legs_m"):
-        FollowerConfig(legs_m=-1.0).check()
+        FollowerConfig.from_dict({"legs_m": -1.0})
 
 
 def test_the_drake_follower_joins_the_legs_as_the_engine_does():
@@ -332,7 +334,7 @@ def test_the_drake_follower_joins_the_legs_as_the_engine_does():
     route = _route_with_a_gap()
     policy, reach = _FixedAnswer([0.9, 0.1], 0.2), _FixedAnswer([0.0, 0.0], 0.0)
     for legs_m in (0.0, 2.0):
-        fsm = FollowerFsm(route, policy, reach, FollowerConfig(legs_m=legs_m))
+        fsm = FollowerFsm(route, policy, reach, FollowerConfig.from_dict({"legs_m": legs_m}))
         engine = encode_routes([route], policy, reach, legs_m=legs_m)
         got = fsm._routes[0].features
         np.testing.assert_array_equal(got.segments, engine.segments)
@@ -386,7 +388,7 @@ def test_scan_fixes_correct_a_track_that_drifted():
     ev.slides = True                                     # a corridor: the fit is not used
     slid, _ = drive(ev, drifted, car)
     assert np.hypot(*(slid.rel - ref_truth)[0, :2]) > 0.2
-    assert not FollowerConfig.paper().scan_fix
+    assert not FollowerConfig.paper().tracker.scan_fix
 
 
 def test_dead_reckoning_refuses_an_anchor_a_sure_tracker_puts_far_away():
@@ -409,14 +411,14 @@ def test_dead_reckoning_refuses_an_anchor_a_sure_tracker_puts_far_away():
     for x in (0.0, 0.6):
         car[0] = x
         s, _ = drive(ev, s, car)
-    assert s.mode[0] == FOLLOW and s.visited[0] == 0 and s.ref[0] >= 0
+    assert s.mode[0] == Mode.FOLLOW and s.visited[0] == 0 and s.ref[0] >= 0
     ev.lost = True
-    s.mode[:], s.dr_count[:] = DEAD_RECKONING, 30       # the window now reaches anchor 5
+    s.mode[:], s.dr_count[:] = Mode.DEAD_RECKONING, 30       # the window now reaches anchor 5
     car[0] = 0.8
     sure, _ = drive(ev, s, car)
-    assert sure.mode[0] == DEAD_RECKONING and sure.active[0] < 5
+    assert sure.mode[0] == Mode.DEAD_RECKONING and sure.active[0] < 5
     jumped, _ = drive(ev, s, car, tracked_reach_m=0.0)
-    assert jumped.mode[0] == FOLLOW and jumped.active[0] == 5
+    assert jumped.mode[0] == Mode.FOLLOW and jumped.active[0] == 5
 
 
 def test_a_sure_tracker_keeps_following_where_re_doubts_a_near_anchor():
@@ -437,13 +439,13 @@ def test_a_sure_tracker_keeps_following_where_re_doubts_a_near_anchor():
     for reach in (2.5, 0.0):
         ev = Doubting(7)
         s = drive_along(ev, (0.0, 0.6), sure_follow_m=reach)
-        assert s.mode[0] == FOLLOW and s.ref[0] >= 0
+        assert s.mode[0] == Mode.FOLLOW and s.ref[0] >= 0
         ev.doubt = True
         s, _ = drive(ev, s, np.array([0.8, 0.0, 0.0, 0.0, 0.0]), sure_follow_m=reach)
         modes[reach] = s.mode[0]
-    assert modes[2.5] == FOLLOW and modes[0.0] == DEAD_RECKONING
+    assert modes[2.5] == Mode.FOLLOW and modes[0.0] == Mode.DEAD_RECKONING
     # left None, the setting is the C_WP's own (the evaluator's, from its policy)
-    for own, mode in ((2.5, FOLLOW), (None, DEAD_RECKONING)):
+    for own, mode in ((2.5, Mode.FOLLOW), (None, Mode.DEAD_RECKONING)):
         ev = Doubting(7)
         if own is not None:
             ev.sure_follow_m = own
@@ -452,8 +454,8 @@ def test_a_sure_tracker_keeps_following_where_re_doubts_a_near_anchor():
         s, _ = drive(ev, s, np.array([0.8, 0.0, 0.0, 0.0, 0.0]))
         assert s.mode[0] == mode
     with pytest.raises(TopodrakeError, match="sure_follow_m"):
-        FollowerConfig(sure_follow_m=-1.0).check()
-    assert FollowerConfig.paper().sure_follow_m == 0.0
+        FollowerConfig.from_dict({"sure_follow_m": -1.0})
+    assert FollowerConfig.paper().tracker.sure_follow_m == 0.0
 
 
 def test_the_registration_cwp_chooses_its_own_sure_follow_reach():
@@ -473,14 +475,12 @@ def test_the_registration_cwp_chooses_its_own_sure_follow_reach():
     plain.policy = Plain()
     assert sure_follow_m(default, reg) == RegistrationPolicy.sure_follow_m > 0
     assert sure_follow_m(default, plain) == 0.0
-    assert sure_follow_m(FollowerConfig(sure_follow_m=0.0), reg) == 0.0
+    assert sure_follow_m(FollowerConfig.from_dict({"sure_follow_m": 0.0}), reg) == 0.0
 
 
 def test_a_sure_tracker_ends_the_route_at_the_goal():
     """C_WP's overlaps toward the goal (0.7) stay below p_goal: only the
     tracker, pinned by the scans, can tell the car stands on the goal."""
-    from topodrake.navigation.follower import REACHED
-
     outcomes = {}
     for sure in (0.1, 0.0):
         ev = Scanned(4)
@@ -491,7 +491,7 @@ def test_a_sure_tracker_ends_the_route_at_the_goal():
             s, _ = drive(ev, s, car, tracked_sure_m=sure)
         assert s.active[0] == 3
         outcomes[sure] = s.mode[0]
-    assert outcomes[0.1] == REACHED and outcomes[0.0] == FOLLOW
+    assert outcomes[0.1] == Mode.REACHED and outcomes[0.0] == Mode.FOLLOW
 
 
 
@@ -513,8 +513,6 @@ def test_a_sure_tracker_refuses_a_goal_c_wp_calls_reached_short_of_it():
     is still 0.7-0.9 m off, and the follower stopped there; a tracker the
     scans pin refuses that "here" where it puts the goal farther than
     ``tracked_goal_m``."""
-    from topodrake.navigation.follower import REACHED
-
     class ShortAtGoal(Scanned):
         def __call__(self, cars, anchors, cwp, re):
             a = super().__call__(cars, anchors, cwp, re)
@@ -524,66 +522,7 @@ def test_a_sure_tracker_refuses_a_goal_c_wp_calls_reached_short_of_it():
 
     modes = {limit: drive_along(ShortAtGoal(4), (0.0, 0.6, 1.2, 1.6, 2.2),   # 0.8 m short
                                 tracked_goal_m=limit).mode[0] for limit in (0.5, 0.0)}
-    assert modes[0.5] != REACHED
-    assert modes[0.0] == REACHED                        # C_WP's word alone
+    assert modes[0.5] != Mode.REACHED
+    assert modes[0.0] == Mode.REACHED                        # C_WP's word alone
     with pytest.raises(TopodrakeError, match="tracked_goal_m"):
-        FollowerConfig(tracked_goal_m=-1.0).check()
-
-
-def test_the_tracker_passes_no_anchor_the_car_faces_away_from():
-    """A teach drive that turns on the spot leaves anchors at one place
-    facing every way; a car standing there facing the other way has not
-    driven them. C_WP's overlaps stay low, so only the tracker can pass."""
-
-    class Faint(Straight):
-        def __call__(self, cars, anchors, cwp, re):
-            a = super().__call__(cars, anchors, cwp, re)
-            a.overlap[:] = 0.2
-            return a
-
-    visited = {}
-    for limit in (90.0, 180.0):
-        ev = Faint(6)
-        s = drive_along(ev, (0.0, 0.6, 1.2), pass_turn_deg=limit)
-        assert s.mode[0] == FOLLOW and s.ref[0] >= 0 and s.active[0] == 2
-        turned = np.array([2.1, 0.0, np.pi, 0.0, 0.0])       # on anchor 2, facing back
-        s, _ = drive(ev, s, turned, pass_turn_deg=limit)
-        visited[limit] = s.visited[0]
-    assert visited[90.0] < 2 and visited[180.0] >= 2
-    aligned = drive_along(Faint(6), (0.0, 0.6, 1.2, 1.9), pass_turn_deg=90.0)
-    assert aligned.visited[0] >= 2                  # facing the taught way it passes as before
-    with pytest.raises(TopodrakeError, match="pass_turn_deg"):
-        FollowerConfig(pass_turn_deg=0.0).check()
-    assert FollowerConfig().pass_turn_deg == FollowerConfig.paper().pass_turn_deg == 180.0
-
-
-def test_merge_turns_leaves_out_a_turn_on_the_spot_and_composes_its_legs():
-    from topodrake.contract.route import Route, merge_turns, teach_legs
-    from topodrake.navigation.tracker import route_frames
-
-    # a drive east, a turn on the spot at x = 2 (frames 20-29), then north
-    east = np.column_stack([np.linspace(0, 2, 21), np.zeros(21), np.zeros(21)])
-    turn = np.column_stack([np.full(9, 2.0), np.zeros(9), np.linspace(0.16, 1.4, 9)])
-    north = np.column_stack([np.full(20, 2.0), np.linspace(0.1, 2, 20), np.full(20, np.pi / 2)])
-    poses = np.vstack([east, turn, north])
-    anchors = np.array([0, 20, 23, 26, 29, 48])
-    legs, paths = teach_legs(poses, anchors)
-    route = Route(np.zeros((6, 1, 3)), poses[anchors], vertices=np.arange(6),
-                  edge_probability=np.array([0.9, 0.8, 0.8, 0.8, 0.7]), legs=legs, leg_paths=paths)
-    merged = merge_turns(route, 0.5, turn_deg=45.0)
-    assert list(merged.vertices) == [0, 4, 5]
-    assert np.allclose(merged.edge_probability, [0.9 * 0.8 ** 3, 0.7])
-    # the composed legs put the kept anchors where the teach drive was
-    frames, _, approach = route_frames([merged.legs], [merged.leg_paths])
-    assert np.allclose(frames, poses[[0, 29, 48]], atol=1e-9)
-    assert np.allclose(approach[1, -1], poses[29], atol=1e-9)
-    assert merged.leg_paths.shape == route.leg_paths[:2].shape
-    assert merge_turns(route, 0.0) is route
-    assert merge_turns(route, 0.5, turn_deg=100.0) is route     # the turn is 80 deg
-    # a run of short hops into the goal stays: the car stops there
-    tail = Route(np.zeros((5, 1, 3)), poses[anchors[:5]], legs=legs[:4], leg_paths=paths[:4])
-    assert merge_turns(tail, 0.5) is tail
-    # a join (no leg) is never merged across
-    legs[2] = np.nan
-    joined = Route(np.zeros((6, 1, 3)), poses[anchors], legs=legs, leg_paths=paths)
-    assert len(merge_turns(joined, 0.5)) == 4
+        FollowerConfig.from_dict({"tracked_goal_m": -1.0})

@@ -2,26 +2,24 @@
 kept with the settings that made them (topodrake.experiments.follow_trials)
 and reused only under those settings."""
 
-import argparse
 import json
 
 import pytest
 
 from study_run import run_study
 from topodrake.experiments import follow_trials
+from topodrake.experiments.follow_scenario import FollowingScenario
 from topodrake.experiments.follow_study import following
 
 
-def _options(tmp_path, **changed) -> argparse.Namespace:
-    """The study's options as its command line parses ``--trajectories 1
-    --worlds test-0 --p 0.99 --controllers lidar_k5 --data TMP/data --out
-    TMP/out --quiet --json``, with ``changed`` ones."""
-    options = {"trajectories": 1, "worlds": "test-0", "p": "0.99", "headline_p": 0.99,
-               "controllers": "lidar_k5", "cwp": None, "sensitivity": None, "re": None,
-               "batch": 48, "seed": 0, "noise": 0.33, "data": str(tmp_path / "data"),
-               "out": str(tmp_path / "out"), "follower": "{}", "runs": "re,subsampled,noisy,oracle",
-               "odometry": "wheel", "slack": 0.0, "json": True, "quiet": True}
-    return argparse.Namespace(**{**options, **changed})
+def _follow(tmp_path, command="test", **changed) -> dict:
+    """The library's run of the scenario the study's command line
+    ``--trajectories 1 --worlds test-0 --p 0.99 --controllers lidar_k5 --data
+    TMP/data --out TMP/out --quiet`` gives, with ``changed`` fields."""
+    sc = FollowingScenario(**{"trajectories": 1, "worlds": ["test-0"], "p": [0.99],
+                              "controllers": ["lidar_k5"], "data": str(tmp_path / "data"),
+                              **changed})
+    return following(sc, command, tmp_path / "out", quiet=True)
 
 
 def _refused(*argv) -> str:
@@ -55,10 +53,11 @@ def test_a_rerun_reuses_finished_blocks_and_a_changed_setting_does_not(tmp_path,
         raise AssertionError("rendered although every block was cached")
 
     monkeypatch.setattr(follow_trials.Observations, "__getitem__", no_rendering)
-    again = following(_options(tmp_path), "python studies/trajectory_following.py")
+    again = _follow(tmp_path, "python studies/trajectory_following.py")
     assert again["summary"] == first["summary"]
+    assert first["scenario"] == again["scenario"] and first["scenario"]["p"] == [0.99]
     with pytest.raises(AssertionError, match="rendered"):
-        following(_options(tmp_path, noise=0.2), "")   # another noise: nothing is reused
+        _follow(tmp_path, noise=0.2)                   # another noise: nothing is reused
 
 
 def test_the_run_cache_refuses_other_settings_and_unreadable_files(tmp_path):
@@ -140,7 +139,7 @@ def test_the_oracle_re_run_follows_with_the_controller_and_the_geometric_re(tmp_
             super().__init__(world, policy, reach, config)
 
     monkeypatch.setattr(engine_module, "NavigationEngine", Watched)
-    doc = following(_options(tmp_path, runs="re,oracle_re", odometry="perfect"), "test")
+    doc = _follow(tmp_path, runs=["re", "oracle_re"], odometry="perfect")
     assert len(made) == 2
     (cwp_re, re_re), (cwp_oracle, re_oracle) = made
     assert cwp_oracle == cwp_re and "Oracle" not in cwp_oracle       # the same learned C_WP
@@ -171,10 +170,9 @@ def test_another_re_places_the_anchors_while_the_controllers_re_answers(tmp_path
     monkeypatch.setattr(follow_trials, "chains_of", watched_chains)
     monkeypatch.setattr(engine_module, "NavigationEngine", Watched)
     dagger = "checkpoints/lidar_k5_dagger/checkpoint.pt"
-    doc = following(_options(tmp_path, runs="re", odometry="perfect", cwp=[f"lidar_k5={dagger}"],
-                             re=["lidar_k5=checkpoints/reach_lidar_k5_onpolicy/checkpoint.pt"],
-                             chain_re=["lidar_k5=checkpoints/reach_lidar_k5_dagger/checkpoint.pt"]),
-                    "test")
+    doc = _follow(tmp_path, runs=["re"], odometry="perfect", cwp={"lidar_k5": dagger},
+                  re={"lidar_k5": "checkpoints/reach_lidar_k5_onpolicy/checkpoint.pt"},
+                  chain_re={"lidar_k5": "checkpoints/reach_lidar_k5_dagger/checkpoint.pt"})
     assert placed == ["reach_lidar_k5_dagger"] and answered == ["reach_lidar_k5_onpolicy"]
     result = doc["results"]["lidar_k5"]
     assert result["chain_reach"].endswith("reach_lidar_k5_dagger/checkpoint.pt")
@@ -206,3 +204,29 @@ def test_the_registration_system_places_anchors_with_one_re_and_follows_with_ano
                              specs, [other]) == {
         "lidar_reg": "checkpoints/reach_lidar_reg_tracked/checkpoint.pt"}
     assert parse_chain_reach(None, {"lidar_k5": specs["lidar_k5"]}) == {}
+
+
+def test_the_default_scenario_is_the_default_run_and_flags_change_it():
+    import yaml
+    from dataclasses import asdict
+
+    from topodrake.experiments.scenarios import load_scenario, scenario_names
+
+    path = "studies/scenarios/trajectory_following.yaml"
+    assert load_scenario(FollowingScenario, path, "default") == FollowingScenario()
+    for name in scenario_names(path):
+        load_scenario(FollowingScenario, path, name)
+    code, out, err = run_study("trajectory_following", "--print-config")
+    assert code == 0, err
+    assert yaml.safe_load(out) == asdict(FollowingScenario())
+    check = ["--trajectories", "60", "--controllers", "lidar_reg,lidar_k5_scale", "--p", "0.99"]
+    code, out, err = run_study("trajectory_following", *check, "--print-config")
+    assert code == 0, err
+    assert out == run_study("trajectory_following", "--scenario", "outcome_check",
+                            "--print-config")[1]
+    code, out, err = run_study("trajectory_following", "--cwp", "lidar_k5=oracle:anchor=0.3",
+                               "--follower", '{"legs_m": 0}', "--scenario-text",
+                               "{runs: [re], noise: 0.2}", "--print-config")
+    sc = yaml.safe_load(out)
+    assert code == 0 and sc["cwp"] == {"lidar_k5": "oracle:anchor=0.3"} and sc["runs"] == ["re"]
+    assert sc["follower"] == {"legs_m": 0} and sc["noise"] == 0.2

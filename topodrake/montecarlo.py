@@ -21,8 +21,8 @@ def trial_seeds(base_seed: int, n: int) -> list[int]:
     return [int(s.generate_state(1)[0]) for s in seq.spawn(n)]
 
 
-def _call(args):
-    fn, seed, kwargs = args
+def _call(job):
+    fn, seed, kwargs = job
     return fn(seed, **kwargs)
 
 

@@ -35,11 +35,14 @@ def first_line(e: Exception) -> str:
     return text.splitlines()[0] if text else type(e).__name__
 
 
-def load_typed(schema, path, what: str):
+def load_typed(schema, path, what: str, child_name: str | None = None, defaults=None):
     """Load ``path`` into dataclass ``schema``; a missing or bad file raises a
     one-line :class:`TopodrakeError` naming it (``what`` says what it is).
-    Without pydrake (a training machine) a plain loader of the same
-    dataclasses stands in."""
+    ``child_name``: load the document's top-level key of that name instead
+    of the whole document; ``defaults``: an instance whose values the YAML's
+    keys change (nested dataclasses and mappings key by key), the schema's
+    defaults otherwise. Without pydrake (a training machine) a plain loader
+    of the same dataclasses stands in."""
     resolve_field_types(schema)
     path = Path(path)
     if not path.is_file():
@@ -47,28 +50,32 @@ def load_typed(schema, path, what: str):
     try:
         from pydrake.common.yaml import yaml_load_typed
     except ImportError:
-        return _plain_load(schema, path.read_text(), f"{what} {path}")
+        return _plain_load(schema, path.read_text(), f"{what} {path}", child_name, defaults)
     try:
-        return yaml_load_typed(schema=schema, filename=str(path))
+        return yaml_load_typed(schema=schema, filename=str(path), child_name=child_name,
+                               defaults=defaults)
     except Exception as e:  # pydrake raises RuntimeError with a multi-line message
         raise TopodrakeError(f"{what} {path}: {first_line(e)}") from None
 
 
-def load_typed_data(schema, data: str, what: str):
+def load_typed_data(schema, data: str, what: str, defaults=None):
     """Like :func:`load_typed` for YAML text."""
-    from pydrake.common.yaml import yaml_load_typed
-
     resolve_field_types(schema)
     try:
-        return yaml_load_typed(schema=schema, data=data)
+        from pydrake.common.yaml import yaml_load_typed
+    except ImportError:
+        return _plain_load(schema, data, what, None, defaults)
+    try:
+        return yaml_load_typed(schema=schema, data=data, defaults=defaults)
     except Exception as e:
         raise TopodrakeError(f"{what}: {first_line(e)}") from None
 
 
-def _plain_load(schema, text: str, where: str):
+def _plain_load(schema, text: str, where: str, child_name: str | None = None, defaults=None):
     """YAML text into dataclass ``schema`` without pydrake: unknown keys are
-    errors, missing keys keep their defaults, nested dataclasses (also in
-    lists, dicts and optionals) are built recursively."""
+    errors, missing keys keep their defaults (``defaults``' values where
+    given), nested dataclasses (also in lists, dicts and optionals) are
+    built recursively."""
     import yaml
 
     resolve_field_types(schema)
@@ -76,11 +83,15 @@ def _plain_load(schema, text: str, where: str):
         data = yaml.safe_load(text) or {}
     except yaml.YAMLError as e:
         raise TopodrakeError(f"{where}: {first_line(e)}") from None
-    return _build(schema, data, where)
+    if child_name is not None:
+        if not isinstance(data, dict) or child_name not in data:
+            raise TopodrakeError(f"{where}: no key {child_name!r}")
+        data = data[child_name] or {}
+    return _build(schema, data, where, defaults)
 
 
-def _build(t, value, where: str):
-    origin, args = typing.get_origin(t), typing.get_args(t)
+def _build(t, value, where: str, default=None):
+    origin, params = typing.get_origin(t), typing.get_args(t)
     if dataclasses.is_dataclass(t):
         if not isinstance(value, dict):
             raise TopodrakeError(f"{where}: expected a mapping for {t.__name__}")
@@ -88,15 +99,24 @@ def _build(t, value, where: str):
         unknown = sorted(set(value) - set(names))
         if unknown:
             raise TopodrakeError(f"{where}: unknown key {unknown[0]!r} in {t.__name__}")
-        return t(**{k: _build(names[k].type, v, f"{where}: {k}") for k, v in value.items()})
+        built = {k: _build(names[k].type, v, f"{where}: {k}",
+                           None if default is None else getattr(default, k))
+                 for k, v in value.items()}
+        if default is None:
+            return t(**built)
+        import copy
+
+        return dataclasses.replace(copy.deepcopy(default), **built)
+    if origin is dict and isinstance(default, dict) and isinstance(value, dict):
+        return {**default, **_build(t, value, where)}
     if value is None:
         return None
     if origin in (list, tuple):
-        return [_build(args[0], v, where) for v in value] if args else list(value)
+        return [_build(params[0], v, where) for v in value] if params else list(value)
     if origin is dict:
-        return {k: _build(args[1], v, where) for k, v in value.items()} if args else dict(value)
-    if args and type(None) in args:           # X | None
-        inner = [a for a in args if a is not type(None)]
+        return {k: _build(params[1], v, where) for k, v in value.items()} if params else dict(value)
+    if params and type(None) in params:           # X | None
+        inner = [a for a in params if a is not type(None)]
         return _build(inner[0], value, where)
     if t is float and isinstance(value, int):
         return float(value)

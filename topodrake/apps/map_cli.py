@@ -317,8 +317,9 @@ def add_map_parser(sub) -> None:
     b.add_argument("--out", required=True, help="map file to write (.tdmap)")
     b.add_argument("--add", action="store_true",
                    help="grow the map in --out with drives it does not hold yet")
-    b.add_argument("--config", help="MapConfig YAML (default: p_sparsify = p_reuse = p_edge = "
-                                    "0.99, retrieval_k 64)")
+    b.add_argument("--config", help="map settings YAML (MapConfig: nested groups such as "
+                                    "'reuse: {p: 0.9}' or flat names such as 'p_reuse: 0.9'; "
+                                    "docs/map.md; default: the library's)")
     _checkpoint_options(b)
     b.add_argument("--json", action="store_true", help="print the summary (with each drive's "
                                                       "time) as one JSON object")

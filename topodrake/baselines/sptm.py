@@ -367,39 +367,3 @@ def place_pairs_study(world_name: str, demo_folder, net, config: SptmConfig | No
             **out,
             "place_localization_error_m": [round(e, 3) for e in place_err],
             "place_localization_score": [round(s, 4) for _, s in place_loc]}
-
-
-def main(argv=None) -> None:
-    """``python -m topodrake.baselines.sptm``: the place-pairs study of one house."""
-    import argparse
-    import json
-    import sys
-
-    from topodrake.baselines.retrieval_net import RetrievalScorer
-    from topodrake.fileio import atomic_write_json
-    from topodrake.learning.checkpoint import git_revision
-
-    ap = argparse.ArgumentParser(description=place_pairs_study.__doc__.splitlines()[0])
-    ap.add_argument("--checkpoint", default="checkpoints/sptm_retrieval/checkpoint.pt",
-                    help="retrieval checkpoint (default: %(default)s)")
-    ap.add_argument("--world", default="test-0", help="house (default: %(default)s)")
-    ap.add_argument("--demos", default="data/demos/pairs-s0/test-0",
-                    help="demonstration folder of that house (default: %(default)s)")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the start jitter (default: 0)")
-    ap.add_argument("--threads", type=int, default=1, help="torch threads (default: 1)")
-    ap.add_argument("--out", help="JSON file to write (default: print only)")
-    args = ap.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    net = RetrievalScorer.from_checkpoint(args.checkpoint)
-    result = place_pairs_study(args.world, args.demos, net, seed=args.seed)
-    result = {"command": "python -m topodrake.baselines.sptm " + " ".join(sys.argv[1:] if argv is None
-                                                                         else argv),
-              "git_revision": git_revision(), "checkpoint_sha1": net.fingerprint(),
-              "config": SptmConfig().__dict__, **result}
-    if args.out:
-        atomic_write_json(args.out, result)
-    print(json.dumps(result))
-
-
-if __name__ == "__main__":
-    main()

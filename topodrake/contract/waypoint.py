@@ -62,7 +62,7 @@ class TargetContext:
 class WaypointPolicy(Protocol):
     """What a C_WP offers the follower. Optional attributes: ``track_size``
     (per-car tracking state, a stateful C_WP) and ``sure_follow_m`` (the
-    follower's :attr:`FollowerConfig.sure_follow_m` where that is None)."""
+    follower's ``TrackerConfig.sure_follow_m`` where that is None)."""
 
     observation: str      # "camera" | "lidar" | "pose"
     k: int

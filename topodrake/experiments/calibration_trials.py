@@ -11,6 +11,7 @@ reliability bins), adds RE's keep ratio on the test houses' drives
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,29 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 
 WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
+#: the REs the study calibrates by default (name=RE.pt:CWP.pt, comma-separated)
+DEFAULT_ESTIMATORS = (
+    "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
+    "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
+
+
+@dataclass
+class CalibrationStudy:
+    """The reachability-calibration study's settings: labelled pairs per RE,
+    the REs (``name=RE.pt:CWP.pt``, comma-separated), p_sparsify of the keep
+    ratio and the drives per house it reads (None: all), the base seed, the
+    demonstration cache, the actuation noise of the noisy runs, and the
+    local workers (None: all cores) or Ray cluster the trials run on."""
+
+    pairs: int = 1000
+    estimators: str = DEFAULT_ESTIMATORS
+    p: float = 0.99
+    keep_drives: int | None = None
+    seed: int = 0
+    data: str = "data"
+    noise: float = 0.33
+    workers: int | None = None
+    ray: str | None = None
 
 
 def keep_ratios(reach: str, controller: str, data_dir: str, p: float,
@@ -64,37 +88,36 @@ def summarise_trials(res: list[dict]) -> dict:
     return s
 
 
-def calibration_trials(args, command: str) -> dict:
-    """The study's result document for its options ``args`` (pairs,
-    estimators, p, keep drives, seed, data, noise, workers, ray, quiet);
-    ``command`` is recorded."""
+def calibration_trials(study: CalibrationStudy, command: str, quiet: bool = False) -> dict:
+    """The study's result document for ``study``; ``command`` is recorded;
+    ``quiet``: no progress bars."""
     from topodrake.learning.reachability.estimator import parse_estimators
     from topodrake.learning.samples import collect_trajectories
     from topodrake.montecarlo import run_trials, trial_seeds
     from topodrake.systems.trials import reach_trial
 
-    if args.pairs < 1:
+    if study.pairs < 1:
         raise TopodrakeError("--pairs must be >= 1")
-    estimators = parse_estimators(args.estimators)
+    estimators = parse_estimators(study.estimators)
     # make sure the test houses' demonstrations exist before the workers start
-    collect_trajectories(list(WORLDS), Path(args.data) / "demos" / "pairs-s0",
-                         progress=not args.quiet)
-    seeds = trial_seeds(args.seed, args.pairs)
+    collect_trajectories(list(WORLDS), Path(study.data) / "demos" / "pairs-s0",
+                         progress=not quiet)
+    seeds = trial_seeds(study.seed, study.pairs)
     summary, details = {}, {}
     t0 = time.perf_counter()
     for name, (reach, controller) in estimators.items():
         details[name] = {}
-        for cond, noise in (("clean", 0.0), ("noisy", args.noise)):
-            res = run_trials(reach_trial, seeds, workers=args.workers, ray_address=args.ray,
-                             progress=not args.quiet, desc=f"{name} {cond}", reach=reach,
-                             controller=controller, noise_std=noise, data_dir=args.data,
+        for cond, noise in (("clean", 0.0), ("noisy", study.noise)):
+            res = run_trials(reach_trial, seeds, workers=study.workers, ray_address=study.ray,
+                             progress=not quiet, desc=f"{name} {cond}", reach=reach,
+                             controller=controller, noise_std=noise, data_dir=study.data,
                              worlds=WORLDS)
             details[name][cond] = summarise_trials(res)
     # The keep ratios run RE in this process, so they come after every
     # forked Monte Carlo block (a fork after torch has started its OpenMP
     # threads can hang the children).
     for name, (reach, controller) in estimators.items():
-        ratio, under_t = keep_ratios(reach, controller, args.data, args.p, args.keep_drives)
+        ratio, under_t = keep_ratios(reach, controller, study.data, study.p, study.keep_drives)
         details[name]["keep_ratio_temperature"] = round(under_t, 4)
         n = details[name]["noisy"]
         summary[name] = {"ece": round(n["ece"], 4), "brier": round(n["brier"], 4),
@@ -102,6 +125,6 @@ def calibration_trials(args, command: str) -> dict:
                          "keep_ratio": round(ratio, 4)}
     return {
         "command": command,
-        "pairs": args.pairs, "seed": args.seed, "noise_std": args.noise, "p_sparsify": args.p,
+        "pairs": study.pairs, "seed": study.seed, "noise_std": study.noise, "p_sparsify": study.p,
         "estimators": {k: {"reach": r, "controller": c} for k, (r, c) in estimators.items()},
         "wall_time_s": round(time.perf_counter() - t0, 1), "summary": summary, "details": details}

@@ -277,17 +277,18 @@ def _hash(arrays) -> str:
     return h.hexdigest()[:16]
 
 
-def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
-    """Controller ``name``'s figures at every p of ``ps``: its RE chains and
-    every n-th frame chains of ``trajs`` followed as ``args.runs`` asks
-    (noisy and oracle runs at ``args.headline_p`` only), and its
-    sensitivity table where ``args.sensitivity`` is set. ``spec``: (C_WP,
-    RE, the controller the RE was trained for); ``args``: the study's
-    settings (``out``, ``trajectories_file``, ``seed``, ``noise``, ``batch``,
-    ``slack``, ``runs``, ``headline_p``, ``sensitivity``,
-    ``follower_config``, ``odometry_config``), which key the run cache in
-    ``OUT/trajectory_following_runs/``; ``bar``: a progress bar updated once
-    per run."""
+def run_controller(name, spec, trajs, world_of, sc, bar, *, runs_dir, trajectories_file: str,
+                   chain_path: str | None = None,
+                   sensitivity_of: tuple[str, list[str]] | None = None) -> dict:
+    """Controller ``name``'s figures at every p of the scenario ``sc`` (a
+    :class:`~topodrake.experiments.follow_scenario.FollowingScenario`): its
+    RE chains and every n-th frame chains of ``trajs`` followed as its
+    ``runs`` ask (noisy and oracle runs at its ``headline_p`` only), and its
+    sensitivity table for ``sensitivity_of`` (KEY, values). ``spec``: (C_WP,
+    RE, the controller the RE was trained for); ``chain_path``: the RE that
+    places its anchors instead of its own. The scenario's settings, the
+    checkpoints and ``trajectories_file`` (the drives' cache name) key the
+    run cache in ``runs_dir``; ``bar``: a progress bar updated once per run."""
     import torch
 
     from topodrake.learning.reachability.controllers import controller_policy
@@ -295,7 +296,7 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
 
     cwp_path, re_path, re_controller = spec
     reach = Reachability.from_checkpoint(re_path, re_controller)
-    chain_path = (getattr(args, "chain_reach", None) or {}).get(name)
+    follower, odometry = sc.follower_config(), sc.odometry_config()
     placer = reach if chain_path is None else chain_reachability(chain_path, re_controller, reach)
     if is_oracle_spec(cwp_path):                     # made per world: it reads the world's A*
         policy, wide = (lambda world: controller_policy(cwp_path, world)), reach
@@ -303,29 +304,30 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         policy = controller_policy(cwp_path)
         wide = policy if policy.k >= reach.k else reach
     torch.set_num_threads(1)
-    cache = RunCache(Path(args.out) / "trajectory_following_runs", {
-        "trajectories": args.trajectories_file, "controller": name,
-        "checkpoints": [_fingerprint(f) for f in spec], "seed": args.seed, "noise": args.noise,
-        "follower": asdict(args.follower_config), "tolerance_m": TOLERANCE_M,
-        **({} if args.odometry_config.is_perfect else {"odometry": asdict(args.odometry_config)}),
-        "diverge_m": DIVERGE_M, "slack": args.slack,
+    cache = RunCache(Path(runs_dir), {
+        "trajectories": trajectories_file, "controller": name,
+        "checkpoints": [_fingerprint(f) for f in spec], "seed": sc.seed, "noise": sc.noise,
+        "follower": asdict(follower), "tolerance_m": TOLERANCE_M,
+        **({} if odometry.is_perfect else {"odometry": asdict(odometry)}),
+        "diverge_m": DIVERGE_M, "slack": sc.slack,
         **({} if chain_path is None else {"chain_reach": _fingerprint(chain_path)})})
     obs = Observations(reach, trajs, world_of)
     lengths = np.array([path_length(t["poses"])[-1] for t in trajs])
     frames = np.array([len(t["poses"]) for t in trajs])
-    chains = chains_of(obs, placer, ps, cache, f"{name}-", args.slack)
+    ps = list(sc.p)
+    chains = chains_of(obs, placer, ps, cache, f"{name}-", sc.slack)
     out: dict = {"controller": cwp_path, "reach": re_path, "points": []}
     if chain_path is not None:
         out["chain_reach"] = chain_path
-    runs = args.runs
+    runs = set(sc.runs)
 
     def follow(kind, tag, p, chain_list, noisy=False):
         """One kind of run of ``chain_list``: (covers, outcomes); None when not asked for."""
         if kind not in runs:
             return None
-        got = follow_chains(world_of, trajs, obs, chain_list, policy, reach, wide, args.noise,
-                            args.seed, args.batch, noisy=noisy, follower=args.follower_config,
-                            odometry=args.odometry_config, cache=cache,
+        got = follow_chains(world_of, trajs, obs, chain_list, policy, reach, wide, sc.noise,
+                            sc.seed, sc.batch, noisy=noisy, follower=follower,
+                            odometry=odometry, cache=cache,
                             tag=f"{name}-p{p}-{tag}-", oracle=kind == "oracle",
                             oracle_re=kind == "oracle_re")
         bar.update()
@@ -339,7 +341,7 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
         sub_density = float(sum(len(a) for a in sub) / lengths.sum())
         point = {"p_sparsify": p, "anchors_per_m": round(density, 4), "every_n": n,
                  "subsampled_anchors_per_m": round(sub_density, 4)}
-        headline = abs(p - args.headline_p) < 1e-9
+        headline = abs(p - sc.headline_p) < 1e-9
         for kind, tag, suffix, chain_list, noisy, asked in (
                 ("re", "re", "", chains[p], False, True),
                 ("subsampled", f"every{n}", "_subsampled", sub, False, True),
@@ -353,16 +355,16 @@ def run_controller(name, spec, trajs, world_of, ps, args, bar) -> dict:
                               f"covers{suffix}": c.round(4).tolist()})
         out["points"].append(point)
         bar.set_postfix_str(f"{name} p={p}: cover {point.get('cover', float('nan')):.3f}")
-    if args.sensitivity:
-        out["sensitivity"] = sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache,
-                                         bar, placer)
+    if sensitivity_of:
+        out["sensitivity"] = sensitivity(name, cwp_path, reach, trajs, obs, world_of, sc,
+                                         sensitivity_of, cache, bar, placer)
     return out
 
 
-def sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache, bar,
+def sensitivity(name, cwp_path, reach, trajs, obs, world_of, sc, table, cache, bar,
                 placer=None) -> dict:
-    """Cover of ``name``'s RE chains at the headline p followed by the noisy
-    oracle C_WP (and ``name``'s RE) at each value of ``args.sensitivity``
+    """Cover of ``name``'s RE chains at the scenario's headline p followed by
+    the noisy oracle C_WP (and ``name``'s RE) at each value of ``table``
     (KEY, values): the error of ``cwp_path`` if it is an oracle spec, else
     none, with KEY set to each value. ``placer``: the RE that made the
     chains (default ``reach``)."""
@@ -371,9 +373,9 @@ def sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache, bar,
     from topodrake.learning.reachability.controllers import controller_policy
     from topodrake.learning.waypoint.noisy_oracle import parse_oracle_spec
 
-    key, values = args.sensitivity
-    p = args.headline_p
-    chains = chains_of(obs, placer or reach, [p], cache, f"{name}-", args.slack)[p]
+    key, values = table
+    p = sc.headline_p
+    chains = chains_of(obs, placer or reach, [p], cache, f"{name}-", sc.slack)[p]
     base = parse_oracle_spec(cwp_path if is_oracle_spec(cwp_path) else "oracle")
     rows = []
     for v in values:
@@ -381,8 +383,9 @@ def sensitivity(name, cwp_path, reach, trajs, obs, world_of, args, cache, bar,
         text = error.text
         c, o = follow_chains(world_of, trajs, obs, chains,
                              lambda world, text=text: controller_policy(text, world), reach, reach,
-                             args.noise, args.seed, args.batch, noisy=False,
-                             follower=args.follower_config, odometry=args.odometry_config, cache=cache,
+                             sc.noise, sc.seed, sc.batch, noisy=False,
+                             follower=sc.follower_config(), odometry=sc.odometry_config(),
+                             cache=cache,
                              tag=f"{name}-p{p}-sens-{regex.sub(r'[^A-Za-z0-9_.=-]', '_', text)}-",
                              key={"cwp": _fingerprint(text)})
         bar.update()

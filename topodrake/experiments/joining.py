@@ -27,7 +27,7 @@ which is the planner skipping an anchor, not a look-alike.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -220,34 +220,48 @@ def house_results(spec: str, modality: str, triples, config, progress: bool) -> 
     return out
 
 
-def joining_study(args, command: str) -> dict:
-    """The study's result document for its options ``args`` (houses,
-    modalities, triples, seed, config, quiet); ``command`` is recorded."""
+@dataclass
+class JoiningStudy:
+    """The map-joining study's settings: its houses, the map kinds
+    (:data:`MODALITIES`), ordered place triples per house, their seed, and
+    the map settings (a MapConfig YAML; None: the library's defaults)."""
+
+    houses: list[str] = field(default_factory=lambda: [f"test-{i}" for i in range(5)])
+    modalities: list[str] = field(default_factory=lambda: ["camera", "lidar"])
+    triples: int = 40
+    seed: int = 0
+    config: str | None = None
+
+
+def joining_study(study: JoiningStudy, command: str, quiet: bool = False) -> dict:
+    """The study's result document for ``study``; ``command`` is recorded;
+    ``quiet``: no progress bars."""
     from topodrake.montecarlo import trial_seeds
     from topodrake.topomap.graph import load_map_config
     from topodrake.world import load_world
 
-    houses = [h for h in args.houses.split(",") if h]
-    modalities = [m for m in args.modalities.split(",") if m]
+    houses = [h for h in study.houses if h]
+    modalities = [m for m in study.modalities if m]
     bad = [m for m in modalities if m not in MODALITIES]
     if bad or not modalities:
-        raise TopodrakeError(f"--modalities takes {', '.join(MODALITIES)}, got {args.modalities!r}")
+        raise TopodrakeError(f"--modalities takes {', '.join(MODALITIES)}, got "
+                             f"{','.join(study.modalities)!r}")
     if not houses:
         raise TopodrakeError("--houses names no house")
-    config = load_map_config(args.config)
+    config = load_map_config(study.config)
     worlds = {h: load_world(h) for h in houses}             # unknown houses fail here, first
     t0 = time.perf_counter()
     per_house, records, summary = {}, [], {}
     for modality in modalities:
         every = []
-        for h, seed in zip(houses, trial_seeds(args.seed, len(houses))):
-            triples = joining_triples(len(worlds[h].places), args.triples, seed)
-            results = house_results(h, modality, triples, config, not args.quiet)
+        for h, seed in zip(houses, trial_seeds(study.seed, len(houses))):
+            triples = joining_triples(len(worlds[h].places), study.triples, seed)
+            results = house_results(h, modality, triples, config, not quiet)
             every += results
             per_house.setdefault(h, {})[modality] = summarize(results)
             records += [{"house": h, "modality": modality, **r.record()} for r in results]
         summary[modality] = summarize(every)
     return {"command": command,
-            "seed": args.seed, "triples_per_house": args.triples, "houses": houses,
-            "config": asdict(config), "wall_time_s": round(time.perf_counter() - t0, 1),
+            "seed": study.seed, "triples_per_house": study.triples, "houses": houses,
+            "config": config.flat(), "wall_time_s": round(time.perf_counter() - t0, 1),
             "summary": summary, "per_house": per_house, "trials": records}

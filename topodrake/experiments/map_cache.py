@@ -16,7 +16,7 @@ import shutil
 import sys
 import time
 import zlib
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 
 from topodrake.errors import TopodrakeError
@@ -52,9 +52,9 @@ def config_tag(tag: str, config, modality: str = "lidar") -> str:
     from topodrake.topomap.graph import MapConfig, map_settings, same_config
 
     kind = _kind(modality)
-    if config is None or same_config(asdict(config), MapConfig(), **kind):
+    if config is None or same_config(config.flat(), MapConfig(), **kind):
         return tag
-    settings = map_settings(asdict(config), **kind)
+    settings = map_settings(config.flat(), **kind)
     return f"{tag}-cfg{zlib.crc32(json.dumps(settings, sort_keys=True).encode()):08x}"
 
 
@@ -125,7 +125,7 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
         scanned = m.modality == "lidar" or m.bank.scans is not None
         if same and scanned:
             # planning settings are the caller's, not the file's
-            m.config = replace(m.config, **{k: getattr(config, k) for k in PLAN_ONLY})
+            m.config = m.config.updated(**{k: config.flat()[k] for k in PLAN_ONLY})
             return m, 0.0
         why = "with another map config" if not same else \
             "before camera and pose oracle maps kept their lidar scans"
@@ -161,16 +161,16 @@ class _Lazy:
     """Drives' observations rendered one at a time (with a length, for tqdm)."""
 
     def __init__(self, world, scorer, drives, indices, names):
-        self.args = world, scorer, drives, list(indices), names
+        self.parts = world, scorer, drives, list(indices), names
 
     def __len__(self):
-        return len(self.args[3])
+        return len(self.parts[3])
 
     def __iter__(self):
         from topodrake.sensing.observe import camera_scans
         from topodrake.topomap.sources import drive_observations
 
-        world, scorer, drives, indices, names = self.args
+        world, scorer, drives, indices, names = self.parts
         for i, n in zip(indices, names):
             poses = drives[i].poses
             yield (drive_observations(world, scorer, poses), poses, n,

@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from dataclasses import asdict
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -59,8 +59,34 @@ def tag_of_order(order: str) -> str:
     return "-shuffled" if order == "shuffled" else ""
 
 
-def run_house(house: str, args, policy_for) -> dict:
-    """One house's map built drive by drive (saved in ``DATA/maps/``) and its figures."""
+@dataclass
+class ScalabilityStudy:
+    """The map-scalability study's settings: its houses, the shipped RE the
+    maps are built with (camera, lidar or oracle), drives per house and
+    their order (shuffled by the seed, or as collected), the house where
+    retrieval is audited and its drives audited, the dense graph's source
+    frames, the trajectory edges driven per map and the noisy runs of each,
+    the seed of every sample and noise, the map settings (a MapConfig YAML;
+    None: the defaults) and the cache of demonstrations and maps."""
+
+    worlds: list[str] = field(default_factory=lambda: HOUSES.split(","))
+    modality: str = "camera"
+    trajectories: int = 90
+    order: str = "shuffled"
+    recall_world: str = "test-0"
+    recall_trajectories: int = 30
+    dense_samples: int = 20
+    hop_samples: int = 200
+    hop_runs: int = 2
+    seed: int = 0
+    config: str | None = None
+    data: str = "data"
+
+
+def run_house(house: str, study: ScalabilityStudy, policy_for, map_config, config_tag: str,
+              quiet: bool = False) -> dict:
+    """One house's map built drive by drive with ``map_config`` (saved in
+    ``DATA/maps/``, its name tagged with ``config_tag``) and its figures."""
     from topodrake.demonstrations import load_demos
     from topodrake.learning.samples import collect_trajectories
     from topodrake.topomap.build import BuildStats, add_trajectory
@@ -72,30 +98,30 @@ def run_house(house: str, args, policy_for) -> dict:
     from topodrake.world import load_world
     from tqdm import tqdm
 
-    root = Path(args.data) / "demos" / "pairs-s0"
-    collect_trajectories([house], root, progress=not args.quiet)
+    root = Path(study.data) / "demos" / "pairs-s0"
+    collect_trajectories([house], root, progress=not quiet)
     _, drives = load_demos(root / house, successful_only=True)
     order = np.arange(len(drives))
-    if args.order == "shuffled":
-        order = np.random.default_rng(args.seed).permutation(len(drives))
-    order = order[:args.trajectories]
+    if study.order == "shuffled":
+        order = np.random.default_rng(study.seed).permutation(len(drives))
+    order = order[:study.trajectories]
     names = [f"pairs-s0/{i}" for i in order]
     drives = [drives[i] for i in order]
     world = load_world(house)
-    scorer = make_scorer(args.modality, world)
-    m = TopoMap(scorer, default_embedding(scorer.observation), args.map_config, world=house)
-    audit = house == args.recall_world
+    scorer = make_scorer(study.modality, world)
+    m = TopoMap(scorer, default_embedding(scorer.observation), map_config, world=house)
+    audit = house == study.recall_world
     stats, audit_stats = BuildStats(), BuildStats()
     curve = []
     wall = time.perf_counter()
-    for i, d in enumerate(tqdm(drives, desc=f"map {house}", disable=args.quiet, unit="traj")):
-        checking = audit and i < args.recall_trajectories
+    for i, d in enumerate(tqdm(drives, desc=f"map {house}", disable=quiet, unit="traj")):
+        checking = audit and i < study.recall_trajectories
         add_trajectory(m, drive_observations(world, scorer, d.poses), d.poses, names[i],
                        audit_stats if checking else stats, audit=checking)
         curve.append([m.raw_frames, len(m), m.n_edges])
     build_s = time.perf_counter() - wall
-    save_map(m, Path(args.data) / "maps"
-             / f"{house}-{args.modality}{args.config_tag}{tag_of_order(args.order)}.tdmap")
+    save_map(m, Path(study.data) / "maps"
+             / f"{house}-{study.modality}{config_tag}{tag_of_order(study.order)}.tdmap")
     out = {"trajectories": len(drives), "raw_frames": m.raw_frames, "vertices": len(m),
            "edges": m.n_edges, "edge_kinds": m.edge_counts(),
            "keep_ratio": round(len(m) / m.raw_frames, 5), "build_s": round(build_s, 1),
@@ -108,19 +134,18 @@ def run_house(house: str, args, policy_for) -> dict:
                             "exhaustive_edges": audit_stats.exhaustive_edges,
                             "found_edges": audit_stats.found_edges,
                             "recall": audit_stats.recall, "retrieval_k": m.config.retrieval_k}
-    dense = dense_edges(scorer, world, drives, m.config.p_edge, args.dense_samples, args.seed)
+    dense = dense_edges(scorer, world, drives, m.config.cross.p, study.dense_samples, study.seed)
     out["dense"] = dense
     out["edge_ratio"] = round(m.n_edges / max(dense["edges"], 1.0), 6)
-    out["hops"] = map_hop_success(world, policy_for(), m, args.hop_samples, args.hop_runs, args.seed)
+    out["hops"] = map_hop_success(world, policy_for(), m, study.hop_samples, study.hop_runs, study.seed)
     return out
 
 
-def scalability(args, command: str) -> dict:
-    """The study's result document for its options ``args`` (worlds,
-    modality, trajectories, order, recall world and drives, dense and hop
-    samples, seed, config, data, out, quiet): per-house figures and the
-    summary; ``command`` is recorded. Sets ``args.map_config`` and
-    ``args.config_tag`` (the map files' tag) for :func:`run_house`."""
+def scalability(study: ScalabilityStudy, command: str, out="results",
+                quiet: bool = False) -> dict:
+    """The study's result document for ``study``: per-house figures (cached
+    in ``OUT/map_scalability_runs/``) and the summary; ``command`` is
+    recorded; ``quiet``: no progress bars."""
     import torch
 
     from topodrake.learning.waypoint.policy import AStarOracle, LearnedWaypointPolicy
@@ -129,36 +154,36 @@ def scalability(args, command: str) -> dict:
     from topodrake.topomap.sources import SHIPPED, shipped_checkpoint
 
     torch.set_num_threads(1)
-    args.map_config = load_map_config(args.config)
-    config_hash = hashlib.sha1(json.dumps(asdict(args.map_config), sort_keys=True)
+    map_config = load_map_config(study.config)
+    config_hash = hashlib.sha1(json.dumps(map_config.flat(), sort_keys=True)
                                .encode()).hexdigest()[:8]
     # map files: tagged only off the defaults (the planning study adopts the default ones);
     # cached results: always, so a change of the defaults is never served stale figures
-    args.config_tag = config_tag("", args.map_config)
-    worlds = [w for w in args.worlds.split(",") if w]
+    tag = config_tag("", map_config)
+    worlds = [w for w in study.worlds if w]
     if not worlds:
         raise TopodrakeError("--worlds names no house")
 
     def policy_for():
-        if args.modality == "oracle":
+        if study.modality == "oracle":
             from topodrake.world import load_world
             return AStarOracle(load_world(house), k=5)
-        return LearnedWaypointPolicy.from_checkpoint(shipped_checkpoint(SHIPPED[args.modality][1]))
+        return LearnedWaypointPolicy.from_checkpoint(shipped_checkpoint(SHIPPED[study.modality][1]))
 
-    runs = Path(args.out) / "map_scalability_runs"
-    key = f"{args.modality}-t{args.trajectories}-r{args.recall_trajectories}-d{args.dense_samples}" \
-          f"-h{args.hop_samples}x{args.hop_runs}-s{args.seed}-c{config_hash}" \
-          + tag_of_order(args.order)
+    runs = Path(out) / "map_scalability_runs"
+    key = f"{study.modality}-t{study.trajectories}-r{study.recall_trajectories}-d{study.dense_samples}" \
+          f"-h{study.hop_samples}x{study.hop_runs}-s{study.seed}-c{config_hash}" \
+          + tag_of_order(study.order)
     houses = {}
     for house in worlds:
         cached = runs / f"{house}-{key}.json"
         if cached.is_file():
             houses[house] = json.loads(cached.read_text())
             continue
-        houses[house] = run_house(house, args, policy_for)
+        houses[house] = run_house(house, study, policy_for, map_config, tag, quiet)
         atomic_write_json(cached, houses[house])
-    return {"command": command, "modality": args.modality, "seed": args.seed,
-            "order": args.order, "map_config": asdict(args.map_config),
+    return {"command": command, "modality": study.modality, "seed": study.seed,
+            "order": study.order, "map_config": map_config.flat(),
             "summary": summarize(houses), "houses": houses}
 
 

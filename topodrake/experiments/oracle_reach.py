@@ -23,7 +23,7 @@ study's options, with its result document.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -148,9 +148,21 @@ def house_pairs(spec: str, n: int, seed: int, data: Path, progress: bool) -> dic
     return {k: out[k] for k in FIELDS}
 
 
-def oracle_study(args, command: str) -> dict:
-    """The study's result document for its options ``args`` (houses, pairs,
-    seed, data, quiet); ``command`` is recorded."""
+@dataclass
+class OracleReachStudy:
+    """The oracle-reach study's settings: its houses (catalogue names or map
+    YAMLs), labelled pairs per house, the seed of the pairs and their
+    noise, and the cache of demonstrations and pairs."""
+
+    houses: list[str] = field(default_factory=lambda: HOUSES.split(","))
+    pairs: int = 800
+    seed: int = 1
+    data: str = "data"
+
+
+def oracle_study(study: OracleReachStudy, command: str, quiet: bool = False) -> dict:
+    """The study's result document for ``study``; ``command`` is recorded;
+    ``quiet``: no progress bars."""
     from tqdm import tqdm
 
     from topodrake.navigation.evaluate import GeometricReachability
@@ -158,14 +170,14 @@ def oracle_study(args, command: str) -> dict:
                                           pair_geometry, reach_from_geometry)
     from topodrake.world import load_world
 
-    specs = [h for h in args.houses.split(",") if h]
+    specs = [h for h in study.houses if h]
     if not specs:
         raise TopodrakeError("--houses names no house")
     t0 = time.perf_counter()
     geos, labels, follower = [], [], []
-    for spec in tqdm(specs, desc="houses", disable=args.quiet):
+    for spec in tqdm(specs, desc="houses", disable=quiet):
         world = load_world(spec)
-        pairs = house_pairs(spec, args.pairs, args.seed, Path(args.data), not args.quiet)
+        pairs = house_pairs(spec, study.pairs, study.seed, Path(study.data), not quiet)
         geos.append(pair_geometry(world, pairs["src"], pairs["tgt"]))
         labels.append(pairs["label"])
         follower.append(GeometricReachability(world).probability(pairs["src"], pairs["tgt"]))
@@ -188,8 +200,8 @@ def oracle_study(args, command: str) -> dict:
                "fitted": {k: (None if not np.isfinite(v) else round(float(v), 4))
                           for k, v in asdict(fitted).items()},
                "success_by_distance": by_distance}
-    return {"command": command, "seed": args.seed,
-            "houses": specs, "pairs_per_house": args.pairs,
+    return {"command": command, "seed": study.seed,
+            "houses": specs, "pairs_per_house": study.pairs,
             "wall_time_s": round(time.perf_counter() - t0, 1),
             "note": "success_by_distance: pairs with a clear straight line, by straight distance",
             "summary": summary}

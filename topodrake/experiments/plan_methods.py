@@ -41,8 +41,8 @@ class Method:
     """One planning method: its map kind (:data:`MAP_KINDS`), its follower's
     networks (a key of :data:`FOLLOWERS`), whether it is an oracle ablation
     (run with ``--oracle-trials`` trials), how its plans are driven
-    (:data:`DRIVES`) and its follower as the JSON config describes it
-    (default: :data:`FOLLOWERS`' line)."""
+    (:data:`DRIVES`), its follower as the JSON config describes it
+    (default: :data:`FOLLOWERS`' line) and what it measures."""
 
     name: str
     map: str
@@ -50,6 +50,7 @@ class Method:
     oracle: bool = False
     drive: str = "plain"
     followed_by: str = ""
+    description: str = ""            # what the method is and what it measures (docs/studies.md)
 
     def __post_init__(self):
         if self.map not in MAP_KINDS:
@@ -70,26 +71,61 @@ class Method:
 
 
 METHODS: dict[str, Method] = {m.name: m for m in (
-    Method("ours", map="camera", follower="camera"),
-    Method("lidar", map="lidar", follower="lidar"),
-    Method("lidar_reg", map="lidar_reg", follower="lidar_reg"),
-    Method("sptm", map="sptm", follower="camera"),
-    Method("oracle", map="oracle", follower="camera"),
-    Method("ours_replan", map="camera", follower="camera", drive="replan"),
-    Method("ours_obstacles", map="camera", follower="camera", drive="obstacles"),
-    Method("oracle_full", map="oracle", follower="oracle", oracle=True),
-    Method("ours_oracle_follow", map="camera", follower="oracle", oracle=True),
-    Method("oracle_cwp", map="oracle", follower="oracle_cwp", oracle=True),
-    Method("lidar_scale", map="lidar", follower="lidar_scale"),
-    Method("ours_scale", map="camera", follower="camera_scale"),
-    Method("lidar_oracle_follow", map="lidar", follower="oracle", oracle=True),
-    Method("lidar_scale_oracle_re", map="lidar", follower="lidar_scale_oracle_re"),
-    Method("lidar_oracle_cwp", map="lidar", follower="oracle_cwp_lidar"),
-    Method("lidar_replan", map="lidar", follower="lidar", drive="replan"),
-    Method("lidar_reg_replan", map="lidar_reg", follower="lidar_reg", drive="replan"),
-    Method("oracle_full_replan", map="oracle", follower="oracle", oracle=True, drive="replan"),
-    Method("lidar_reg_oracle_follow", map="lidar_reg", follower="oracle", oracle=True),
-    Method("lidar_reg_oracle_re", map="lidar_reg", follower="lidar_reg_oracle_re"),
+    Method("ours", map="camera", follower="camera",
+           description="the paper's system: the camera k=5 map built with the learned RE, "
+                       "followed by the camera k=5 C_WP and RE"),
+    Method("lidar", map="lidar", follower="lidar",
+           description="the same with the lidar k=5 networks"),
+    Method("lidar_reg", map="lidar_reg", follower="lidar_reg",
+           description="lidar teach and repeat: the map built with the RE of the registration "
+                       "C_WP (no network), followed by that controller and its RE"),
+    Method("sptm", map="sptm", follower="camera",
+           description="the SPTM baseline: every 20th frame, retrieval shortcuts, top-1 "
+                       "localization, the path of fewest hops; followed by the camera k=5 "
+                       "C_WP and RE"),
+    Method("oracle", map="oracle", follower="camera",
+           description="our map built with the geometric oracle RE (perception errors out of "
+                       "the map), followed by the learned camera networks"),
+    Method("ours_replan", map="camera", follower="camera", drive="replan",
+           description="ours with replanning: a car in Dead reckoning plans again from where "
+                       "it stands, without the edge it fails on (the scenario's replan)"),
+    Method("ours_obstacles", map="camera", follower="camera", drive="obstacles",
+           description="ours in a changed world: unmapped boxes on the planned route (the "
+                       "scenario's changes)"),
+    Method("oracle_full", map="oracle", follower="oracle", oracle=True,
+           description="perfect perception, the design's ceiling: the oracle map followed by "
+                       "the A* oracle C_WP and the geometric oracle RE"),
+    Method("ours_oracle_follow", map="camera", follower="oracle", oracle=True,
+           description="our camera map followed by the two oracles: the map's share of the "
+                       "errors"),
+    Method("oracle_cwp", map="oracle", follower="oracle_cwp", oracle=True,
+           description="the oracle map followed by the A* oracle C_WP and the learned camera "
+                       "RE: RE's share of the follower's errors"),
+    Method("lidar_scale", map="lidar", follower="lidar_scale",
+           description="the lidar map followed by the lidar C_WP trained at scale and the "
+                       "lidar k=5 RE"),
+    Method("ours_scale", map="camera", follower="camera_scale",
+           description="our camera map followed by the camera C_WP trained at scale and the "
+                       "camera k=5 RE"),
+    Method("lidar_oracle_follow", map="lidar", follower="oracle", oracle=True,
+           description="the lidar map followed by the two oracles: the lidar map's share"),
+    Method("lidar_scale_oracle_re", map="lidar", follower="lidar_scale_oracle_re",
+           description="the lidar map followed by lidar_scale's C_WP and the geometric oracle "
+                       "RE: the follower's RE's share"),
+    Method("lidar_oracle_cwp", map="lidar", follower="oracle_cwp_lidar",
+           description="the lidar map followed by the A* oracle C_WP and the learned lidar RE: "
+                       "the follower's C_WP's share"),
+    Method("lidar_replan", map="lidar", follower="lidar", drive="replan",
+           description="lidar with replanning"),
+    Method("lidar_reg_replan", map="lidar_reg", follower="lidar_reg", drive="replan",
+           description="lidar_reg with replanning"),
+    Method("oracle_full_replan", map="oracle", follower="oracle", oracle=True, drive="replan",
+           description="oracle_full with replanning"),
+    Method("lidar_reg_oracle_follow", map="lidar_reg", follower="oracle", oracle=True,
+           description="lidar_reg's map followed by the two oracles: the map's share"),
+    Method("lidar_reg_oracle_re", map="lidar_reg", follower="lidar_reg_oracle_re",
+           description="lidar_reg's map followed by the registration C_WP and the geometric "
+                       "oracle RE: its RE's share"),
 )}
 #: the perfect-perception ablations (fast: they run ``--oracle-trials`` trials)
 ORACLE_METHODS = tuple(name for name, m in METHODS.items() if m.oracle)

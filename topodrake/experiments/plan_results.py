@@ -1,7 +1,7 @@
-"""The planning study as a whole: its options checked, the houses run, the result document.
+"""The planning study as a whole: its scenario checked, the houses run, the result document.
 
-:func:`planning` checks a study's options (houses or one world, methods,
-pruned fractions: :func:`pruned_fractions`), runs every house
+:func:`planning` checks a study's scenario
+(:class:`~topodrake.experiments.plan_scenario.PlanningScenario`), runs every house
 (:func:`topodrake.experiments.plan_study.house_job`) and the pruned maps
 (:func:`~topodrake.experiments.plan_study.pruned_job`), sets plan
 probabilities and calibrated chances against success
@@ -20,14 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.follower import follower_fields
+from topodrake.experiments.map_cache import DEMO_SEED, house_key
 from topodrake.experiments.plan_methods import (METHODS, attach_success_probability,
                                                calibration_houses, calibration_table)
+from topodrake.experiments.plan_scenario import PlanningScenario
 from topodrake.experiments.plan_study import house_job, house_seed, pruned_job, success_by_round
-from topodrake.experiments.map_cache import DEMO_SEED, house_key
-from topodrake.topomap.recalibrate import PRIOR_WEIGHT
-
-HOUSES = "test-0,test-1,test-2,test-3,test-4"
 
 
 def local_changes() -> list[str]:
@@ -40,53 +37,6 @@ def local_changes() -> list[str]:
     except (OSError, subprocess.SubprocessError):
         return []
     return [line[3:] for line in out.stdout.splitlines()] if out.returncode == 0 else []
-
-
-def pruned_fractions(text: str) -> list[float]:
-    """``--pruned-fractions``: sorted distinct fractions in (0, 1], none for 'none'."""
-    if text.strip().lower() in ("", "none", "off"):
-        return []
-    try:
-        out = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise TopodrakeError(f"--pruned-fractions must be comma-separated numbers in (0, 1] or "
-                             f"'none', got {text!r}") from None
-    if not out or any(not 0.0 < f <= 1.0 for f in out):
-        raise TopodrakeError(f"--pruned-fractions must be numbers in (0, 1], got {text!r}")
-    return sorted(set(out))
-
-
-HOUSE_PRUNED_FRACTIONS = "0.3,0.6,1"
-
-
-def _one_world(args) -> bool:
-    return getattr(args, "world", None) is not None
-
-
-def pruned_fraction_text(args) -> str:
-    """``--pruned-fractions`` as given, or its default: the pruned maps of
-    the first house for a run of the test houses, none for one ``--world``
-    (a building's learned maps are not the pruned study's)."""
-    text = getattr(args, "pruned_fractions", None)
-    if text is not None:
-        return text
-    return "none" if _one_world(args) else HOUSE_PRUNED_FRACTIONS
-
-
-def time_rule(args) -> str:
-    """How long each trial may drive: ``--time-rule``, ``--route-time`` for
-    'route', or the default: 'fixed' (every trial ``--time-limit``) for the
-    test houses, 'route' (each trial at least its A* length at the RE
-    labels' least speed) for one ``--world``, whose routes can be longer
-    than the limit drives."""
-    rule, route = getattr(args, "time_rule", None), getattr(args, "route_time", False)
-    if route and rule == "fixed":
-        raise TopodrakeError("--route-time and --time-rule fixed contradict each other; give one")
-    if route:
-        return "route"
-    if rule is not None:
-        return rule
-    return "route" if _one_world(args) else "fixed"
 
 
 def _calibration_summary(cal: dict) -> dict:
@@ -166,95 +116,36 @@ def paired_runs(spec: str) -> dict:
     return out
 
 
-def _check(args) -> tuple[list[str], list[str], list[str], list[float]]:
-    """(methods, world specs, their house keys, pruned fractions) of the options, checked."""
-    from topodrake.world import load_world
-
-    methods = [m for m in args.methods.split(",") if m]
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown or not methods:
-        raise TopodrakeError(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
-    weight = getattr(args, "experience_prior_weight", PRIOR_WEIGHT)
-    if not (weight > 0 and weight < float("inf")):
-        raise TopodrakeError(f"--experience-prior-weight must be > 0, got {weight}")
-    if args.world is not None:
-        if args.houses != HOUSES:
-            raise TopodrakeError("give --world or --houses, not both")
-        specs = [args.world]
-    else:
-        specs = [h for h in args.houses.split(",") if h]
-    if not specs:
-        raise TopodrakeError("--houses names no house")
-    fractions = pruned_fractions(pruned_fraction_text(args))
-    for spec in specs:
-        w = load_world(spec)               # a bad name or file fails here, in one line
-        if len(w.places) < 2:
-            raise TopodrakeError(f"world {spec!r} has {len(w.places)} places; planning trials "
-                                 f"need at least 2")
-    keys = [house_key(s) for s in specs]
-    if len(set(keys)) != len(keys):
-        raise TopodrakeError("--houses names a house twice")
-    if fractions:
-        load_world(args.pruned_house or specs[0])
-    return methods, specs, keys, fractions
-
-
-def study_config(args) -> tuple[dict, list[str], list[str], list[float]]:
-    """(the trials' config, house specs, house keys, pruned fractions) of
-    the study's options ``args``, checked."""
-    from topodrake.experiments.plan_trials import T_MAX_S
-    from topodrake.navigation.replan import ReplanSchedule
-    from topodrake.topomap.graph import load_map_config
-
-    methods, specs, keys, fractions = _check(args)
-    map_config = asdict(load_map_config(getattr(args, "map_config", None)))
-    follower = follower_fields(getattr(args, "follower", None))
-    cfg = {"data": args.data, "quiet": args.quiet, "trials": args.trials, "methods": methods,
-           "oracle_trials": args.oracle_trials,
-           "trajectories": args.trajectories, "batch": args.batch, "seed": args.seed,
-           "replan": asdict(ReplanSchedule.from_json(getattr(args, "replan", None))),
-           "obstacle_trials": args.obstacle_trials,
-           "obstacles": args.obstacles,
-           "pruned_fractions": fractions, "pruned_method": args.pruned_method,
-           "pruned_trials": args.pruned_trials, "pruned_seed": args.pruned_seed,
-           "experience_rounds": getattr(args, "experience_rounds", 1),
-           "experience_prior_weight": getattr(args, "experience_prior_weight", PRIOR_WEIGHT),
-           "map_config": map_config, "follower": follower,
-           "odometry": getattr(args, "odometry", "perfect"),
-           "t_max_s": getattr(args, "time_limit", None) or T_MAX_S,
-           "route_time": time_rule(args) == "route",
-           "plan_within_time": not getattr(args, "paper_plans", False)}
-    return cfg, specs, keys, fractions
-
-
-def planning(args, command: str) -> dict:
-    """The study's result document for its options ``args`` (the study's
-    command line, parsed); ``command`` is recorded."""
+def planning(scenario: PlanningScenario, command: str, quiet: bool = False) -> dict:
+    """The study's result document for ``scenario`` (checked and resolved
+    here; recorded as ``scenario``, with the follower and map settings it
+    gives in full under ``config``); ``command`` is recorded; ``quiet``: no
+    progress bars."""
     from topodrake.learning.checkpoint import git_revision
     from topodrake.montecarlo import run_trials
     from topodrake.experiments.plan_trials import SUCCESS_M, pruned_ratio, summarize
 
     t0 = time.perf_counter()
     code = {"git_revision": git_revision(), "local_changes": local_changes()}   # what runs
-    cfg, specs, keys, fractions = study_config(args)
-    methods = cfg["methods"]
-    pruned_spec = args.pruned_house or specs[0]
-    jobs = {house_seed(args.seed, k): s for k, s in zip(keys, specs)}
-    results = run_trials(house_job, list(jobs), workers=args.workers, ray_address=args.ray,
-                         progress=not args.quiet and len(jobs) > 1, desc="houses",
-                         jobs=jobs, cfg=cfg)
+    sc = scenario.resolved()
+    keys = sc.check_worlds()
+    methods, specs = sc.methods, sc.specs
+    jobs = {house_seed(sc.seed, k): s for k, s in zip(keys, specs)}
+    results = run_trials(house_job, list(jobs), workers=sc.workers, ray_address=sc.ray,
+                         progress=not quiet and len(jobs) > 1, desc="houses",
+                         jobs=jobs, scenario=sc, quiet=quiet)
     houses = {r["house"]: r for r in results}
     pruned = None
-    if fractions:
-        pjobs = {house_seed(args.seed, house_key(pruned_spec)): pruned_spec}
-        pkey = house_key(pruned_spec)
-        if pkey in houses and args.pruned_method in houses[pkey]["methods"]:
-            cfg["full"] = {pkey: {"stats": houses[pkey]["methods"][args.pruned_method],
-                                  "records": [r for r in houses[pkey]["records"]
-                                              if r["method"] == args.pruned_method]}}
-        pruned = run_trials(pruned_job, list(pjobs), workers=1, ray_address=args.ray,
-                            progress=False, jobs=pjobs, cfg=cfg)[0]
-        cfg.pop("full", None)
+    if sc.pruned_fractions:
+        pkey = house_key(sc.pruned_house)
+        pjobs = {house_seed(sc.seed, pkey): sc.pruned_house}
+        full = None
+        if pkey in houses and sc.pruned_method in houses[pkey]["methods"]:
+            full = {"stats": houses[pkey]["methods"][sc.pruned_method],
+                    "records": [r for r in houses[pkey]["records"]
+                                if r["method"] == sc.pruned_method]}
+        pruned = run_trials(pruned_job, list(pjobs), workers=1, ray_address=sc.ray,
+                            progress=False, jobs=pjobs, scenario=sc, quiet=quiet, full=full)[0]
     # calibration: ours (the headline) and every map method, planned trials only
     attach_success_probability([r for h in houses.values() for r in h["records"]])
     cal = calibration_table(methods, [r for h in houses.values() for r in h["records"]])
@@ -264,18 +155,18 @@ def planning(args, command: str) -> dict:
     summary = summarize(houses, ece, ratio)
     summary.update(_calibration_summary(cal))
     summary["calibration_houses"] = calibration_houses(methods)
-    if cfg["experience_rounds"] > 1:
+    if sc.experience_rounds > 1:
         summary["success_by_round"] = success_by_round(
             [r for h in houses.values() for r in h["records"]])
     wall = time.perf_counter() - t0
     records = [r for h in houses.values() for r in h.pop("records")]
     pruned_records = pruned.pop("records") if pruned else []
     return {
-        "command": command, **code, "seed": args.seed,
-        "config": {**{k: v for k, v in cfg.items() if k != "quiet"}, "houses": specs,
+        "command": command, **code, "seed": sc.seed, "scenario": asdict(sc),
+        "config": {"follower": asdict(sc.follower_config()), "map": sc.map_config().flat(),
                    "success_m": SUCCESS_M, "speed_cap_mps": 0.5,
                    "jitter": "0.3 m to a random side, 9 deg to a random side",
-                   "demo_seed": DEMO_SEED, "workers": args.workers,
+                   "demo_seed": DEMO_SEED,
                    "followers": {m: METHODS[m].followed_by for m in methods},
                    "calibration": "planned trials only; unplanned trials count as failures in "
                                   "the success rates"},

@@ -1,6 +1,7 @@
 """The planning study's trials: one method in one house, every method in a house, pruned maps.
 
-:func:`house_job` runs every method of a study's config in one house on
+:func:`house_job` runs every method of a study's scenario
+(:class:`~topodrake.experiments.plan_scenario.PlanningScenario`) in one house on
 the same trials (a Monte Carlo runner job, one per house): each method's
 plans are made on its map (:func:`plan_routes`; maps cached by
 :mod:`topodrake.experiments.map_cache`) and followed by its networks
@@ -19,44 +20,34 @@ from pathlib import Path
 
 import numpy as np
 
-from topodrake.experiments.plan_methods import METHODS, networks
-from topodrake.odometry import ODOMETRY_MODELS as ODOMETRY  # the models the cars can drive with
 from topodrake.experiments.map_cache import DEMO_SEED, get_map, house_drives, house_key
+from topodrake.experiments.plan_methods import METHODS, networks
+from topodrake.experiments.plan_scenario import PlanningScenario
+from topodrake.odometry import ODOMETRY_MODELS as ODOMETRY  # the models the cars can drive with
 
 SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
 
 
-def map_config(cfg: dict):
-    """The MapConfig of the study's maps (``cfg["map_config"]``, a dict;
-    the library's defaults when absent)."""
-    from topodrake.topomap.graph import MapConfig
-
-    return MapConfig(**cfg.get("map_config", {}))
-
-
-def navigation_config(cfg: dict):
-    """The NavigationConfig the study's cars drive with: the follower of
-    ``cfg["follower"]`` (a dict of FollowerConfig fields; the defaults when
-    absent) and the odometry of ``cfg["odometry"]`` (:data:`ODOMETRY`;
-    configs recorded before the option drove with the true pose)."""
+def navigation_config(sc: PlanningScenario):
+    """The NavigationConfig the study's cars drive with: the scenario's
+    follower and odometry model (:data:`ODOMETRY`)."""
     from topodrake.navigation.engine import NavigationConfig
-    from topodrake.navigation.follower import FollowerConfig
     from topodrake.odometry import odometry_model
 
-    return NavigationConfig(follower=FollowerConfig(**cfg.get("follower", {})).check(),
-                            odometry=odometry_model(cfg.get("odometry", "perfect")))
+    return NavigationConfig(follower=sc.follower_config(), odometry=odometry_model(sc.odometry))
 
 
-def odometry_seeds(cfg: dict, spec: str, n: int) -> list[int]:
+def odometry_seeds(sc: PlanningScenario, spec: str, n: int) -> list[int]:
     """Each trial's odometry seed in a house: from the base seed, the
     house's name and the trial's index (apart from the trials' own seeds)."""
     key = zlib.crc32(house_key(spec).encode())
-    return [int(np.random.SeedSequence([cfg.get("seed", 0), key, t, 1]).generate_state(1)[0])
+    return [int(np.random.SeedSequence([sc.seed, key, t, 1]).generate_state(1)[0])
             for t in range(n)]
 
 
 def plan_routes(method: str, spec: str, world, drives, indices, starts, places, goal_idx,
-                cfg: dict, tag: str = "all", experience=None, limits=None):
+                sc: PlanningScenario, tag: str = "all", experience=None, limits=None,
+                progress: bool = False):
     """(plans' routes (None = no plan), plan probabilities, map size dict,
     ``replan(trial, pose, excluded_edges, vertex=None)`` on our maps (``vertex``:
     plan from that map vertex, or from the one the oracle locates the car at
@@ -66,13 +57,14 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     into the map's edges before planning
     (:func:`topodrake.topomap.recalibrate.record_traversals`).
     ``limits``: each trial's time limit where the caller has them
-    (:func:`trial_time_limits`, computed here otherwise)."""
+    (:func:`trial_time_limits`, computed here otherwise); ``progress``:
+    progress bars while a map is built."""
     from topodrake.experiments.plan_trials import render_pose_route
     from topodrake.navigation.replan import NEAREST, nearest_seen_vertex
     from topodrake.topomap.plan import plan_from_vertex, plan_path
     from topodrake.topomap.sources import drive_observations, view_scans
 
-    data, progress = Path(cfg["data"]), not cfg["quiet"]
+    data = Path(sc.data)
     meth = METHODS[method]
     if meth.map == "sptm":
         from topodrake.baselines.retrieval_net import RetrievalScorer
@@ -96,12 +88,11 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     else:
         modality = meth.map
         m, build_s = get_map(spec, world, modality, drives, indices, data, tag, progress,
-                             map_config(cfg))
+                             sc.map_config())
         if experience is not None:
-            from topodrake.topomap.recalibrate import PRIOR_WEIGHT, record_traversals
+            from topodrake.topomap.recalibrate import record_traversals
 
-            record_traversals(m, *experience,
-                              prior_weight=cfg.get("experience_prior_weight", PRIOR_WEIGHT))
+            record_traversals(m, *experience, prior_weight=sc.experience_prior_weight)
         metres = sum(float(np.hypot(*np.diff(drives[i].poses[:, :2], axis=0).T).sum())
                      for i in indices)
         size = {"vertices": len(m), "edges": m.n_edges, "build_s": round(build_s, 1),
@@ -110,10 +101,10 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         go = drive_observations(world, m.scorer, places)
         s_scans, g_scans = view_scans(world, m, starts), view_scans(world, m, places)
 
-        if plan_time_limit(cfg) is None:
+        if plan_time_limit(sc) is None:
             limits = [None] * len(starts)
         elif limits is None:
-            limits = trial_time_limits(cfg, world, starts, places[goal_idx])
+            limits = trial_time_limits(sc, world, starts, places[goal_idx])
 
         def replan(t, pose, excluded, vertex=None):
             limit = limits[t]
@@ -159,22 +150,14 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     return routes, prob, size, replan, links
 
 
-def time_limit(cfg: dict) -> float:
-    """Seconds a trial may drive (the study's ``--time-limit``; configs
-    recorded before it existed used the default)."""
-    from topodrake.experiments.plan_trials import T_MAX_S
-
-    return float(cfg.get("t_max_s") or T_MAX_S)
-
-
-def trial_time_limits(cfg: dict, world, starts, goals) -> np.ndarray:
-    """(n,) seconds each trial may drive: the study's limit
-    (:func:`time_limit`), or with ``cfg["route_time"]`` the longer of it
-    and the trial's A* length from start to goal at the RE labels' least
-    speed (A* / v_min, :func:`topodrake.learning.reachability.labels.time_limits`),
-    so that a building's long routes get the time their length needs."""
-    out = np.full(len(starts), time_limit(cfg))
-    if cfg.get("route_time", False) and len(starts):
+def trial_time_limits(sc: PlanningScenario, world, starts, goals) -> np.ndarray:
+    """(n,) seconds each trial may drive: the scenario's ``time_limit``,
+    or by the 'route' time rule the longer of it and the trial's A* length
+    from start to goal at the RE labels' least speed (A* / v_min,
+    :func:`topodrake.learning.reachability.labels.time_limits`), so that a
+    building's long routes get the time their length needs."""
+    out = np.full(len(starts), float(sc.time_limit))
+    if sc.route_time and len(starts):
         from topodrake.learning.reachability.labels import ReachLabelConfig, time_limits
 
         out = np.maximum(out, time_limits(world, np.asarray(starts, np.float64),
@@ -183,64 +166,62 @@ def trial_time_limits(cfg: dict, world, starts, goals) -> np.ndarray:
     return out
 
 
-def plan_time_limit(cfg: dict) -> float | None:
-    """The time limit the plans are made for: the trials' own
-    (:func:`time_limit`), or None for the paper's most probable paths
-    (``--paper-plans``; configs recorded before the option planned so)."""
-    return time_limit(cfg) if cfg.get("plan_within_time", False) else None
+def plan_time_limit(sc: PlanningScenario) -> float | None:
+    """The time limit the plans are made for: the trials' own, or None for
+    the paper's most probable paths (``paper_plans``)."""
+    return None if sc.paper_plans else float(sc.time_limit)
 
 
-def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cfg: dict,
-               tag: str = "all", bar=None) -> tuple[dict, list[dict]]:
+def run_method(method: str, spec: str, world, drives, indices, pairs, starts,
+               sc: PlanningScenario, tag: str = "all", bar=None, progress: bool = False
+               ) -> tuple[dict, list[dict]]:
     """One method's trials in one house: (stats, per-trial records)."""
     from topodrake.navigation.engine import NavigationEngine
     from topodrake.experiments.plan_trials import SUCCESS_M, follow_routes, longest_link_m
 
     places = np.asarray(world.places, np.float64)
     meth = METHODS[method]
-    rounds = experience_rounds(method, cfg)
+    rounds = experience_rounds(method, sc)
     first = len(pairs) if rounds == 1 else round_bounds(len(pairs), rounds)[1]
     round_of = None
     t0 = time.perf_counter()
-    limits = trial_time_limits(cfg, world, starts, places[pairs[:, 1]])
+    limits = trial_time_limits(sc, world, starts, places[pairs[:, 1]])
     routes, prob, size, replan, false_links = plan_routes(
-        method, spec, world, drives, indices, starts[:first], places, pairs[:first, 1], cfg, tag,
-        limits=limits[:first])
+        method, spec, world, drives, indices, starts[:first], places, pairs[:first, 1], sc, tag,
+        limits=limits[:first], progress=progress)
     plan_s = time.perf_counter() - t0
     policy, reach = networks(meth.follower, world)
-    odo_seeds = odometry_seeds(cfg, spec, len(pairs))
+    odo_seeds = odometry_seeds(sc, spec, len(pairs))
     if meth.drive == "obstacles":
         from topodrake.experiments.plan_trials import follow_past_obstacles
 
-        n = min(cfg["obstacle_trials"], len(pairs))
+        n = min(sc.changes.trials, len(pairs))
         pairs, starts, routes, prob = pairs[:n], starts[:n], routes[:n], prob[:n]
-        seeds = [np.random.SeedSequence([cfg["seed"], zlib.crc32(house_key(spec).encode()), t])
+        seeds = [np.random.SeedSequence([sc.seed, zlib.crc32(house_key(spec).encode()), t])
                  for t in range(n)]
         res, boxes = follow_past_obstacles(
-            world, lambda w: NavigationEngine(w, policy, reach, navigation_config(cfg)), starts,
-            routes, places[pairs[:, 1]], seeds, cfg["obstacles"], limits[:n], SUCCESS_M,
+            world, lambda w: NavigationEngine(w, policy, reach, navigation_config(sc)), starts,
+            routes, places[pairs[:, 1]], seeds, sc.changes.boxes, limits[:n], SUCCESS_M,
             odometry_seeds=odo_seeds)
         if bar is not None:
             bar.update(n)
     elif meth.drive == "replan":
-        from topodrake.navigation.replan import ReplanSchedule
-
-        engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
+        engine = NavigationEngine(world, policy, reach, navigation_config(sc))
         res = follow_routes(engine, starts, routes, places[pairs[:, 1]], limits,
-                            cfg["batch"], SUCCESS_M, replan=replan,
-                            schedule=ReplanSchedule(**cfg["replan"]), odometry_seeds=odo_seeds)
+                            sc.batch, SUCCESS_M, replan=replan, schedule=sc.replan.check(),
+                            odometry_seeds=odo_seeds)
         if bar is not None:
             bar.update(len(pairs))
     else:
-        engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
+        engine = NavigationEngine(world, policy, reach, navigation_config(sc))
         res = follow_routes(engine, starts[:first], routes, places[pairs[:first, 1]],
-                            limits[:first], cfg["batch"], SUCCESS_M,
+                            limits[:first], sc.batch, SUCCESS_M,
                             progress=None if bar is None else bar.update,
                             odometry_seeds=odo_seeds[:first])
         if rounds > 1:
             routes, prob, false_links, res, round_of = _later_rounds(
-                method, spec, world, drives, indices, pairs, starts, places, cfg, tag, engine,
-                routes, prob, false_links, res, rounds, bar, odo_seeds, limits)
+                method, spec, world, drives, indices, pairs, starts, places, sc, tag, engine,
+                routes, prob, false_links, res, rounds, bar, odo_seeds, limits, progress)
     key = house_key(spec)
     records = [{"house": key, "method": method, "map": tag, "trial": t,
                 "start_place": int(a), "goal_place": int(b),
@@ -272,11 +253,11 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts, cf
     return stats, records
 
 
-def experience_rounds(method: str, cfg: dict) -> int:
+def experience_rounds(method: str, sc: PlanningScenario) -> int:
     """Rounds a method's trials run in, each planned on its map with the
-    edges driven in the rounds before folded in (``cfg["experience_rounds"]``;
+    edges driven in the rounds before folded in (``experience_rounds``;
     1: every trial on the map as built). Plainly driven map methods only."""
-    rounds = int(cfg.get("experience_rounds", 1))
+    rounds = int(sc.experience_rounds)
     if rounds < 1:
         raise ValueError(f"experience rounds must be >= 1, got {rounds}")
     meth = METHODS[method]
@@ -288,8 +269,8 @@ def round_bounds(n: int, rounds: int) -> np.ndarray:
     return np.linspace(0, n, rounds + 1).round().astype(np.int64)
 
 
-def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, cfg, tag, engine,
-                  routes, prob, false_links, res, rounds, bar, odo_seeds, limits):
+def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, sc, tag, engine,
+                  routes, prob, false_links, res, rounds, bar, odo_seeds, limits, progress):
     """Rounds 2.. of a method's trials: each planned with every earlier
     round's drives folded into the map's edges (``odo_seeds``, ``limits``:
     every trial's odometry seed and time limit). Returns the whole run's
@@ -314,9 +295,10 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, c
     for r in range(1, rounds):
         sl = slice(int(bounds[r]), int(bounds[r + 1]))
         rs, pr, _, _, links = plan_routes(method, spec, world, drives, indices, starts[sl],
-                                          places, pairs[sl, 1], cfg, tag,
-                                          experience=(passed, failed), limits=limits[sl])
-        out = follow_routes(engine, starts[sl], rs, places[pairs[sl, 1]], limits[sl], cfg["batch"],
+                                          places, pairs[sl, 1], sc, tag,
+                                          experience=(passed, failed), limits=limits[sl],
+                                          progress=progress)
+        out = follow_routes(engine, starts[sl], rs, places[pairs[sl, 1]], limits[sl], sc.batch,
                             SUCCESS_M, progress=None if bar is None else bar.update,
                             odometry_seeds=odo_seeds[sl])
         learn(rs, out)
@@ -374,7 +356,7 @@ def house_seed(base: int, key: str) -> int:
     return int(np.random.SeedSequence([base, zlib.crc32(key.encode())]).generate_state(1)[0])
 
 
-def _house(seed: int, jobs: dict, cfg: dict):
+def _house(seed: int, jobs: dict, sc: PlanningScenario, quiet: bool = True):
     """(spec, world, drives, drives used) of a job's house, torch on one thread."""
     import torch
 
@@ -383,49 +365,52 @@ def _house(seed: int, jobs: dict, cfg: dict):
     torch.set_num_threads(1)
     spec = jobs[seed]
     world = load_world(spec)
-    drives = house_drives(spec, Path(cfg["data"]), not cfg["quiet"])
-    return spec, world, drives, min(cfg["trajectories"] or len(drives), len(drives))
+    drives = house_drives(spec, Path(sc.data), not quiet)
+    return spec, world, drives, min(sc.trajectories or len(drives), len(drives))
 
 
-def house_job(seed: int, jobs: dict, cfg: dict) -> dict:
-    """Every method's trials in one house (a Monte Carlo runner job)."""
+def house_job(seed: int, jobs: dict, scenario: PlanningScenario, quiet: bool = True) -> dict:
+    """Every method's trials in one house (a Monte Carlo runner job):
+    ``jobs`` maps the job's seed to the house, ``scenario`` is the study's."""
     from tqdm import tqdm
 
     from topodrake.experiments.plan_trials import jittered_starts, trial_pairs
 
-    spec, world, drives, n = _house(seed, jobs, cfg)
+    sc = scenario
+    spec, world, drives, n = _house(seed, jobs, sc, quiet)
     indices = list(range(n))
     places = np.asarray(world.places, np.float64)
     # trial i is the same for every count (a prefix), so the oracles' longer
     # runs hold the learned methods' trials
-    n_trials = {m: cfg["oracle_trials"] if METHODS[m].oracle else cfg["trials"]
-                for m in cfg["methods"]}
+    n_trials = {m: sc.oracle_trials if METHODS[m].oracle else sc.trials for m in sc.methods}
     pairs = trial_pairs(len(places), max(n_trials.values()), seed)
     starts = jittered_starts(world, places, pairs, seed)
     out = {"house": house_key(spec), "world": spec, "seed": seed, "drives": n, "methods": {},
            "records": []}
     tag = "all" if n == len(drives) else f"first{n}"
     with tqdm(total=sum(n_trials.values()), desc=f"trials {house_key(spec)}",
-              disable=cfg["quiet"], unit="trial", leave=False) as bar:
-        for method in cfg["methods"]:
+              disable=quiet, unit="trial", leave=False) as bar:
+        for method in sc.methods:
             t = n_trials[method]
             stats, records = run_method(method, spec, world, drives, indices, pairs[:t],
-                                        starts[:t], cfg, tag=tag, bar=bar)
+                                        starts[:t], sc, tag=tag, bar=bar, progress=not quiet)
             out["methods"][method] = stats
             out["records"].extend(records)
-    if any(METHODS[m].map == "oracle" for m in cfg["methods"]):
-        out["oracle_unplanned_pairs"] = unplanned_pairs(spec, world, drives, indices, cfg, tag)
+    if any(METHODS[m].map == "oracle" for m in sc.methods):
+        out["oracle_unplanned_pairs"] = unplanned_pairs(spec, world, drives, indices, sc, tag,
+                                                        not quiet)
     return out
 
 
-def unplanned_pairs(spec: str, world, drives, indices, cfg: dict, tag: str) -> list:
+def unplanned_pairs(spec: str, world, drives, indices, sc: PlanningScenario, tag: str,
+                    progress: bool = False) -> list:
     """The ordered pairs of places (start place, goal place) that get no plan
     on the oracle map, from the start place's own pose."""
     from topodrake.topomap.plan import plan_path
     from topodrake.topomap.sources import drive_observations
 
-    m, _ = get_map(spec, world, "oracle", drives, indices, Path(cfg["data"]), tag,
-                   not cfg["quiet"], map_config(cfg))
+    m, _ = get_map(spec, world, "oracle", drives, indices, Path(sc.data), tag, progress,
+                   sc.map_config())
     places = np.asarray(world.places, np.float64)
     obs = drive_observations(world, m.scorer, places)
     return [[a, b] for a in range(len(places)) for b in range(len(places))
@@ -433,34 +418,39 @@ def unplanned_pairs(spec: str, world, drives, indices, cfg: dict, tag: str) -> l
                                         goal_pose=places[b]).reachable]
 
 
-def pruned_job(seed: int, jobs: dict, cfg: dict) -> dict:
-    """Our maps from fractions of one house's drives, and their trials."""
+def pruned_job(seed: int, jobs: dict, scenario: PlanningScenario, quiet: bool = True,
+               full: dict | None = None) -> dict:
+    """Our maps from fractions of one house's drives (the scenario's
+    ``pruned_*`` fields), and their trials. ``full``: the main study's stats
+    and records of the house's map from all drives (``{"stats": ...,
+    "records": [...]}``), reused for the fraction 1 where they are enough."""
     from tqdm import tqdm
 
     from topodrake.experiments.plan_trials import jittered_starts, pruned_subset, trial_pairs
 
-    spec, world, drives, n = _house(seed, jobs, cfg)
+    sc = scenario
+    spec, world, drives, n = _house(seed, jobs, sc, quiet)
     places = np.asarray(world.places, np.float64)
-    pairs = trial_pairs(len(places), cfg["pruned_trials"], seed)
+    pairs = trial_pairs(len(places), sc.pruned_trials, seed)
     starts = jittered_starts(world, places, pairs, seed)
-    out = {"house": house_key(spec), "method": cfg["pruned_method"], "fractions": {},
+    out = {"house": house_key(spec), "method": sc.pruned_method, "fractions": {},
            "records": []}
-    fractions = cfg["pruned_fractions"]
+    fractions = sc.pruned_fractions
     with tqdm(total=len(fractions) * len(pairs), desc=f"pruned {house_key(spec)}",
-              disable=cfg["quiet"], unit="trial", leave=False) as bar:
+              disable=quiet, unit="trial", leave=False) as bar:
         for f in fractions:
-            idx = pruned_subset(n, f, cfg["pruned_seed"])
+            idx = pruned_subset(n, f, sc.pruned_seed)
             base = "all" if n == len(drives) else f"first{n}"
-            tag = base if len(idx) == n else f"{base}-f{f:g}-r{cfg['pruned_seed']}"
-            full = (cfg.get("full") or {}).get(house_key(spec))
+            tag = base if len(idx) == n else f"{base}-f{f:g}-r{sc.pruned_seed}"
             if len(idx) == n and full is not None and len(full["records"]) >= len(pairs):
                 # the whole map with the main study's trials (same seed: the same trials)
                 records = [dict(r) for r in full["records"][:len(pairs)]]
                 stats = {**full["stats"], **_rates(records), "reused_main_trials": True}
                 bar.update(len(pairs))
             else:
-                stats, records = run_method(cfg["pruned_method"], spec, world, drives,
-                                            idx.tolist(), pairs, starts, cfg, tag=tag, bar=bar)
+                stats, records = run_method(sc.pruned_method, spec, world, drives,
+                                            idx.tolist(), pairs, starts, sc, tag=tag, bar=bar,
+                                            progress=not quiet)
             out["fractions"][f"{f:g}"] = {**stats, "drives": len(idx)}
             out["records"].extend(records)
     return out

@@ -21,14 +21,15 @@ def _route_sizes(doc: dict) -> list[tuple[str, float, int, float, bool]]:
     """(method, metres, hops, seconds, timed out) of a run's planned trials
     that arrived or timed out, on the maps the run planned on."""
     from topodrake.experiments.plan_methods import METHODS
-    from topodrake.experiments.plan_study import _house, map_config
     from topodrake.experiments.map_cache import get_map
+    from topodrake.experiments.plan_scenario import PlanningScenario
+    from topodrake.experiments.plan_study import _house
     from topodrake.topomap.plan import GOAL, START
     from topodrake.topomap.route_time import edge_metres, path_metres
     from topodrake.vehicle import VehicleConfig
 
     period_s = VehicleConfig().dt          # a trial's steps are the car's control periods
-    cfg = {**doc["config"], "quiet": True}
+    sc = PlanningScenario.from_record(doc)
     out = []
     for house, h in doc["houses"].items():
         trials = [r for r in doc["trials"] if r["house"] == house and r["planned"]
@@ -36,11 +37,11 @@ def _route_sizes(doc: dict) -> list[tuple[str, float, int, float, bool]]:
                   and r["method"] in METHODS and METHODS[r["method"]].map != "sptm"]
         if not trials:
             continue
-        spec, world, drives, n = _house(h["seed"], {h["seed"]: h["world"]}, cfg)
+        spec, world, drives, n = _house(h["seed"], {h["seed"]: h["world"]}, sc)
         for modality in dict.fromkeys(METHODS[r["method"]].map for r in trials):
             tag = trials[0]["map"]
-            m, _ = get_map(spec, world, modality, drives, list(range(n)), Path(cfg["data"]), tag,
-                           False, map_config(cfg))
+            m, _ = get_map(spec, world, modality, drives, list(range(n)), Path(sc.data), tag,
+                           False, sc.map_config())
             metres, typical = edge_metres(m.graph)
             for r in trials:
                 if METHODS[r["method"]].map != modality:
@@ -57,7 +58,7 @@ def driving_time_fit(files_text: str, command: str) -> dict:
     import json
     from dataclasses import asdict
 
-    from topodrake.experiments.plan_study import time_limit
+    from topodrake.experiments.plan_scenario import PlanningScenario
     from topodrake.topomap.route_time import fit_driving_time
 
     files = [Path(f) for f in files_text.split(",") if f]
@@ -67,16 +68,16 @@ def driving_time_fit(files_text: str, command: str) -> dict:
     for f in files:
         try:
             doc = json.loads(f.read_text())
-            route_time = doc["config"].get("route_time", False)
-        except (OSError, ValueError, KeyError, AttributeError) as e:
+            sc = PlanningScenario.from_record(doc)
+        except (OSError, ValueError, KeyError, AttributeError, TypeError, TopodrakeError) as e:
             raise TopodrakeError(f"--fit-driving-time: {f}: not a planning.json with trials "
                                  f"({type(e).__name__}: {e})") from None
-        if route_time:
+        if sc.route_time:
             raise TopodrakeError(f"--fit-driving-time: {f} gave each trial its route's own time "
                                  f"(--time-rule route or --route-time, a --world run's default); fit "
                                  f"runs of one time limit (--time-rule fixed)")
         try:
-            limits.add(time_limit(doc["config"]))
+            limits.add(float(sc.time_limit))
             rows += _route_sizes(doc)
         except (OSError, ValueError, KeyError) as e:
             raise TopodrakeError(f"--fit-driving-time: {f}: not a planning.json with trials "

@@ -79,9 +79,10 @@ class TrialTrace:
                 "driven_s": round(len(self.modes) * self.dt, 1), "segments": self.segments()}
 
 
-def trace_trials(spec: str, method: str, trials: list[int], cfg: dict) -> list[TrialTrace]:
+def trace_trials(spec: str, method: str, trials: list[int], scenario) -> list[TrialTrace]:
     """Trials ``trials`` of ``method`` in the house ``spec`` under the
-    planning study's config ``cfg`` (:func:`topodrake.experiments.plan_results.study_config`),
+    planning study's ``scenario`` (a
+    :class:`~topodrake.experiments.plan_scenario.PlanningScenario`),
     each planned as the study plans it and driven alone. Methods that
     replan or place obstacles are not traced (their drives are not one
     engine run)."""
@@ -101,20 +102,21 @@ def trace_trials(spec: str, method: str, trials: list[int], cfg: dict) -> list[T
                              f"are one engine run per trial")
     if not trials or min(trials) < 0:
         raise TopodrakeError(f"trials to trace are indices >= 0, got {trials}")
-    seed = house_seed(cfg["seed"], house_key(spec))
-    spec, world, drives, n = _house(seed, {seed: spec}, cfg)
+    sc = scenario
+    seed = house_seed(sc.seed, house_key(spec))
+    spec, world, drives, n = _house(seed, {seed: spec}, sc)
     places = np.asarray(world.places, np.float64)
     count = max(trials) + 1
     pairs = trial_pairs(len(places), count, seed)
     starts = jittered_starts(world, places, pairs, seed)
     sel = np.asarray(trials, np.int64)
     tag = "all" if n == len(drives) else f"first{n}"
-    limits = trial_time_limits(cfg, world, starts[sel], places[pairs[sel, 1]])
+    limits = trial_time_limits(sc, world, starts[sel], places[pairs[sel, 1]])
     routes, prob, *_ = plan_routes(method, spec, world, drives, list(range(n)), starts[sel],
-                                   places, pairs[sel, 1], cfg, tag, limits=limits)
+                                   places, pairs[sel, 1], sc, tag, limits=limits)
     policy, reach = networks(meth.follower, world)
-    engine = NavigationEngine(world, policy, reach, navigation_config(cfg))
-    odo = np.asarray(odometry_seeds(cfg, spec, count))[sel]
+    engine = NavigationEngine(world, policy, reach, navigation_config(sc))
+    odo = np.asarray(odometry_seeds(sc, spec, count))[sel]
     runs: list = []
     res = follow_routes(engine, starts[sel], routes, places[pairs[sel, 1]], limits, 1,
                         SUCCESS_M, odometry_seeds=odo, runs=runs)

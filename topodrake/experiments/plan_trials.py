@@ -141,11 +141,7 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     :class:`~topodrake.navigation.engine.NavigationResult`), for traces."""
     from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
     from topodrake.navigation.replan import Replanner
-    from topodrake.contract.route import merge_turns
 
-    fcfg = engine.config.follower
-    routes = [None if r is None else merge_turns(r, fcfg.merge_turn_m, fcfg.merge_turn_deg)
-              for r in routes]
     n = len(starts)
     out = FollowResult.not_driven(starts, goals)
     outcome, dist, success, steps = out.outcome, out.final_distance_m, out.success, out.steps

@@ -11,6 +11,7 @@ does so for every RE of a study's options and assembles the result document.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,28 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 
 WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
+#: the REs the study measures by default (name=RE.pt:CWP.pt, comma-separated)
+DEFAULT_ESTIMATORS = (
+    "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
+    "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
+
+
+@dataclass
+class ReachLimitsStudy:
+    """The reachability-limits study's settings: the REs
+    (``name=RE.pt:CWP.pt``, comma-separated), the pairs of the noise ceiling
+    and their noisy runs each, the anchor hops (one run each), the drives per
+    house sparsified by the controller's own outcomes (0: none) and the runs
+    per candidate frame and hop, the base seed and the demonstration cache."""
+
+    estimators: str = DEFAULT_ESTIMATORS
+    pairs: int = 1000
+    runs: int = 8
+    hop_pairs: int = 2000
+    keep_drives: int = 1
+    keep_runs: int = 16
+    seed: int = 0
+    data: str = "data"
 HOP_BINS_M = (0.0, 0.25, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
 MAX_HOP_FRAMES = 40     # 2 m of expert drive: the controller-sparsified hops' cap
 
@@ -164,29 +187,28 @@ def measure(reach: str, controller: str, trajs, pairs_per_house: int, runs: int,
     return out
 
 
-def reach_limits(args, command: str) -> dict:
-    """The study's result document for its options ``args`` (estimators,
-    pairs, runs, hop pairs, keep drives and runs, seed, data, quiet);
-    ``command`` is recorded."""
+def reach_limits(study: ReachLimitsStudy, command: str, quiet: bool = False) -> dict:
+    """The study's result document for ``study``; ``command`` is recorded;
+    ``quiet``: no progress bars."""
     import torch
 
     from topodrake.learning.reachability.estimator import parse_estimators
     from topodrake.learning.samples import collect_trajectories
 
-    if args.pairs < len(WORLDS) or args.runs < 2 or args.hop_pairs < 0:
+    if study.pairs < len(WORLDS) or study.runs < 2 or study.hop_pairs < 0:
         raise TopodrakeError(f"need --pairs >= {len(WORLDS)}, --runs >= 2 and --hop-pairs >= 0")
-    if args.keep_drives < 0 or args.keep_runs < 1:
+    if study.keep_drives < 0 or study.keep_runs < 1:
         raise TopodrakeError("need --keep-drives >= 0 and --keep-runs >= 1")
-    estimators = parse_estimators(args.estimators)
+    estimators = parse_estimators(study.estimators)
     torch.set_num_threads(1)
-    trajs = collect_trajectories(list(WORLDS), Path(args.data) / "demos" / "pairs-s0",
-                                 progress=not args.quiet)
+    trajs = collect_trajectories(list(WORLDS), Path(study.data) / "demos" / "pairs-s0",
+                                 progress=not quiet)
     t0 = time.perf_counter()
-    summary = {name: measure(reach, controller, trajs, args.pairs // len(WORLDS), args.runs,
-                             args.hop_pairs // len(WORLDS), args.seed, args.keep_drives,
-                             args.keep_runs, progress=not args.quiet)
+    summary = {name: measure(reach, controller, trajs, study.pairs // len(WORLDS), study.runs,
+                             study.hop_pairs // len(WORLDS), study.seed, study.keep_drives,
+                             study.keep_runs, progress=not quiet)
                for name, (reach, controller) in estimators.items()}
     return {"command": command,
-            "seed": args.seed, "estimators": {k: {"reach": r, "controller": c}
+            "seed": study.seed, "estimators": {k: {"reach": r, "controller": c}
                                               for k, (r, c) in estimators.items()},
             "wall_time_s": round(time.perf_counter() - t0, 1), "summary": summary}

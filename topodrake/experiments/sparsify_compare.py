@@ -11,11 +11,39 @@ poses its figure draws.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+
+#: the shipped REs the study compares by default (name=RE.pt:CWP.pt, comma-separated)
+DEFAULT_ESTIMATORS = (
+    "camera_k2=checkpoints/reach_camera_k2/checkpoint.pt:checkpoints/camera_k2/checkpoint.pt,"
+    "camera_k5=checkpoints/reach_camera_k5/checkpoint.pt:checkpoints/camera_k5/checkpoint.pt,"
+    "lidar_k5=checkpoints/reach_lidar_k5/checkpoint.pt:checkpoints/lidar_k5/checkpoint.pt")
+
+
+@dataclass
+class SparsifyStudy:
+    """The sparsification study's settings: the test house and its drive
+    (None: the longest), the REs (``name=RE.pt:CWP.pt``, comma-separated),
+    p_sparsify, the noisy rollouts of each anchor hop (0: no check), their
+    seed, the first drives of each of ``check_worlds`` also checked, the
+    demonstration cache and the house's demonstration folder (None: its
+    standard ones)."""
+
+    world: str = "test-0"
+    drive: int | None = None
+    estimators: str = DEFAULT_ESTIMATORS
+    p: float = 0.99
+    hop_runs: int = 4
+    seed: int = 0
+    check_drives: int = 0
+    check_worlds: list[str] = field(default_factory=lambda: [f"test-{i}" for i in range(5)])
+    data: str = "data"
+    demos: str | None = None
 
 
 def pick_drive(lengths, drive: int | None) -> int:
@@ -29,25 +57,24 @@ def pick_drive(lengths, drive: int | None) -> int:
     return drive
 
 
-def _demo_folder(args) -> Path:
-    """The demonstration folder of ``args.world``: ``args.demos`` (checked),
-    else its standard demonstrations, made once if missing."""
+def _demo_folder(study: SparsifyStudy) -> Path:
+    """The demonstration folder of the study's world: its ``demos``
+    (checked), else its standard demonstrations, made once if missing."""
     from topodrake.learning.samples import collect_trajectories
 
-    if args.demos:
-        folder = Path(args.demos)
+    if study.demos:
+        folder = Path(study.demos)
         if not (folder / "manifest.json").is_file():
             raise TopodrakeError(f"no demonstrations in {folder}")
         return folder
-    root = Path(args.data) / "demos" / "pairs-s0"
-    collect_trajectories([args.world], root, progress=False)
-    return root / args.world
+    root = Path(study.data) / "demos" / "pairs-s0"
+    collect_trajectories([study.world], root, progress=False)
+    return root / study.world
 
 
-def compare_estimators(args, command: str) -> tuple[dict, object, np.ndarray]:
-    """(the study's result document, the world, the drive's poses) for its
-    options ``args`` (world, drive, estimators, p, hop runs, seed, check
-    drives and worlds, data, demos); ``command`` is recorded."""
+def compare_estimators(study: SparsifyStudy, command: str) -> tuple[dict, object, np.ndarray]:
+    """(the study's result document, the world, the drive's poses) for
+    ``study``; ``command`` is recorded."""
     from topodrake.demonstrations import load_demos
     from topodrake.learning.reachability.estimator import Reachability, parse_estimators
     from topodrake.learning.samples import collect_trajectories
@@ -55,42 +82,42 @@ def compare_estimators(args, command: str) -> tuple[dict, object, np.ndarray]:
     from topodrake.experiments.hops import anchor_hop_success, share_made, sparsify_houses
     from topodrake.world import load_world
 
-    if args.hop_runs < 0 or args.check_drives < 0:
+    if study.hop_runs < 0 or study.check_drives < 0:
         raise TopodrakeError("--hop-runs and --check-drives must be >= 0")
-    if args.check_drives and not args.hop_runs:
+    if study.check_drives and not study.hop_runs:
         raise TopodrakeError("--check-drives needs --hop-runs >= 1")
-    check_worlds = [w for w in args.check_worlds.split(",") if w]
-    check_root = Path(args.data) / "demos" / "pairs-s0"
+    check_worlds = [w for w in study.check_worlds if w]
+    check_root = Path(study.data) / "demos" / "pairs-s0"
     missing = [w for w in check_worlds if not (check_root / w / "manifest.json").is_file()]
-    if args.check_drives and missing:   # the houses' standard demonstrations, made once
+    if study.check_drives and missing:   # the houses' standard demonstrations, made once
         collect_trajectories(missing, check_root, progress=False)
-    estimators = parse_estimators(args.estimators)
-    world = load_world(args.world)
-    folder = _demo_folder(args)
+    estimators = parse_estimators(study.estimators)
+    world = load_world(study.world)
+    folder = _demo_folder(study)
     _, demos = load_demos(folder, successful_only=True)
-    drive = pick_drive([len(d.poses) for d in demos], args.drive)
+    drive = pick_drive([len(d.poses) for d in demos], study.drive)
     poses = demos[drive].poses
     results = {}
     for name, (reach, controller) in estimators.items():
         re = Reachability.from_checkpoint(reach, controller)
-        anchors = re.sparsify(re.observe(world, poses), p=args.p)
+        anchors = re.sparsify(re.observe(world, poses), p=study.p)
         results[name] = {"anchors": len(anchors), "keep_ratio": round(len(anchors) / len(poses), 4),
                          "anchor_frames": anchors.tolist()}
-        if args.hop_runs:
+        if study.hop_runs:
             ok = anchor_hop_success(world, LearnedWaypointPolicy.from_checkpoint(controller), poses,
-                                    anchors, runs=args.hop_runs, seed=args.seed)
+                                    anchors, runs=study.hop_runs, seed=study.seed)
             results[name]["hop_success"] = share_made(ok)
             results[name]["hop_successes"] = ok.sum(axis=1).tolist()
-        if args.check_drives:
+        if study.check_drives:
             results[name]["test_houses"] = sparsify_houses(
-                re, check_worlds, check_root, args.p, drives=args.check_drives,
-                policy=LearnedWaypointPolicy.from_checkpoint(controller), runs=args.hop_runs,
-                seed=args.seed)
+                re, check_worlds, check_root, study.p, drives=study.check_drives,
+                policy=LearnedWaypointPolicy.from_checkpoint(controller), runs=study.hop_runs,
+                seed=study.seed)
     return {
         "command": command,
-        "world": args.world, "demos": str(folder), "drive": drive, "frames": len(poses),
-        "p_sparsify": args.p, "hop_runs": args.hop_runs, "seed": args.seed,
-        "check_drives": args.check_drives, "check_worlds": check_worlds if args.check_drives else [],
+        "world": study.world, "demos": str(folder), "drive": drive, "frames": len(poses),
+        "p_sparsify": study.p, "hop_runs": study.hop_runs, "seed": study.seed,
+        "check_drives": study.check_drives, "check_worlds": check_worlds if study.check_drives else [],
         "estimators": {k: {"reach": r, "controller": c} for k, (r, c) in estimators.items()},
         "results": results}, world, poses
 

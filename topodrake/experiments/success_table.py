@@ -14,6 +14,7 @@ import hashlib
 import json
 import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from topodrake.errors import TopodrakeError
@@ -24,6 +25,24 @@ CONTROLLERS = ("camera_k0", "camera_k2", "camera_k5", "lidar_k5", "lidar_reg", "
 BUILT_IN = {"oracle": "oracle", "lidar_reg": "registration"}
 #: Table I of the paper (clean actuation; no lidar row there).
 PAPER = {"direct_k0": 0.46, "camera_k0": 0.88, "camera_k2": 0.91, "camera_k5": 0.95}
+
+
+@dataclass
+class SuccessTableStudy:
+    """The success table's settings: trials per controller and noise
+    setting, the controllers (checkpoint folder names under
+    ``checkpoints``, or :data:`BUILT_IN` ones), the base seed, the
+    demonstration cache, the actuation noise of the noisy blocks, and the
+    local workers (None: all cores) or Ray cluster the trials run on."""
+
+    trials: int = 400
+    controllers: list[str] = field(default_factory=lambda: list(CONTROLLERS))
+    checkpoints: str = "checkpoints"
+    seed: int = 0
+    data: str = "data"
+    noise: float = 0.33
+    workers: int | None = None
+    ray: str | None = None
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -62,15 +81,18 @@ def _fingerprint(checkpoint: str) -> str:
     return hashlib.sha1(Path(checkpoint).read_bytes()).hexdigest()[:16]
 
 
-def run_block(name: str, cond: str, checkpoint: str, noise: float, seeds: list[int], args) -> list:
-    """The trials of one controller and noise setting, reused from the run
-    cache when the seeds, noise and checkpoint are the same."""
+def run_block(name: str, cond: str, checkpoint: str, noise: float, seeds: list[int], *,
+              seed: int, data: str, runs_dir, workers: int | None = None, ray: str | None = None,
+              quiet: bool = True) -> list:
+    """The trials of one controller and noise setting (``seeds`` drawn from
+    the base ``seed``; demonstrations in ``data``), reused from the run cache
+    in ``runs_dir`` when the seeds, noise and checkpoint are the same."""
     from topodrake.montecarlo import run_trials
     from topodrake.systems.trials import controller_trial
 
-    key = {"controller": name, "condition": cond, "noise_std": noise, "seed": args.seed,
-           "trials": len(seeds), "checkpoint": _fingerprint(checkpoint), "data": str(args.data)}
-    cache = Path(args.out) / "controller_success_runs" / f"{name}-{cond}.json"
+    key = {"controller": name, "condition": cond, "noise_std": noise, "seed": seed,
+           "trials": len(seeds), "checkpoint": _fingerprint(checkpoint), "data": str(data)}
+    cache = Path(runs_dir) / f"{name}-{cond}.json"
     if cache.is_file():
         try:
             stored = json.loads(cache.read_text())
@@ -78,9 +100,9 @@ def run_block(name: str, cond: str, checkpoint: str, noise: float, seeds: list[i
                 return stored["results"]
         except (OSError, ValueError):
             pass                                   # unreadable: run again
-    results = run_trials(controller_trial, seeds, workers=args.workers, ray_address=args.ray,
-                         progress=not args.quiet, desc=f"{name} {cond}", checkpoint=checkpoint,
-                         noise_std=noise, data_dir=args.data)
+    results = run_trials(controller_trial, seeds, workers=workers, ray_address=ray,
+                         progress=not quiet, desc=f"{name} {cond}", checkpoint=checkpoint,
+                         noise_std=noise, data_dir=data)
     atomic_write_json(cache, {"key": key, "results": results})
     return results
 
@@ -100,27 +122,30 @@ def controller_checkpoints(names: list[str], folder) -> dict:
     return checkpoints
 
 
-def success_table(args, command: str) -> tuple[dict, dict]:
+def success_table(study: SuccessTableStudy, command: str, out="results",
+                  quiet: bool = False) -> tuple[dict, dict]:
     """(summary ``{name: {"clean": p, "noisy": p}}``, details document) of
-    the study's options ``args`` (trials, controllers, checkpoints, seed,
-    noise, data, out, workers, ray, quiet); ``command`` is recorded."""
+    ``study``; blocks are cached in ``OUT/controller_success_runs/``;
+    ``command`` is recorded; ``quiet``: no progress bars."""
     from topodrake.montecarlo import trial_seeds
 
-    if args.trials < 1:
+    if study.trials < 1:
         raise TopodrakeError("--trials must be >= 1")
-    names = [n.strip() for n in args.controllers.split(",") if n.strip()]
-    checkpoints = controller_checkpoints(names, args.checkpoints)
-    seeds = trial_seeds(args.seed, args.trials)
+    names = [n.strip() for n in study.controllers if n.strip()]
+    checkpoints = controller_checkpoints(names, study.checkpoints)
+    seeds = trial_seeds(study.seed, study.trials)
     summary, details = {}, {}
     t0 = time.perf_counter()
     for name in names:
         summary[name], details[name] = {}, {}
-        for cond, noise in (("clean", 0.0), ("noisy", args.noise)):
-            results = run_block(name, cond, checkpoints[name], noise, seeds, args)
+        for cond, noise in (("clean", 0.0), ("noisy", study.noise)):
+            results = run_block(name, cond, checkpoints[name], noise, seeds, seed=study.seed,
+                                data=study.data, runs_dir=Path(out) / "controller_success_runs",
+                                workers=study.workers, ray=study.ray, quiet=quiet)
             s = summarize(results)
             summary[name][cond] = round(s["success"], 4)
             details[name][cond] = s
     return summary, {
-        "command": command, "trials": args.trials, "seed": args.seed, "noise_std": args.noise,
+        "command": command, "trials": study.trials, "seed": study.seed, "noise_std": study.noise,
         "checkpoints": checkpoints, "wall_time_s": round(time.perf_counter() - t0, 1),
         "paper": PAPER, "results": details}

@@ -36,8 +36,8 @@ import numpy as np
 from topodrake.control import controls_toward
 from topodrake.navigation.evaluate import (Evaluator, RouteFeatures, encode_routes,
                                            initial_track, stack_features)
-from topodrake.navigation.follower import (DR_GAVE_UP, FAILED, FOLLOW, REACHED, SEARCH_FAILED,
-                                           FollowerConfig, FollowerState, follower_step)
+from topodrake.navigation.follower import (FollowerConfig, FollowerState, Mode, Reason,
+                                           follower_step)
 from topodrake.navigation.manoeuvre import Manoeuvres
 from topodrake.navigation.replan import kept_features
 from topodrake.odometry import Odometry, OdometryConfig, odometry_to_world
@@ -84,10 +84,10 @@ class NavigationResult:
 def follower_outcome(state: FollowerState) -> np.ndarray:
     """NAV_* codes of followers that ended (RUNNING for the others)."""
     out = np.full(len(state), RUNNING)
-    out[state.mode == REACHED] = NAV_REACHED
-    failed = state.mode == FAILED
-    out[failed & (state.reason == SEARCH_FAILED)] = NAV_SEARCH_FAILED
-    out[failed & (state.reason == DR_GAVE_UP)] = NAV_DR_GAVE_UP
+    out[state.mode == Mode.REACHED] = NAV_REACHED
+    failed = state.mode == Mode.FAILED
+    out[failed & (state.reason == Reason.SEARCH_FAILED)] = NAV_SEARCH_FAILED
+    out[failed & (state.reason == Reason.DEAD_RECKONING_GAVE_UP)] = NAV_DR_GAVE_UP
     return out
 
 
@@ -158,10 +158,10 @@ class NavigationEngine:
         if len(routes) != n:
             raise ValueError(f"{n} starts and {len(routes)} routes")
         if replanner is not None:
-            replanner.schedule.check_against(self.config.follower.dr_max_iterations)
+            replanner.schedule.check_against(self.config.follower.dead_reckoning.dr_max_iterations)
         if features is None:
             features = encode_routes(routes, self.policy, self.reach,
-                                     legs_m=self.config.follower.legs_m)
+                                     legs_m=self.config.follower.tracker.legs_m)
         n_anchors = features.n_anchors.copy()
         route_of = np.arange(n)
         goals = np.array([r.goal_pose for r in routes]).reshape(n, 3)
@@ -182,7 +182,8 @@ class NavigationEngine:
         odometry = Odometry(self.config.odometry,
                             np.arange(n) if odometry_seeds is None else odometry_seeds, starts)
         clearance = self.world.grid.clearance_at
-        manoeuvres = Manoeuvres(n, odometry.poses, cfg.lidar, rmp=cfg.rmp, vehicle=veh) \
+        manoeuvres = Manoeuvres(n, odometry.poses, cfg.lidar, self.config.follower.manoeuvre,
+                                rmp=cfg.rmp, vehicle=veh) \
             if self.config.follower.manoeuvres else None
         for k in range(t_steps):
             outcome[(outcome == RUNNING) & (limit <= k)] = NAV_TIMEOUT
@@ -213,7 +214,7 @@ class NavigationEngine:
                     feats = kept_features(encoded, new)
                     if feats is None:
                         feats = encode_routes([new], self.policy, self.reach,
-                                              legs_m=self.config.follower.legs_m)
+                                              legs_m=self.config.follower.tracker.legs_m)
                     features = stack_features(features, feats)
                     route_of[i] = len(features.offsets) - 2
                     n_anchors[i] = len(new)
@@ -246,4 +247,4 @@ class NavigationEngine:
 
 
 __all__ = ["NavigationConfig", "NavigationEngine", "NavigationResult", "NAV_OUTCOMES",
-           "follower_outcome", "FOLLOW"]
+           "follower_outcome"]

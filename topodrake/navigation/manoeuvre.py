@@ -1,34 +1,18 @@
 """Manoeuvres on the map the car has sensed: the expert's closed-loop check
-and manoeuvre search, run toward the follower's waypoint.
+and manoeuvre search (:mod:`topodrake.expert`), run toward the follower's
+waypoint.
 
-The RMP alone cannot drive some turns a route contains (a 90 deg turn from
-a corridor into a doorway: its obstacle terms swing the nose away from the
-jamb, the car overshoots, then reverses its blind tail into the jamb). The
-expert drives them because it predicts the RMP and the car a few seconds
-ahead and, where the prediction collides or stalls, commits to a short
-manoeuvre leg (a three-point turn) that it predicted to do better
-(:mod:`topodrake.expert`). The follower has no map, but the car has seen
-the walls around it: each car keeps its recent lidar scans in its odometry
-frame, and the expert's kernel is run on a clearance grid built from them,
-with the "path" a ray from the car through the follower's waypoint. Where
-the prediction passes (nearly everywhere) the follower's waypoint goes to
-the RMP unchanged; during a manoeuvre the leg's auxiliary waypoint does.
-
-Everything is in the odometry frame, as on a robot: the scans are placed
-by the odometry pose they were taken at, and the waypoint goes out in the
-frame it came in. Walls behind the car are known only as far as it has
-seen them, and the lidar's beams are joined into wall segments where
-neighbouring hits lie close; behind the start, where the car has seen
-nothing, the walls its first scan sees beside it are taken to go on
-(``blind_extend_m``) and the blind cone counts as walled a short way
-behind it (``blind_back_m``): a turn-around at the start then begins
-forward, into what the car sees, rather than with a long reverse into
-what it has not seen.
-
-A waypoint whose straight line from the car crosses a wall the car has
-seen (the route tracker's pursuit point cut across a corner, an anchor
-behind a jamb) is driven along A* on the sensed grid instead: the
-kernel's check and its waypoint then follow that path (``detour``).
+Each car keeps its recent lidar scans in its odometry frame, placed by the
+odometry pose they were taken at; the expert's kernel runs on a clearance
+grid built from them, with the "path" a ray from the car through the
+follower's waypoint. Where the prediction passes, the waypoint goes to the
+RMP unchanged; during a manoeuvre (a three-point turn) the leg's auxiliary
+waypoint does. Neighbouring beams' hits that lie close are joined into wall
+segments. Behind the start, where the car has seen nothing, the walls its
+first scan sees beside it go on (``blind_extend_m``) and the blind cone
+counts as walled (``blind_back_m``). A waypoint whose straight line from
+the car crosses a seen wall is driven along A* on the sensed grid
+(``detour``). Reasons and measured effects: docs/follower.md.
 """
 
 from __future__ import annotations
@@ -50,7 +34,7 @@ from topodrake.world.grid import CAR_RADIUS
 
 @dataclass
 class ManoeuvreConfig:
-    """The sensed map and the prediction."""
+    """The sensed map and the prediction (lengths in m)."""
 
     scans: int = 30               # scans kept per car ...
     every: int = 3                # ... one every this many periods
@@ -58,15 +42,14 @@ class ManoeuvreConfig:
     resolution_m: float = 0.05
     join_m: float = 0.3           # neighbouring beams' hits closer than this are one wall
     ray_m: float = 3.0            # the predicted "path" runs this far through the waypoint
-    # a car set down beside a wall has seen nothing behind it, and a manoeuvre that reverses
-    # there reverses into the unknown: the walls its first scan sees at the edges of its field
-    # of view (within near) are taken to go on this far into the blind cone (m; None: off) ...
-    blind_extend_m: float | None = 1.0
+    blind_extend_m: float | None = 1.0  # the walls the first scan sees at the edges of its
+                                  # view (within blind_near_m) go on this far into the blind
+                                  # cone behind the start (None: off) ...
     blind_near_m: float = 1.0
     blind_until_m: float = 1.0    # ... until the car is this far from its start or has turned
-    # far enough to have seen behind it (its lidar's blind half-angle); and the blind cone
-    # counts as walled this far from the start (m; None: open), so that a reverse there stays short
-    blind_back_m: float | None = 0.6
+                                  # past the lidar's blind half-angle
+    blind_back_m: float | None = 0.6  # the blind cone counts as walled this far from the start
+                                  # (dropped with the start walls; None: open)
     detour: bool = True           # a waypoint behind a seen wall is driven along A* on the grid
     detour_reach_m: float = 1.0   # ... toward its farthest point in sight within this (or the
                                   # waypoint's own distance, if farther)

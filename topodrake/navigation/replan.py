@@ -1,55 +1,33 @@
 """Replanning while dead reckoning, and loop breaking.
 
-The paper lets a car replan when it stays in Dead reckoning "for too long":
-its authors' follower asks the planner after 5 failing periods and then
-every 3, and accepts the new plan when its probability beats the current
-plan's discounted by 0.99 per try; otherwise the car keeps dead reckoning
-on the current plan (and gives up after 200 periods as before). That
-schedule (:meth:`ReplanSchedule.paper`) interrupts Dead reckoning that
-would have found the route again (cars enter it many times a drive), so
-the default asks only in the last periods before the car would give up,
-and takes any plan the follower can start: the current plan is then worth
-nothing (docs/figures.md, "Replanning before giving up"). Each try
-here plans from the car's current observation without the edge the car is
-failing on (its last visited anchor -> its active anchor); once a plan is
-accepted that edge stays excluded for the car, so a car that keeps failing
-on one hop cannot be sent back onto it: that is the loop breaking the paper
-left for future work (a loop is the same edge failed again; excluding it
-breaks it). A plan is taken only where the follower's Search would pass on
-it from the car's current observation (the executors ask their own RE,
-as Search will in the next period; the planner links the start above 0.5
-under the map's calibration, which is not the follower's). The accepted
-route replaces the car's current one from the next period, and its
-follower starts again in Search.
+A car in Dead reckoning asks the planner on a schedule
+(:class:`ReplanSchedule`; :meth:`ReplanSchedule.paper` is the paper's: from
+the 5th period, every 3, a new plan taken where its probability beats the
+current plan's discounted by 0.99 per try; the default asks only in the
+last 10 periods before the car gives up and takes any plan it can start).
+Each try plans from the car's current observation without the edge the car
+is failing on (its last visited anchor -> its active anchor); once a plan
+is accepted that edge stays excluded for the car (loop breaking). A plan is
+taken only where the follower's Search would pass on it from the car's
+current observation (:func:`search_would_start`); the accepted route
+replaces the car's current one from the next period and its follower
+starts again in Search.
 
-Most cars about to give up stand where no plan starts from their view:
-they have left the places the map links views to. With
-``return_to_anchor`` such a car takes a plan from the map vertex of its
-last visited anchor instead, without the failing edge, and starts it dead
-reckoning back to that anchor: where the route tracker still places the
-car relative to it, at the pose the tracker gives it in the odometry
-frame, else at the odometry pose where the car marked it visited. Where
-the map has no way on from that vertex but the failing hop (a drive's
-vertex has one edge out, to the next anchor), the plan retries that hop
-once.
+Where no plan starts from the car's view, two ablations place the car
+elsewhere: ``return_to_anchor`` plans from the map vertex of its last
+visited anchor and dead reckons back to it (:func:`return_anchor`,
+:func:`returning_state`); ``oracle_relocalize`` plans from the vertex the
+car sees nearest in truth (:func:`nearest_seen_vertex`,
+:func:`located_state`).
 
-``oracle_relocalize`` (an ablation that measures what relocalization
-limits) gives such a car its place by truth instead: the callback is asked
-with ``vertex=NEAREST``, plans from the map vertex nearest the car's true
-pose that it sees (:func:`nearest_seen_vertex`), and the car dead reckons to
-that vertex, its pose given in the car's odometry frame
-(:func:`located_state`).
-
-:class:`Replanner` keeps this per-car bookkeeping for one run
-(:func:`topodrake.experiments.plan_trials.follow_routes` with ``replan=``
-makes one per engine batch). Both
-executors call :meth:`Replanner.step` after each period's follower decision:
-the batched engine (:meth:`~topodrake.navigation.engine.NavigationEngine.run`
-with ``replanner=``) and the Drake ``FollowerFsm`` (its ``replanner``
-argument), so the schedule is written once. The planner is reached through
-a callback ``plan(car, pose, excluded_edges) -> Route | None`` (None: no
-plan avoids the excluded edges); ``pose`` is privileged metadata the
-callback may render the car's observation at.
+:class:`Replanner` keeps the per-car bookkeeping of one run; both executors
+(the batched engine and the Drake ``FollowerFsm``) call
+:meth:`Replanner.step` after each period's follower decision. The planner
+is reached through a callback ``plan(car, pose, excluded_edges, vertex=None)
+-> Route | None`` (None: no plan avoids the excluded edges; ``vertex``: plan
+from that map vertex, or :data:`NEAREST`); ``pose`` is privileged metadata
+the callback may render the car's observation at. Reasons and measured
+effects: docs/follower.md.
 """
 
 from __future__ import annotations
@@ -60,7 +38,7 @@ from typing import Callable
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.follower import DEAD_RECKONING, FollowerState
+from topodrake.navigation.follower import FollowerState, Mode
 from topodrake.se2 import compose, invert
 
 GIVE_UP = ("dead_reckoning_gave_up", "search_failed")
@@ -205,7 +183,7 @@ def returning_state(state: FollowerState, row: int, fresh: FollowerState) -> Fol
     the anchor visited; ``fresh``: the one-car initial state (the policy's
     initial track)."""
     out = fresh.copy()
-    out.mode[0], out.active[0], out.visited[0] = DEAD_RECKONING, 0, -1
+    out.mode[0], out.active[0], out.visited[0] = Mode.DEAD_RECKONING, 0, -1
     if _tracked(state, row):
         rel, odo = state.rel[row], state.odo[row]
         out.waypoint[0] = compose(odo, invert(rel))[0, :2]
@@ -224,7 +202,7 @@ def located_state(route, pose: np.ndarray, odometry: np.ndarray,
     from topodrake.odometry import odometry_to_world
 
     out = fresh.copy()
-    out.mode[0], out.active[0], out.visited[0] = DEAD_RECKONING, 0, -1
+    out.mode[0], out.active[0], out.visited[0] = Mode.DEAD_RECKONING, 0, -1
     # odometry_to_world with the frames swapped: world -> odometry
     def state(p):
         return np.concatenate([np.asarray(p, np.float64)[:3], np.zeros(2)])[None]
@@ -297,7 +275,7 @@ def search_would_start(policy, reach, route, observation, pose: np.ndarray, rang
     from topodrake.navigation.evaluate import Evaluator, encode_routes, initial_track
     from topodrake.navigation.follower import search_choice
 
-    features = encode_routes([route], policy, reach, legs_m=config.legs_m)
+    features = encode_routes([route], policy, reach, legs_m=config.tracker.legs_m)
     ev = Evaluator(policy, reach, features, np.zeros(1, np.int64), observation, poses=pose,
                    track=initial_track(policy, 1), odometry=pose if odometry is None else odometry,
                    lidar=lidar, ranges=ranges)
@@ -356,7 +334,8 @@ class Replanner:
         odometry = poses if odometry is None else odometry
         if fresh is None:
             fresh = lambda: FollowerState.initial(1, state.track.shape[1])   # noqa: E731
-        due = np.flatnonzero((state.mode == DEAD_RECKONING) & self.schedule.due(state.dr_count))
+        due = np.flatnonzero((state.mode == Mode.DEAD_RECKONING)
+                             & self.schedule.due(state.dr_count))
         taken = []
         for r in due:
             i = int(cars[r])

@@ -1,36 +1,25 @@
-"""Where the car is along its taught route: odometry between anchors, C_WP's answers as fixes.
+"""The route tracker: where each car is along its taught route, by odometry
+between anchors, with C_WP's answers and scan registrations as fixes.
 
-The teach-and-repeat idea (VT&R: relative transforms between taught
-vertices from the teach drive's odometry, the repeat's odometry as a prior,
-a measurement accepted only where it agrees with that prior) applied to the
-follower: each car keeps its pose ``rel`` in the frame of one anchor of its
-route (``ref``) with its covariance (x, y, heading). Each period:
+Teach and repeat (VT&R) applied to the follower: each car keeps its pose
+``rel`` (x, y, heading) in the frame of one anchor of its route (``ref``)
+with its 3 x 3 covariance. Anchors are placed relative to each other by the
+route's legs (:func:`route_frames`); anchors joined by an unknown leg lie in
+different segments, and across them the car is localized again. Each period:
 
-* :func:`propagate`: odometry moves ``rel`` by the car's measured motion and
-  grows the covariance with the distance driven (a heading error swings
-  the position);
-* :func:`fix`: each C_WP answer toward an anchor within ``fix_range_m``
-  whose pose relative to ``ref`` the route's legs give is a measurement:
-  toward a target in sight the waypoint is the target's position in the car
-  frame and the heading head its heading difference. An answer within the
-  gate (3 sigma of prior plus measurement) moves ``rel`` by the extended
-  Kalman gain (the waypoint corrects the heading too), with the answer's
-  variance counted ``repeats`` times (C_WP's error toward one anchor
-  repeats from period to period, so a run of answers weighs like one) and
-  the variances held above a floor; one outside is outvoted;
-  ``reset_after`` outvoted answers in a row mean the prior is wrong, and
-  the next answer starts it again;
-* :func:`fix_pose`: where the route's anchors keep their taught lidar
-  scans, the car's scan registered onto the active and the last visited
-  anchor's scan from the tracked pose (VT&R's localization against the
-  taught submap with the odometry prior) measures ``rel`` directly; such a
-  fix shares none of C_WP's errors, so it is weighed as one measurement
-  (fits a corridor leaves free to slide are not used);
+* :func:`propagate`: odometry moves ``rel`` and grows the covariance with
+  the distance driven;
+* :func:`fix`: a C_WP answer toward an anchor within ``fix_range_m`` is an
+  extended Kalman measurement (its waypoint the anchor's position in the
+  car frame, its heading head the heading difference), gated at
+  ``gate_sigma``; an outvoted answer counts toward ``reset_after``, which
+  restarts the prior;
+* :func:`fix_pose`: a scan registered onto an anchor's taught scan measures
+  ``rel`` directly;
 * :func:`reanchor`: ``ref`` follows the car's last visited anchor.
 
-:func:`anchor_in_car` is what the follower checks C_WP's waypoint with.
-Anchors joined by unknown legs (hops between drives) lie in different
-segments; across them the car is localized again from its answers.
+:func:`anchor_in_car` and :func:`tracked_anchor` are what the follower
+reads. Reasons and measured effects: docs/follower.md.
 """
 
 from __future__ import annotations
@@ -39,13 +28,35 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from topodrake.errors import TopodrakeError
 from topodrake.se2 import compose, relative, wrap
 
 
 @dataclass
 class TrackerConfig:
-    """Noise of the prior and of C_WP's answers; gates."""
+    """The route tracker: the follower's rules that read it, the legs it
+    tracks along, and its filter's noises and gates. Lengths in m, angles
+    in rad (``_deg``: degrees); sigmas are standard deviations."""
 
+    # what the follower does with the tracker (read by topodrake.navigation.follower)
+    odometry_check: bool = True       # track cars along routes with legs (off: no tracker)
+    check_deg: float = 35.0           # a Follow waypoint of C_WP's more than this off the
+                                      # tracked pursuit point is replaced by that point
+    scan_fix: bool = True             # fixes from the car's lidar scan registered onto the
+                                      # active and last visited anchors' taught scans
+    tracked_sure_m: float = 0.1       # position sigma under which the tracker is sure (0: never)
+    tracked_reach_m: float = 2.5      # a sure tracker refuses Dead reckoning anchors it puts
+                                      # farther than this (0: off) ...
+    tracked_goal_m: float = 0.5       # ... and C_WP's "at the goal" where it puts the goal
+                                      # farther than this (0: off) ...
+    sure_follow_m: float | None = None  # ... and keeps a car in Follow where RE doubts an
+                                      # active anchor it puts within this (0: off; None: the
+                                      # C_WP's own ``sure_follow_m``, off where it has none)
+    # the route's legs (read by topodrake.navigation.evaluate.encode_routes)
+    legs_m: float = 2.0               # a hop without a taught leg takes C_WP's answer from the
+                                      # anchor's own view toward the next as its leg, where that
+                                      # waypoint is shorter than this (0: off)
+    # the filter (read by this module)
     fix_range_m: float = 2.5          # answers toward anchors predicted farther are not fixes
     drift_m_per_m: float = 0.06       # position sigma grown per metre driven
     drift_rad_per_m: float = 0.04     # heading sigma grown per metre driven
@@ -56,14 +67,32 @@ class TrackerConfig:
     reset_after: int = 4              # outvoted answers in a row that restart the prior
     initial_m: float = 0.3            # position sigma of a start from one answer
     initial_rad: float = 0.3          # heading sigma of a start from one answer
-    repeats: float = 10.0             # periods over which one anchor's answer error repeats: a
-                                      # run of answers toward one anchor weighs like one answer
+    repeats: float = 10.0             # an answer's variance counts this many times (a run of
+                                      # answers toward one anchor weighs like one)
     floor_m: float = 0.15             # fixes never take the position sigma below this ...
-    floor_rad: float = 0.07           # ... nor the heading sigma below this (C_WP's errors
-                                      # repeat from one period to the next: they do not average out)
-    scan_m: float = 0.05              # a scan fix's position sigma (the scan registered onto
-    scan_rad: float = 0.03            # an anchor's taught scan) and heading sigma
+    floor_rad: float = 0.07           # ... nor the heading sigma below this
+    scan_m: float = 0.05              # a scan fix's position sigma ...
+    scan_rad: float = 0.03            # ... and heading sigma
     scan_range_m: float = 2.5         # anchors predicted farther are not registered against
+
+    def check(self) -> "TrackerConfig":
+        """Refuses a bad setting in one line (TopodrakeError naming it)."""
+        if not 0.0 < self.check_deg <= 180.0:
+            raise TopodrakeError(f"follower check_deg must be in (0, 180], got {self.check_deg}")
+        if not (np.isfinite(self.tracked_goal_m) and self.tracked_goal_m >= 0.0):
+            raise TopodrakeError(f"follower tracked_goal_m must be >= 0 (0: off), got "
+                                 f"{self.tracked_goal_m}")
+        if self.sure_follow_m is not None and not (np.isfinite(self.sure_follow_m)
+                                                   and self.sure_follow_m >= 0.0):
+            raise TopodrakeError(f"follower sure_follow_m must be >= 0 (0: off) or None (the "
+                                 f"C_WP's choice), got {self.sure_follow_m}")
+        if not (self.tracked_reach_m >= 0.0 and self.tracked_sure_m >= 0.0):
+            raise TopodrakeError(f"follower tracked_reach_m and tracked_sure_m must be >= 0 "
+                                 f"(0: off), got {self.tracked_reach_m} and "
+                                 f"{self.tracked_sure_m}")
+        if not (np.isfinite(self.legs_m) and self.legs_m >= 0.0):
+            raise TopodrakeError(f"follower legs_m must be >= 0 (0: off), got {self.legs_m}")
+        return self
 
 
 def pad_points(paths: np.ndarray, k: int) -> np.ndarray:

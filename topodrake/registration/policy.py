@@ -169,8 +169,7 @@ class RegistrationPolicy:
 
     observation = "lidar"
     # the follower keeps a car in Follow where RE doubts an active anchor that
-    # a sure tracker puts within this (FollowerConfig.sure_follow_m None): its
-    # waypoints are registrations, right where the scans pin the car
+    # a sure tracker puts within this (m; where TrackerConfig.sure_follow_m is None)
     sure_follow_m = 2.5
 
     def __init__(self, config: RegistrationConfig | None = None, lidar: LidarConfig | None = None):

@@ -1,56 +1,37 @@
-"""Grow a map one trajectory at a time (the paper's "Building a Topological Map").
+"""Grow a map one drive at a time (the paper's "Building a Topological Map").
 
-For each new drive, from its observations only:
+:func:`add_trajectory` adds a drive from its observations (and, for a camera
+drive, the lidar scans taken with them), with the settings of the map's
+:class:`~topodrake.topomap.graph.MapConfig`:
 
-1. **Sparsify** it into anchors at ``p_sparsify``, with ``sparsify_slack``
-   where RE passes not even the next frame
-   (:func:`topodrake.learning.reachability.sparsify.sparsify`).
-2. **Reuse** vertices, by ``reuse_rule``:
-   - ``"resume"`` (ours, the default): sparsifying, at each anchor frame j
-     an existing vertex v stands in for it when RE(source, v) and
-     RE(v, frame j + 1) both exceed ``p_reuse`` (source: where the scan
-     stands, a frame or a reused vertex), and the scan resumes from v;
-   - ``"paper"``: after sparsifying, v replaces a new anchor when
-     RE(prev, v) and RE(v, next) both exceed ``p_reuse`` (prev: the chain's
-     previous node, next: the drive's next anchor; the anchor itself at the
-     ends). With ``reuse_slack``, where the new anchor's own hop from prev
-     (or to next) is below ``p_reuse``, v needs only that hop's RE less the
-     slack.
-   The largest product wins. Vertices reused from one older drive must keep
-   that drive's order, and no vertex is used twice in a chain. On a lidar
-   map with ``scan_match`` (and a camera map that keeps its drives' lidar
-   scans, with ``camera_scans``), v's scan must also register onto the
-   frame's (:mod:`topodrake.topomap.scan_match`): RE passes a look-alike
-   room.
-3. **Link** consecutive chain nodes with trajectory edges (p = RE).
-4. **Cross edges** between every new vertex x and the map, both ways: the
-   candidates are the ``retrieval_k`` vertices nearest in the place
-   embedding; RE checks each single pair; pairs above ``p_edge`` are
-   **sequence matched**: the minimum RE over the aligned chain neighbours up
-   to ``sequence_window`` anchors either side (where both chains have them)
-   must exceed ``p_edge`` too. An edge keeps the single pair's RE as its p.
-   On a map that places joins by scans (:func:`places_by_scans`) with
-   ``cross_legs``, it carries x's pose in the other's frame where
-   registering the two scans pins it (:func:`join_legs`), so the
-   follower tracks the car across the hop as along a drive.
-5. **Junction edges** where drives meet at their ends: a drive's last
-   vertex (an arrival) -> another's first (a departure from the same
-   place), when RE passes ``p_join`` both ways (the pair's views agree
-   from either side; one direction alone is overconfident, as for goal
-   links). Sequence matching cannot confirm such a pair: the arrival's
-   anchors before the place and the departure's after it diverge. The edge
-   keeps RE(arrival, departure) as its p; on a lidar map it carries the
-   departure's pose in the arrival's frame, registered scan to scan (so
-   does a camera map that places its joins by its kept scans), and with
-   ``scan_match`` the two scans must match, to ``junction_scan_match`` of
-   their points: the lidar RE passes rooms of one shape, while the camera
-   RE's gate alone tells a camera map's junctions apart (with
-   ``camera_junction_scans`` its kept scans are checked too).
+1. **Sparsify** it into anchors (``sparsify``;
+   :func:`topodrake.learning.reachability.sparsify.sparsify_chain`).
+2. **Reuse**: an existing vertex v stands in for an anchor (``reuse``).
+   Rule "resume": at anchor frame j, where RE(source, v) and
+   RE(v, frame j + 1) both exceed ``reuse.p`` (source: where the scan
+   stands, a frame or a reused vertex), and the scan resumes from v; rule
+   "paper": after sparsifying, v replaces anchor i where RE(prev, v) and
+   RE(v, next anchor) exceed it. The largest product wins; vertices of one
+   older drive keep that drive's order, and no vertex appears twice in a
+   chain. Where the map checks joins by scans
+   (:func:`~topodrake.topomap.scan_match.joins_by_scans`) v's scan must
+   also match the frame's; see :func:`_resume_chain` for the other checks.
+3. **Trajectory edges** between consecutive chain nodes (p = RE), with the
+   drive's odometry as legs (``teach_odometry``).
+4. **Cross edges** between each new vertex x and its ``retrieval_k``
+   nearest vertices in the place embedding, both ways, where the single
+   pair's RE and the minimum RE over the aligned chain neighbours
+   (``cross.sequence_window`` either side) exceed ``cross.p``; the edge
+   keeps the single pair's RE, and with ``cross.legs`` the pose the two
+   scans register to (:func:`join_legs`).
+5. **Junction edges**: every other drive's last vertex -> the new drive's
+   first and its last -> every other drive's first, where RE exceeds
+   ``junction.p`` both ways (on a lidar map the scans must also match, to
+   ``junction.scan_match``); the edge keeps RE(arrival, departure) and,
+   where the map places joins by scans, the registered pose.
 
-With ``audit=True`` step 4 also scores every vertex of the map (not only
-the retrieved ones) and records which cross edges the exhaustive pass
-makes, so the retrieval's recall is measured on the same map
-(:attr:`BuildStats.exhaustive_edges`, :attr:`BuildStats.found_edges`).
+With ``audit=True`` step 4 also scores every vertex of the map and records
+which cross edges the exhaustive pass makes (:attr:`BuildStats.recall`).
 """
 
 from __future__ import annotations
@@ -127,17 +108,17 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     t = len(m.trajectories)
     odo = drive_odometry(cfg.teach_odometry, poses, t)
     along = odo if odo is not None else poses      # where the drive went, by its odometry
-    caps = hop_caps(along, cfg.max_hop_m) if along is not None and m.modality == "lidar" \
+    caps = hop_caps(along, cfg.sparsify.max_hop_m) if along is not None and m.modality == "lidar" \
         else None                                  # (a lidar-only setting: LIDAR_ONLY)
     rows = m.bank.append(obs, poses, scans=scans)
     m.bank.ensure(rows)
     ctx_local = context_rows(n, np.arange(n), k, step)
-    if cfg.reuse and cfg.reuse_rule == "resume":
+    if cfg.reuse.enabled and cfg.reuse.rule == "resume":
         anchors, chain = _resume_chain(m, obs, start, ctx_local, score, stats, odo, caps)
         emb = m.embedding.embed(obs[anchors])
     else:
         anchors = sparsify(n, lambda i, js: score(np.full(len(js), start + i), start + ctx_local[js]),
-                           cfg.p_sparsify, cfg.sparsify_window, slack=cfg.sparsify_slack,
+                           cfg.sparsify.p, cfg.sparsify.window, slack=cfg.sparsify.slack,
                            cap=caps)
         emb = m.embedding.embed(obs[anchors])
         chain = _paper_chain(m, anchors, emb, start, ctx_local, score, stats)
@@ -169,7 +150,7 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
     pairs = [(i, u, v) for i, (u, v) in enumerate(zip(ids[:-1], ids[1:])) if u != v]
     if pairs:
         offsets = _reuse_offsets(m, obs if m.modality == "lidar" else scans, chain, anchors) \
-            if cfg.reuse_legs and cfg.teach_odometry != "none" else {}
+            if cfg.reuse.legs and cfg.teach_odometry != "none" else {}
         legs = _teach_legs(odo, chain, anchors, [i for i, _, _ in pairs], offsets)
         _, us, vs = np.array(pairs).T
         for u, v, p, (leg, path) in zip(us, vs, score(m.centers(us), m.contexts(vs)), legs):
@@ -180,7 +161,7 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
         queries = emb[[chain[p][1] for p in new_pos]]
         m.index.add(np.array(new_vertices), queries)
         _cross_edges(m, new_vertices, ids, new_pos, queries, score, stats, audit)
-    if cfg.join_ends:
+    if cfg.junction.enabled:
         _junctions(m, t, score, stats)
     return stats
 
@@ -188,7 +169,7 @@ def add_trajectory(topomap: TopoMap, observations: np.ndarray, poses: np.ndarray
 def _junctions(m: TopoMap, t: int, score, stats: BuildStats) -> None:
     """Junction edges between drive ``t``'s ends and the other drives':
     every other drive's last vertex -> ``t``'s first, and ``t``'s last ->
-    every other drive's first, where RE passes ``p_join`` both ways."""
+    every other drive's first, where RE passes ``junction.p`` both ways."""
     chain = m.trajectories[t].chain
     others = [o.chain for i, o in enumerate(m.trajectories) if i != t and o.chain]
     pairs = {(o[-1], chain[0]) for o in others} | {(chain[-1], o[0]) for o in others}
@@ -198,10 +179,10 @@ def _junctions(m: TopoMap, t: int, score, stats: BuildStats) -> None:
     us, xs = np.array(pairs, np.int64).T
     ahead = score(m.centers(us), m.contexts(xs))
     back = score(m.centers(xs), m.contexts(us))
-    keep = np.flatnonzero(np.minimum(ahead, back) > m.config.p_join)
-    if len(keep) and (checks_scans(m) or (joins_by_scans(m) and m.config.camera_junction_scans)):
+    keep = np.flatnonzero(np.minimum(ahead, back) > m.config.junction.p)
+    if len(keep) and checks_scans(m):
         keep = keep[scans_match(vertex_scans(m, xs[keep]), vertex_scans(m, us[keep]),
-                                m.config.junction_scan_match)]
+                                m.config.junction.scan_match)]
     legs = _junction_legs(m, us[keep], xs[keep])
     for i, (leg, path) in zip(keep, legs):
         m.add_edge(int(us[i]), int(xs[i]), float(ahead[i]), "junction", leg, path)
@@ -259,8 +240,8 @@ def _teach_legs(odo, chain, anchors, positions, offsets: dict | None = None) -> 
 def places_by_scans(m: TopoMap) -> bool:
     """Whether ``m`` places a reused vertex and a junction's far end by
     registering scans: a lidar map, or a camera map that keeps its drives'
-    scans, with ``camera_legs``."""
-    return m.modality == "lidar" or (m.modality == "camera" and m.config.camera_legs
+    scans, with ``camera.legs``."""
+    return m.modality == "lidar" or (m.modality == "camera" and m.config.camera.legs
                                      and m.bank.scans is not None)
 
 
@@ -336,7 +317,7 @@ def join_legs(source_scans, target_scans, wide: bool = True) -> list:
 def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,
                  ctx_local: np.ndarray, score, stats: BuildStats) -> list[tuple[str, int]]:
     """The paper's reuse: after sparsifying, an existing vertex v replaces
-    anchor i when RE(prev, v) and RE(v, anchor i + 1) both pass p_reuse."""
+    anchor i when RE(prev, v) and RE(v, anchor i + 1) both pass ``reuse.p``."""
     cfg = m.config
     # -- reuse: the chain as ("v", vertex) or ("a", anchor index) nodes
     def src(node) -> int:
@@ -350,12 +331,12 @@ def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,
     for i in range(len(anchors)):
         here = ("a", i)
         choice = here
-        if cfg.reuse and len(m.index):
+        if cfg.reuse.enabled and len(m.index):
             prev = chain[-1] if chain else here
             nxt = ("a", i + 1) if i + 1 < len(anchors) else here
             after = prev[1] if prev[0] == "v" else None
             best = _stand_in(m, emb[i], used, after, src(prev), ctx(nxt), score, stats,
-                             lambda: _reuse_thresholds(cfg, score, src, ctx, prev, here, nxt))
+                             cfg.reuse.p)
             if best is not None:
                 choice = ("v", best)
         chain.append(choice)
@@ -365,19 +346,16 @@ def _paper_chain(m: TopoMap, anchors: np.ndarray, emb: np.ndarray, start: int,
 def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray, score,
                   stats: BuildStats, odo: np.ndarray | None = None, caps: np.ndarray | None = None
                   ) -> tuple[np.ndarray, list[tuple[str, int]]]:
-    """Reuse as the scan goes (ours): at each anchor frame j an existing vertex
-    v stands in for it when RE(source, v) and RE(v, frame j + 1) pass
-    p_reuse (the drive's end: RE(v, frame j)), and the scan resumes from v.
-
-    The paper's rule asks v to reach the next anchor, which the greedy scan
-    put at the edge of what anchor j itself reaches, so v has to sit almost
-    exactly on anchor j; here v needs only to be trusted from where the
-    scan stands and to lead on along the drive. With ``loop_check_m`` and
-    the drive's odometry ``odo``, v must also lie where that odometry puts
-    it, seen from the vertex the drive reused last (:func:`loop_consistent`).
-    With ``reuse_pinned`` a lidar map's v must register onto frame j's scan,
-    pinning the translation, so its hops keep the drive's odometry.
-    ``caps``: the farthest frame each anchor's hop may reach (``max_hop_m``)."""
+    """The chain of a drive under the "resume" reuse rule: (anchor frames,
+    chain nodes ("a", anchor index) or ("v", vertex)). At each anchor frame
+    j an existing vertex v stands in for it when RE(source, v) and RE(v,
+    frame j + 1) pass ``reuse.p`` (at the drive's end RE(v, frame j)), and
+    the scan resumes from v. Where the map checks joins by scans, v's scan
+    must match frame j's; with ``reuse.loop_check_m`` and the drive's
+    odometry ``odo``, v must lie where that odometry puts it
+    (:func:`loop_consistent`); with ``reuse.pinned`` a lidar map's v must
+    register onto frame j's scan, pinning the translation. ``caps``: the
+    farthest frame each anchor's hop may reach (``sparsify.max_hop_m``)."""
     cfg = m.config
     n = len(obs)
     used: set[int] = set()
@@ -392,7 +370,7 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
     def reach(source, js):
         return score(np.full(len(js), row(source)), start + ctx_local[js])
 
-    pin = (m.modality == "lidar" and cfg.reuse_pinned and cfg.reuse_legs
+    pin = (m.modality == "lidar" and cfg.reuse.pinned and cfg.reuse.legs
            and cfg.teach_odometry != "none")
 
     def snap(j: int, source):
@@ -400,40 +378,25 @@ def _resume_chain(m: TopoMap, obs: np.ndarray, start: int, ctx_local: np.ndarray
             return j
         ahead = start + ctx_local[min(j + 1, n - 1)]
         after = source[1] if isinstance(source, tuple) else None
-        checks = ([lambda v: _leads_on(m, v, start, j, n, score)] if cfg.reuse_ahead else []) \
-            + ([lambda v: _same_place(m, v, frame_scan(j))] if joins_by_scans(m) else []) \
+        checks = ([lambda v: _same_place(m, v, frame_scan(j))] if joins_by_scans(m) else []) \
             + ([lambda v: _pinned_poses(vertex_scans(m, [v]), frame_scan(j)[None])[0] is not None]
                if pin else [])
-        if cfg.loop_check_m > 0 and odo is not None and reused:
+        if cfg.reuse.loop_check_m > 0 and odo is not None and reused:
             i_w, w = reused[-1]
             moved = relative(odo[i_w][None], odo[j][None])[0]
             checks.append(lambda v: loop_consistent(m, w, v, moved))
         best = _stand_in(m, m.embedding.embed(obs[j:j + 1])[0], used, after, row(source), ahead,
-                         score, stats, lambda: (cfg.p_reuse, cfg.p_reuse),
+                         score, stats, cfg.reuse.p,
                          confirm=(lambda v: all(c(v) for c in checks)) if checks else None)
         if best is None:
             return j
         reused.append((j, best))
         return ("v", best)
 
-    anchors, sources = sparsify_chain(n, reach, cfg.p_sparsify, cfg.sparsify_window,
-                                      slack=cfg.sparsify_slack, snap=snap, cap=caps)
+    anchors, sources = sparsify_chain(n, reach, cfg.sparsify.p, cfg.sparsify.window,
+                                      slack=cfg.sparsify.slack, snap=snap, cap=caps)
     chain = [src if isinstance(src, tuple) else ("a", i) for i, src in enumerate(sources)]
     return anchors, chain
-
-
-def _leads_on(m: TopoMap, v: int, start: int, j: int, n: int, score) -> bool:
-    """Whether the drive's frames ahead of frame ``j`` (``reuse_ahead`` of
-    them, every ``frame_step``-th) reach where v's own drive went next (a
-    trajectory successor of v) above ``p_reuse``: a look-alike room passes
-    RE at one frame, rarely along the way out of it."""
-    nxt = [w for w in m.graph.successors(v) if m.graph.edges[v, w]["kind"] == "trajectory"]
-    frames = np.arange(j + 1, min(n, j + 1 + m.config.reuse_ahead * m.frame_step), m.frame_step)
-    if not nxt or not len(frames):
-        return False
-    rows = np.repeat(start + frames, len(nxt))
-    ctx = np.tile(m.contexts(nxt), (len(frames), 1))
-    return bool((score(rows, ctx) > m.config.p_reuse).any())
 
 
 def leg_of(m: TopoMap, u: int, x: int) -> np.ndarray | None:
@@ -451,11 +414,10 @@ def loop_consistent(m: TopoMap, w: int, v: int, moved: np.ndarray) -> bool:
     """Whether vertex v lies where a drive's odometry puts it: ``moved`` is
     the drive's motion since it stood at vertex w, and the map's legs,
     composed along the shortest path of edges that keep one from w to v,
-    put v somewhere too. The two must agree within ``loop_check_m`` plus
-    ``loop_check_per_m`` of the metres both measured (odometry drifts);
-    where no such path joins them there is nothing to check. A look-alike
-    room passes RE, and its scans may match, but it lies elsewhere."""
-    cfg = m.config
+    put v somewhere too. The two must agree within ``reuse.loop_check_m``
+    metres plus ``reuse.loop_check_per_m`` of the metres both measured;
+    where no such path joins them there is nothing to check."""
+    cfg = m.config.reuse
     if w == v:
         return bool(np.hypot(*moved[:2]) <= cfg.loop_check_m)
 
@@ -484,13 +446,13 @@ def _same_place(m: TopoMap, v: int, scan: np.ndarray) -> bool:
 
 
 def _stand_in(m: TopoMap, query: np.ndarray, used: set[int], after: int | None, source_row: int,
-              target_context: np.ndarray, score, stats: BuildStats, needs,
+              target_context: np.ndarray, score, stats: BuildStats, need: float,
               confirm=None) -> int | None:
     """The existing vertex v (among the ``retrieval_k`` nearest to ``query``,
     none of ``used``) with the largest RE(source, v) RE(v, target) where
-    both pass ``needs()`` = (need_in, need_out) and ``confirm(v)`` holds
-    (when given); None when none does. After a reused vertex ``after``,
-    vertices of its drive must come later in it."""
+    both pass ``need`` and ``confirm(v)`` holds (when given); None when none
+    does. After a reused vertex ``after``, vertices of its drive must come
+    later in it."""
     cfg = m.config
     cands = m.index.search(query, cfg.retrieval_k, exclude=np.fromiter(used, np.int64))[0]
     if after is not None:      # keep the order of a drive we reuse from
@@ -499,15 +461,14 @@ def _stand_in(m: TopoMap, query: np.ndarray, used: set[int], after: int | None, 
                           or m.graph.nodes[v]["pos"] > u["pos"]], np.int64)
     if not len(cands):
         return None
-    need_in, need_out = needs()
     s1 = score(np.full(len(cands), source_row), m.contexts(cands))
-    ok = cands[s1 > need_in]
+    ok = cands[s1 > need]
     if not len(ok):
         return None
     s2 = score(m.centers(ok), np.repeat(target_context[None], len(ok), 0))
-    if not (s2 > need_out).any():
+    if not (s2 > need).any():
         return None
-    prod = np.where(s2 > need_out, s1[s1 > need_in] * s2, -1.0)
+    prod = np.where(s2 > need, s1[s1 > need] * s2, -1.0)
     best = int(ok[np.argmax(prod)])
     if confirm is not None:
         order = [int(ok[i]) for i in np.argsort(-prod, kind="stable") if prod[i] > 0]
@@ -519,49 +480,18 @@ def _stand_in(m: TopoMap, query: np.ndarray, used: set[int], after: int | None, 
     return best
 
 
-def _reuse_thresholds(cfg, score, src, ctx, prev, here, nxt) -> tuple[float, float]:
-    """RE a reused vertex needs from ``prev`` and toward ``nxt``: ``p_reuse``,
-    or with ``reuse_slack`` where the new anchor's own hop is below it, that
-    hop's RE less the slack (a vertex nearly as good as the anchor it replaces)."""
-    need_in = need_out = cfg.p_reuse
-    if cfg.reuse_slack > 0:
-        if prev != here:
-            own = float(score(np.array([src(prev)]), ctx(here)[None])[0])
-            need_in = min(need_in, own - cfg.reuse_slack)
-        if nxt != here:
-            own = float(score(np.array([src(here)]), ctx(nxt)[None])[0])
-            need_out = min(need_out, own - cfg.reuse_slack)
-    return need_in, need_out
-
-
 def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[int],
                  queries: np.ndarray, score, stats: BuildStats, audit: bool) -> None:
     """Cross edges between the new vertices ``xs`` (at ``positions`` of
     ``chain``) and their retrieved candidates, all scored in a few batches."""
     cfg = m.config
     excludes = [np.array(chain[max(0, p - 1):p + 2], np.int64) for p in positions]
-    d = _ranking(m, chain, positions, queries) if cfg.sequence_retrieval \
+    d = _ranking(m, chain, positions, queries) if cfg.cross.sequence_retrieval \
         else m.index.distances(queries)
-    found = {x: m.index.nearest(row, cfg.retrieval_k, ex)[0]
-             for x, row, ex in zip(xs, d, excludes)}
-    first = cfg.retrieval_first if 0 < cfg.retrieval_first < cfg.retrieval_k else cfg.retrieval_k
-    edges = _passing(m, xs, chain, positions, [found[x][:first] for x in xs], score)
-    if first < cfg.retrieval_k:
-        # the rest of the ranks only where edges reach the second half of the first ones: a
-        # vertex among many look-alike views (a corridor driven often) has more beyond them
-        deep = [i for i, x in enumerate(xs) if _deepest_edge_rank(edges, x, found[x][:first])
-                >= first // 2]
-        if deep:
-            edges.update(_passing(m, [xs[i] for i in deep], chain, [positions[i] for i in deep],
-                                  [found[xs[i]][first:] for i in deep], score))
-    if checks_scans(m) and m.config.scan_match_cross and edges:
-        pairs = np.array(list(edges), np.int64)
-        obs = m.bank.observations
-        ok = scans_match(obs[m.centers(pairs[:, 1])], obs[m.centers(pairs[:, 0])],
-                         m.config.scan_match)
-        edges = {key: p for (key, p), keep in zip(edges.items(), ok) if keep}
+    found = [m.index.nearest(row, cfg.retrieval_k, ex)[0] for row, ex in zip(d, excludes)]
+    edges = _passing(m, xs, chain, positions, found, score)
     legs = [(None, None)] * len(edges)
-    if edges and cfg.cross_legs and joins_carry_legs(m):
+    if edges and cfg.cross.legs and joins_carry_legs(m):
         us, vs = np.array(list(edges), np.int64).T
         legs = join_legs(vertex_scans(m, vs), vertex_scans(m, us))
     for ((u, v), p), (leg, path) in zip(edges.items(), legs):
@@ -572,18 +502,6 @@ def _cross_edges(m: TopoMap, xs: list[int], chain: list[int], positions: list[in
         every = _passing(m, xs, chain, positions, everyone, lambda s, r: m.bank.score(s, r))
         stats.exhaustive_edges += len(every)
         stats.found_edges += len(set(every) & set(edges))
-
-
-def _deepest_edge_rank(edges: dict, x: int, ranked: np.ndarray) -> int:
-    """The largest rank in ``ranked`` (x's candidates) of a vertex joined
-    to ``x`` by one of ``edges`` (-1 for none)."""
-    rank = {int(v): r for r, v in enumerate(ranked)}
-    deepest = -1
-    for u, v in edges:
-        other = v if u == x else u if v == x else None
-        if other is not None and other in rank:
-            deepest = max(deepest, rank[other])
-    return deepest
 
 
 def _ranking(m: TopoMap, chain: list[int], positions: list[int], queries: np.ndarray) -> np.ndarray:
@@ -624,7 +542,7 @@ def _passing(m: TopoMap, xs: list[int], chain: list[int], positions: list[int],
     """Cross edges {(u, v): p} between each new vertex ``xs[i]`` (at
     ``positions[i]`` of ``chain``) and its ``candidates[i]`` that pass the
     single RE and sequence matching (both directions)."""
-    cfg = m.config
+    cfg = m.config.cross
     x_of = np.concatenate([np.full(len(c), x) for x, c in zip(xs, candidates)]).astype(np.int64)
     pos_of = np.concatenate([np.full(len(c), p) for p, c in zip(positions, candidates)]).astype(np.int64)
     v_of = np.concatenate(candidates).astype(np.int64) if candidates else np.zeros(0, np.int64)
@@ -634,13 +552,13 @@ def _passing(m: TopoMap, xs: list[int], chain: list[int], positions: list[int],
     p_in = score(m.centers(v_of), m.contexts(x_of))       # v -> x
     # sequence matching over the aligned neighbours of the single pairs that pass
     src, dst, owner, tests = [], [], [], []
-    for c in np.flatnonzero((p_out > cfg.p_edge) | (p_in > cfg.p_edge)):
+    for c in np.flatnonzero((p_out > cfg.p) | (p_in > cfg.p)):
         pos, v = int(pos_of[c]), int(v_of[c])
         other, j = m.origin_chain(v)
         offsets = [d for d in range(-cfg.sequence_window, cfg.sequence_window + 1)
                    if d and 0 <= pos + d < len(chain) and 0 <= j + d < len(other)]
         for forward, p in ((True, p_out[c]), (False, p_in[c])):
-            if p <= cfg.p_edge:
+            if p <= cfg.p:
                 continue
             tests.append((c, forward))
             for d in offsets:
@@ -655,7 +573,7 @@ def _passing(m: TopoMap, xs: list[int], chain: list[int], positions: list[int],
         np.minimum.at(low, np.array(owner), score(m.centers(src), m.contexts(dst)))
     out = {}
     for (c, forward), lowest in zip(tests, low):
-        if lowest > cfg.p_edge:
+        if lowest > cfg.p:
             x, v = int(x_of[c]), int(v_of[c])
             out[(x, v) if forward else (v, x)] = float(p_out[c] if forward else p_in[c])
     return out

@@ -5,15 +5,15 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
 ==================  ==========================================================
 ``meta``            JSON (UTF-8 bytes): ``format`` "topodrake-map", ``version``,
                     ``world``, ``modality``, ``k``, ``frame_step``, ``config``
-                    (:class:`~topodrake.topomap.graph.MapConfig`), ``identity``
+                    (:class:`~topodrake.topomap.graph.MapConfig` in its flat
+                    form, :meth:`~topodrake.topomap.graph.MapConfig.flat`), ``identity``
                     (the RE and C_WP checkpoints and their SHA-1, or the
                     oracle), ``embedding`` (name and fingerprint),
                     ``raw_frames``, ``trajectories`` (name and frames each)
 ``observations``    (F, ...) kept frames: camera uint8 (H, W, 3), lidar ranges
                     float32 in metres as the lidar gave them (inf = no hit;
-                    before version 4 millimetres uint16, 65535 = no hit:
-                    the registration C_WP followed such maps worse), oracle
-                    poses
+                    before version 4 millimetres uint16, 65535 = no hit),
+                    oracle poses
 ``poses``           (F, 3) where each frame was taken (metadata)
 ``scans``           (F, beams) float32, optional: the lidar scan taken with
                     each frame of a camera map (inf = no hit, NaN = none),
@@ -37,7 +37,10 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
 a map built for another RE or controller than the one given, each with one
 line naming the file and the problem. Version 1 files (without legs) are
 read as maps without odometry on their edges, version 2 files as maps
-without junction edges.
+without junction edges. A stored config is read by
+:meth:`~topodrake.topomap.graph.MapConfig.from_dict` (``stored``): the
+settings it predates as :data:`~topodrake.topomap.graph.LATER_DEFAULTS`, a
+deleted rule's setting dropped.
 """
 
 from __future__ import annotations
@@ -45,7 +48,6 @@ from __future__ import annotations
 import io
 import json
 import zipfile
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -87,7 +89,7 @@ def save_map(topomap: TopoMap, path) -> Path:
         order = {int(v): i for i, v in enumerate(m.index.ids)}
         emb = m.index.vectors[[order[int(v)] for v in verts]]
     meta = {"format": FORMAT, "version": VERSION, "world": m.world, "modality": m.modality,
-            "k": m.k, "frame_step": m.frame_step, "config": asdict(m.config),
+            "k": m.k, "frame_step": m.frame_step, "config": m.config.flat(),
             "identity": m.identity,
             "embedding": {"name": m.embedding.name, "fingerprint": m.embedding.fingerprint()},
             "raw_frames": m.raw_frames,
@@ -210,9 +212,9 @@ def load_map(path, scorer, embedding=None) -> TopoMap:
                                  f"given is {scorer.observation} with k={scorer.k}")
         # (maps written before the slacks existed were built by the paper's rules; the
         # settings a map predates read as LATER_DEFAULTS)
-        config = MapConfig(**{**LATER_DEFAULTS, "sparsify_slack": 0.0, "reuse_slack": 0.0, "reuse_rule": "paper",
-                               **meta["config"]}
-                           ).validate(f"{path}: config")
+        config = MapConfig.from_dict(
+            {**LATER_DEFAULTS, "sparsify_slack": 0.0, "reuse_slack": 0.0, "reuse_rule": "paper",
+             **meta["config"]}, f"{path}: config", stored=True).validate(f"{path}: config")
         embedding = embedding or default_embedding(modality)
         m = TopoMap(scorer, embedding, config, meta.get("world", ""), meta["identity"])
         obs = _decode_observations(modality, z["observations"])

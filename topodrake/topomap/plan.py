@@ -1,39 +1,30 @@
 """Plan on a map (the paper's "Planning"): Dijkstra on -log p.
 
-The start is the car's current observation and the goal an observation of
-the destination; neither needs to be a vertex. Both become temporary
-vertices: the start is linked to the map vertices v with RE(start, v) above
-``p_link`` (0.5), and the vertices v with RE(v, goal) above it are linked to
-the goal (whose context is the goal observation repeated, or a full context
-when one is given), with the smaller of RE(v, goal) and RE(goal, v) as the
-link's probability (``goal_mutual``: RE toward a repeated image is
-overconfident); the candidates come from the same retrieval as map
-building. With ``link_consensus`` the links of each end must agree on one
-place: they are grouped by the map itself (the most probable link and the
-links within ``link_hops`` edges of it, either way, are one group, then
-the next most probable link left, ...) and the plan starts from one group
-and ends at one group, the most trusted pair that the map joins. A view
-that also matches a look-alike room links there too, but to fewer or less
-certain anchors than at the place the car is at, and no longer lets the
-plan jump there. On a lidar map with ``scan_match`` the groups with a
-vertex whose scan registers onto the view come first
-(:func:`matched_first`), and a direct start-goal link needs the two scans
-to match; with ``start_near_m`` the plan starts first from the vertices
-the start's scan registers onto within it, facing the car's way and not
-behind it (:func:`near_start_links`).
-With ``direct_check`` a direct start-goal link also needs the start's and
-the goal's links to be one place (:func:`one_place`). The
-route's hops keep the map's legs; on a map that places joins by scans,
-with ``goal_leg``, the hop into the goal gets the pose the goal's scan
-registers to on the last vertex's, where the fit pins it.
-Dijkstra on the edge weights -log p gives the most probable path; its
-probability is exp(-cost). On a map that places joins by scans a map edge
-without a leg counts its p times ``legless_p``: the follower cannot track
-across such a hop; with ``switch_p`` below 1 each hop between drives
-counts its p times it. Given a time limit, the plan is the path most
-likely to be driven within it: the most probable path, or where that one
-would likely run out of time, a shorter one found by pricing each metre
-(:mod:`topodrake.topomap.route_time`). An unreachable goal is a result
+:func:`plan_path` plans from the car's current observation to an
+observation of the destination; neither needs to be a vertex. Both become
+temporary vertices, linked by the map's
+:class:`~topodrake.topomap.graph.MapConfig` ``links`` settings:
+
+- the start to the vertices v among its ``links.k`` nearest in the place
+  embedding with RE(start, v) above ``links.p``; those v with RE(v, goal)
+  above it to the goal (whose context is the goal observation repeated,
+  or a full context when given), at min(RE(v, goal), RE(goal, v)) with
+  ``links.goal_mutual``;
+- with ``links.consensus``, the links of each end in groups, one place each
+  (:func:`link_groups`), and the plan between one group per end, the most
+  trusted pairs first; on a map that checks links by scans, groups whose
+  scans match the view first (:func:`matched_first`), and plans first
+  from the vertices near the car (:func:`near_start_links`);
+- a direct start-goal link where RE passes, the scans match (where checked)
+  and, with ``links.direct_check``, both ends' links are one place
+  (:func:`one_place`).
+
+Dijkstra adds up -log p over the hops, counting ``plan`` settings
+(:func:`_hop_weight`); the path's probability is exp(-cost). Given a time
+limit, the plan is the path most likely to be driven within it
+(:func:`within_time`, :mod:`topodrake.topomap.route_time`). The route's hops
+keep the map's legs, and with ``links.goal_leg`` the hop into the goal the
+pose the goal's scan registers to. An unreachable goal is a result
 (:attr:`PlanResult.reachable` False with a reason), never an exception.
 """
 
@@ -57,7 +48,7 @@ START, GOAL = -1, -2
 METRE_PRICES = (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)
 #: a path this likely to be driven in time is kept without looking for shorter ones
 ON_TIME_ENOUGH = 0.999
-#: map edges between drives (``switch_p``)
+#: map edges between drives (``plan.switch_p``)
 SWITCH_KINDS = ("cross", "junction")
 
 
@@ -88,16 +79,13 @@ def _check_observation(topomap: TopoMap, obs: np.ndarray, what: str) -> np.ndarr
     return obs
 
 
-def link_groups(topomap: TopoMap, links: list[tuple[int, float]], hops: int,
-                order: str = "probability") -> list[list[tuple[int, float]]]:
+def link_groups(topomap: TopoMap, links: list[tuple[int, float]],
+                hops: int) -> list[list[tuple[int, float]]]:
     """``links`` ((vertex, p)) in groups, the most trusted first: the most
     probable link left leads a group of the links within ``hops`` edges of
     it (edges taken either way), and so on. A group is one place: a chain
     of links along a corridor that looks alike for metres does not merge
-    into one group. ``order`` "probability" puts the group of the most
-    probable link first; "support" the group whose links' probabilities add
-    up to most (the place several anchors confirm, before a lone anchor of
-    a look-alike room that RE rates a little higher)."""
+    into one group."""
     undirected = topomap.graph.to_undirected(as_view=True)
     left = sorted(links, key=lambda link: -link[1])
     groups = []
@@ -105,8 +93,6 @@ def link_groups(topomap: TopoMap, links: list[tuple[int, float]], hops: int,
         near = nx.single_source_shortest_path_length(undirected, left[0][0], cutoff=hops)
         groups.append([link for link in left if link[0] in near])
         left = [link for link in left if link[0] not in near]
-    if order == "support":
-        groups.sort(key=lambda group: -sum(p for _, p in group))     # stable: ties keep p order
     return groups
 
 
@@ -141,15 +127,13 @@ def matched_first(topomap: TopoMap, groups: list[list[tuple[int, float]]],
 
 def near_start_links(topomap: TopoMap, links: list[tuple[int, float]],
                      start_scan: np.ndarray) -> list[tuple[int, float]]:
-    """The ``links`` from the start to vertices whose scans the start's scan
-    registers onto within ``start_near_m`` (pinning the pose), where there
-    are any; else all ``links``. RE trusts anchors metres along a drive as
-    readily as the one the car stands by; a fit that does not pin the pose
-    may lie metres down a corridor, so it does not count as near."""
+    """The ``links`` from the start to vertices near the car
+    (:func:`_near_start`, by registering the start's scan onto theirs,
+    pinning the pose), where there are any; else all ``links``."""
     from topodrake.topomap.build import join_legs
 
-    cfg = topomap.config
-    if cfg.start_near_m <= 0 or len(links) < 2:
+    cfg = topomap.config.links
+    if cfg.near_m <= 0 or len(links) < 2:
         return links
     vertices = [v for v, _ in links]
     source = np.repeat(np.asarray(start_scan, np.float64)[None], len(vertices), 0)
@@ -162,16 +146,15 @@ def near_start_links(topomap: TopoMap, links: list[tuple[int, float]],
 
 def _near_start(leg: np.ndarray, cfg) -> bool:
     """Whether a vertex at which the start's pose registers to ``leg`` (the
-    car in the vertex's frame) is near: within ``start_near_m``, facing the
-    way the car faces within ``start_near_deg`` and not behind the car by
-    more than ``start_near_behind_m`` (an anchor off the car's heading or
-    behind it is a harder first hop than one a few metres ahead)."""
-    if float(np.hypot(leg[0], leg[1])) > cfg.start_near_m:
+    car in the vertex's frame) is near, by ``cfg`` (a LinkConfig): within
+    ``near_m``, facing the car's way within ``near_deg`` and at most
+    ``near_behind_m`` behind the car."""
+    if float(np.hypot(leg[0], leg[1])) > cfg.near_m:
         return False
-    if abs(math.degrees(float(leg[2]))) > cfg.start_near_deg:
+    if abs(math.degrees(float(leg[2]))) > cfg.near_deg:
         return False
     ahead = float(invert(leg)[0, 0])          # the vertex's x in the car's frame
-    return ahead >= -cfg.start_near_behind_m
+    return ahead >= -cfg.near_behind_m
 
 
 def link_scans(topomap: TopoMap, start_obs: np.ndarray, goal_obs: np.ndarray,
@@ -197,14 +180,14 @@ def link_scans(topomap: TopoMap, start_obs: np.ndarray, goal_obs: np.ndarray,
 
 def _link_choices(topomap: TopoMap, links_s: list, links_g: list, scans) -> list:
     """(start links, goal links) pairs to plan between, in the order tried:
-    with ``link_consensus`` one place at each end, the most trusted pairs
+    with ``links.consensus`` one place at each end, the most trusted pairs
     first (:func:`link_groups`, on maps that check scans :func:`matched_first`);
     else all links at once."""
     m = topomap
-    if not m.config.link_consensus:
+    if not m.config.links.consensus:
         return [(links_s, links_g)]
-    starts = link_groups(m, links_s, m.config.link_hops, m.config.link_order) or [[]]
-    goals = link_groups(m, links_g, m.config.link_hops, m.config.link_order) or [[]]
+    starts = link_groups(m, links_s, m.config.links.hops) or [[]]
+    goals = link_groups(m, links_g, m.config.links.hops) or [[]]
     if scans is not None:
         starts, goals = matched_first(m, starts, scans[0]), matched_first(m, goals, scans[1])
     tries = sorted(((i, j) for i in range(len(starts)) for j in range(len(goals))),
@@ -234,11 +217,11 @@ def _pose_legs(topomap: TopoMap, vertices: list[int], goal_pose, legs: np.ndarra
 def _goal_leg(topomap: TopoMap, vertices: list[int], goal_scan, legs: np.ndarray,
               leg_paths: np.ndarray) -> None:
     """Sets the last hop's leg (into the goal view) in place where the map
-    places joins by scans (``goal_leg``) and the goal's scan registers onto
+    places joins by scans (``links.goal_leg``) and the goal's scan registers onto
     the last vertex's, pinning the pose."""
     from topodrake.topomap.build import join_legs, joins_carry_legs
 
-    if not (topomap.config.goal_leg and vertices and goal_scan is not None
+    if not (topomap.config.links.goal_leg and vertices and goal_scan is not None
             and joins_carry_legs(topomap)):
         return
     (leg, path), = join_legs(np.asarray(goal_scan, np.float64)[None],
@@ -250,13 +233,12 @@ def _goal_leg(topomap: TopoMap, vertices: list[int], goal_scan, legs: np.ndarray
 def _hop_weight(topomap: TopoMap, banned: set):
     """Dijkstra's weight of a hop: -log p, none for a ``banned`` map edge,
     and on a map that places joins by scans a map edge without a leg counts
-    its p times ``legless_p`` (the follower cannot track across it); a hop
-    between drives (a cross or junction edge) counts its p times
-    ``switch_p``."""
+    its p times ``plan.legless_p``; a hop between drives (a cross or
+    junction edge) counts its p times ``plan.switch_p``."""
     from topodrake.topomap.build import joins_carry_legs
 
-    extra = -math.log(topomap.config.legless_p) if joins_carry_legs(topomap) else 0.0
-    switch = -math.log(topomap.config.switch_p)
+    extra = -math.log(topomap.config.plan.legless_p) if joins_carry_legs(topomap) else 0.0
+    switch = -math.log(topomap.config.plan.switch_p)
 
     def weight(u, v, d):
         if (u, v) in banned:
@@ -329,7 +311,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
     m = topomap
     if len(m) == 0:
         raise TopodrakeError("the map has no vertices")
-    k = retrieval_k or m.config.link_k
+    cfg = m.config.links
+    k = retrieval_k or cfg.k
     frames = 2 * m.k + 1
     start_obs = _check_observation(m, start_observation, "start")
     goal_obs = _check_observation(m, goal_observation, "goal")
@@ -353,8 +336,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         p_start = m.bank.score(np.full(len(from_start), s_row), m.contexts(from_start))
         p_goal = m.bank.score(m.centers(to_goal), np.repeat(g_rows[None], len(to_goal), 0))
         p_direct = float(m.bank.score([s_row], g_rows[None])[0])
-        links_s = [(int(v), float(p)) for v, p in zip(from_start, p_start) if p > m.config.p_link]
-        if m.config.goal_mutual:
+        links_s = [(int(v), float(p)) for v, p in zip(from_start, p_start) if p > cfg.p]
+        if cfg.goal_mutual:
             # RE toward a goal whose context is one image repeated is overconfident (0.9 from
             # vertices 5 m away, behind a door); RE from the goal back to v reads v's own
             # context: a link's probability is the smaller of the two
@@ -362,20 +345,20 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
             p_goal = np.minimum(p_goal, back)
             p_direct = min(p_direct, float(m.bank.score([g_rows[0]],
                                                         np.full((1, frames), s_row))[0]))
-        links_g = [(int(v), float(p)) for v, p in zip(to_goal, p_goal) if p > m.config.p_link]
-        if scans is not None and p_direct > m.config.p_link \
+        links_g = [(int(v), float(p)) for v, p in zip(to_goal, p_goal) if p > cfg.p]
+        if scans is not None and p_direct > cfg.p \
                 and not scans_match(scans[1], scans[0], m.config.scan_match)[0]:
             p_direct = 0.0      # a look-alike of the goal, not the goal
         if start_vertex is not None:      # the car returns to a vertex it saw: no start link
             links_s, p_direct = [(int(start_vertex), 1.0)], 0.0
         result = PlanResult(False, start_links=len(links_s), goal_links=len(links_g))
-        if not links_s and p_direct <= m.config.p_link:
+        if not links_s and p_direct <= cfg.p:
             result.reason = (f"no map vertex is reachable from the start (best RE "
-                             f"{max(p_start, default=0.0):.2f} <= {m.config.p_link})")
+                             f"{max(p_start, default=0.0):.2f} <= {cfg.p})")
             return result
-        if not links_g and p_direct <= m.config.p_link:
+        if not links_g and p_direct <= cfg.p:
             result.reason = (f"the goal is reachable from no map vertex (best RE "
-                             f"{max(p_goal, default=0.0):.2f} <= {m.config.p_link})")
+                             f"{max(p_goal, default=0.0):.2f} <= {cfg.p})")
             return result
         # the start's links by the anchors its scan places near first, then all of them
         near = near_start_links(m, links_s, scans[0]) \
@@ -392,8 +375,8 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
                 g.add_edge(START, v, p=p, weight=-math.log(p), kind="start")
             for v, p in into_goal:
                 g.add_edge(v, GOAL, p=p, weight=-math.log(p), kind="goal")
-            if p_direct > m.config.p_link and (not m.config.direct_check or one_place(
-                    m, from_start, into_goal, m.config.link_hops)):
+            if p_direct > cfg.p and (not cfg.direct_check or one_place(
+                    m, from_start, into_goal, cfg.hops)):
                 g.add_edge(START, GOAL, p=p_direct, weight=-math.log(p_direct), kind="direct")
             try:
                 cost, path = nx.single_source_dijkstra(g, START, GOAL, weight=weight)

@@ -10,7 +10,6 @@ map starts again, so that it resumes where it stopped.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 from topodrake.errors import TopodrakeError
@@ -31,7 +30,7 @@ def interrupted_build(resume: Path, scorer, fresh):
         return None
     try:
         meta = read_map_meta(resume)
-        if meta.get("world") != fresh.world or meta.get("config") != asdict(fresh.config):
+        if meta.get("world") != fresh.world or meta.get("config") != fresh.config.flat():
             return None
         partial = load_map(resume, scorer)
     except TopodrakeError:

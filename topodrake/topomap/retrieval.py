@@ -1,12 +1,10 @@
 """Candidate retrieval: rank every map vertex cheaply, run RE on the top K.
 
-Querying the learned RE against every vertex does not scale (it runs about
-a thousand pairs a second here), so building and planning first rank all
-vertices by a cheap place embedding of their anchor observation and ask RE
-only about the ``K`` best. :class:`VertexIndex` is that ranking: brute
-force in numpy, squared Euclidean distance between embeddings (for unit
-vectors the same order as cosine similarity), which at 100,000 vertices of
-64 dimensions costs a few milliseconds a query.
+Building and planning rank all vertices by a cheap place embedding of
+their anchor observation and ask RE only about the ``K`` best.
+:class:`VertexIndex` is that ranking: brute force in numpy, squared
+Euclidean distance between embeddings (for unit vectors the same order as
+cosine similarity).
 
 Embeddings (anything with ``observation``, ``dim``, ``name``,
 ``embed(observations) -> (N, dim)`` and ``fingerprint()``):

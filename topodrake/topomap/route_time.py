@@ -34,8 +34,7 @@ class DrivingTime:
     per_hop_s * hops`` on average, spread normally with a standard deviation
     of ``spread`` times that. The defaults are fitted to the oracle
     follower's planned trials in five training houses (``python
-    studies/planning.py --fit-driving-time``; docs/figures.md, "Plans that
-    fit the time limit")."""
+    studies/planning.py --fit-driving-time``)."""
 
     start_s: float = 0.0
     per_m_s: float = 1.47

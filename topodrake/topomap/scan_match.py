@@ -1,18 +1,12 @@
 """Scan matching: whether two lidar views are one place, not two look-alikes.
 
-To the lidar RE two rooms of the same shape look alike (RE passes 0.99
-between them both ways), so a map that joins drives or links a start on RE
-alone jumps across the house. Registering one scan onto the other tells
-them apart: at one place the walls, doorways and furniture line up, in a
-look-alike room the fit leaves a share of points without a partner.
-:func:`scans_match` asks the ICP fit (:mod:`topodrake.registration.icp`,
-from the identity) to be accepted and to pair at least ``min_inlier`` of
-each scan's points. It is a check on top of RE, applied where a map joins
-drives (reuse, junctions) and where a plan links its start and goal
-(:attr:`topodrake.topomap.graph.MapConfig.scan_match`). A camera map that
-keeps the lidar scans its drives took with their frames checks its joins
-the same way (:attr:`~topodrake.topomap.graph.MapConfig.camera_scans`): a
-room that copies another's textures rarely copies its walls.
+:func:`scans_match` asks the ICP fit of one scan onto the other
+(:mod:`topodrake.registration.icp`, from the identity) to be accepted and to
+pair at least a share of each scan's points. A map checks its joins
+(reuse, junctions) and a plan its start and goal links this way on top of
+RE where :func:`checks_scans` or :func:`joins_by_scans` say so
+(:attr:`~topodrake.topomap.graph.MapConfig.scan_match`; a camera map by the
+lidar scans its drives took, with ``camera.scans``).
 """
 
 from __future__ import annotations
@@ -29,10 +23,10 @@ def checks_scans(topomap) -> bool:
 def joins_by_scans(topomap) -> bool:
     """Whether building ``topomap`` checks its joins (reuse, junctions) by
     scan matching: a lidar map (:func:`checks_scans`), or a camera map that
-    keeps its drives' scans, with ``camera_scans`` on."""
+    keeps its drives' scans, with ``camera.scans`` on."""
     if checks_scans(topomap):
         return True
-    return (topomap.modality == "camera" and topomap.config.camera_scans
+    return (topomap.modality == "camera" and topomap.config.camera.scans
             and topomap.config.scan_match > 0 and topomap.bank.scans is not None)
 
 

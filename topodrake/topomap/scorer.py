@@ -91,14 +91,9 @@ class OracleConfig:
     onto them (its manoeuvres), as the expert's turns on the spot and
     three-point turns do, where the fitted controller alone did not.
 
-    The defaults are the map's oracle: the shape fitted to rollouts of the
-    A* oracle C_WP (:data:`CALIBRATED_ORACLE` and ``studies/oracle_reach.py``:
-    no distance limit of its own, targets within 2.2 rad of the heading, turns
-    up to 2 rad, any overlap, sight) but sharp, with the ceiling ``p_max`` the
-    map's 0.99 thresholds need: where it says more than 0.99 the oracle
-    controller succeeds in about 97 % of the label protocol's rollouts (its
-    failures there are timeouts of the RMP at short range, which a follower
-    outlives), so maps built with it are as dense as the controller allows.
+    The defaults are the map's oracle: the shape of :data:`CALIBRATED_ORACLE`
+    with every softness sharp and the ceiling ``p_max`` above the map's 0.99
+    thresholds (docs/results.md and docs/limits.md, "The geometric oracle RE").
     """
 
     p_max: float = 0.9995
@@ -115,20 +110,17 @@ class OracleConfig:
     sight_clearance_m: float = 0.12
 
 
-#: The oracle fitted (maximum likelihood) to 4,000 labelled rollouts of the A*
-#: oracle C_WP in the five test houses (``python studies/oracle_reach.py``):
-#: calibrated (ECE 0.03, AUROC 0.96 on those rollouts), never above about 0.975
-#: (the controller's own success where everything is in its favour).
+#: The oracle fitted (maximum likelihood) to labelled rollouts of the A*
+#: oracle C_WP in the five test houses (``python studies/oracle_reach.py``).
 CALIBRATED_ORACLE = OracleConfig(p_max=0.9995, reach_m=10.0, reach_soft_m=0.2, bearing_rad=3.2,
                                  bearing_soft_rad=0.8, turn_rad=2.0, turn_soft_rad=0.4,
                                  min_overlap=0.02, overlap_soft=0.01, hidden=0.5,
                                  reverse_m=0.0)
 
 
-#: The same fit with every softness held sharp (at most 0.2), so that the
-#: oracle says more than 0.99 where the controller is at its best (about 97 %
-#: success there: over-confident by design; ECE 0.09, AUROC 0.93): the trust
-#: of the follower's oracle RE, whose thresholds (0.92) are the paper's.
+#: The same fit with every softness held sharp (at most 0.2): more than 0.99
+#: where the controller is at its best (over-confident by design); the trust
+#: of the follower's oracle RE (docs/limits.md, "The geometric oracle RE").
 TRUSTING_ORACLE = OracleConfig(p_max=0.9995, reach_m=10.0, reach_soft_m=0.1, bearing_rad=3.2,
                                bearing_soft_rad=0.2, turn_rad=2.0, turn_soft_rad=0.2,
                                min_overlap=0.0, overlap_soft=0.1, hidden=0.2, reverse_m=0.0)

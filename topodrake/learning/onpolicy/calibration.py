@@ -27,7 +27,7 @@ anchor placement (sparsification) keeps ``anchor_platt``.
 
 A calibration changes where the follower goes (its thresholds act on these
 probabilities), so it is shipped only where the follower measured no worse
-with it (see docs/figures.md).
+with it.
 
 The same state labels score RE in ``topodrake bench follower``
 (:func:`label_visited_reach`).

@@ -27,8 +27,8 @@ checkpoints (CPU tensors): everything that loads a C_WP loads them.
 Batch order depends on when shards arrive, so two runs agree in their data,
 not bit for bit in their weights.
 
-    python -m topodrake.learning.waypoint.scale --config configs/scale_lidar_k5.yaml \\
-        --out runs/lidar_k5_scale --minutes 8
+    topodrake train scale --config configs/scale_lidar_k5.yaml --out runs/lidar_k5_scale \\
+        --minutes 8
 """
 
 from __future__ import annotations
@@ -423,28 +423,3 @@ def _device_name(device) -> str:
 def _scale_meta(sc: ScaleConfig, state: dict, name: str) -> dict:
     return {"variant": name, **asdict(sc), "next_shard": int(state["next_shard"]),
             "variants": {k: asdict(v) for k, v in sc.variants.items()}}
-
-
-def main(argv=None) -> int:
-    import argparse
-
-    ap = argparse.ArgumentParser(description="Train C_WP at scale (lidar or camera) on a GPU.")
-    ap.add_argument("--config", required=True, help="scale run YAML (train: ..., scale: ...)")
-    ap.add_argument("--out", required=True, help="output folder (resumed when it holds a checkpoint)")
-    ap.add_argument("--minutes", type=float, default=8.0, help="wall-time budget of this call")
-    ap.add_argument("--quiet", action="store_true")
-    args = ap.parse_args(argv)
-    try:
-        run = load_scale_config(args.config)
-        card = train_at_scale(run, args.out, minutes=args.minutes, progress=not args.quiet,
-                              command="python -m topodrake.learning.waypoint.scale " + " ".join(
-                                  sys.argv[1:] if argv is None else argv))
-    except TopodrakeError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(json.dumps({"samples_seen": card["samples_seen"], "metrics": card["metrics"]}))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
