@@ -7,8 +7,14 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from topodrake.control import controls_toward
-from topodrake.expert import (MEMORY_SIZE, ExpertConfig, PackedPaths, expert_waypoints,
-                              initial_memory)
+from topodrake.expert import (
+    MEMORY_SIZE,
+    ExpertConfig,
+    PackedPaths,
+    expert_waypoints,
+    initial_memory,
+)
+from topodrake.navigation.manoeuvre import Manoeuvres
 from topodrake.rmp import RmpConfig
 from topodrake.sensing.config import LidarConfig
 from topodrake.sensing.lidar import Lidar
@@ -151,7 +157,6 @@ class ManoeuvreGuard(LeafSystem):
     def _decide(self, context, value):
         import copy
 
-        from topodrake.navigation.manoeuvre import Manoeuvres
 
         pose = np.asarray(self.state_port.Eval(context))[None, :3]
         held = context.get_abstract_state(self.memory_index).get_value()

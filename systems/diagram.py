@@ -4,14 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from pydrake.common import RandomDistribution
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, RandomSource, ZeroOrderHold
-from pydrake.common import RandomDistribution
-
 from topodrake.systems.car import ActuationNoise, CarPlant
 from topodrake.systems.control import ExpertWaypoints, RmpController
 from topodrake.systems.scenario import Scenario
 from topodrake.systems.sensors import CameraSensor, LidarSensor
+
+from topodrake.world import load_world
 
 
 @dataclass
@@ -70,6 +71,7 @@ def add_chassis(b: DiagramBuilder, scenario: Scenario, world, *, camera: bool,
         b.ExportOutput(cam.image_port, "image")
     if meshcat is not None:
         from topodrake.systems.visualization import MeshcatCar
+
         from topodrake.sensing.scenegraph import add_meshcat_world, frame_whole_world
 
         add_meshcat_world(meshcat, world)
@@ -97,8 +99,6 @@ def build_expert_diagram(scenario: Scenario, world=None, meshcat=None) -> Expert
     Exported outputs: ``pose``, ``state``, ``waypoint``, ``ranges``,
     ``controls`` and (when the camera is enabled) ``image``.
     """
-    from topodrake.world import load_world
-
     world = world or load_world(scenario.world)
     b = DiagramBuilder()
     c = add_chassis(b, scenario, world, camera=scenario.camera_enabled, meshcat=meshcat)

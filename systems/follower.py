@@ -45,11 +45,23 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
 from topodrake.contract.waypoint import TargetContext, WaypointPrediction
-from topodrake.navigation.evaluate import (Evaluator, encode_routes, initial_track,
-                                           network_context, take_rows)
-from topodrake.navigation.follower import (MODES, REASONS, FollowerConfig, FollowerState, Mode,
-                                           follower_step)
-from topodrake.navigation.replan import kept_features
+from topodrake.navigation.evaluate import (
+    Evaluator,
+    encode_routes,
+    initial_track,
+    network_context,
+    take_rows,
+)
+from topodrake.navigation.follower import (
+    MODES,
+    REASONS,
+    FollowerConfig,
+    FollowerState,
+    Mode,
+    follower_step,
+)
+from topodrake.navigation.replan import kept_features, search_would_start
+from topodrake.sensing.config import CameraConfig, LidarConfig
 
 
 class FollowerFsm(LeafSystem):
@@ -66,7 +78,6 @@ class FollowerFsm(LeafSystem):
                  period: float = 0.1, camera=None, lidar=None, replanner=None,
                  odometry_input: bool = False):
         super().__init__()
-        from topodrake.sensing.config import CameraConfig, LidarConfig
 
         self.route = route
         self.policy = policy
@@ -143,8 +154,6 @@ class FollowerFsm(LeafSystem):
         (:func:`~topodrake.navigation.replan.search_would_start` from the
         held observation; the route and its encoding kept in ``encoded`` under
         ``id(route)``)."""
-        from topodrake.navigation.replan import search_would_start
-
         obs, ranges = self._held_observations(context)
 
         odo = self._odometry(context, car)
@@ -265,7 +274,6 @@ class WaypointSelect(LeafSystem):
     """The waypoint the RMP drives to: ``held`` (FollowerFsm's own waypoint:
     Dead reckoning's, or the route tracker's) when it is finite, else
     ``net`` (WaypointNet's)."""
-
     def __init__(self):
         super().__init__()
         self.net_port = self.DeclareVectorInputPort("net", 2)

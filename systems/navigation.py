@@ -26,12 +26,14 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from topodrake.systems.run import DiagramRunner, RunResult
+from topodrake.systems.scenario import Scenario
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.follower import FollowerConfig
+from topodrake.navigation.follower import REASONS, FollowerConfig, Mode
 from topodrake.odometry import OdometryConfig
-from topodrake.systems.scenario import Scenario
-from topodrake.systems.run import DiagramRunner, RunResult
+from topodrake.vehicle import in_collision
+from topodrake.world import load_world
 
 
 @dataclass
@@ -88,13 +90,11 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     ``image``."""
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput
-
     from topodrake.systems.control import ManoeuvreGuard, RmpController
     from topodrake.systems.diagram import add_chassis
     from topodrake.systems.follower import FollowerFsm, WaypointSelect
     from topodrake.systems.odometry import OdometryFrame, OdometrySensor
     from topodrake.systems.waypoint_net import WaypointNet
-    from topodrake.world import load_world
 
     if policy is None or reach is None:
         loaded = load_networks(scenario)
@@ -165,7 +165,6 @@ class NavigationRunResult(RunResult):
     """A run along a route: ``outcome`` is "reached", "collision",
     "timeout", "search_failed" or "dead_reckoning_gave_up"; ``modes`` (K,)
     the follower's mode in each period."""
-
     modes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
     result: str = ""
     distance_m: float = 0.0
@@ -197,9 +196,6 @@ class NavigationRunner(DiagramRunner):
         planning study's goal watch), whether or not the follower has
         declared arrival yet. Where the scenario's odometry drifts, its
         errors come from ``odometry_seed`` (default: ``seed``)."""
-        from topodrake.navigation.follower import REASONS, Mode
-        from topodrake.vehicle import in_collision
-
         b = self.built
         world = b.world
         start = world.check_pose(start, "start", free=False)

@@ -15,9 +15,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydrake.common import RandomGenerator
-from pydrake.systems.analysis import Simulator, SimulatorConfig, ApplySimulatorConfig
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
 from pydrake.systems.framework import EventStatus
 
+from topodrake.errors import TopodrakeError
+from topodrake.sensing.overlap import mutual_overlap
 from topodrake.vehicle import in_collision
 
 
@@ -130,7 +132,6 @@ class DiagramRunner:
 
 class ExpertRunner(DiagramRunner):
     """Runs the expert diagram (``build_expert_diagram``) to a goal position."""
-
     def run(self, start=None, goal=None, seed: int | None = None,
             t_max_s: float | None = None) -> RunResult:
         b = self.built
@@ -186,10 +187,6 @@ class TargetRunner(DiagramRunner):
             ) -> TargetRunResult:
         """``target``: the :class:`~topodrake.learning.waypoint.policy.TargetContext`
         the network sees; ``target_pose`` (3,): where it was taken."""
-        from topodrake.sensing.overlap import mutual_overlap
-
-        from topodrake.errors import TopodrakeError
-
         b = self.built
         world = b.world
         # Poses of expert drives may pass closer to walls than the c-space

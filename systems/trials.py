@@ -9,12 +9,19 @@ from __future__ import annotations
 
 from functools import lru_cache
 
+from topodrake.systems.scenario import Scenario
+
+from topodrake.learning.reachability.labels import ReachLabelConfig, draw_pairs, time_limits
+from topodrake.learning.samples import collect_trajectories
+from topodrake.learning.waypoint.evaluation import sample_controller_pair
+from topodrake.sensing.overlap import mutual_overlap
+from topodrake.world import load_world
+
 
 @lru_cache(maxsize=8)
 def _runner(world: str, noise_std: float, camera: bool):
     from topodrake.systems.diagram import build_expert_diagram
     from topodrake.systems.run import ExpertRunner
-    from topodrake.systems.scenario import Scenario
 
     return ExpertRunner(build_expert_diagram(
         Scenario(world=world, noise_std=noise_std, camera_enabled=camera)))
@@ -41,8 +48,6 @@ def _evaluation_set(data_dir: str, worlds: tuple[str, ...]):
     and the loaded worlds."""
     from pathlib import Path
 
-    from topodrake.learning.samples import collect_trajectories
-    from topodrake.world import load_world
 
     trajs = collect_trajectories(list(worlds), Path(data_dir) / "demos" / "pairs-s0",
                                  progress=False)
@@ -68,10 +73,10 @@ def _policy(checkpoint: str):
 @lru_cache(maxsize=8)
 def _target_runner(checkpoint: str, data_dir: str, worlds: tuple[str, ...], world: str,
                    noise_std: float, overlap_lost: float | None = None):
-    from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.systems.run import TargetRunner
-    from topodrake.systems.scenario import Scenario
     from topodrake.systems.waypoint_net import build_waypoint_diagram
+
+    from topodrake.learning.waypoint.policy import AStarOracle
 
     w = _evaluation_set(data_dir, worlds)[1][world]
     policy = _policy(checkpoint)
@@ -95,7 +100,6 @@ def controller_trial(seed: int, checkpoint: str = "oracle", noise_std: float = 0
     (:mod:`topodrake.learning.waypoint.evaluation`): C_WP of ``checkpoint`` (or the A*
     ``"oracle"``) + RMP drives from the source of the seed's pair toward its
     target in the Drake diagram. The pair depends on the seed only."""
-    from topodrake.learning.waypoint.evaluation import sample_controller_pair
     from topodrake.learning.waypoint.policy import make_target_context
 
     trajs, loaded = _evaluation_set(str(data_dir), tuple(worlds))
@@ -132,7 +136,6 @@ def reach_trial(seed: int, reach: str = "", controller: str = "", noise_std: flo
     the outcome of the C_WP ``controller`` driving it in the Drake diagram."""
     import numpy as np
 
-    from topodrake.learning.reachability.labels import ReachLabelConfig, draw_pairs, time_limits
     from topodrake.learning.waypoint.policy import make_target_context
 
     cfg = ReachLabelConfig()
@@ -160,7 +163,6 @@ def reach_trial(seed: int, reach: str = "", controller: str = "", noise_std: flo
                                  camera=runner.built.scenario.camera,
                                  lidar=runner.built.scenario.lidar, key=seed % (2 ** 31))
     result = runner.run(pair["src_pose"], tgt_pose, target, seed=seed, t_max_s=t_max)
-    from topodrake.sensing.overlap import mutual_overlap
     start_overlap = mutual_overlap(world, pair["src_pose"][None], tgt_pose[None])[0]
     return {"seed": seed, "world": world.name, "p": p, "success": bool(result.success),
             "start_overlap": [round(float(v), 4) for v in start_overlap],

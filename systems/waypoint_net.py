@@ -38,7 +38,10 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from topodrake.contract.waypoint import TargetContext, WaypointPrediction, target_input
+from topodrake.navigation.evaluate import initial_track, track_size
+from topodrake.sensing.config import CameraConfig, LidarConfig
 from topodrake.vehicle import car_to_world
+from topodrake.world import load_world
 
 
 @dataclass
@@ -72,7 +75,6 @@ class TargetConditionedNet(LeafSystem):
     def __init__(self, network, period: float, camera=None, lidar=None, state_input: bool = True,
                  odometry_input: bool = False):
         super().__init__()
-        from topodrake.sensing.config import CameraConfig, LidarConfig
 
         self.network = network
         kind = network.observation
@@ -103,7 +105,6 @@ class TargetConditionedNet(LeafSystem):
         prereq.add(self.abstract_state_ticket(self.cache_index))
         self.period = float(period)
         self.track_index = None
-        from topodrake.navigation.evaluate import initial_track, track_size
 
         if track_size(network) > 0:
             if self.state_port is None:
@@ -198,7 +199,6 @@ class WaypointNet(TargetConditionedNet):
     (car frame), ``heading_diff`` (1), ``overlap`` (2), and ``controls`` (2)
     for a direct-control policy. Without a target (key < 0) the waypoint is
     NaN, which the RMP reads as "stop"."""
-
     def __init__(self, policy, period: float = 0.1, camera=None, lidar=None,
                  odometry_input: bool = False):
         self.policy = policy
@@ -285,10 +285,8 @@ def build_waypoint_diagram(scenario, policy, world=None, target: TargetContext |
     ``heading_diff``, ``controls``, ``ranges`` and (camera) ``image``.
     """
     from pydrake.systems.framework import DiagramBuilder
-
     from topodrake.systems.control import RmpController
     from topodrake.systems.diagram import add_chassis
-    from topodrake.world import load_world
 
     world = world or load_world(scenario.world)
     dt = scenario.vehicle.dt

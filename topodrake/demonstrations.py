@@ -37,6 +37,9 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes, atomic_write_json, read_tagged_npz
 from topodrake.fileio import read_manifest as _read_manifest
+from topodrake.montecarlo import trial_seeds
+from topodrake.rollout import ExpertRollout, RolloutConfig
+from topodrake.world import load_world
 
 FORMAT = "topodrake-demos"
 VERSION = 2
@@ -81,9 +84,6 @@ def collect(world_spec: str, out_dir, config: CollectConfig | None = None,
     """Generate (or resume) a demonstration set; returns its folder."""
     from tqdm import tqdm
 
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.rollout import ExpertRollout, RolloutConfig
-    from topodrake.world import load_world
 
     config = config or CollectConfig()
     out = Path(out_dir)

@@ -22,6 +22,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.se2 import compose, relative
+from topodrake.vehicle import car_to_world, world_to_car
 
 
 @dataclass
@@ -102,15 +103,12 @@ def odometry_to_world(points: np.ndarray, odometry: np.ndarray, true: np.ndarray
     """Points (N, M, 2) given in the odometry frame, where they lie in the
     world relative to the cars' true states (N, >= 3): as far and in the
     same direction from the car as from its odometry pose."""
-    from topodrake.vehicle import car_to_world, world_to_car
-
     return car_to_world(world_to_car(points, odometry), true)
 
 
 class Odometry:
     """The odometry poses of N cars: they start at the cars' true poses and
     integrate each period's measured increment (:meth:`update`)."""
-
     def __init__(self, config: OdometryConfig, seeds, starts: np.ndarray):
         starts = np.asarray(starts, np.float64).reshape(-1, 3)
         self.errors = odometry_errors(config, np.broadcast_to(np.atleast_1d(seeds), len(starts)))

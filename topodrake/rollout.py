@@ -27,12 +27,18 @@ import numpy as np
 
 from topodrake.control import controls_toward
 from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints, initial_memory
-from topodrake.expert.approach import (ApproachConfig, PathTracker, plan_pose_path, pose_reached,
-                                       track_pose_path)
+from topodrake.expert.approach import (
+    ApproachConfig,
+    PathTracker,
+    plan_pose_path,
+    pose_reached,
+    track_pose_path,
+)
 from topodrake.rmp import RmpConfig
 from topodrake.sensing.camera import Camera
 from topodrake.sensing.config import CameraConfig, LidarConfig
 from topodrake.sensing.lidar import Lidar
+from topodrake.sensing.overlap import mutual_overlap
 from topodrake.sensing.scene import scene_of
 from topodrake.vehicle import VehicleConfig, car_to_world, in_collision, vehicle_step
 
@@ -82,7 +88,6 @@ def standard_normal_noise(seeds, steps: int) -> np.ndarray:
 
 class ExpertRollout:
     """Steps many expert cars in one world with the shared batched functions."""
-
     def __init__(self, world, config: RolloutConfig | None = None):
         self.world = world
         self.config = config or RolloutConfig()
@@ -202,7 +207,6 @@ class ExpertRollout:
 class PolicyRolloutResult(RolloutResult):
     """A :class:`RolloutResult` toward target poses; ``overlap`` (N, 2) holds
     the final geometric overlaps (car -> target, target -> car)."""
-
     overlap: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
@@ -227,8 +231,6 @@ class PolicyRollout:
 
     def __init__(self, world, policy, config: RolloutConfig | None = None, *,
                  overlap_success: float = 0.7, overlap_lost: float | None = None):
-        from topodrake.errors import TopodrakeError
-
         self.world = world
         self.policy = policy
         self.config = config or RolloutConfig()
@@ -263,8 +265,6 @@ class PolicyRollout:
         (default: the config's). Noise as in :meth:`ExpertRollout.run`.
         ``initial_track``: a stateful policy's tracking state at the start
         (N, ``track_size``; default ``policy.initial_track``)."""
-        from topodrake.sensing.overlap import mutual_overlap
-
         cfg = self.config
         veh = cfg.vehicle
         starts = np.asarray(starts, np.float64).reshape(-1, 3)

@@ -11,9 +11,24 @@ import argparse
 import json
 import sys
 
+from topodrake import __version__
 from topodrake.apps import argtypes as at
-from topodrake.errors import TopodrakeError
+from topodrake.apps.demo import add_demo_parser
+from topodrake.apps.map_cli import add_map_bench_parser, add_map_parser
+from topodrake.apps.navigate_cli import add_navigate_parser
 from topodrake.apps.outputs import add_force_option, check_output, check_output_folder
+from topodrake.apps.sparsify_cli import add_sparsify_parser
+from topodrake.apps.train_cli import add_bench_parser, add_train_parser
+from topodrake.demonstrations import CollectConfig, collect, load_demos
+from topodrake.errors import TopodrakeError
+from topodrake.experiments.bench_sim import bench_expert, bench_sensors
+from topodrake.montecarlo import run_trials, trial_seeds
+from topodrake.navigation.outcomes import drive_outcome, exit_status
+from topodrake.systems.scenario import load_scenario
+from topodrake.systems.trials import expert_trial
+from topodrake.world import load_world
+from topodrake.world.catalogue import catalogue_names
+from topodrake.world.plot import plot_world, save_figure
 
 DESCRIPTION = ("topodrake: visual topological navigation on Drake. Drive, collect "
                "demonstrations, train, sparsify, inspect worlds and benchmark.")
@@ -46,9 +61,7 @@ def _print_result(result: dict, as_json: bool) -> None:
 
 
 def cmd_drive(args) -> int:
-    from topodrake.navigation.outcomes import drive_outcome, exit_status
     from topodrake.systems.run import run_scenario
-    from topodrake.systems.scenario import load_scenario
 
     summary = run_scenario(load_scenario(args.scenario)).summary()
     summary["outcome"] = drive_outcome(summary["outcome"], summary["distance_to_goal_m"])
@@ -57,14 +70,10 @@ def cmd_drive(args) -> int:
 
 
 def cmd_trials(args) -> None:
-    from topodrake.montecarlo import run_trials, trial_seeds
-    from topodrake.systems.trials import expert_trial
-
     seeds = trial_seeds(args.seed, args.trials)
     results = run_trials(expert_trial, seeds, workers=args.workers, ray_address=args.ray,
                          desc="expert trials", world=args.world, start_place=args.start_place,
                          goal_place=args.goal_place, noise_std=args.noise, camera=args.camera)
-    from topodrake.navigation.outcomes import drive_outcome
 
     outcomes = [drive_outcome(r["outcome"], r["distance_to_goal_m"]) for r in results]
     n = len(results)
@@ -79,7 +88,6 @@ def cmd_trials(args) -> None:
 def cmd_collect(args) -> None:
     check_output_folder(args.out, marker="manifest.json", what="demonstrations (manifest.json)",
                         force=args.force)
-    from topodrake.demonstrations import CollectConfig, collect, load_demos
 
     config = CollectConfig(protocol=args.protocol, count=args.count, seed=args.seed,
                            noise_std=args.noise, chunk_size=args.chunk_size)
@@ -91,8 +99,6 @@ def cmd_collect(args) -> None:
 
 
 def cmd_world_list(args) -> None:
-    from topodrake.world.catalogue import catalogue_names
-
     names = catalogue_names()
     if args.json:
         print(json.dumps(names))
@@ -101,8 +107,6 @@ def cmd_world_list(args) -> None:
 
 
 def cmd_world_info(args) -> None:
-    from topodrake.world import load_world
-
     info = load_world(args.world).info()
     if args.json:
         print(json.dumps(info))
@@ -118,8 +122,6 @@ def cmd_world_plot(args) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from topodrake.world import load_world
-    from topodrake.world.plot import plot_world, save_figure
 
     world = load_world(args.world)
     fig, ax = plt.subplots(figsize=(9, 9))
@@ -136,20 +138,14 @@ def cmd_world_plot(args) -> None:
 
 
 def cmd_bench_expert(args) -> None:
-    from topodrake.experiments.bench_sim import bench_expert
-
     _print_result(bench_expert(args.pairs, args.seed, args.batch), args.json)
 
 
 def cmd_bench_sensors(args) -> None:
-    from topodrake.experiments.bench_sim import bench_sensors
-
     _print_result(bench_sensors(args.world, args.batch, args.vtk_poses, args.seed), args.json)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from topodrake import __version__
-
     p = at.Parser(prog="topodrake", description=DESCRIPTION, epilog=WORKFLOW,
                   formatter_class=at.RawEpilogFormatter)
     p.add_argument("--version", action="version", version=f"topodrake {__version__}",
@@ -157,8 +153,6 @@ def build_parser() -> argparse.ArgumentParser:
     sub = at.subcommands(p, dest="command", metavar="COMMAND")
     p.set_defaults(func=lambda args: _welcome(p))
 
-    from topodrake.apps.demo import add_demo_parser
-    from topodrake.apps.navigate_cli import add_navigate_parser
 
     add_demo_parser(sub)
     add_navigate_parser(sub)
@@ -214,12 +208,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_force_option(wp)
     wp.set_defaults(func=cmd_world_plot)
 
-    from topodrake.apps.train_cli import add_bench_parser, add_train_parser
-    from topodrake.apps.sparsify_cli import add_sparsify_parser
 
     add_train_parser(sub)
     add_sparsify_parser(sub)
-    from topodrake.apps.map_cli import add_map_parser
 
     add_map_parser(sub)
 
@@ -241,7 +232,6 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     be.set_defaults(func=cmd_bench_expert)
     add_bench_parser(bsub)
-    from topodrake.apps.map_cli import add_map_bench_parser
 
     add_map_bench_parser(bsub)
     return p

@@ -25,6 +25,21 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake.apps.drive import drive_route, plot_drive
+from topodrake.apps.navigate_cli import EXIT_HELP, chain_from_expert, plan_on_map, success_chance
+from topodrake.apps.outputs import add_force_option, check_output, check_output_folder, write_kept
+from topodrake.errors import TopodrakeError
+from topodrake.fileio import atomic_write_bytes
+from topodrake.navigation.outcomes import SUCCESS_M, drive_outcome, exit_status, goal_distance
+from topodrake.odometry import ODOMETRY_MODELS, odometry_model
+from topodrake.sensing.camera import Camera
+from topodrake.sensing.lidar import Lidar
+from topodrake.systems.scenario import Scenario
+from topodrake.topomap.mapfile import read_map_meta
+from topodrake.topomap.sources import resolve_checkpoint
+from topodrake.world import load_world
+from topodrake.world.plot import legend_below, plot_world, save_figure
+
 
 def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int = 5,
              out_dir: str = "out/demo", seed: int = 0, noise_std: float = 0.33,
@@ -34,16 +49,8 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from topodrake.fileio import atomic_write_bytes
-    from topodrake.navigation.outcomes import drive_outcome
-    from topodrake.apps.outputs import write_kept
-    from topodrake.sensing.camera import Camera
-    from topodrake.sensing.lidar import Lidar
     from topodrake.systems.diagram import build_expert_diagram
     from topodrake.systems.run import ExpertRunner
-    from topodrake.systems.scenario import Scenario
-    from topodrake.world import load_world
-    from topodrake.world.plot import legend_below, plot_world, save_figure
 
     wall = time.perf_counter()
     world = load_world(world_name)
@@ -120,16 +127,7 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
     shipped for it), on ``odometry`` (a model of
     :data:`topodrake.odometry.ODOMETRY_MODELS`, its errors drawn from ``seed``); returns the written files
     and a summary (outcome, times, real-time factor warm and cold)."""
-    from topodrake.errors import TopodrakeError
-    from topodrake.fileio import atomic_write_bytes
-    from topodrake.apps.navigate_cli import chain_from_expert, plan_on_map, success_chance
-    from topodrake.apps.drive import drive_route, plot_drive
-    from topodrake.navigation.outcomes import SUCCESS_M, drive_outcome, goal_distance
-    from topodrake.odometry import odometry_model
-    from topodrake.apps.outputs import write_kept
     from topodrake.systems.navigation import NavigationScenario, load_networks
-    from topodrake.topomap.mapfile import read_map_meta
-    from topodrake.world import load_world
 
     wall = time.perf_counter()
     odometry_cfg = odometry_model(odometry)
@@ -210,8 +208,6 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
 
 def check_outputs(args) -> None:
     """The demo's folder and the files it writes there, checked before the drive."""
-    from topodrake.apps.outputs import check_output, check_output_folder
-
     out = check_output_folder(args.out)
     files = ["plan.png"] + (["camera.png"] if args.expert else []) \
         + (["meshcat.html"] if args.meshcat or not args.expert else [])
@@ -223,8 +219,6 @@ def cmd_demo(args) -> int:
     import json
     import math
 
-    from topodrake.errors import TopodrakeError
-    from topodrake.navigation.outcomes import exit_status
 
     if args.noise is not None and not (math.isfinite(args.noise) and args.noise >= 0):
         raise TopodrakeError(f"--noise must be finite and >= 0, got {args.noise}")
@@ -271,8 +265,6 @@ def demo_map(args):
     """The map the learned demo plans on: ``--map``; none with ``--controller``
     or ``--reach`` or ``--world`` (one expert drive's anchors); else the
     shipped demo map."""
-    from topodrake.topomap.sources import resolve_checkpoint
-
     if args.map:
         return args.map
     if args.controller or args.reach or args.world != DEMO_WORLD:
@@ -281,9 +273,6 @@ def demo_map(args):
 
 
 def add_demo_parser(sub) -> None:
-    from topodrake.apps.navigate_cli import EXIT_HELP
-    from topodrake.odometry import ODOMETRY_MODELS
-
     demo = sub.add_parser("demo", help="the learned follower drives a plan between two "
                                        "places in the Drake diagram (--expert: the expert drives)",
                           epilog=EXIT_HELP)
@@ -318,7 +307,6 @@ def add_demo_parser(sub) -> None:
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     demo.add_argument("--json", action="store_true",
                       help="print only the summary as one JSON object (default: off)")
-    from topodrake.apps.outputs import add_force_option
 
     add_force_option(demo)
     demo.set_defaults(func=cmd_demo)

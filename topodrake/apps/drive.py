@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from topodrake.navigation.follower import MODES
 from topodrake.contract.route import Route, route_from_observations
+from topodrake.navigation.follower import MODES
+from topodrake.world.plot import legend_below, plot_world, save_figure
 
 #: the driven path by follower mode, in colours the map (blues) and the plan (purple) do not use
 MODE_COLORS = {"search": "tab:olive", "follow": "tab:green", "dead_reckoning": "tab:orange",
@@ -94,7 +95,6 @@ def plot_drive(world, route: Route, result, out, *, start=None, goal=None, map_l
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from topodrake.world.plot import legend_below, plot_world, save_figure
 
     fig, ax = plt.subplots(figsize=(10, 9))
     if map_layers is not None:

@@ -20,10 +20,29 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.apps import argtypes as at
-from topodrake.errors import TopodrakeError
-from topodrake.topomap.graph import load_map_config
-from topodrake.topomap.recalibrate import PRIOR_WEIGHT
 from topodrake.apps.outputs import add_force_option, check_output, check_output_folder, write_kept
+from topodrake.errors import TopodrakeError
+from topodrake.experiments.map_cache import house_key
+from topodrake.experiments.plan_methods import plan_calibration_path
+from topodrake.navigation.replan import traversals_of_records
+from topodrake.topomap.graph import TopoMap, load_map_config
+from topodrake.topomap.mapfile import read_map_arrays, save_map
+from topodrake.topomap.plan import plan_path
+from topodrake.topomap.plan_calibration import fit_from_records, read_trial_records
+from topodrake.topomap.plot import plot_map_file
+from topodrake.topomap.recalibrate import PRIOR_WEIGHT, experience_summary, record_traversals
+from topodrake.topomap.resumable import MapBuild, interrupted_build, resume_file
+from topodrake.topomap.retrieval import default_embedding
+from topodrake.topomap.sources import (
+    demo_drives,
+    demo_folder,
+    drive_observations,
+    drives_between,
+    make_scorer,
+    open_map,
+    view_scans,
+)
+from topodrake.world import load_world
 
 
 class Unreachable(TopodrakeError):
@@ -44,8 +63,6 @@ def parse_pose(text: str, what: str) -> np.ndarray:
 
 
 def cmd_map_build(args) -> None:
-    from topodrake.topomap.sources import demo_folder
-
     wall = time.perf_counter()
     out = check_output(args.out, "map", force=args.force)
     if args.add and not out.is_file():
@@ -84,12 +101,6 @@ def cmd_map_build(args) -> None:
 def _start_build(args, out: Path, collect_into: Path | None):
     """The map to grow (new, ``--add``'s, or an interrupted build's) and the
     drives to add (collected first into ``collect_into`` when given)."""
-    from topodrake.topomap.graph import TopoMap
-    from topodrake.topomap.resumable import MapBuild, interrupted_build, resume_file
-    from topodrake.topomap.retrieval import default_embedding
-    from topodrake.topomap.sources import demo_drives, drives_between, make_scorer, open_map
-    from topodrake.world import load_world
-
     world = load_world(args.world)
     config = load_map_config(args.config)
     base = set()
@@ -150,8 +161,6 @@ def _place_list(text: str) -> list[int]:
 
 
 def map_info(path) -> dict:
-    from topodrake.topomap.mapfile import read_map_arrays
-
     meta, z = read_map_arrays(path)
     v, e = len(z["vertex_id"]), len(z["edge_src"])
     kinds = np.bincount(z["edge_kind"], minlength=2)
@@ -175,16 +184,12 @@ def cmd_map_info(args) -> None:
 
 def cmd_map_plot(args) -> None:
     check_output(args.out, "image", force=args.force)
-    from topodrake.topomap.plot import plot_map_file
 
     plot_map_file(args.file, args.out)
     print(f"wrote {args.out}")
 
 
 def cmd_map_plan(args) -> None:
-    from topodrake.topomap.plan import plan_path
-    from topodrake.topomap.sources import drive_observations, open_map, view_scans
-
     check_output(args.plot, "image", force=args.force, option="--plot")
     start, goal = parse_pose(args.start, "start"), parse_pose(args.goal, "goal")
     loaded = open_map(args.file, args.reach, args.controller)
@@ -228,9 +233,6 @@ STUDY_METHODS = {"camera": "ours", "lidar": "lidar", "lidar_reg": "lidar_reg",
 
 
 def cmd_map_calibrate(args) -> None:
-    from topodrake.experiments.plan_methods import plan_calibration_path
-    from topodrake.topomap.plan_calibration import fit_from_records, read_trial_records
-
     name = STUDY_METHODS[args.method]
     if args.out is None:
         args.out = str(plan_calibration_path(name))
@@ -251,13 +253,6 @@ def cmd_map_calibrate(args) -> None:
 
 def cmd_map_refit(args) -> None:
     """Fold a planning study's recorded drives on a map into its edges."""
-    from topodrake.navigation.replan import traversals_of_records
-    from topodrake.experiments.map_cache import house_key
-    from topodrake.topomap.mapfile import save_map
-    from topodrake.topomap.plan_calibration import read_trial_records
-    from topodrake.topomap.recalibrate import experience_summary, record_traversals
-    from topodrake.topomap.sources import open_map
-
     out = check_output(args.out, "map", force=args.force)
     loaded = open_map(args.file)
     house = house_key(loaded.topomap.world)
@@ -384,8 +379,6 @@ def cmd_bench_map(args) -> None:
 
     from tqdm import tqdm
 
-    from topodrake.topomap.plan import plan_path
-    from topodrake.topomap.sources import drive_observations, open_map
 
     path = Path(args.map)
     say = (lambda text: None) if args.quiet else \

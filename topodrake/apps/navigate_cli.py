@@ -24,9 +24,30 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake.apps.drive import chain_route, drive_route, plot_drive
+from topodrake.apps.map_cli import Unreachable
+from topodrake.apps.outputs import add_force_option, check_folder, check_output, write_kept
+from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.plan_trials import SUCCESS_M
+from topodrake.fileio import atomic_write_bytes
+from topodrake.learning.reachability.controllers import controller_policy
+from topodrake.navigation.outcomes import drive_outcome, exit_status, goal_distance
+from topodrake.navigation.replan import route_traversals
 from topodrake.odometry import ODOMETRY_MODELS, odometry_model
+from topodrake.rollout import ExpertRollout, RolloutConfig
+from topodrake.topomap.mapfile import save_map
+from topodrake.topomap.plan import plan_from_vertex, plan_path
+from topodrake.topomap.plot import _map_layers
+from topodrake.topomap.recalibrate import record_traversals
+from topodrake.topomap.sources import (
+    check_controller,
+    drive_observations,
+    load_networks,
+    open_map,
+    view_scans,
+)
+from topodrake.world import load_world
 
 DEFAULT_CONTROLLER = "checkpoints/camera_k5/checkpoint.pt"
 DEFAULT_REACH = "checkpoints/reach_camera_k5/checkpoint.pt"
@@ -67,8 +88,6 @@ def check_args(args) -> None:
 def _networks(controller: str, reach: str | None):
     """(C_WP, RE): ``controller`` a C_WP checkpoint or ``"registration"``
     (whose RE defaults to its shipped one)."""
-    from topodrake.topomap.sources import load_networks
-
     return load_networks(controller, reach)
 
 
@@ -76,12 +95,7 @@ class MapPlanner:
     """A map file loaded once, with the RE and C_WP it was built for, that
     plans from poses (their observations rendered) and replans without
     given edges."""
-
     def __init__(self, path: Path, reach_path=None, controller_path=None):
-        from topodrake.learning.reachability.controllers import controller_policy
-        from topodrake.topomap.plot import _map_layers
-        from topodrake.topomap.sources import open_map
-
         self.path = Path(path)
         loaded = open_map(path, reach_path, controller_path)
         if not hasattr(loaded.scorer, "reach"):
@@ -97,9 +111,6 @@ class MapPlanner:
         """The PlanResult from pose ``start`` (or from the map vertex
         ``vertex``: a replanning car returning to an anchor) to pose
         ``goal``, made for ``time_limit_s`` seconds of driving where given."""
-        from topodrake.topomap.plan import plan_from_vertex, plan_path
-        from topodrake.topomap.sources import drive_observations, view_scans
-
         poses = np.stack([start, goal])
         obs = drive_observations(self.world, self.scorer, poses)
         scans = view_scans(self.world, self.topomap, poses)
@@ -133,10 +144,6 @@ def plan_on_map(path: Path, start, goal, reach_path=None, controller_path=None,
 
 def chain_from_demos(folder: Path, start, goal, drive, policy, reach, p):
     """(world, route, drive index) of a demonstration folder's drive."""
-    from topodrake.demonstrations import load_demos
-    from topodrake.apps.drive import chain_route
-    from topodrake.world import load_world
-
     manifest, demos = load_demos(folder, successful_only=True)
     if not demos:
         raise TopodrakeError(f"{folder} holds no successful drives")
@@ -173,10 +180,6 @@ def chain_from_expert(world_spec: str, start, goal, policy, reach, p):
     """(world, route) of one noise-free expert drive from ``start`` to
     ``goal``, ended at its closest pass of the goal (:func:`teach_end`: the
     route's last anchor is the goal's view)."""
-    from topodrake.apps.drive import chain_route
-    from topodrake.rollout import ExpertRollout, RolloutConfig
-    from topodrake.world import load_world
-
     world = load_world(world_spec)
     world.check_pose(start, "start")
     world.check_pose(goal, "goal")
@@ -192,8 +195,6 @@ def chain_from_expert(world_spec: str, start, goal, policy, reach, p):
 
 def check_outputs(args) -> None:
     """Every file navigate writes, checked before the drive."""
-    from topodrake.apps.outputs import check_folder, check_output
-
     check_output(args.plot, "image", force=args.force, option="--plot")
     check_output(args.meshcat, "html", force=args.force, option="--meshcat")
     if args.update_map:
@@ -201,10 +202,7 @@ def check_outputs(args) -> None:
 
 
 def cmd_navigate(args) -> int:
-    from topodrake.apps.drive import drive_route
-    from topodrake.navigation.outcomes import drive_outcome, exit_status, goal_distance
     from topodrake.systems.navigation import NavigationScenario
-    from topodrake.topomap.sources import check_controller
 
     check_args(args)
     check_outputs(args)
@@ -245,7 +243,7 @@ def cmd_navigate(args) -> int:
                                   camera_enabled=policy.observation == "camera")
     replanner = None
     if planner is not None and args.replan:
-        from topodrake.navigation.replan import ReplanSchedule, Replanner
+        from topodrake.navigation.replan import Replanner, ReplanSchedule
 
         replanner = Replanner(lambda _, pose, excluded, vertex=None: _route_or_none(planner.plan(
             pose, goal, excluded, time_limit_s=args.t_max, vertex=vertex)), [route],
@@ -285,10 +283,6 @@ def cmd_navigate(args) -> int:
 def _write_drive_files(args, world, route, result, start, goal, layers, outcome, extra) -> None:
     """The plot and the Meshcat recording of a drive (each kept elsewhere when
     its file cannot be written)."""
-    from topodrake.fileio import atomic_write_bytes
-    from topodrake.apps.drive import plot_drive
-    from topodrake.apps.outputs import write_kept
-
     if args.meshcat:
         write_kept(args.meshcat, lambda p: atomic_write_bytes(p, result.recording.encode()),
                    "the recording")
@@ -308,8 +302,6 @@ def _write_drive_files(args, world, route, result, start, goal, layers, outcome,
 
 def _plan_or_refuse(plan, source):
     """The route of a plan; no plan ends the command with exit status 1."""
-    from topodrake.apps.map_cli import Unreachable
-
     if not plan.reachable:
         raise Unreachable(f"no plan from the start to the goal on {source}: {plan.reason}")
     return plan.route
@@ -319,10 +311,6 @@ def _update_map(planner, route, result, failed: list, outcome: str) -> list[dict
     """Fold the run into the map's edges (the hops it passed on its last
     route, the edge it failed on unless time ran out, and those replanning
     left) and save the map over its file."""
-    from topodrake.navigation.replan import route_traversals
-    from topodrake.topomap.mapfile import save_map
-    from topodrake.topomap.recalibrate import record_traversals
-
     passed, gave_up = route_traversals(route.vertices, result.visited, result.active,
                                        outcome == "reached", outcome == "timeout")
     changed = record_traversals(planner.topomap, passed, list(failed) + gave_up)
@@ -375,7 +363,6 @@ def add_navigate_parser(sub) -> None:
                     help="save a Meshcat recording of the drive (default: none)")
     nv.add_argument("--json", action="store_true",
                     help="print the outcome as one JSON object (default: off)")
-    from topodrake.apps.outputs import add_force_option
 
     add_force_option(nv)
     nv.set_defaults(func=cmd_navigate)

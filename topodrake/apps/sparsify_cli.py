@@ -16,19 +16,17 @@ from __future__ import annotations
 import json
 
 from topodrake.apps import argtypes as at
+from topodrake.apps.outputs import add_force_option, check_output
+from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
-from topodrake.apps.outputs import add_force_option
+from topodrake.topomap.sources import check_controller, demo_folder
+from topodrake.world import load_world
 
 
 def cmd_sparsify(args) -> None:
-    from topodrake.apps.outputs import check_output
-    from topodrake.topomap.sources import check_controller, demo_folder
-
     check_output(args.plot, "image", force=args.force, option="--plot")
     check_controller(args.controller, args.reach)
-    from topodrake.demonstrations import load_demos
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.world import load_world
 
     world = load_world(args.world)
     folder = demo_folder(args.world, args.demos)
@@ -46,8 +44,8 @@ def cmd_sparsify(args) -> None:
               "anchors": len(anchors), "keep_ratio": round(len(anchors) / len(poses), 4),
               "p_sparsify": args.p, "anchor_frames": anchors.tolist()}
     if args.hop_runs:
-        from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
         from topodrake.experiments.hops import anchor_hop_success, share_made
+        from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
 
         ok = anchor_hop_success(world, LearnedWaypointPolicy.from_checkpoint(args.controller),
                                 poses, anchors, runs=args.hop_runs, seed=args.seed)

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 from typing import Callable
 
+from topodrake.apps import argtypes as at
+from topodrake.errors import TopodrakeError
+from topodrake.experiments.scenarios import load_scenario, scenario_names, with_changes
+
 
 def add_study_arguments(parser, data_help: str = "cache of demonstrations") -> None:
     """The options every Monte Carlo study shares: seed, data folder, noise,
     workers or Ray, output folder, JSON and progress switches."""
-    from topodrake.apps import argtypes as at
-
     parser.add_argument("--seed", type=at.seed, default=0, help="base seed of the trial seeds")
     parser.add_argument("--data", default="data", help=data_help)
     parser.add_argument("--noise", type=at.nonnegative, default=0.33,
@@ -26,7 +28,6 @@ def study_main(run: Callable, args) -> int:
     """``run(args)``; a TopodrakeError becomes one ``error:`` line and exit code 2."""
     import sys
 
-    from topodrake.errors import TopodrakeError
 
     try:
         return run(args)
@@ -65,7 +66,6 @@ def add_scenario_arguments(parser, schema, scenarios, default: str) -> None:
     its field over the scenario and the text (:func:`scenario_of`)."""
     import argparse
 
-    from topodrake.experiments.scenarios import scenario_names
 
     parser.add_argument("--scenario", default=default,
                         help=f"named scenario of {_shown(scenarios)}: "
@@ -98,8 +98,6 @@ def scenario_of(schema, args, scenarios, changes: dict | None = None):
     file ``scenarios``, ``args.scenario_text`` over it, then every field flag
     given, then ``changes`` (a mapping of fields the study's other flags
     give); checked."""
-    from topodrake.experiments.scenarios import load_scenario, with_changes
-
     given: dict = {}
     for dest, *_ in _flag_fields(schema):
         if hasattr(args, dest):
@@ -121,7 +119,6 @@ def json_object(flag: str, text: str | None) -> dict:
     """A flag's JSON object (``{}`` for none); a bad one is refused in one line."""
     import json
 
-    from topodrake.errors import TopodrakeError
 
     if not text:
         return {}

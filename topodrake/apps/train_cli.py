@@ -18,6 +18,12 @@ from pathlib import Path
 
 from topodrake.apps import argtypes as at
 from topodrake.apps.outputs import add_force_option, check_folder, check_output, check_output_folder
+from topodrake.experiments.bench_onpolicy import bench_follower, parse_controllers
+from topodrake.experiments.waypoint_anatomy import bench_waypoint
+from topodrake.learning.onpolicy.calibration import FollowerCalibrationConfig, calibrate_follower
+from topodrake.learning.samples import collect_trajectories
+from topodrake.learning.trajpack import pack_trajectories
+from topodrake.topomap.embedding_eval import bench_place
 
 
 def _check_folders(args, out=None) -> None:
@@ -161,7 +167,6 @@ def expand_worlds(spec: str) -> list[str]:
     """``train-00..train-03,test-0`` -> the named houses (ranges keep the digits' width)."""
     import re
 
-    from topodrake.errors import TopodrakeError
 
     out = []
     for part in (p.strip() for p in spec.split(",") if p.strip()):
@@ -180,9 +185,6 @@ def expand_worlds(spec: str) -> list[str]:
 
 
 def cmd_train_pack(args) -> None:
-    from topodrake.learning.samples import collect_trajectories
-    from topodrake.learning.trajpack import pack_trajectories
-
     check_output(args.out, "npz", force=args.force)
     check_output_folder(args.data, option="--data")
     worlds = expand_worlds(args.worlds)
@@ -234,8 +236,6 @@ def cmd_train_follower_calibration(args) -> None:
 
     import torch
 
-    from topodrake.learning.onpolicy.calibration import (FollowerCalibrationConfig,
-                                                         calibrate_follower)
 
     torch.set_num_threads(args.threads)
     worlds = FollowerCalibrationConfig.worlds if args.worlds is None else \
@@ -391,7 +391,6 @@ def cmd_bench_follower(args) -> None:
 
     import torch
 
-    from topodrake.experiments.bench_onpolicy import bench_follower, parse_controllers
 
     torch.set_num_threads(args.threads)
     result = bench_follower(parse_controllers(args.controllers, args.cwp, args.re), data=args.data,
@@ -415,7 +414,6 @@ def cmd_bench_waypoint(args) -> None:
 
     import torch
 
-    from topodrake.experiments.waypoint_anatomy import bench_waypoint
 
     torch.set_num_threads(args.threads)
     result = bench_waypoint(args.checkpoints, expand_worlds(args.worlds), samples=args.samples,
@@ -438,8 +436,6 @@ def cmd_bench_waypoint(args) -> None:
 
 
 def cmd_bench_place(args) -> None:
-    from topodrake.topomap.embedding_eval import bench_place
-
     reach = None
     if args.reach:
         from topodrake.errors import TopodrakeError

@@ -57,10 +57,14 @@ import networkx as nx
 import numpy as np
 import torch
 
-from topodrake.errors import TopodrakeError
 from topodrake.contract.frames import context_frames
 from topodrake.contract.route import Route
+from topodrake.demonstrations import load_demos
+from topodrake.errors import TopodrakeError
+from topodrake.sensing.observe import observe
 from topodrake.topomap.plan import PlanResult
+from topodrake.vehicle import VehicleConfig, in_collision
+from topodrake.world import load_world
 
 
 @dataclass
@@ -286,8 +290,6 @@ def jittered_start(world, pose: np.ndarray, rng: np.random.Generator) -> np.ndar
     """The planning protocol's start: ``pose`` moved 0.3 m to a random side
     and turned 9 deg to a random side (the other side, or no jitter, when
     that puts the car into a wall)."""
-    from topodrake.vehicle import VehicleConfig, in_collision
-
     side, turn = rng.choice([-1.0, 1.0], size=2)
     for sd, tn in ((side, turn), (-side, turn), (0.0, 0.0)):
         q = np.array(pose, np.float64)
@@ -309,10 +311,6 @@ def place_pairs_study(world_name: str, demo_folder, net, config: SptmConfig | No
     pairs with a plan (a path joins the top-1 localized vertices), and how
     often the localized start and goal vertices lie within ``near_m`` of the
     true poses (metadata, used only here)."""
-    from topodrake.demonstrations import load_demos
-    from topodrake.sensing.observe import observe
-    from topodrake.world import load_world
-
     world = load_world(world_name)
     _, drives = load_demos(demo_folder)
     t0 = time.time()

@@ -38,13 +38,20 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from topodrake.baselines.retrieval_net import (RetrievalNet, RetrievalNetConfig, RetrievalScorer,
-                                               save_retrieval_checkpoint)
+from topodrake.baselines.retrieval_net import (
+    RetrievalNet,
+    RetrievalNetConfig,
+    RetrievalScorer,
+    save_retrieval_checkpoint,
+)
+from topodrake.demonstrations import demo_poses
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 from topodrake.learning.networks import camera_input
 from topodrake.sensing.config import CameraConfig
+from topodrake.sensing.observe import observe
 from topodrake.typed_yaml import load_typed
+from topodrake.world import load_world
 
 CHECKPOINT = "checkpoint.pt"
 CARD = "card.json"
@@ -118,7 +125,6 @@ def load_retrieval_config(path) -> RetrievalTrainConfig:
 @dataclass
 class FrameSet:
     """Frames of several drives (network inputs) with their drive and time."""
-
     inputs: torch.Tensor      # (N, 3, S, S) float16
     poses: np.ndarray         # (N, 3) metadata (geometric validation only)
     drive: np.ndarray         # (N,) global drive index
@@ -179,10 +185,6 @@ def sample_pairs(frames: FrameSet, n: int, cfg: RetrievalDataConfig,
 def load_drives(world_name: str, data_dir, cfg: RetrievalDataConfig, count: int,
                 rng: np.random.Generator, camera: CameraConfig, progress: bool = False):
     """(images, poses) of ``count`` seeded-random drives of a house's demonstrations."""
-    from topodrake.sensing.observe import observe
-    from topodrake.demonstrations import demo_poses
-    from topodrake.world import load_world
-
     drives = demo_poses(world_name, data_dir, cfg.demo_protocol, cfg.demo_seed, progress)
     pick = np.sort(rng.choice(len(drives), min(count, len(drives)), replace=False))
     world = load_world(world_name)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from topodrake.errors import TopodrakeError
+
 
 def context_frames(n_frames: int, j: int, k: int, frame_step: int = 3) -> np.ndarray:
     """Indices j - k*step .. j + k*step of a trajectory of ``n_frames``, clamped:
@@ -20,8 +22,6 @@ def context_frames(n_frames: int, j: int, k: int, frame_step: int = 3) -> np.nda
 def centre_pose(context, k: int) -> np.ndarray:
     """A pose oracle's target: the centre pose (N, 3) of N contexts of poses
     (N, 2k+1, 3); any other shape is refused in one line."""
-    from topodrake.errors import TopodrakeError
-
     ctx = np.asarray(context, np.float64)
     if ctx.ndim != 3 or ctx.shape[1:] != (2 * k + 1, 3):
         raise TopodrakeError(f"oracle target context must be (N, {2 * k + 1}, 3) poses, "

@@ -13,7 +13,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from topodrake.contract.frames import context_frames
 from topodrake.errors import TopodrakeError
+from topodrake.odometry import OdometryConfig, odometry_along
+from topodrake.se2 import relative
+from topodrake.sensing.observe import camera_scans
 
 
 @dataclass
@@ -102,9 +106,6 @@ def teach_legs(poses: np.ndarray, anchors: np.ndarray, odometry=None, seed: int 
     :class:`~topodrake.odometry.OdometryConfig` with the errors of ``seed``;
     default perfect) measured them: relative poses (A - 1, 3) and ``points``
     poses along each (A - 1, points, 3) (the route's ``legs`` and ``leg_paths``)."""
-    from topodrake.odometry import OdometryConfig, odometry_along
-    from topodrake.se2 import relative
-
     cfg = odometry or OdometryConfig.perfect()
     poses = np.asarray(poses, np.float64).reshape(-1, 3)
     odo = poses if cfg.is_perfect else odometry_along(poses, cfg, seed)
@@ -122,8 +123,6 @@ def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network
     ``k``, ``frame_step`` and ``sensor``; a pose oracle gets the poses) and
     its legs from the drive's odometry (:func:`teach_legs`). A camera
     route keeps each anchor's lidar scan (``lidar``'s, default the car's)."""
-    from topodrake.contract.frames import context_frames
-
     poses = np.asarray(poses, np.float64)
     anchors = np.asarray(anchors, np.int64)
     if len(anchors) == 0 or anchors.min() < 0 or anchors.max() >= len(poses):
@@ -139,7 +138,6 @@ def route_from_trajectory(world, poses: np.ndarray, anchors: np.ndarray, network
                       getattr(network, "sensor", None))
         contexts = obs.reshape(*rows.shape, *obs.shape[1:])
     legs, paths = teach_legs(poses, anchors, odometry, seed)
-    from topodrake.sensing.observe import camera_scans
 
     return Route(contexts, poses[anchors], modality=network.observation, legs=legs,
                  leg_paths=paths,
@@ -154,8 +152,6 @@ def route_from_observations(observations: np.ndarray, poses: np.ndarray, anchors
     each anchor's 2k + 1 context frames, clamped to the trajectory; legs as
     in :func:`route_from_trajectory`; ``scans``: the anchors' lidar scans
     a camera route keeps (A, beams)."""
-    from topodrake.contract.frames import context_frames
-
     poses = np.asarray(poses, np.float64)
     anchors = np.asarray(anchors, np.int64)
     if len(observations) != len(poses):

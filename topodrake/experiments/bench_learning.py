@@ -28,6 +28,14 @@ from contextlib import contextmanager
 import numpy as np
 import torch
 
+from topodrake.experiments.bench_registration import registration_rate
+from topodrake.learning.reachability.labels import ReachLabelConfig, draw_pairs, rollout_pairs
+from topodrake.learning.samples import TrajectorySet, make_samples
+from topodrake.montecarlo import trial_seeds
+from topodrake.rollout import ExpertRollout, RolloutConfig
+from topodrake.sensing.observe import observe
+from topodrake.world import load_world
+
 
 @contextmanager
 def torch_threads(n: int):
@@ -54,9 +62,6 @@ def _rate(fn, n_items: int, min_seconds: float) -> float:
 def expert_drives(world, place_pairs, t_max_s: float):
     """A :class:`TrajectorySet` of the expert's successful drives between
     ``place_pairs`` (start place, goal place) of ``world``."""
-    from topodrake.learning.samples import TrajectorySet
-    from topodrake.rollout import ExpertRollout, RolloutConfig
-
     p = world.places
     res = ExpertRollout(world, RolloutConfig(t_max_s=t_max_s)).run(
         np.array([p[i] for i, _ in place_pairs]), np.array([p[j, :2] for _, j in place_pairs]))
@@ -84,11 +89,8 @@ def bench_networks(config=None, world_name: str = "train-00", batch: int = 64,
     from topodrake.learning.config import TrainConfig
     from topodrake.learning.data import SampleBatcher
     from topodrake.learning.networks import WaypointNetwork, input_size
-    from topodrake.learning.samples import make_samples
     from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
     from topodrake.learning.waypoint.train import waypoint_loss
-    from topodrake.experiments.bench_registration import registration_rate
-    from topodrake.world import load_world
 
     cfg = config or TrainConfig()
     net_cfg = cfg.network
@@ -158,12 +160,8 @@ def bench_reachability(config=None, controller: str | None = None, world_name: s
     weights."""
     from topodrake.learning.networks import WaypointNetwork, input_size
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.learning.reachability.labels import ReachLabelConfig, draw_pairs, rollout_pairs
     from topodrake.learning.reachability.train import ReachTrainConfig
     from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.sensing.observe import observe
-    from topodrake.world import load_world
 
     cfg = config or ReachTrainConfig()
     net_cfg = cfg.network

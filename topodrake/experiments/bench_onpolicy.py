@@ -39,6 +39,23 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.learning.onpolicy.calibration import (
+    StateLabels,
+    follower_probability,
+    label_visited_reach,
+    platt_probability,
+)
+from topodrake.learning.onpolicy.states import (
+    OnPolicyConfig,
+    collect_visited,
+    label_visited,
+    pick_drives,
+    samples_from_fields,
+)
+from topodrake.learning.reachability.calibration import auroc, ece
+from topodrake.learning.samples import collect_trajectories
+from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec, parse_oracle_spec
+from topodrake.world import load_world
 
 #: name: (C_WP checkpoint, RE checkpoint, the C_WP that RE was trained for)
 CONTROLLERS = {
@@ -95,16 +112,8 @@ def bench_controller(cwp_path, re_path, re_controller, *, data="data", worlds=TE
                      oracle: bool = True, progress: bool = False) -> dict:
     """The figures of one controller (see the module docstring)."""
     from topodrake.learning.checkpoint import load_checkpoint
-    from topodrake.learning.onpolicy.calibration import (StateLabels, follower_probability,
-                                                         label_visited_reach, platt_probability)
-    from topodrake.learning.onpolicy.states import (OnPolicyConfig, collect_visited, label_visited,
-                                                    pick_drives, samples_from_fields)
-    from topodrake.learning.reachability.calibration import auroc, ece
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.learning.samples import collect_trajectories
-    from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec
     from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
-    from topodrake.world import load_world
 
     if is_oracle_spec(cwp_path):
         raise TopodrakeError(f"the follower bench measures a network C_WP, not {cwp_path!r} (the "
@@ -200,8 +209,6 @@ def parse_controllers(names: str, overrides: list[str], reach: list[str] | None 
     ``NAME=RE.pt`` overrides of their RE (an RE trained for NAME's C_WP, the
     overridden checkpoint if given); ``must_exist``: an override's file must
     exist."""
-    from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec, parse_oracle_spec
-
     table = CONTROLLERS if table is None else table
     chosen = [n for n in names.split(",") if n]
     unknown = [n for n in chosen if n not in table]

@@ -15,6 +15,7 @@ import numpy as np
 
 from topodrake.registration.icp import register
 from topodrake.se2 import compose, invert
+from topodrake.sensing.lidar import Lidar
 
 
 def registration_rate(world, drive_poses: np.ndarray, batch: int = 256, min_seconds: float = 2.0,
@@ -22,8 +23,6 @@ def registration_rate(world, drive_poses: np.ndarray, batch: int = 256, min_seco
     """Registrations per second of ``batch`` pairs (frames ``i`` and ``i +
     gap`` of ``drive_poses`` (T, 3)) of ``world``, timed over at least
     ``min_seconds``."""
-    from topodrake.sensing.lidar import Lidar
-
     poses = np.asarray(drive_poses, np.float64).reshape(-1, 3)
     if len(poses) <= gap:
         from topodrake.errors import TopodrakeError

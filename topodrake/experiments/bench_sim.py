@@ -10,6 +10,16 @@ import time
 
 import numpy as np
 
+from topodrake.demonstrations import CollectConfig, plan_jobs
+from topodrake.experiments.vtk_parity import depth_errors, parity_summary
+from topodrake.montecarlo import trial_seeds
+from topodrake.rollout import ExpertRollout, RolloutConfig
+from topodrake.sensing.camera import Camera
+from topodrake.sensing.lidar import Lidar
+from topodrake.sensing.scenegraph import vtk_depth_renderer
+from topodrake.systems.scenario import Scenario
+from topodrake.world import load_world
+
 
 def _rate(fn, n_items: int, min_seconds: float = 1.0) -> float:
     """Items per second of ``fn()`` (which handles ``n_items``), after a warm-up call."""
@@ -26,12 +36,6 @@ def _rate(fn, n_items: int, min_seconds: float = 1.0) -> float:
 def bench_sensors(world_name: str = "test-0", batch: int = 4096, vtk_poses: int = 60,
                   seed: int = 0) -> dict:
     """Camera and lidar throughput, Drake VTK throughput, depth parity."""
-    from topodrake.sensing.camera import Camera
-    from topodrake.sensing.lidar import Lidar
-    from topodrake.experiments.vtk_parity import depth_errors, parity_summary
-    from topodrake.world import load_world
-    from topodrake.sensing.scenegraph import vtk_depth_renderer
-
     world = load_world(world_name)
     rng = np.random.default_rng(seed)
     poses = world.sample_free_pose(rng, batch)
@@ -61,11 +65,6 @@ def expert_success(pairs: int = 500, noise_std: float = 0.0, seed: int = 0,
     before ``t_max_s``. Runs on the batched engine, which the parity test
     pins to the Drake diagram.
     """
-    from topodrake.demonstrations import CollectConfig, plan_jobs
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.rollout import ExpertRollout, RolloutConfig
-    from topodrake.world import load_world
-
     per_house = [pairs // len(houses) + (i < pairs % len(houses)) for i in range(len(houses))]
     counts = np.zeros(3, np.int64)
     for h, (name, n) in enumerate(zip(houses, per_house)):
@@ -83,10 +82,8 @@ def drive_parity(world, starts, goals, noise_std: float = 0.33, seed: int = 0,
                  t_max_s: float = 20.0) -> float:
     """Largest distance (m) between the Drake diagram's path and the batched
     engine's for the same starts, goals and noise sequence."""
-    from topodrake.rollout import ExpertRollout, RolloutConfig
     from topodrake.systems.diagram import build_expert_diagram
     from topodrake.systems.run import ExpertRunner
-    from topodrake.systems.scenario import Scenario
 
     scenario = Scenario(world=world.name, noise_std=noise_std, t_max_s=t_max_s, camera_enabled=False)
     runner = ExpertRunner(build_expert_diagram(scenario, world=world))
@@ -106,12 +103,8 @@ def bench_expert(pairs: int = 500, seed: int = 0, batch: int = 256) -> dict:
     """The expert figures of the closed-loop issue (see ``topodrake bench expert``)."""
     import time
 
-    from topodrake.demonstrations import CollectConfig, plan_jobs
-    from topodrake.rollout import ExpertRollout, RolloutConfig
     from topodrake.systems.diagram import build_expert_diagram
     from topodrake.systems.run import ExpertRunner
-    from topodrake.systems.scenario import Scenario
-    from topodrake.world import load_world
 
     out = {}
     clean = expert_success(pairs, 0.0, seed)

@@ -17,6 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.experiments.hops import sparsify_houses
+from topodrake.learning.reachability.calibration import calibration_summary, reliability
+from topodrake.learning.reachability.labels import ReachLabelConfig
+from topodrake.learning.samples import collect_trajectories
+from topodrake.montecarlo import run_trials, trial_seeds
+from topodrake.systems.trials import reach_trial
 
 WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
 #: the REs the study calibrates by default (name=RE.pt:CWP.pt, comma-separated)
@@ -50,7 +56,6 @@ def keep_ratios(reach: str, controller: str, data_dir: str, p: float,
     with RE's anchor-hop calibration and with its temperature (as for any
     other pair), from one pass over the drives."""
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.experiments.hops import sparsify_houses
 
     re = Reachability.from_checkpoint(reach, controller)
     out = sparsify_houses(re, list(WORLDS), Path(data_dir) / "demos" / "pairs-s0", p,
@@ -67,9 +72,6 @@ def summarise_trials(res: list[dict]) -> dict:
     overlaps < 0.05): ``auroc_reached_vs_not_overlapping`` says how well RE
     tells the reached pairs from those, ``auroc_overlapping`` how well it
     ranks the pairs that are actually driven."""
-    from topodrake.learning.reachability.calibration import calibration_summary, reliability
-    from topodrake.learning.reachability.labels import ReachLabelConfig
-
     p = np.array([r["p"] for r in res], float)
     y = np.array([r["success"] for r in res], int)
     seeing = np.array([max(r["start_overlap"]) >= ReachLabelConfig().overlap_lost for r in res])
@@ -92,9 +94,6 @@ def calibration_trials(study: CalibrationStudy, command: str, quiet: bool = Fals
     """The study's result document for ``study``; ``command`` is recorded;
     ``quiet``: no progress bars."""
     from topodrake.learning.reachability.estimator import parse_estimators
-    from topodrake.learning.samples import collect_trajectories
-    from topodrake.montecarlo import run_trials, trial_seeds
-    from topodrake.systems.trials import reach_trial
 
     if study.pairs < 1:
         raise TopodrakeError("--pairs must be >= 1")

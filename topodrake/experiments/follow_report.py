@@ -9,13 +9,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from topodrake.world.plot import save_figure
+
 
 def plot(results: dict, path: Path, n_traj: int) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from topodrake.world.plot import save_figure
 
     fig, ax = plt.subplots(figsize=(8, 5.5))
     for i, (name, r) in enumerate(results.items()):

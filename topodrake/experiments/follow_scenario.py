@@ -19,6 +19,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.experiments.follow_trials import CONTROLLERS
 from topodrake.experiments.plan_scenario import HOUSES, Setting, follower_config
 from topodrake.experiments.scenarios import option
+from topodrake.odometry import odometry_model
 from topodrake.validate import check_count, check_fraction, check_nonnegative, check_seed
 
 #: the kinds of run a controller's chains can be followed in
@@ -86,6 +87,4 @@ class FollowingScenario:
 
     def odometry_config(self):
         """The cars' and the drives' odometry model."""
-        from topodrake.odometry import odometry_model
-
         return odometry_model(self.odometry)

@@ -20,16 +20,22 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, path_length
+from topodrake.experiments.bench_onpolicy import parse_controllers
 from topodrake.experiments.follow_scenario import FollowingScenario
-from topodrake.experiments.follow_trials import (CONTROLLERS, load_trajectories, run_controller,
-                                                trajectories_name)
+from topodrake.experiments.follow_trials import (
+    CHAIN_REACH,
+    CONTROLLERS,
+    load_trajectories,
+    run_controller,
+    trajectories_name,
+)
+from topodrake.learning.waypoint.noisy_oracle import OracleError
+from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, path_length
+from topodrake.world import load_world
 
 
 def parse_sensitivity(text: str | None) -> tuple[str, list[str]] | None:
     """``--sensitivity KEY=V1,V2,...`` as (KEY, values), each checked as an oracle spec value."""
-    from topodrake.learning.waypoint.noisy_oracle import OracleError
-
     if not text:
         return None
     key, sep, values = text.partition("=")
@@ -49,8 +55,6 @@ def parse_chain_reach(items: list[str] | None, specs: dict, reach: list[str] | N
     NAME's own RE answers the follower (the two roles of RE apart). A
     controller of :data:`CHAIN_REACH` keeps its own placing RE unless
     ``--re`` (``reach``) replaces its RE, which then does both."""
-    from topodrake.experiments.follow_trials import CHAIN_REACH
-
     replaced = {o.partition("=")[0] for o in reach or []}
     out = {n: p for n, p in CHAIN_REACH.items() if n in specs and n not in replaced}
     for o in items or []:
@@ -72,8 +76,6 @@ def following(scenario: FollowingScenario, command: str, out: str | Path = "resu
     ``sensitivity`` tables, where there are any."""
     from tqdm import tqdm
 
-    from topodrake.experiments.bench_onpolicy import parse_controllers
-    from topodrake.world import load_world
 
     sc = scenario.validate()
     ps, runs = list(sc.p), set(sc.runs)

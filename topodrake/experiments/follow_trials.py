@@ -20,10 +20,22 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_bytes, atomic_write_json
 from topodrake.experiments.bench_onpolicy import CONTROLLERS as BENCH_CONTROLLERS
-from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec
+from topodrake.fileio import atomic_write_bytes, atomic_write_json, file_sha1
+from topodrake.learning.onpolicy.platt import SIDECAR
+from topodrake.learning.reachability.controllers import (
+    REGISTRATION,
+    controller_policy,
+    registration_runs_key,
+)
+from topodrake.learning.waypoint import noisy_oracle
+from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec, parse_oracle_spec
+from topodrake.montecarlo import trial_seeds
 from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, follow_chains_once, path_length
+from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+from topodrake.navigation.follower import FollowerConfig
+from topodrake.rollout import ExpertRollout, RolloutConfig
+from topodrake.world import load_world
 
 #: name: (C_WP checkpoint, RE checkpoint, the controller the RE was trained for):
 #: the follower bench's controllers, the smaller camera ones, and the
@@ -50,9 +62,6 @@ def make_trajectories(worlds: list[str], n: int, seed: int, lo_m: float = 10.0,
                       hi_m: float = 20.0) -> list[dict]:
     """``n`` successful noise-free expert drives, round-robin over ``worlds``,
     between random free poses whose A* path is ``lo_m``..``hi_m`` long."""
-    from topodrake.rollout import ExpertRollout, RolloutConfig
-    from topodrake.world import load_world
-
     rng = np.random.default_rng(seed)
     out: list[dict] = []
     loaded = {w: load_world(w) for w in worlds}
@@ -115,7 +124,6 @@ def load_trajectories(data: Path, worlds: list[str], n: int, seed: int) -> list[
 class Observations:
     """The network's observations along each trajectory, rendered on first
     use (a rerun whose results are all cached renders none)."""
-
     def __init__(self, network, trajs, world_of):
         self.network, self.trajs, self.world_of = network, trajs, world_of
         self._made: dict[int, np.ndarray] = {}
@@ -215,11 +223,6 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
     ``reach``: what RE's answers cost the follower). ``key``: more settings
     the cached batches depend on.
     ``odometry``: the cars' (and the drives') odometry model (default perfect)."""
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
-    from topodrake.navigation.follower import FollowerConfig
-    from topodrake.rollout import RolloutConfig
-
     m_all = len(chains)
     cover = np.zeros(m_all)
     outcomes = [""] * m_all
@@ -291,7 +294,6 @@ def run_controller(name, spec, trajs, world_of, sc, bar, *, runs_dir, trajectori
     run cache in ``runs_dir``; ``bar``: a progress bar updated once per run."""
     import torch
 
-    from topodrake.learning.reachability.controllers import controller_policy
     from topodrake.learning.reachability.estimator import Reachability
 
     cwp_path, re_path, re_controller = spec
@@ -370,8 +372,6 @@ def sensitivity(name, cwp_path, reach, trajs, obs, world_of, sc, table, cache, b
     chains (default ``reach``)."""
     import re as regex
 
-    from topodrake.learning.reachability.controllers import controller_policy
-    from topodrake.learning.waypoint.noisy_oracle import parse_oracle_spec
 
     key, values = table
     p = sc.headline_p
@@ -398,11 +398,6 @@ def _fingerprint(path: str) -> str:
     """A checkpoint's SHA-1 (with its follower calibration's, where it has
     one), the registration controller's runs key, or an oracle spec's text
     (with a hash of the noisy oracle's source: a code change invalidates its runs)."""
-    from topodrake.fileio import file_sha1
-    from topodrake.learning.onpolicy.platt import SIDECAR
-    from topodrake.learning.reachability.controllers import REGISTRATION, registration_runs_key
-    from topodrake.learning.waypoint import noisy_oracle
-
     if is_oracle_spec(path):
         return f"{path}+{file_sha1(noisy_oracle.__file__)[:16]}"
     if path == REGISTRATION:

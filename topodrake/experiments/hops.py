@@ -20,15 +20,23 @@ from __future__ import annotations
 
 import numpy as np
 
+from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
+from topodrake.learning.reachability.labels import (
+    ReachLabelConfig,
+    rollout_pairs,
+    rollout_to_targets,
+)
+from topodrake.learning.reachability.sparsify import sparsify
+from topodrake.learning.samples import TrajectorySet
+from topodrake.montecarlo import trial_seeds
+from topodrake.world import load_world
 
 
 def anchor_hop_success(world, policy, poses: np.ndarray, anchors: np.ndarray, runs: int = 4,
                        seed: int = 0, config=None) -> np.ndarray:
     """(H, runs) successes of the H = len(anchors) - 1 hops, each run with
     its own noise seed."""
-    from topodrake.montecarlo import trial_seeds
-
     poses = np.asarray(poses, np.float64)
     anchors = np.asarray(anchors, np.int64)
     if runs < 1:
@@ -46,9 +54,6 @@ def _drive_hops(world, policy, poses: np.ndarray, src: np.ndarray, tgt: np.ndarr
                 seeds: np.ndarray, config=None) -> np.ndarray:
     """Outcomes (bool) of driving from frame ``src[m]`` of one trajectory
     (``poses``) toward its frame ``tgt[m]``, one noise seed each."""
-    from topodrake.learning.reachability.labels import ReachLabelConfig, rollout_pairs
-    from topodrake.learning.samples import TrajectorySet
-
     # one trajectory; the rollouts read its poses only (no replayed states needed)
     trajs = TrajectorySet([world.name], np.zeros(1, np.int32), np.array([0, len(poses)]), poses,
                           np.column_stack([poses, np.zeros((len(poses), 2))]))
@@ -69,9 +74,6 @@ def controller_sparsify(world, policy, poses: np.ndarray, runs: int = 16, failur
     and j - i <= ``max_hop`` (which bounds the cost; the keep ratio cannot
     fall below 1 / max_hop). The greedy scan is RE's
     (:func:`topodrake.learning.reachability.sparsify.sparsify`)."""
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.learning.reachability.sparsify import sparsify
-
     poses = np.asarray(poses, np.float64)
     if runs < 1 or not 0 <= failures < runs or max_hop < 1:
         raise TopodrakeError(f"need runs >= 1, 0 <= failures < runs and max_hop >= 1 "
@@ -109,8 +111,6 @@ def sparsify_houses(re, worlds: list[str], demo_root, p: float = 0.99, drives: i
     (``"keep_ratios": {name: ratio}``)."""
     from pathlib import Path
 
-    from topodrake.demonstrations import load_demos
-    from topodrake.world import load_world
 
     check = policy is not None and runs > 0
     others = other_calibrations or {}
@@ -158,9 +158,6 @@ def map_hop_success(world, policy, topomap, hops: int = 200, runs: int = 2, seed
     at rest on u's pose toward v's stored context, under the RE labels'
     rules. Returns ``{"hops", "runs", "hop_success"}`` (the share of runs
     made). Poses are the map's metadata: this is an evaluation."""
-    from topodrake.learning.reachability.labels import ReachLabelConfig, rollout_to_targets
-    from topodrake.montecarlo import trial_seeds
-
     edges = [(u, v) for u, v, kind in topomap.graph.edges(data="kind") if kind == "trajectory"]
     if not edges or runs < 1 or hops < 1:
         return {"hops": 0, "runs": 0, "hop_success": None}

@@ -32,7 +32,16 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.experiments.plan_trials import FALSE_LINK_M
+from topodrake.montecarlo import trial_seeds
 from topodrake.se2 import compose
+from topodrake.sensing.observe import camera_scans
+from topodrake.topomap.build import BuildStats, add_trajectory
+from topodrake.topomap.graph import TopoMap, load_map_config
+from topodrake.topomap.plan import plan_path
+from topodrake.topomap.retrieval import default_embedding
+from topodrake.topomap.sources import demo_drives, drive_observations, make_scorer, place_of
+from topodrake.world import load_world
 
 JOIN_STEP_M = 2.0     # a link or edge between drives longer than this in truth is false
 #: the map kinds a joining study builds
@@ -82,8 +91,6 @@ def joining_triples(n_places: int, n: int, seed: int) -> np.ndarray:
     """(n, 3) ordered triples of distinct places (a, b, c); triple i comes
     from its own spawned seed, so a prefix of a longer study is the same
     triples."""
-    from topodrake.montecarlo import trial_seeds
-
     if n_places < 3:
         raise TopodrakeError(f"joining needs at least 3 places, the world has {n_places}")
     return np.array([np.random.default_rng(s).choice(n_places, 3, replace=False)
@@ -96,8 +103,6 @@ def plan_links(topomap, result, start_pose, goal_pose) -> dict:
     ``longest_link_kind`` (steps that are not trajectory edges),
     ``false_link_m`` and ``false_link_kind`` (the longest false link; 0 and
     "" for none)."""
-    from topodrake.experiments.plan_trials import FALSE_LINK_M
-
     vs = list(result.vertices)
     poses = topomap.pose(vs).reshape(-1, 3)
     xy = np.vstack([np.asarray(start_pose, np.float64)[None, :2], poses[:, :2],
@@ -131,9 +136,6 @@ def join_trial(world, make_map, drive_of, observe, triple, scan=None) -> JoinRes
     lidar scans taken with those views, which the map keeps and checks its
     reuses and links by, as every camera map built by ``topodrake map
     build`` or the planning study does (None: none kept)."""
-    from topodrake.topomap.build import BuildStats, add_trajectory
-    from topodrake.topomap.plan import plan_path
-
     a, b, c = (int(x) for x in triple)
     topomap = make_map()
     stats = BuildStats()
@@ -194,11 +196,6 @@ def house_results(spec: str, modality: str, triples, config, progress: bool) -> 
     """The :class:`JoinResult` of each triple in one house."""
     from tqdm import tqdm
 
-    from topodrake.sensing.observe import camera_scans
-    from topodrake.topomap.graph import TopoMap
-    from topodrake.topomap.retrieval import default_embedding
-    from topodrake.topomap.sources import demo_drives, drive_observations, make_scorer, place_of
-    from topodrake.world import load_world
 
     world = load_world(spec)
     _, drives = demo_drives(spec, None, progress=progress)
@@ -225,7 +222,6 @@ class JoiningStudy:
     """The map-joining study's settings: its houses, the map kinds
     (:data:`MODALITIES`), ordered place triples per house, their seed, and
     the map settings (a MapConfig YAML; None: the library's defaults)."""
-
     houses: list[str] = field(default_factory=lambda: [f"test-{i}" for i in range(5)])
     modalities: list[str] = field(default_factory=lambda: ["camera", "lidar"])
     triples: int = 40
@@ -236,10 +232,6 @@ class JoiningStudy:
 def joining_study(study: JoiningStudy, command: str, quiet: bool = False) -> dict:
     """The study's result document for ``study``; ``command`` is recorded;
     ``quiet``: no progress bars."""
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.topomap.graph import load_map_config
-    from topodrake.world import load_world
-
     houses = [h for h in study.houses if h]
     modalities = [m for m in study.modalities if m]
     bad = [m for m in modalities if m not in MODALITIES]

@@ -19,7 +19,14 @@ import zlib
 from dataclasses import asdict
 from pathlib import Path
 
+from topodrake.demonstrations import CollectConfig, collect, load_demos
 from topodrake.errors import TopodrakeError
+from topodrake.sensing.observe import camera_scans, lidar_scans
+from topodrake.topomap.build import build_map
+from topodrake.topomap.graph import PLAN_ONLY, MapConfig, TopoMap, map_settings, same_config
+from topodrake.topomap.mapfile import check_identity, load_map, read_map_meta, save_map
+from topodrake.topomap.retrieval import default_embedding
+from topodrake.topomap.sources import demo_folder, drive_observations, make_scorer
 
 DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (noise-free)
 
@@ -27,15 +34,11 @@ DEMO_SEED = 0           # the demonstrations: all ordered place pairs, seed 0 (n
 def house_key(spec: str) -> str:
     """A world's name in caches and results: the catalogue name, or a map
     file's folder and stem (as ``topodrake collect`` names its demos)."""
-    from topodrake.topomap.sources import demo_folder
-
     return demo_folder(spec).name
 
 
 def house_drives(spec: str, data: Path, progress: bool) -> list:
     """The successful demonstrations of all ordered place pairs (collected once)."""
-    from topodrake.demonstrations import CollectConfig, collect, load_demos
-
     folder = data / "demos" / f"pairs-s{DEMO_SEED}" / house_key(spec)
     collect(spec, folder, CollectConfig(protocol="pairs", seed=DEMO_SEED), progress=progress)
     _, drives = load_demos(folder, successful_only=True)
@@ -49,8 +52,6 @@ def config_tag(tag: str, config, modality: str = "lidar") -> str:
     appended for any other, so that each config keeps its own maps. A map
     of a ``modality`` other than lidar ignores the lidar-only settings, and
     a pose oracle map the ones only maps with scans read."""
-    from topodrake.topomap.graph import MapConfig, map_settings, same_config
-
     kind = _kind(modality)
     if config is None or same_config(config.flat(), MapConfig(), **kind):
         return tag
@@ -76,9 +77,6 @@ def _adoptable(candidate: Path, world: str, modality: str, names: list[str]) -> 
     """Whether a map built elsewhere (``topodrake map build`` or the map
     scalability study) is this very map: same world, modality, default
     config and the same drives in the same order."""
-    from topodrake.topomap.graph import MapConfig, same_config
-    from topodrake.topomap.mapfile import read_map_meta
-
     try:
         meta = read_map_meta(candidate)
     except TopodrakeError:
@@ -93,12 +91,6 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
     """The map of ``drives[indices]`` for ``modality`` built with ``config``
     (a MapConfig; default: the library's defaults), cached: built when
     missing, each config under its own name (:func:`config_tag`)."""
-    from topodrake.topomap.build import build_map
-    from topodrake.topomap.graph import PLAN_ONLY, MapConfig, TopoMap, same_config
-    from topodrake.topomap.mapfile import load_map, read_map_meta, save_map
-    from topodrake.topomap.retrieval import default_embedding
-    from topodrake.topomap.sources import drive_observations, make_scorer
-
     config = config or MapConfig()
     key = house_key(spec)
     path = map_path(data, key, modality, config_tag(tag, config, modality))
@@ -130,7 +122,6 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
         why = "with another map config" if not same else \
             "before camera and pose oracle maps kept their lidar scans"
         print(f"{path} was built {why}; rebuilding it", file=sys.stderr)
-    from topodrake.sensing.observe import lidar_scans
 
     t0 = time.perf_counter()
     m = TopoMap(scorer, default_embedding(scorer.observation), config, world=spec)
@@ -148,8 +139,6 @@ def get_map(spec: str, world, modality: str, drives: list, indices, data: Path, 
 def _same_identity(path: Path, scorer) -> bool:
     """Whether the cached map at ``path`` was built with ``scorer``'s RE and
     controller (a retrained checkpoint under the same path makes it stale)."""
-    from topodrake.topomap.mapfile import check_identity, read_map_meta
-
     try:
         check_identity(path, read_map_meta(path), scorer.identity)
     except TopodrakeError:
@@ -159,7 +148,6 @@ def _same_identity(path: Path, scorer) -> bool:
 
 class _Lazy:
     """Drives' observations rendered one at a time (with a length, for tqdm)."""
-
     def __init__(self, world, scorer, drives, indices, names):
         self.parts = world, scorer, drives, list(indices), names
 
@@ -167,9 +155,6 @@ class _Lazy:
         return len(self.parts[3])
 
     def __iter__(self):
-        from topodrake.sensing.observe import camera_scans
-        from topodrake.topomap.sources import drive_observations
-
         world, scorer, drives, indices, names = self.parts
         for i, n in zip(indices, names):
             poses = drives[i].poses

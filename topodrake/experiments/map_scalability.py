@@ -19,8 +19,18 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake.contract.frames import context_frames
+from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
+from topodrake.experiments.hops import map_hop_success
+from topodrake.experiments.map_cache import config_tag
 from topodrake.fileio import atomic_write_json
+from topodrake.learning.samples import collect_trajectories
+from topodrake.topomap.build import BuildStats, add_trajectory
+from topodrake.topomap.graph import TopoMap, load_map_config
+from topodrake.topomap.mapfile import save_map
+from topodrake.topomap.retrieval import default_embedding
+from topodrake.topomap.sources import SHIPPED, drive_observations, make_scorer, shipped_checkpoint
 
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
 
@@ -28,9 +38,6 @@ HOUSES = "test-0,test-1,test-2,test-3,test-4"
 def dense_edges(scorer, world, drives, p_edge: float, samples: int, seed: int,
                 radius_m: float = 4.0, turn_rad: float = np.radians(100)) -> dict:
     """Estimated edges of the dense graph over all frames of ``drives``."""
-    from topodrake.contract.frames import context_frames
-    from topodrake.topomap.sources import drive_observations
-
     poses = np.concatenate([d.poses for d in drives])
     starts = np.cumsum([0] + [len(d.poses) for d in drives])
     owner = np.repeat(np.arange(len(drives)), np.diff(starts))
@@ -68,7 +75,6 @@ class ScalabilityStudy:
     frames, the trajectory edges driven per map and the noisy runs of each,
     the seed of every sample and noise, the map settings (a MapConfig YAML;
     None: the defaults) and the cache of demonstrations and maps."""
-
     worlds: list[str] = field(default_factory=lambda: HOUSES.split(","))
     modality: str = "camera"
     trajectories: int = 90
@@ -87,15 +93,6 @@ def run_house(house: str, study: ScalabilityStudy, policy_for, map_config, confi
               quiet: bool = False) -> dict:
     """One house's map built drive by drive with ``map_config`` (saved in
     ``DATA/maps/``, its name tagged with ``config_tag``) and its figures."""
-    from topodrake.demonstrations import load_demos
-    from topodrake.learning.samples import collect_trajectories
-    from topodrake.topomap.build import BuildStats, add_trajectory
-    from topodrake.topomap.graph import TopoMap
-    from topodrake.experiments.hops import map_hop_success
-    from topodrake.topomap.mapfile import save_map
-    from topodrake.topomap.retrieval import default_embedding
-    from topodrake.topomap.sources import drive_observations, make_scorer
-    from topodrake.world import load_world
     from tqdm import tqdm
 
     root = Path(study.data) / "demos" / "pairs-s0"
@@ -149,9 +146,6 @@ def scalability(study: ScalabilityStudy, command: str, out="results",
     import torch
 
     from topodrake.learning.waypoint.policy import AStarOracle, LearnedWaypointPolicy
-    from topodrake.experiments.map_cache import config_tag
-    from topodrake.topomap.graph import load_map_config
-    from topodrake.topomap.sources import SHIPPED, shipped_checkpoint
 
     torch.set_num_threads(1)
     map_config = load_map_config(study.config)

@@ -28,8 +28,23 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake.demonstrations import CollectConfig, collect, load_demos
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes
+from topodrake.learning.reachability.calibration import auroc, ece
+from topodrake.learning.reachability.labels import ReachLabelConfig, rollout_to_targets
+from topodrake.learning.samples import SampleConfig, _arclength, apply_jitter, draw_jitter
+from topodrake.montecarlo import trial_seeds
+from topodrake.navigation.evaluate import GeometricReachability
+from topodrake.topomap.scorer import (
+    CALIBRATED_ORACLE,
+    TRUSTING_ORACLE,
+    OracleConfig,
+    pair_geometry,
+    reach_from_geometry,
+)
+from topodrake.topomap.sources import demo_folder
+from topodrake.world import load_world
 
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
 FIELDS = ("src", "tgt", "same", "outcome", "label")
@@ -48,10 +63,7 @@ def oracle_reach_pairs(world, drives: list[np.ndarray], n: int, seed: int, *,
     """``n`` labelled (source, target) pairs of the A* oracle controller in
     ``world`` over the drives' pose arrays: ``src`` (n, 3), ``tgt`` (n, 3),
     ``same`` (n,), ``outcome`` and ``label`` (n,)."""
-    from topodrake.learning.reachability.labels import ReachLabelConfig, rollout_to_targets
-    from topodrake.learning.samples import SampleConfig, _arclength, apply_jitter, draw_jitter
     from topodrake.learning.waypoint.policy import AStarOracle
-    from topodrake.montecarlo import trial_seeds
 
     drives = [np.asarray(d, np.float64) for d in drives if len(d) > 1]
     if not drives:
@@ -100,8 +112,6 @@ def _nll(p: np.ndarray, y: np.ndarray) -> float:
 def calibration_scores(probability: np.ndarray, label: np.ndarray, bins: int = 10) -> dict:
     """ECE (``bins`` equal bins), AUROC and mean negative log-likelihood of
     predicted probabilities against 0/1 outcomes."""
-    from topodrake.learning.reachability.calibration import auroc, ece
-
     p = np.asarray(probability, np.float64)
     y = np.asarray(label, np.float64)
     return {"ece": round(ece(p, y, bins), 4), "auroc": round(auroc(p, y), 4),
@@ -114,7 +124,6 @@ def fit_oracle(geometry: dict, label: np.ndarray, start, grid: dict, rounds: int
     candidate values ``grid`` (field name -> values); returns (config, nll)."""
     from dataclasses import replace
 
-    from topodrake.topomap.scorer import reach_from_geometry
 
     y = np.asarray(label, np.float64)
     best = start
@@ -129,9 +138,6 @@ def house_pairs(spec: str, n: int, seed: int, data: Path, progress: bool) -> dic
     """The labelled oracle pairs of one house (cached)."""
     import io
 
-    from topodrake.demonstrations import CollectConfig, collect, load_demos
-    from topodrake.topomap.sources import demo_folder
-    from topodrake.world import load_world
 
     key = demo_folder(spec).name
     path = data / "oracle_reach" / f"{key}-n{n}-s{seed}.npz"
@@ -153,7 +159,6 @@ class OracleReachStudy:
     """The oracle-reach study's settings: its houses (catalogue names or map
     YAMLs), labelled pairs per house, the seed of the pairs and their
     noise, and the cache of demonstrations and pairs."""
-
     houses: list[str] = field(default_factory=lambda: HOUSES.split(","))
     pairs: int = 800
     seed: int = 1
@@ -165,10 +170,6 @@ def oracle_study(study: OracleReachStudy, command: str, quiet: bool = False) -> 
     ``quiet``: no progress bars."""
     from tqdm import tqdm
 
-    from topodrake.navigation.evaluate import GeometricReachability
-    from topodrake.topomap.scorer import (CALIBRATED_ORACLE, TRUSTING_ORACLE, OracleConfig,
-                                          pair_geometry, reach_from_geometry)
-    from topodrake.world import load_world
 
     specs = [h for h in study.houses if h]
     if not specs:

@@ -14,6 +14,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from topodrake.experiments.plan_trials import calibration
+from topodrake.topomap.plan_calibration import FILENAME, PlanCalibration
+from topodrake.topomap.sources import (
+    ROOT,
+    SHIPPED,
+    load_networks,
+    shipped_checkpoint,
+    shipped_controller,
+)
+
 #: what a method's map is built with: the learned RE of a map kind of
 #: :mod:`topodrake.topomap.sources`, the geometric ``"oracle"``, or SPTM's graph
 MAP_KINDS = ("camera", "lidar", "lidar_reg", "oracle", "sptm")
@@ -152,9 +162,6 @@ def networks(modality: str, world=None):
     geometric RE; ``"lidar_reg_oracle_re"``: the registration C_WP and the
     geometric RE; a key of :data:`SCALE_FOLLOWERS`: that C_WP at scale and
     its map kind's learned RE)."""
-    from topodrake.topomap.sources import (SHIPPED, load_networks, shipped_checkpoint,
-                                           shipped_controller)
-
     if modality in ("oracle", "oracle_cwp", "oracle_cwp_lidar"):
         from topodrake.learning.waypoint.policy import AStarOracle
         from topodrake.navigation.evaluate import GeometricReachability
@@ -200,9 +207,6 @@ def plan_calibration_path(method: str):
     map and follower are one shipped system (``ours``, ``lidar``,
     ``lidar_reg`` and ``ours``' variants), beside the C_WP of
     :data:`CALIBRATED_BESIDE_CWP`'s methods; None for the others."""
-    from topodrake.topomap.plan_calibration import FILENAME
-    from topodrake.topomap.sources import ROOT, SHIPPED
-
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r} (known: {', '.join(METHODS)})")
     if method in CALIBRATED_BESIDE_CWP:
@@ -215,8 +219,6 @@ def plan_calibration_path(method: str):
 
 def plan_calibration_of(method: str):
     """The plan calibration shipped for a method (:func:`plan_calibration_path`), or None."""
-    from topodrake.topomap.plan_calibration import PlanCalibration
-
     path = plan_calibration_path(method)
     return PlanCalibration.load(path) if path is not None and path.is_file() else None
 
@@ -236,8 +238,6 @@ def calibration_table(methods: list[str], records: list[dict]) -> dict:
     """Per map method, over its planned trials: the plan probability against
     success (bins and ECE) and, where a calibration ships, its
     ``success_probability`` against success (``ece``; else the raw ECE)."""
-    from topodrake.experiments.plan_trials import calibration
-
     cal = {}
     for m in methods:
         if m in METHODS and METHODS[m].map == "sptm":       # its plans have no probability

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.experiments.plan_methods import METHODS
+from topodrake.world.plot import save_figure
 
 
 def plot_table(houses: dict, methods: list[str], path: Path, trials: int) -> None:
@@ -22,7 +23,6 @@ def plot_table(houses: dict, methods: list[str], path: Path, trials: int) -> Non
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from topodrake.world.plot import save_figure
 
     names = list(houses)
     fig, ax = plt.subplots(figsize=(max(6.0, 1.8 * len(names) + 2), 4.8))
@@ -55,7 +55,6 @@ def plot_calibration(cal: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from topodrake.world.plot import save_figure
 
     names = list(cal)
     fig, axes = plt.subplots(1, len(names), figsize=(4.6 * len(names), 4.8), squeeze=False)
@@ -87,7 +86,6 @@ def plot_pruned(pruned: dict | None, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from topodrake.world.plot import save_figure
 
     fig, ax = plt.subplots(figsize=(6, 4.5))
     if pruned and pruned["fractions"]:

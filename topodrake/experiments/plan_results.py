@@ -21,10 +21,17 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.map_cache import DEMO_SEED, house_key
-from topodrake.experiments.plan_methods import (METHODS, attach_success_probability,
-                                               calibration_houses, calibration_table)
+from topodrake.experiments.plan_methods import (
+    METHODS,
+    attach_success_probability,
+    calibration_houses,
+    calibration_table,
+)
 from topodrake.experiments.plan_scenario import PlanningScenario
 from topodrake.experiments.plan_study import house_job, house_seed, pruned_job, success_by_round
+from topodrake.experiments.plan_trials import SUCCESS_M, pruned_ratio, summarize
+from topodrake.montecarlo import paired_difference, run_trials
+from topodrake.topomap.plan_calibration import read_trial_records
 
 
 def local_changes() -> list[str]:
@@ -48,8 +55,6 @@ def rescore(files_text: str, command: str) -> dict:
     """The shipped plan calibrations against the trials recorded in the
     comma-separated planning.json files (no new trials): the document of
     ``plan_calibration.json``, with ``command`` recorded."""
-    from topodrake.topomap.plan_calibration import read_trial_records
-
     files = [Path(f) for f in files_text.split(",") if f]
     try:
         records, commands = read_trial_records(files)
@@ -73,9 +78,6 @@ def paired_runs(spec: str) -> dict:
     method both ran). Per method: each house's success before and after and
     the paired difference over all common trials, its interval resampled
     within houses (:func:`topodrake.montecarlo.paired_difference`)."""
-    from topodrake.montecarlo import paired_difference
-    from topodrake.topomap.plan_calibration import read_trial_records
-
     sides = [part.strip() for part in spec.split(",")]
     if len(sides) != 2 or not all(sides):
         raise TopodrakeError(f"--paired {spec!r}: give BEFORE.json[:METHOD],AFTER.json[:METHOD]")
@@ -122,8 +124,6 @@ def planning(scenario: PlanningScenario, command: str, quiet: bool = False) -> d
     gives in full under ``config``); ``command`` is recorded; ``quiet``: no
     progress bars."""
     from topodrake.learning.checkpoint import git_revision
-    from topodrake.montecarlo import run_trials
-    from topodrake.experiments.plan_trials import SUCCESS_M, pruned_ratio, summarize
 
     t0 = time.perf_counter()
     code = {"git_revision": git_revision(), "local_changes": local_changes()}   # what runs

@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from topodrake.errors import TopodrakeError
+from topodrake.experiments.map_cache import house_key
 from topodrake.experiments.plan_methods import DEFAULT_METHODS, METHODS
 from topodrake.experiments.plan_trials import T_MAX_S
 from topodrake.experiments.scenarios import option
@@ -27,7 +28,9 @@ from topodrake.navigation.replan import ReplanSchedule
 from topodrake.odometry import ODOMETRY_MODELS
 from topodrake.topomap.graph import MapConfig
 from topodrake.topomap.recalibrate import PRIOR_WEIGHT
+from topodrake.typed_yaml import load_typed_data
 from topodrake.validate import check_count, check_finite, check_positive, check_seed
+from topodrake.world import load_world
 
 #: the test houses of the default run
 HOUSES = ["test-0", "test-1", "test-2", "test-3", "test-4"]
@@ -54,7 +57,6 @@ class Changes:
     """The world changed after it was mapped: ``ours_obstacles`` runs its
     first ``trials`` trials of a house, each alone in a copy of the house
     with ``boxes`` unmapped boxes (0.3-0.6 m) on its planned route."""
-
     trials: int = option(10, "trials per house of ours_obstacles (the first of the trials)",
                          flag="--obstacle-trials")
     boxes: int = option(3, "unmapped boxes per ours_obstacles trial", flag="--obstacles")
@@ -181,9 +183,6 @@ class PlanningScenario:
     def check_worlds(self) -> list[str]:
         """The worlds' house keys, each world loaded (a bad name or file fails
         here, in one line) and holding at least two places."""
-        from topodrake.experiments.map_cache import house_key
-        from topodrake.world import load_world
-
         for spec in self.specs:
             w = load_world(spec)
             if len(w.places) < 2:
@@ -206,7 +205,6 @@ class PlanningScenario:
         the defaults)."""
         import yaml
 
-        from topodrake.typed_yaml import load_typed_data
 
         if "scenario" in doc:
             return load_typed_data(cls, yaml.safe_dump(doc["scenario"]), "recorded scenario")

@@ -23,7 +23,24 @@ import numpy as np
 from topodrake.experiments.map_cache import DEMO_SEED, get_map, house_drives, house_key
 from topodrake.experiments.plan_methods import METHODS, networks
 from topodrake.experiments.plan_scenario import PlanningScenario
+from topodrake.experiments.plan_trials import (
+    FALSE_LINK_M,
+    SUCCESS_M,
+    FollowResult,
+    follow_routes,
+    jittered_starts,
+    longest_link_m,
+    pruned_subset,
+    render_pose_route,
+    trial_pairs,
+)
+from topodrake.navigation.engine import NavigationConfig, NavigationEngine
+from topodrake.navigation.replan import NEAREST, nearest_seen_vertex, route_traversals
 from topodrake.odometry import ODOMETRY_MODELS as ODOMETRY  # the models the cars can drive with
+from topodrake.odometry import odometry_model
+from topodrake.topomap.plan import plan_from_vertex, plan_path
+from topodrake.topomap.sources import drive_observations, view_scans
+from topodrake.world import load_world
 
 SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
 
@@ -31,9 +48,6 @@ SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
 def navigation_config(sc: PlanningScenario):
     """The NavigationConfig the study's cars drive with: the scenario's
     follower and odometry model (:data:`ODOMETRY`)."""
-    from topodrake.navigation.engine import NavigationConfig
-    from topodrake.odometry import odometry_model
-
     return NavigationConfig(follower=sc.follower_config(), odometry=odometry_model(sc.odometry))
 
 
@@ -59,11 +73,6 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
     ``limits``: each trial's time limit where the caller has them
     (:func:`trial_time_limits`, computed here otherwise); ``progress``:
     progress bars while a map is built."""
-    from topodrake.experiments.plan_trials import render_pose_route
-    from topodrake.navigation.replan import NEAREST, nearest_seen_vertex
-    from topodrake.topomap.plan import plan_from_vertex, plan_path
-    from topodrake.topomap.sources import drive_observations, view_scans
-
     data = Path(sc.data)
     meth = METHODS[method]
     if meth.map == "sptm":
@@ -176,9 +185,6 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts,
                sc: PlanningScenario, tag: str = "all", bar=None, progress: bool = False
                ) -> tuple[dict, list[dict]]:
     """One method's trials in one house: (stats, per-trial records)."""
-    from topodrake.navigation.engine import NavigationEngine
-    from topodrake.experiments.plan_trials import SUCCESS_M, follow_routes, longest_link_m
-
     places = np.asarray(world.places, np.float64)
     meth = METHODS[method]
     rounds = experience_rounds(method, sc)
@@ -275,9 +281,6 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, s
     round's drives folded into the map's edges (``odo_seeds``, ``limits``:
     every trial's odometry seed and time limit). Returns the whole run's
     routes, probabilities, false links, follow result and each trial's round."""
-    from topodrake.experiments.plan_trials import SUCCESS_M, FollowResult, follow_routes
-    from topodrake.navigation.replan import route_traversals
-
     bounds = round_bounds(len(pairs), rounds)
     passed, failed = [], []
     routes, prob, false_links = list(routes), list(prob), list(false_links)
@@ -331,8 +334,6 @@ def _rates(records: list[dict]) -> dict:
     of plans with a false link (a link, not a drive's own hop, longer than
     FALSE_LINK_M in truth; SPTM: any step) and of plans with any step that
     long (``long_step_plans``: also the lidar maps' long anchor hops)."""
-    from topodrake.experiments.plan_trials import FALSE_LINK_M
-
     outcomes = [r["outcome"] for r in records]
     planned = [r for r in records if r["planned"]]
     probs = [r["plan_probability"] for r in planned if r["plan_probability"] is not None]
@@ -360,7 +361,6 @@ def _house(seed: int, jobs: dict, sc: PlanningScenario, quiet: bool = True):
     """(spec, world, drives, drives used) of a job's house, torch on one thread."""
     import torch
 
-    from topodrake.world import load_world
 
     torch.set_num_threads(1)
     spec = jobs[seed]
@@ -374,7 +374,6 @@ def house_job(seed: int, jobs: dict, scenario: PlanningScenario, quiet: bool = T
     ``jobs`` maps the job's seed to the house, ``scenario`` is the study's."""
     from tqdm import tqdm
 
-    from topodrake.experiments.plan_trials import jittered_starts, trial_pairs
 
     sc = scenario
     spec, world, drives, n = _house(seed, jobs, sc, quiet)
@@ -406,9 +405,6 @@ def unplanned_pairs(spec: str, world, drives, indices, sc: PlanningScenario, tag
                     progress: bool = False) -> list:
     """The ordered pairs of places (start place, goal place) that get no plan
     on the oracle map, from the start place's own pose."""
-    from topodrake.topomap.plan import plan_path
-    from topodrake.topomap.sources import drive_observations
-
     m, _ = get_map(spec, world, "oracle", drives, indices, Path(sc.data), tag, progress,
                    sc.map_config())
     places = np.asarray(world.places, np.float64)
@@ -426,7 +422,6 @@ def pruned_job(seed: int, jobs: dict, scenario: PlanningScenario, quiet: bool = 
     "records": [...]}``), reused for the fraction 1 where they are enough."""
     from tqdm import tqdm
 
-    from topodrake.experiments.plan_trials import jittered_starts, pruned_subset, trial_pairs
 
     sc = scenario
     spec, world, drives, n = _house(seed, jobs, sc, quiet)

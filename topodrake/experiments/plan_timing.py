@@ -15,19 +15,18 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.experiments.map_cache import get_map
+from topodrake.experiments.plan_methods import METHODS
+from topodrake.experiments.plan_scenario import PlanningScenario
+from topodrake.experiments.plan_study import _house
+from topodrake.topomap.plan import GOAL, START
+from topodrake.topomap.route_time import edge_metres, fit_driving_time, path_metres
+from topodrake.vehicle import VehicleConfig
 
 
 def _route_sizes(doc: dict) -> list[tuple[str, float, int, float, bool]]:
     """(method, metres, hops, seconds, timed out) of a run's planned trials
     that arrived or timed out, on the maps the run planned on."""
-    from topodrake.experiments.plan_methods import METHODS
-    from topodrake.experiments.map_cache import get_map
-    from topodrake.experiments.plan_scenario import PlanningScenario
-    from topodrake.experiments.plan_study import _house
-    from topodrake.topomap.plan import GOAL, START
-    from topodrake.topomap.route_time import edge_metres, path_metres
-    from topodrake.vehicle import VehicleConfig
-
     period_s = VehicleConfig().dt          # a trial's steps are the car's control periods
     sc = PlanningScenario.from_record(doc)
     out = []
@@ -58,8 +57,6 @@ def driving_time_fit(files_text: str, command: str) -> dict:
     import json
     from dataclasses import asdict
 
-    from topodrake.experiments.plan_scenario import PlanningScenario
-    from topodrake.topomap.route_time import fit_driving_time
 
     files = [Path(f) for f in files_text.split(",") if f]
     if not files:

@@ -20,6 +20,20 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.experiments.plan_methods import METHODS, networks
+from topodrake.experiments.plan_study import (
+    _house,
+    house_key,
+    house_seed,
+    navigation_config,
+    odometry_seeds,
+    plan_routes,
+    trial_time_limits,
+)
+from topodrake.experiments.plan_trials import SUCCESS_M, follow_routes, jittered_starts, trial_pairs
+from topodrake.navigation.engine import NavigationEngine
+from topodrake.navigation.follower import MODES
+from topodrake.world.plot import plot_world, save_figure
 
 #: the colours of the follower's modes in :func:`plot_trace`
 MODE_COLOURS = {"search": "0.5", "follow": "tab:blue", "dead_reckoning": "tab:orange",
@@ -51,8 +65,6 @@ class TrialTrace:
     def segments(self) -> list[dict]:
         """The run as spans of one follower mode: {mode, from_s, to_s,
         anchors [first, last] active in the span, pose at its end}."""
-        from topodrake.navigation.follower import MODES
-
         out: list[dict] = []
         for k, (m, a) in enumerate(zip(self.modes, self.active)):
             if out and out[-1]["mode"] == MODES[m]:
@@ -86,14 +98,6 @@ def trace_trials(spec: str, method: str, trials: list[int], scenario) -> list[Tr
     each planned as the study plans it and driven alone. Methods that
     replan or place obstacles are not traced (their drives are not one
     engine run)."""
-    from topodrake.navigation.engine import NavigationEngine
-    from topodrake.experiments.plan_methods import METHODS, networks
-    from topodrake.experiments.plan_study import (_house, house_key, house_seed,
-                                                 navigation_config, odometry_seeds, plan_routes,
-                                                 trial_time_limits)
-    from topodrake.experiments.plan_trials import (SUCCESS_M, follow_routes, jittered_starts,
-                                                  trial_pairs)
-
     if method not in METHODS:
         raise TopodrakeError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     meth = METHODS[method]
@@ -149,8 +153,6 @@ def plot_trace(world, trace: TrialTrace, out: str | Path) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    from topodrake.navigation.follower import MODES
-    from topodrake.world.plot import plot_world, save_figure
 
     ax = plot_world(world, places=False)
     if trace.route_poses is not None:

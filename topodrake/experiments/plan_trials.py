@@ -24,9 +24,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from topodrake.contract.route import Route
 from topodrake.errors import TopodrakeError
+from topodrake.montecarlo import trial_seeds
+from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
 from topodrake.navigation.outcomes import SUCCESS_M, judge_outcome
+from topodrake.navigation.replan import Replanner
+from topodrake.sensing.observe import observe
 from topodrake.topomap.plan_calibration import calibration
+from topodrake.world.obstacles import boxes_on_path, with_boxes
 
 T_MAX_S = 150.0         # 1,500 control periods of 0.1 s
 FALSE_LINK_M = 5.0      # a plan step longer than this in truth joins look-alike places
@@ -38,8 +44,6 @@ def trial_pairs(n_places: int, n: int, seed: int) -> np.ndarray:
     """(n, 2) (start place, goal place) indices, never a place with itself;
     trial i is drawn from its own spawned seed, so a prefix of a longer run
     is the same trials."""
-    from topodrake.montecarlo import trial_seeds
-
     if n_places < 2:
         raise TopodrakeError(f"planning trials need at least 2 places, the world has {n_places}")
     out = np.zeros((n, 2), np.int64)
@@ -55,7 +59,6 @@ def jittered_starts(world, places: np.ndarray, pairs: np.ndarray, seed: int) -> 
     """(n, 3) jittered start poses of the trials ``pairs`` (each from its own
     seed, independent of the pairs' own draws)."""
     from topodrake.baselines.sptm import jittered_start
-    from topodrake.montecarlo import trial_seeds
 
     seeds = trial_seeds(seed + 1, len(pairs))
     return np.array([jittered_start(world, places[a], np.random.default_rng(s))
@@ -80,7 +83,6 @@ def pruned_subset(n_trajectories: int, fraction: float, seed: int) -> np.ndarray
 class GoalWatch:
     """The engine's ``watch``: stops a car within ``radius`` of its goal
     place (an episode ends at its goal) and remembers that it arrived."""
-
     def __init__(self, goals: np.ndarray, radius: float = SUCCESS_M):
         self.goals = np.asarray(goals, np.float64).reshape(-1, 3)
         self.radius = radius
@@ -139,9 +141,6 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     odometry does not depend on the batch it drives in. ``runs``: a list
     that gets each batch's (trial indices, engine
     :class:`~topodrake.navigation.engine.NavigationResult`), for traces."""
-    from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
-    from topodrake.navigation.replan import Replanner
-
     n = len(starts)
     out = FollowResult.not_driven(starts, goals)
     outcome, dist, success, steps = out.outcome, out.final_distance_m, out.success, out.steps
@@ -194,8 +193,6 @@ def follow_past_obstacles(world, make_engine, starts: np.ndarray, routes: list,
     room to place them without closing the way: outcome ``no_room``, not
     driven and left out of the success rate by the caller). ``odometry_seeds``
     as for :func:`follow_routes`."""
-    from topodrake.world.obstacles import boxes_on_path, with_boxes
-
     n = len(starts)
     out = FollowResult.not_driven(starts, goals)
     boxes: list = [None] * n
@@ -235,9 +232,6 @@ def longest_link_m(start, route, goal) -> float:
 def render_pose_route(world, route, sensor=None):
     """A route planned on an oracle (pose) map, its contexts rendered as
     camera images at their poses, for a camera follower."""
-    from topodrake.contract.route import Route
-    from topodrake.sensing.observe import observe
-
     ctx = np.asarray(route.contexts, np.float64)
     if ctx.ndim != 3 or ctx.shape[-1] != 3:
         raise TopodrakeError(f"a pose route has (A, 2k+1, 3) contexts, got {ctx.shape}")

@@ -17,6 +17,23 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.experiments.hops import (
+    anchor_hop_success,
+    controller_sparsify,
+    keep_ratio,
+    share_made,
+)
+from topodrake.learning.reachability.calibration import auroc
+from topodrake.learning.reachability.labels import (
+    ReachLabelConfig,
+    draw_pairs,
+    rollout_pairs,
+    target_contexts,
+)
+from topodrake.learning.samples import _arclength, collect_trajectories
+from topodrake.montecarlo import trial_seeds
+from topodrake.sensing.overlap import mutual_overlap
+from topodrake.world import load_world
 
 WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
 #: the REs the study measures by default (name=RE.pt:CWP.pt, comma-separated)
@@ -48,8 +65,6 @@ MAX_HOP_FRAMES = 40     # 2 m of expert drive: the controller-sparsified hops' c
 def oracle_auroc(outcomes: np.ndarray) -> float:
     """Leave-one-run-out AUROC of the pairs' success rates: ``outcomes``
     (pairs, runs) 0/1; each run's outcomes ranked by the other runs' mean."""
-    from topodrake.learning.reachability.calibration import auroc
-
     runs = outcomes.shape[1]
     if runs < 2:
         raise TopodrakeError("the noise ceiling needs at least two runs per pair")
@@ -62,8 +77,6 @@ def oracle_auroc(outcomes: np.ndarray) -> float:
 
 def mean_auroc(p: np.ndarray, outcomes: np.ndarray) -> float:
     """AUROC of scores ``p`` against each run's outcomes, averaged over runs."""
-    from topodrake.learning.reachability.calibration import auroc
-
     return float(np.mean([auroc(p, outcomes[:, r]) for r in range(outcomes.shape[1])]))
 
 
@@ -79,8 +92,6 @@ def success_by_distance(distance: np.ndarray, success: np.ndarray,
 
 
 def _re_probabilities(re, world, trajs, pairs) -> np.ndarray:
-    from topodrake.learning.reachability.labels import target_contexts
-
     ctx = target_contexts(world, re, trajs, pairs["traj"], pairs["tgt"])
     return re.probability(re.observe(world, pairs["src_pose"]), re.encode_target(ctx))
 
@@ -92,9 +103,6 @@ def controller_keep(re, policy, trajs, drives_per_house: int, runs: int, seed: i
     those hops on fresh seeds, and RE's keep ratio on the same drives."""
     from tqdm import tqdm
 
-    from topodrake.experiments.hops import (anchor_hop_success, controller_sparsify, keep_ratio,
-                                        share_made)
-    from topodrake.world import load_world
 
     frames = kept = kept_re = rollouts = 0
     oks = [np.zeros(0, bool)]
@@ -126,15 +134,9 @@ def measure(reach: str, controller: str, trajs, pairs_per_house: int, runs: int,
     ceiling, blind starts, anchor hops by length, the controller's keep ratio."""
     from tqdm import tqdm
 
-    from topodrake.learning.reachability.calibration import auroc
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.learning.reachability.labels import ReachLabelConfig, draw_pairs, rollout_pairs
     from topodrake.learning.reachability.train import AnchorCalibration
-    from topodrake.learning.samples import _arclength
     from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.sensing.overlap import mutual_overlap
-    from topodrake.world import load_world
 
     re = Reachability.from_checkpoint(reach, controller)
     policy = LearnedWaypointPolicy.from_checkpoint(controller)
@@ -193,7 +195,6 @@ def reach_limits(study: ReachLimitsStudy, command: str, quiet: bool = False) -> 
     import torch
 
     from topodrake.learning.reachability.estimator import parse_estimators
-    from topodrake.learning.samples import collect_trajectories
 
     if study.pairs < len(WORLDS) or study.runs < 2 or study.hop_pairs < 0:
         raise TopodrakeError(f"need --pairs >= {len(WORLDS)}, --runs >= 2 and --hop-pairs >= 0")

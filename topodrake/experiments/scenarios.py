@@ -18,6 +18,7 @@ import dataclasses
 from pathlib import Path
 
 from topodrake.errors import TopodrakeError
+from topodrake.typed_yaml import load_typed, load_typed_data
 
 
 def option(default, help: str, *, flag: str | None = None, choices=None, nested: bool = False):
@@ -54,8 +55,6 @@ def load_scenario(schema, path, name: str, text: str | None = None):
     scenario: the fields it changes from ``schema``'s defaults), then the
     YAML ``text`` on top of it; checked by its ``validate``. An unknown
     name, key or value is refused in one line."""
-    from topodrake.typed_yaml import load_typed, load_typed_data
-
     names = scenario_names(path)
     if name not in names:
         raise TopodrakeError(f"unknown scenario {name!r} in {path}; choose from "
@@ -71,7 +70,6 @@ def with_changes(sc, changes: dict):
     nested configs) applied as YAML over it, checked."""
     import yaml
 
-    from topodrake.typed_yaml import load_typed_data
 
     if not changes:
         return sc.validate()

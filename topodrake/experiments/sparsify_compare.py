@@ -16,7 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
+from topodrake.experiments.hops import anchor_hop_success, share_made, sparsify_houses
+from topodrake.learning.samples import collect_trajectories
+from topodrake.world import load_world
 
 #: the shipped REs the study compares by default (name=RE.pt:CWP.pt, comma-separated)
 DEFAULT_ESTIMATORS = (
@@ -60,8 +64,6 @@ def pick_drive(lengths, drive: int | None) -> int:
 def _demo_folder(study: SparsifyStudy) -> Path:
     """The demonstration folder of the study's world: its ``demos``
     (checked), else its standard demonstrations, made once if missing."""
-    from topodrake.learning.samples import collect_trajectories
-
     if study.demos:
         folder = Path(study.demos)
         if not (folder / "manifest.json").is_file():
@@ -75,12 +77,8 @@ def _demo_folder(study: SparsifyStudy) -> Path:
 def compare_estimators(study: SparsifyStudy, command: str) -> tuple[dict, object, np.ndarray]:
     """(the study's result document, the world, the drive's poses) for
     ``study``; ``command`` is recorded."""
-    from topodrake.demonstrations import load_demos
     from topodrake.learning.reachability.estimator import Reachability, parse_estimators
-    from topodrake.learning.samples import collect_trajectories
     from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
-    from topodrake.experiments.hops import anchor_hop_success, share_made, sparsify_houses
-    from topodrake.world import load_world
 
     if study.hop_runs < 0 or study.check_drives < 0:
         raise TopodrakeError("--hop-runs and --check-drives must be >= 0")

@@ -19,6 +19,8 @@ from pathlib import Path
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
+from topodrake.montecarlo import run_trials, trial_seeds
+from topodrake.systems.trials import controller_trial
 
 CONTROLLERS = ("camera_k0", "camera_k2", "camera_k5", "lidar_k5", "lidar_reg", "direct_k0")
 #: Controllers without a checkpoint folder: name -> what the trials run.
@@ -87,9 +89,6 @@ def run_block(name: str, cond: str, checkpoint: str, noise: float, seeds: list[i
     """The trials of one controller and noise setting (``seeds`` drawn from
     the base ``seed``; demonstrations in ``data``), reused from the run cache
     in ``runs_dir`` when the seeds, noise and checkpoint are the same."""
-    from topodrake.montecarlo import run_trials
-    from topodrake.systems.trials import controller_trial
-
     key = {"controller": name, "condition": cond, "noise_std": noise, "seed": seed,
            "trials": len(seeds), "checkpoint": _fingerprint(checkpoint), "data": str(data)}
     cache = Path(runs_dir) / f"{name}-{cond}.json"
@@ -127,8 +126,6 @@ def success_table(study: SuccessTableStudy, command: str, out="results",
     """(summary ``{name: {"clean": p, "noisy": p}}``, details document) of
     ``study``; blocks are cached in ``OUT/controller_success_runs/``;
     ``command`` is recorded; ``quiet``: no progress bars."""
-    from topodrake.montecarlo import trial_seeds
-
     if study.trials < 1:
         raise TopodrakeError("--trials must be >= 1")
     names = [n.strip() for n in study.controllers if n.strip()]

@@ -6,13 +6,12 @@ import numpy as np
 
 from topodrake.sensing.camera import Camera
 from topodrake.sensing.config import CameraConfig
+from topodrake.sensing.scenegraph import vtk_depth_renderer
 
 
 def depth_errors(world, poses: np.ndarray, camera: CameraConfig | None = None,
                  vtk=None) -> np.ndarray:
     """|ours - VTK| z-depth (m) on every pixel where both see a surface."""
-    from topodrake.sensing.scenegraph import vtk_depth_renderer
-
     camera = camera or CameraConfig()
     ours = Camera(world, camera).render_depth(poses)
     vtk = vtk or vtk_depth_renderer(world, camera)

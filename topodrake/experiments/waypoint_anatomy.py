@@ -21,6 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from topodrake.errors import TopodrakeError
+from topodrake.learning.samples import SampleConfig, collect_trajectories, make_samples
+from topodrake.montecarlo import paired_difference as paired
+
 #: signed target distance bands (m) the error is broken down by
 BANDS = ((-0.5, 0.0), (0.0, 1.0), (1.0, 2.0), (2.0, 3.0), (3.0, 5.0))
 
@@ -83,8 +87,6 @@ def anatomy(pred: np.ndarray, label: np.ndarray, distance: np.ndarray) -> dict:
 
 def paired_difference(err_a: np.ndarray, err_b: np.ndarray, seed: int = 0) -> dict:
     """Mean of ``err_b - err_a`` (m) with a bootstrap 95 % interval over samples."""
-    from topodrake.montecarlo import paired_difference as paired
-
     d = paired(err_a, err_b, seed=seed)
     return {"mean_m": d["mean"], "ci95_m": d["ci95"]}
 
@@ -97,9 +99,7 @@ def bench_waypoint(checkpoints: list[str], worlds: list[str], *, samples: int = 
     1 is the training configs' validation seed)."""
     from pathlib import Path
 
-    from topodrake.errors import TopodrakeError
     from topodrake.learning.checkpoint import load_checkpoint
-    from topodrake.learning.samples import SampleConfig, collect_trajectories, make_samples
 
     if not checkpoints:
         raise TopodrakeError("name at least one C_WP checkpoint")

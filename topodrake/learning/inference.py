@@ -22,8 +22,8 @@ from torch import nn
 from torch.nn import functional as F
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.networks import (HEADS, camera_input, fold_batchnorm, lidar_input,
-                                         max_pool)
+from topodrake.learning.networks import HEADS, camera_input, fold_batchnorm, lidar_input, max_pool
+from topodrake.sensing.observe import observe
 
 
 class InferencePlan:
@@ -160,7 +160,6 @@ class ObservationNetwork:
     encodes targets: ``encode_target(context (N, 2k+1, ...))`` returns the
     target half of the first layer (N, 2k+1, C0, ...), computed once per
     target and reused while it stays the same."""
-
     def __init__(self, model, sensor, name: str = ""):
         self.model = fold_batchnorm(model.eval())   # BatchNorm folded into the convolutions
         # Inference runs on a frozen copy of the weights (training the model
@@ -181,7 +180,6 @@ class ObservationNetwork:
 
     def observe(self, world, poses: np.ndarray) -> np.ndarray:
         """This network's raw observations (its sensor) at ``poses`` (N, 3) in ``world``."""
-        from topodrake.sensing.observe import observe
         return observe(world, self.observation, poses, self.sensor)
 
     @torch.inference_mode()

@@ -49,9 +49,19 @@ from pathlib import Path
 
 import numpy as np
 
-from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_bytes
 from topodrake.contract.frames import context_frames
+from topodrake.control import controls_toward
+from topodrake.demonstrations import CollectConfig, collect, load_demos
+from topodrake.errors import TopodrakeError
+from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints
+from topodrake.fileio import atomic_write_bytes, read_tagged_npz
+from topodrake.montecarlo import trial_seeds
+from topodrake.rmp import RmpConfig
+from topodrake.sensing.config import CameraConfig, LidarConfig
+from topodrake.sensing.lidar import Lidar
+from topodrake.sensing.overlap import mutual_overlap
+from topodrake.vehicle import VehicleConfig, vehicle_step
+from topodrake.world import load_world
 
 FORMAT = "topodrake-samples"
 VERSION = 1
@@ -105,8 +115,6 @@ class TrajectorySet:
         Speeds and steering angles are replayed from rest through the
         vehicle model (the expert starts every drive at rest); a replay that
         departs from the stored poses by more than 1 mm is refused."""
-        from topodrake.vehicle import VehicleConfig, vehicle_step
-
         vehicle = vehicle or VehicleConfig()
         drives = [d for d in drives if len(d[1]) >= 2]
         if not drives:
@@ -139,8 +147,6 @@ class TrajectorySet:
     def from_demo_folders(cls, folders: list) -> "TrajectorySet":
         """Successful drives of demonstration sets written by
         :func:`topodrake.demonstrations.collect` (one folder per world)."""
-        from topodrake.demonstrations import load_demos
-
         worlds, drives = [], []
         for folder in folders:
             manifest, demos = load_demos(folder, successful_only=True)
@@ -187,8 +193,6 @@ def collect_trajectories(world_names: list[str], demo_root, *, protocol: str = "
                          count: int = 90, seed: int = 0, progress: bool = True) -> TrajectorySet:
     """Expert demonstrations of each world (collected into ``demo_root/<world>``
     once, resumed or reused afterwards), as a :class:`TrajectorySet`."""
-    from topodrake.demonstrations import CollectConfig, collect
-
     folders = []
     for name in world_names:
         folder = Path(demo_root) / name
@@ -243,8 +247,6 @@ def expert_waypoint_labels(world, src_poses: np.ndarray, tgt_xy: np.ndarray,
     wall). Also the A* oracle
     of :class:`topodrake.learning.waypoint.policy.AStarOracle`.
     """
-    from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints
-
     src_poses = np.asarray(src_poses, np.float64).reshape(-1, 3)
     tgt_xy = np.asarray(tgt_xy, np.float64).reshape(-1, 2)
     n = len(src_poses)
@@ -287,7 +289,6 @@ def wrap_angle(a):
 @dataclass
 class SampleSet:
     """C_WP samples over a :class:`TrajectorySet` (one row per sample)."""
-
     trajectories: TrajectorySet
     traj: np.ndarray           # (M,) int32 trajectory index
     src: np.ndarray            # (M,) int32 source frame (within its trajectory)
@@ -339,8 +340,6 @@ class SampleSet:
 
     @classmethod
     def load(cls, path) -> "SampleSet":
-        from topodrake.fileio import read_tagged_npz
-
         z = read_tagged_npz(path, FORMAT, VERSION, "sample")
         try:
             meta = json.loads(str(z["meta"]))
@@ -390,13 +389,6 @@ def label_samples(world, trajs: TrajectorySet, traj: np.ndarray, src: np.ndarray
     the frame a source came from (bookkeeping), ``speed_steer`` (M, 2) the
     car's speed and steering there (for the direct-control label;
     ``controls=False`` leaves that label zero, for C_WP-only sets)."""
-    from topodrake.control import controls_toward
-    from topodrake.rmp import RmpConfig
-    from topodrake.sensing.config import CameraConfig, LidarConfig
-    from topodrake.sensing.lidar import Lidar
-    from topodrake.sensing.overlap import mutual_overlap
-    from topodrake.vehicle import VehicleConfig
-
     lidar = lidar or Lidar(world, LidarConfig())
     traj, src, tgt = (np.asarray(a, np.int64) for a in (traj, src, tgt))
     src_pose = np.asarray(src_pose, np.float64).reshape(-1, 3)
@@ -429,9 +421,6 @@ def label_samples(world, trajs: TrajectorySet, traj: np.ndarray, src: np.ndarray
 def _world_samples(world, trajs: TrajectorySet, traj_ids: np.ndarray, n: int,
                    rng: np.random.Generator, cfg: SampleConfig, controls: bool = True) -> dict:
     """Up to ``n`` samples from the trajectories ``traj_ids`` of one world."""
-    from topodrake.sensing.config import LidarConfig
-    from topodrake.sensing.lidar import Lidar
-
     lidar = Lidar(world, LidarConfig())
     lengths = np.array([trajs.rows(t).stop - trajs.rows(t).start for t in traj_ids])
     arcs = [_arclength(trajs.poses[trajs.rows(t)]) for t in traj_ids]
@@ -490,8 +479,6 @@ def make_samples(trajs: TrajectorySet, n: int, seed: int = 0,
     in ``seed``). Worlds are loaded with :func:`topodrake.world.load_world`."""
     from tqdm import tqdm
 
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.world import load_world
 
     cfg = config or SampleConfig()
     worlds = trajs.worlds

@@ -12,6 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from topodrake.contract.route import route_from_observations
+from topodrake.rollout import standard_normal_noise
+from topodrake.sensing.observe import camera_scans
+from topodrake.vehicle import VehicleConfig, in_collision
+
 TOLERANCE_M = 0.5      # a reference sample is covered when the robot comes this close
 DIVERGE_M = 1.0        # the robot is stopped this far from the reference path
 AHEAD = 120            # reference samples (about 6 m) searched ahead of the progress
@@ -26,8 +31,6 @@ def path_length(poses: np.ndarray) -> np.ndarray:
 def jittered_start(world, pose: np.ndarray, rng) -> np.ndarray:
     """``pose`` moved 0.3 m to a random side and turned 9 deg to a random
     side (the other side, or no jitter, when that puts the car into a wall)."""
-    from topodrake.vehicle import VehicleConfig, in_collision
-
     side, turn = rng.choice([-1.0, 1.0], size=2)
     for sd, tn in ((side, turn), (-side, turn), (0.0, 0.0)):
         s = pose.copy()
@@ -43,7 +46,6 @@ class PathWatch:
     """Progress along each car's reference path (the farthest sample, in
     order, it came within ``TOLERANCE_M`` of); stops cars that strayed more
     than ``DIVERGE_M`` from it (the engine's ``watch``)."""
-
     def __init__(self, references: list[np.ndarray]):
         self.refs = references
         self.progress = np.zeros(len(references), np.int64)
@@ -80,10 +82,6 @@ def follow_chains_once(engine, references: list[np.ndarray], observations: list,
     given, sees every car's state after each period. Returns the engine's
     :class:`~topodrake.navigation.engine.NavigationResult` and the
     :class:`PathWatch` (its ``cover(m)``)."""
-    from topodrake.contract.route import route_from_observations
-    from topodrake.rollout import standard_normal_noise
-    from topodrake.sensing.observe import camera_scans
-
     modality = engine.kind         # a pose oracle beside a sensor network reads the anchors' poses
     # the legs as the teach drive's odometry measured them (seed + 2), the repeat's own
     # odometry errors from seed + 3

@@ -34,14 +34,20 @@ from typing import Callable
 import numpy as np
 
 from topodrake.control import controls_toward
-from topodrake.navigation.evaluate import (Evaluator, RouteFeatures, encode_routes,
-                                           initial_track, stack_features)
-from topodrake.navigation.follower import (FollowerConfig, FollowerState, Mode, Reason,
-                                           follower_step)
+from topodrake.navigation.evaluate import (
+    Evaluator,
+    RouteFeatures,
+    encode_routes,
+    initial_track,
+    stack_features,
+)
+from topodrake.navigation.follower import FollowerConfig, FollowerState, Mode, Reason, follower_step
 from topodrake.navigation.manoeuvre import Manoeuvres
-from topodrake.navigation.replan import kept_features
+from topodrake.navigation.replan import kept_features, search_would_start
 from topodrake.odometry import Odometry, OdometryConfig, odometry_to_world
 from topodrake.rollout import RolloutConfig, standard_normal_noise
+from topodrake.sensing.camera import Camera
+from topodrake.sensing.lidar import Lidar
 from topodrake.vehicle import in_collision, vehicle_step
 
 RUNNING, NAV_REACHED, NAV_COLLISION, NAV_TIMEOUT, NAV_SEARCH_FAILED, NAV_DR_GAVE_UP, NAV_DIVERGED = \
@@ -94,11 +100,7 @@ def follower_outcome(state: FollowerState) -> np.ndarray:
 class NavigationEngine:
     """Steps many cars, each following its own route, with one C_WP
     (``policy``) and one RE (``reach``), the functions FollowerFsm calls."""
-
     def __init__(self, world, policy, reach, config: NavigationConfig | None = None):
-        from topodrake.sensing.camera import Camera
-        from topodrake.sensing.lidar import Lidar
-
         self.world = world
         self.policy = policy
         self.reach = reach
@@ -125,8 +127,6 @@ class NavigationEngine:
         Search pass on ``route`` for the car in row ``row`` of this period's
         cars (:func:`~topodrake.navigation.replan.search_would_start`; the
         route and its encoding kept in ``encoded`` under ``id(route)``)."""
-        from topodrake.navigation.replan import search_would_start
-
         def startable(r: int, route) -> bool:
             one = slice(r, r + 1)
             ok, feats = search_would_start(

@@ -28,11 +28,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from topodrake.errors import TopodrakeError
 from topodrake.contract.frames import centre_pose
+from topodrake.contract.route import LEG_POINTS
+from topodrake.errors import TopodrakeError
 from topodrake.navigation.follower import Answers
+from topodrake.navigation.tracker import pad_points, route_frames
 from topodrake.registration.icp import IcpConfig, register_points, scan_points
-from topodrake.sensing.config import LidarConfig
+from topodrake.sensing.config import CameraConfig, LidarConfig
+from topodrake.sensing.overlap import mutual_overlap
 
 # the tracker's scan fixes: a fit from the tracked pose (close to the truth: a looser
 # overlap than a search), and the weakest translation constraint that pins it
@@ -58,7 +61,6 @@ class RouteFeatures:
     ``offsets``: route i's anchors are rows offsets[i]:offsets[i+1]), and
     each anchor's pose in its segment of the routes' legs
     (:func:`topodrake.navigation.tracker.route_frames`; none: no legs)."""
-
     cwp: object
     re: object
     offsets: np.ndarray
@@ -128,7 +130,6 @@ def encode_routes(routes, policy, reach, route_k: int | None = None,
             return _encode(network, np.repeat(poses[:, None], 2 * network.k + 1, axis=1))
         return _encode(network, network_context(ctx, route_k, route_step, network))
 
-    from topodrake.navigation.tracker import route_frames
 
     cwp = features(policy)
     legs = [(r.legs, r.leg_paths) for r in routes]
@@ -155,9 +156,6 @@ def cwp_legs(routes, policy, features, offsets: np.ndarray, route_k: int | None,
     is a direction along the way, not the target's place); the leg's path
     a straight line. ``features``: ``policy``'s target features of every
     anchor (rows ``offsets``)."""
-    from topodrake.contract.route import LEG_POINTS
-    from topodrake.navigation.tracker import pad_points
-
     out = []
     for i, r in enumerate(routes):
         legs, paths = np.array(r.legs, np.float64), np.array(r.leg_paths, np.float64)
@@ -189,8 +187,6 @@ def _reads_poses(network, routes) -> bool:
 
 def stack_features(a: RouteFeatures, b: RouteFeatures) -> RouteFeatures:
     """The features of ``a``'s routes followed by ``b``'s."""
-    from topodrake.navigation.tracker import pad_points
-
     frames = segments = approach = scans = None
     if a.scans is not None and b.scans is not None:
         scans = np.concatenate([a.scans, b.scans])
@@ -241,7 +237,6 @@ class Evaluator:
     (``ranges`` (B, beams) of ``lidar``; lidar observations serve) on routes
     that keep their anchors' scans, :attr:`scan_fixes` registers them for
     the route tracker (:meth:`register_anchors`)."""
-
     def __init__(self, policy, reach, features: RouteFeatures, route_of: np.ndarray,
                  observations: np.ndarray, poses: np.ndarray | None = None,
                  track: np.ndarray | None = None, odometry: np.ndarray | None = None,
@@ -370,14 +365,11 @@ class GeometricReachability:
     distance up to 6 m where the target is in sight, only with the overlap,
     the line of sight and the bearing. The map's oracle is
     :class:`topodrake.topomap.scorer.OracleScorer`."""
-
     observation = "pose"
 
     def __init__(self, world, k: int = 0, frame_step: int = 3, reach_m: float = 6.0,
                  falloff_m: float = 0.5, p_max: float = 0.99, p_hidden: float = 0.3,
                  min_overlap: float = 0.05, camera=None):
-        from topodrake.sensing.config import CameraConfig
-
         self.world = world
         self.k = k
         self.frame_step = frame_step
@@ -392,8 +384,6 @@ class GeometricReachability:
         return centre_pose(context, self.k)
 
     def probability(self, observation: np.ndarray, target) -> np.ndarray:
-        from topodrake.sensing.overlap import mutual_overlap
-
         poses = np.asarray(observation, np.float64).reshape(-1, 3)
         tgt = np.asarray(target, np.float64).reshape(-1, 3)
         poses, tgt = np.broadcast_arrays(poses, tgt)

@@ -22,14 +22,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
+from topodrake.errors import TopodrakeError
 from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints, initial_memory
-from topodrake.expert.config import (_M_LEFT, _M_MODE, _M_PT, _M_PX, _M_PY, _M_STEER,
-                                     _M_TRUST)
+from topodrake.expert.config import _M_LEFT, _M_MODE, _M_PT, _M_PX, _M_PY, _M_STEER, _M_TRUST
 from topodrake.expert.kernel import lidar_world_points
 from topodrake.rmp import RmpConfig
 from topodrake.sensing.config import LidarConfig
 from topodrake.vehicle import VehicleConfig
-from topodrake.world.grid import CAR_RADIUS
+from topodrake.world.astar import astar
+from topodrake.world.grid import CAR_RADIUS, OccupancyGrid
 
 
 @dataclass
@@ -136,8 +137,6 @@ def edge_walls(poses: np.ndarray, ranges: np.ndarray, lidar: LidarConfig, extend
     cone behind the car: where the ``edge_beams`` outermost beams of a side
     all hit within ``near_m``, the line through the outermost and the
     ``edge_beams``-th hit goes on past the outermost one."""
-    from topodrake.expert.kernel import lidar_world_points
-
     pts, hit = lidar_world_points(poses, ranges, lidar)
     r = np.where(hit, np.asarray(ranges, np.float64).reshape(hit.shape), np.inf)
     t = np.arange(step_m, extend_m + 1e-9, step_m)
@@ -183,10 +182,6 @@ def detour_path(grid: LocalGrid, start: np.ndarray, goal: np.ndarray, snap_m: fl
     """A* (K, 2) on the sensed grid from ``start`` to ``goal``, either end
     moved to the nearest free cell within ``snap_m`` where it lies in a
     wall's margin (the path keeps the exact ends); None where none joins them."""
-    from topodrake.errors import TopodrakeError
-    from topodrake.world.astar import astar
-    from topodrake.world.grid import OccupancyGrid
-
     occ = grid.clearance < 0.5 * grid.resolution
     occ_grid = OccupancyGrid(occ, np.array(grid.origin), grid.resolution, grid.car_radius)
     free = occ_grid.free_space
@@ -244,7 +239,6 @@ def ray_path(pose: np.ndarray, waypoint: np.ndarray, ray_m: float, step_m: float
 class Manoeuvres:
     """Per-car sensed scans and expert memory for N cars; :meth:`step`
     turns the follower's waypoints into the ones the RMP drives toward."""
-
     def __init__(self, n: int, starts_odo: np.ndarray, lidar: LidarConfig,
                  config: ManoeuvreConfig | None = None, rmp: RmpConfig | None = None,
                  vehicle: VehicleConfig | None = None):

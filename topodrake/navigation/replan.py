@@ -38,7 +38,9 @@ from typing import Callable
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.navigation.follower import FollowerState, Mode
+from topodrake.navigation.evaluate import Evaluator, encode_routes, initial_track
+from topodrake.navigation.follower import FollowerState, Mode, search_choice
+from topodrake.odometry import odometry_to_world
 from topodrake.se2 import compose, invert
 
 GIVE_UP = ("dead_reckoning_gave_up", "search_failed")
@@ -199,8 +201,6 @@ def located_state(route, pose: np.ndarray, odometry: np.ndarray,
     its first anchor, where the oracle located the car: the anchor's taught
     position (``route.poses[0]``, in the world) given in the car's odometry
     frame from its true ``pose`` and odometry pose ``odometry`` (3,)."""
-    from topodrake.odometry import odometry_to_world
-
     out = fresh.copy()
     out.mode[0], out.active[0], out.visited[0] = Mode.DEAD_RECKONING, 0, -1
     # odometry_to_world with the frames swapped: world -> odometry
@@ -272,9 +272,6 @@ def search_would_start(policy, reach, route, observation, pose: np.ndarray, rang
     and the route's features (:func:`encode_routes`), for the executor to
     keep if the route is taken. Both executors ask this of a replanned
     route before they take it."""
-    from topodrake.navigation.evaluate import Evaluator, encode_routes, initial_track
-    from topodrake.navigation.follower import search_choice
-
     features = encode_routes([route], policy, reach, legs_m=config.tracker.legs_m)
     ev = Evaluator(policy, reach, features, np.zeros(1, np.int64), observation, poses=pose,
                    track=initial_track(policy, 1), odometry=pose if odometry is None else odometry,
@@ -287,7 +284,6 @@ class Replanner:
     """The replanning bookkeeping of one run of N cars: each car's current
     route, tries since that route was taken, plans driven (and of them
     plans from an anchor it returned to), edges excluded."""
-
     def __init__(self, plan: PlanCallback, routes: list, schedule: ReplanSchedule | None = None):
         self.plan = plan
         self.schedule = (schedule or ReplanSchedule()).check()

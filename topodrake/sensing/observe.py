@@ -30,6 +30,4 @@ def lidar_scans(world, poses: np.ndarray, lidar=None) -> np.ndarray:
     """The lidar scans (N, beams) taken at ``poses`` (N, 3) (``lidar``: a
     LidarConfig, default the default): what camera and pose oracle maps
     keep beside their observations for the route tracker."""
-    from topodrake.sensing.lidar import Lidar
-
     return Lidar(world, lidar).scan(np.asarray(poses, np.float64).reshape(-1, 3))

@@ -60,6 +60,8 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.sensing.config import CameraConfig
+from topodrake.world.textures import TEXELS, TILE_M, texture_bank, texture_png_bytes
 from topodrake.world.walls import Faces
 
 #: Thickness (m) of the floor and ceiling slabs.
@@ -92,8 +94,6 @@ def texture_cache_dir() -> Path:
 
 @lru_cache(maxsize=1)
 def _bank_digest() -> str:
-    from topodrake.world.textures import texture_bank
-
     return hashlib.sha1(np.ascontiguousarray(texture_bank()).tobytes()).hexdigest()
 
 
@@ -128,8 +128,6 @@ def _png_bytes(rgb: np.ndarray) -> bytes:
 
 def texture_png_path(tid: int) -> str:
     """Path of one texture tile's PNG (:func:`texture_png_bytes`), written once."""
-    from topodrake.world.textures import texture_png_bytes
-
     return _write_once(f"tex{int(tid):02d}", ("tile", int(tid)),
                        lambda: texture_png_bytes(int(tid)))
 
@@ -156,8 +154,6 @@ def tiled_png_path(tid: int, width_m: float, height_m: float,
 
 
 def _tiled_png(tid, width_m, height_m, u_start, v_start, w, h) -> bytes:
-    from topodrake.world.textures import TEXELS, TILE_M, texture_bank
-
     scale = TEXELS / TILE_M
     u = u_start + (np.arange(w) + 0.5) / w * width_m
     v = v_start + (np.arange(h) + 0.5) / h * height_m
@@ -169,8 +165,6 @@ def _tiled_png(tid, width_m, height_m, u_start, v_start, w, h) -> bytes:
 
 def texture_rgba(tid: int) -> tuple[float, float, float]:
     """Mean colour of a texture tile (r, g, b) in [0, 1]."""
-    from topodrake.world.textures import texture_bank
-
     return tuple(float(c) for c in texture_bank()[int(tid)].reshape(-1, 3).mean(axis=0))
 
 
@@ -262,8 +256,6 @@ def atlas_png_path(tids: tuple, width_m: float, height_m: float, u_start: float,
 
 
 def _atlas_png(tids, width_m, height_m, u_start, w, hb) -> bytes:
-    from topodrake.world.textures import TEXELS, TILE_M, texture_bank
-
     scale = TEXELS / TILE_M
     u = u_start + (np.arange(w) + 0.5) / w * width_m
     v = (np.arange(hb) + 0.5) / hb * height_m
@@ -286,8 +278,6 @@ def _merged_walls(world, idx: np.ndarray) -> tuple[str, tuple]:
     texture id covering ``[u_start, u_start + width_m] x [0, wall_height]``.
     Top and bottom faces are left out: the floor and ceiling slabs hide them.
     """
-    from topodrake.world.textures import TILE_M
-
     walls = world.walls
     h = float(world.wall_height)
     c = walls.corners()[idx]                      # (K, 4, 2) counter-clockwise
@@ -354,9 +344,9 @@ def register_world(scene_graph, world, *, textures: bool = True,
     (:func:`visible_walls`). ``source_name`` must not be registered in
     ``scene_graph`` already.
     """
+    from pydrake.common import MemoryFile
     from pydrake.geometry import Box, InMemoryMesh, Mesh
     from pydrake.math import RigidTransform, RotationMatrix
-    from pydrake.common import MemoryFile
 
     try:
         source_id = scene_graph.RegisterSource(source_name)
@@ -488,16 +478,21 @@ class VtkDepthRenderer:
     Linux). Colour images use :func:`default_lights`. Build one renderer per
     process (do not carry one across ``fork``).
     """
-
     def __init__(self, world, camera=None, *, textures: bool = True, merge: bool = True,
                  cull_hidden: bool = False, min_depth_m: float = 0.01, backend: str = ""):
-        from pydrake.geometry import (ClippingRange, ColorRenderCamera, DepthRange,
-                                      DepthRenderCamera, MakeRenderEngineVtk,
-                                      RenderCameraCore, RenderEngineVtkParams, SceneGraph)
+        from pydrake.geometry import (
+            ClippingRange,
+            ColorRenderCamera,
+            DepthRange,
+            DepthRenderCamera,
+            MakeRenderEngineVtk,
+            RenderCameraCore,
+            RenderEngineVtkParams,
+            SceneGraph,
+        )
         from pydrake.math import RigidTransform
         from pydrake.systems.sensors import CameraInfo
 
-        from topodrake.sensing.config import CameraConfig
 
         self.world = world
         self.camera = camera if camera is not None else CameraConfig()

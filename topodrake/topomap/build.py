@@ -41,11 +41,15 @@ from dataclasses import dataclass
 import networkx as nx
 import numpy as np
 
+from topodrake.contract.frames import context_frames
+from topodrake.contract.route import LEG_POINTS, teach_legs
 from topodrake.errors import TopodrakeError
+from topodrake.learning.reachability.sparsify import hop_caps, sparsify, sparsify_chain
+from topodrake.odometry import OdometryConfig, odometry_along
+from topodrake.registration.icp import IcpConfig, register
 from topodrake.se2 import compose, invert, relative
 from topodrake.topomap.graph import TopoMap, Trajectory
 from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
-from topodrake.learning.reachability.sparsify import hop_caps, sparsify, sparsify_chain
 
 
 @dataclass
@@ -69,8 +73,6 @@ class BuildStats:
 
 
 def context_rows(n_frames: int, frames: np.ndarray, k: int, step: int) -> np.ndarray:
-    from topodrake.contract.frames import context_frames
-
     return context_frames(n_frames, np.asarray(frames, np.int64), k, step).reshape(-1, 2 * k + 1)
 
 
@@ -203,8 +205,6 @@ def drive_odometry(kind: str, poses, seed: int) -> np.ndarray | None:
     """The odometry a drive recorded (T, 3) as :attr:`MapConfig.teach_odometry`
     says (``kind``; wheel odometry's errors drawn from ``seed``), simulated
     from its ``poses``; None for "none" or where the poses are unknown."""
-    from topodrake.odometry import OdometryConfig, odometry_along
-
     if kind == "none" or poses is None or not np.all(np.isfinite(poses)):
         return None
     poses = np.asarray(poses, np.float64)
@@ -217,8 +217,6 @@ def _teach_legs(odo, chain, anchors, positions, offsets: dict | None = None) -> 
     between its frames at the two nodes; a reused vertex at node ``j`` needs
     its pose in the drive's frame there (``offsets[j]``, from
     :func:`_reuse_offsets`), else (None, None)."""
-    from topodrake.contract.route import teach_legs
-
     offsets = offsets or {}
     if odo is None:
         return [(None, None)] * len(positions)
@@ -273,8 +271,6 @@ def _pinned_poses(source, target, config=None, share: float = 0.0) -> list:
     scan's frame (3,), or None where the fit is rejected, pairs less than
     ``share`` of either scan's points, or does not pin the translation (a
     corridor slides)."""
-    from topodrake.registration.icp import register
-
     if not len(source):
         return []
     res = register(np.asarray(source, np.float64), np.asarray(target, np.float64), None, config)
@@ -291,8 +287,6 @@ def join_icp():
     """ICP settings that place the two ends of a join (a cross edge, the goal
     link) from the identity: the ends lie up to a few metres and half a
     right angle apart, farther than a reuse's."""
-    from topodrake.registration.icp import IcpConfig
-
     return IcpConfig(gate_m=1.0, max_shift_m=2.5, max_turn_rad=0.8)
 
 
@@ -306,8 +300,6 @@ def join_legs(source_scans, target_scans, wide: bool = True) -> list:
     source's scan onto the target's pins it (:func:`_pinned_poses`; with
     ``wide`` the search of :func:`join_icp` held to :data:`JOIN_SHARE`, else
     a reuse's; the path a straight line), else (None, None)."""
-    from topodrake.contract.route import LEG_POINTS
-
     line = np.linspace(0.0, 1.0, LEG_POINTS)[:, None]
     poses = _pinned_poses(source_scans, target_scans, join_icp() if wide else None,
                           JOIN_SHARE if wide else 0.0)

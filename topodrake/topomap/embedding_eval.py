@@ -22,7 +22,12 @@ import time
 
 import numpy as np
 
+from topodrake.contract.frames import context_frames
+from topodrake.demonstrations import demo_poses
 from topodrake.sensing.config import CameraConfig
+from topodrake.sensing.observe import observe
+from topodrake.sensing.overlap import mutual_overlap
+from topodrake.world import load_world
 
 KS = (8, 16, 32, 64)
 
@@ -44,8 +49,6 @@ def recall_at(scores: np.ndarray, relevant: np.ndarray, ks=KS) -> dict:
 def recall_split(world_name: str, data_dir, *, query_drives: int = 30, query_step: int = 20,
                  db_step: int = 20, seed: int = 0, protocol: str = "pairs") -> dict:
     """Query and database poses of a house's demonstrations (drive index of each)."""
-    from topodrake.demonstrations import demo_poses
-
     drives = demo_poses(world_name, data_dir, protocol, seed)
     pick = lambda ds, step: (np.concatenate([drives[i][::step] for i in ds]),      # noqa: E731
                              np.concatenate([np.full(len(drives[i][::step]), i) for i in ds]))
@@ -60,8 +63,6 @@ def recall_split(world_name: str, data_dir, *, query_drives: int = 30, query_ste
 def overlap_relevance(world, split: dict, camera: CameraConfig | None = None,
                       threshold: float = 0.5) -> np.ndarray:
     """(Q, D) bool: symmetric camera overlap above ``threshold``."""
-    from topodrake.sensing.overlap import mutual_overlap
-
     q, v = split["query_poses"], split["db_poses"]
     a = np.repeat(q, len(v), axis=0)
     b = np.tile(v, (len(q), 1))
@@ -73,9 +74,6 @@ def re_relevance(world, split: dict, reach, queries: np.ndarray, threshold: floa
     """(len(queries), D) bool: RE(query -> vertex) > ``threshold``, the vertex
     seen with its context in its own drive; the RE's general calibration
     (temperature), as query and vertex come from different drives."""
-    from topodrake.contract.frames import context_frames
-    from topodrake.sensing.observe import observe
-
     drives = split["drives"]
     ctx = [drives[d][context_frames(len(drives[d]), f, reach.k, reach.cfg.frame_step)]
            for d, f in zip(split["db_drive"], split["db_frame"])]
@@ -95,9 +93,6 @@ def recall_study(world_name: str, data_dir, embeddings: list, *, camera: CameraC
                  seed: int = 0, threshold: float = 0.5, relevance: np.ndarray | None = None,
                  split: dict | None = None) -> dict:
     """recall@K of each embedding on one house (geometric relevance unless given)."""
-    from topodrake.sensing.observe import observe
-    from topodrake.world import load_world
-
     world = load_world(world_name)
     split = split or recall_split(world_name, data_dir, seed=seed)
     rel = overlap_relevance(world, split, camera, threshold) if relevance is None else relevance
@@ -154,7 +149,6 @@ def bench_place(checkpoint: str, world: str = "test-0", data_dir="data", seed: i
     import torch
 
     from topodrake.topomap.embedding import PlaceEmbedding, ThumbnailEmbedding
-    from topodrake.world import load_world
 
     torch.set_num_threads(threads)
     emb = PlaceEmbedding.from_checkpoint(checkpoint)

@@ -45,9 +45,19 @@ from topodrake.demonstrations import demo_poses
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 from topodrake.sensing.config import CameraConfig, LidarConfig
-from topodrake.topomap.embedding import (PlaceEmbedding, PlaceNet, PlaceNetConfig,
-                                         ThumbnailEmbedding, save_place_checkpoint, to_input)
+from topodrake.sensing.observe import observe
+from topodrake.sensing.overlap import mutual_overlap
+from topodrake.topomap.embedding import (
+    PlaceEmbedding,
+    PlaceNet,
+    PlaceNetConfig,
+    ThumbnailEmbedding,
+    save_place_checkpoint,
+    to_input,
+)
+from topodrake.topomap.embedding_eval import recall_study
 from topodrake.typed_yaml import load_typed
+from topodrake.world import load_world
 
 CHECKPOINT = "checkpoint.pt"
 CARD = "card.json"
@@ -125,7 +135,6 @@ def load_place_config(path) -> PlaceTrainConfig:
 @dataclass
 class PlaceData:
     """Frames of several houses (network inputs, poses, house ids) and labelled pairs."""
-
     inputs: torch.Tensor      # (N, C, ...) network inputs, float16
     poses: np.ndarray         # (N, 3)
     house: np.ndarray         # (N,) index into the house list
@@ -186,10 +195,6 @@ def sample_pairs(poses: np.ndarray, thumbs: np.ndarray, n: int, cfg: PlaceDataCo
 
 def build_data(cfg: PlaceTrainConfig, data_dir, progress: bool = True) -> PlaceData:
     """Render the training houses' frames and label their pairs (seeded)."""
-    from topodrake.sensing.observe import observe
-    from topodrake.sensing.overlap import mutual_overlap
-    from topodrake.world import load_world
-
     d = cfg.data
     rng = np.random.default_rng(d.seed)
     thumb = ThumbnailEmbedding("camera")
@@ -317,7 +322,6 @@ def train_place(cfg: PlaceTrainConfig, out_dir, data_dir="data", *, progress: bo
     ``checkpoint.pt`` and ``card.json`` into ``out_dir``."""
     from topodrake.learning.checkpoint import git_revision
     from topodrake.learning.waypoint.train import _set_threads
-    from topodrake.topomap.embedding_eval import recall_study
 
     cfg.validate()
     _set_threads(cfg.threads)

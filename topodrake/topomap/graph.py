@@ -32,10 +32,11 @@ from dataclasses import dataclass, field, fields
 import networkx as nx
 import numpy as np
 
-from topodrake.errors import TopodrakeError
 from topodrake.contract.route import LEG_POINTS
+from topodrake.errors import TopodrakeError
 from topodrake.topomap.bank import FrameBank
 from topodrake.topomap.retrieval import VertexIndex
+from topodrake.typed_yaml import first_line, load_typed_data
 
 EDGE_KINDS = ("trajectory", "cross", "junction")
 
@@ -356,7 +357,6 @@ def map_settings(config: dict, lidar: bool = True, scans: bool = True) -> dict:
 @dataclass
 class Trajectory:
     """A drive added to the map: its name, length and chain of vertices."""
-
     name: str
     frames: int
     chain: list[int] = field(default_factory=list)
@@ -492,7 +492,6 @@ def load_map_config(path) -> MapConfig:
 
     import yaml
 
-    from topodrake.typed_yaml import first_line, load_typed_data
 
     if not path:
         return MapConfig().validate()

@@ -52,10 +52,11 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake.contract.route import LEG_POINTS
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes
-from topodrake.contract.route import LEG_POINTS
 from topodrake.topomap.graph import EDGE_KINDS, LATER_DEFAULTS, MapConfig, TopoMap, Trajectory
+from topodrake.topomap.retrieval import default_embedding
 
 FORMAT = "topodrake-map"
 VERSION = 4
@@ -201,8 +202,6 @@ def load_map(path, scorer, embedding=None) -> TopoMap:
     """Read a map file for ``scorer`` (its identity must match the file's).
     ``embedding`` defaults to the shipped one of the map's modality; if its
     fingerprint differs from the file's, the vertices are embedded anew."""
-    from topodrake.topomap.retrieval import default_embedding
-
     meta, z = _read(path)
     check_identity(path, meta, scorer.identity)
     try:

@@ -36,9 +36,10 @@ from dataclasses import dataclass, field
 import networkx as nx
 import numpy as np
 
+from topodrake.contract.route import LEG_POINTS, Route
 from topodrake.errors import TopodrakeError
-from topodrake.contract.route import Route
 from topodrake.se2 import invert, relative
+from topodrake.topomap.build import join_legs, joins_carry_legs
 from topodrake.topomap.graph import EDGE_KINDS, TopoMap
 from topodrake.topomap.route_time import DrivingTime, edge_metres, path_metres
 from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
@@ -130,8 +131,6 @@ def near_start_links(topomap: TopoMap, links: list[tuple[int, float]],
     """The ``links`` from the start to vertices near the car
     (:func:`_near_start`, by registering the start's scan onto theirs,
     pinning the pose), where there are any; else all ``links``."""
-    from topodrake.topomap.build import join_legs
-
     cfg = topomap.config.links
     if cfg.near_m <= 0 or len(links) < 2:
         return links
@@ -201,8 +200,6 @@ def _pose_legs(topomap: TopoMap, vertices: list[int], goal_pose, legs: np.ndarra
     map's route in place from the poses it observes, their paths a straight
     line: perfect perception places a join exactly, as a lidar map places
     it by registering its scans."""
-    from topodrake.contract.route import LEG_POINTS
-
     if not vertices:
         return
     poses = np.vstack([topomap.bank.observations[topomap.centers(vertices)].reshape(-1, 3),
@@ -219,8 +216,6 @@ def _goal_leg(topomap: TopoMap, vertices: list[int], goal_scan, legs: np.ndarray
     """Sets the last hop's leg (into the goal view) in place where the map
     places joins by scans (``links.goal_leg``) and the goal's scan registers onto
     the last vertex's, pinning the pose."""
-    from topodrake.topomap.build import join_legs, joins_carry_legs
-
     if not (topomap.config.links.goal_leg and vertices and goal_scan is not None
             and joins_carry_legs(topomap)):
         return
@@ -235,8 +230,6 @@ def _hop_weight(topomap: TopoMap, banned: set):
     and on a map that places joins by scans a map edge without a leg counts
     its p times ``plan.legless_p``; a hop between drives (a cross or
     junction edge) counts its p times ``plan.switch_p``."""
-    from topodrake.topomap.build import joins_carry_legs
-
     extra = -math.log(topomap.config.plan.legless_p) if joins_carry_legs(topomap) else 0.0
     switch = -math.log(topomap.config.plan.switch_p)
 

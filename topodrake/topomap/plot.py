@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from topodrake.topomap.mapfile import read_map_arrays
+from topodrake.world import load_world
+from topodrake.world.plot import legend_below, plot_world, save_figure
+
 
 def draw_anchors(ax, world, poses: np.ndarray, anchors: np.ndarray, title: str = "") -> None:
     """The drive (grey) and its anchors (red, with their headings) on ``ax``."""
-    from topodrake.world.plot import plot_world
-
     plot_world(world, ax, places=False)
     ax.plot(poses[:, 0], poses[:, 1], color="0.4", lw=1.0)
     a = poses[np.asarray(anchors)]
@@ -24,7 +26,6 @@ def plot_anchors(world, poses, anchors, out, title: str = "") -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from topodrake.world.plot import save_figure
 
     fig, ax = plt.subplots(figsize=(8, 8))
     draw_anchors(ax, world, poses, anchors, title)
@@ -44,7 +45,6 @@ def draw_map(ax, world, vertex_poses: np.ndarray, edges: np.ndarray, edge_p: np.
     from matplotlib import colormaps
     from matplotlib.colors import ListedColormap, Normalize
 
-    from topodrake.world.plot import plot_world
 
     plot_world(world, ax, places=True)
     cmap = ListedColormap(colormaps[EDGE_CMAP](np.linspace(0.35, 1.0, 256)))   # no white
@@ -82,9 +82,6 @@ def plot_map_file(path, out) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from topodrake.topomap.mapfile import read_map_arrays
-    from topodrake.world import load_world
-    from topodrake.world.plot import save_figure
 
     meta, z = read_map_arrays(path)
     world = load_world(meta["world"])
@@ -106,8 +103,6 @@ def plot_plan(topomap, result, start, goal, out) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from topodrake.world import load_world
-    from topodrake.world.plot import legend_below, save_figure
 
     world = load_world(topomap.world)
     fig, ax = plt.subplots(figsize=(10, 9))

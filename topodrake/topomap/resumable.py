@@ -13,6 +13,10 @@ import time
 from pathlib import Path
 
 from topodrake.errors import TopodrakeError
+from topodrake.sensing.observe import camera_scans
+from topodrake.topomap.build import BuildStats, build_map
+from topodrake.topomap.mapfile import load_map, read_map_meta, save_map
+from topodrake.topomap.sources import drive_observations
 
 
 def resume_file(out) -> Path:
@@ -24,8 +28,6 @@ def resume_file(out) -> Path:
 def interrupted_build(resume: Path, scorer, fresh):
     """The interrupted build in ``resume`` when it is one of the same world,
     config and estimators as ``fresh`` and holds its drives; else None."""
-    from topodrake.topomap.mapfile import load_map, read_map_meta
-
     if not resume.is_file():
         return None
     try:
@@ -43,7 +45,6 @@ class MapBuild:
     """Drives added to a map one by one; each drive's time (rendering and
     adding) is kept, and the map so far is saved beside the output at most
     every :attr:`save_every_s` seconds, so that an interrupted build resumes."""
-
     save_every_s = 30.0
 
     def __init__(self, topomap, world, folder, drives, names, todo, resume: Path, resumed: int):
@@ -53,14 +54,9 @@ class MapBuild:
         self.drive_s: list[float] = []
 
     def save(self, path) -> None:
-        from topodrake.topomap.mapfile import save_map
-
         save_map(self.topomap, path)
 
     def _items(self):
-        from topodrake.sensing.observe import camera_scans
-        from topodrake.topomap.sources import drive_observations
-
         saved = time.perf_counter()
         scorer = self.topomap.scorer
         for i in self.todo:
@@ -78,8 +74,6 @@ class MapBuild:
 
     def run(self, progress: bool = True):
         """Add the drives; returns the build's stats."""
-        from topodrake.topomap.build import BuildStats, build_map
-
         if not self.todo:
             return BuildStats()
         return build_map(self.topomap, _Sized(self._items(), len(self.todo)), progress=progress,
@@ -88,7 +82,6 @@ class MapBuild:
 
 class _Sized:
     """An iterator with a length (for the progress bar)."""
-
     def __init__(self, items, n):
         self.items, self.n = items, n
 

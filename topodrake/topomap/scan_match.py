@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from topodrake.registration.icp import register
+
 
 def checks_scans(topomap) -> bool:
     """Whether ``topomap`` checks its joins and links by scan matching: a
@@ -43,8 +45,6 @@ def scans_match(source, target, min_inlier: float) -> np.ndarray:
     """(B,) bool: each scan of ``source`` (B, beams) registers onto the scan
     of ``target`` beside it (either may be one scan, shared by all): the
     fit is accepted and pairs at least ``min_inlier`` of both scans' points."""
-    from topodrake.registration.icp import register
-
     source, target = np.asarray(source, np.float64), np.asarray(target, np.float64)
     if source.ndim == 1:
         source = source[None]

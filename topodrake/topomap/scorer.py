@@ -28,6 +28,10 @@ from typing import Protocol
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.expert.sight import segment_clear
+from topodrake.fileio import file_sha1
+from topodrake.learning.reachability.controllers import controller_identity
+from topodrake.sensing.overlap import mutual_overlap
 
 
 class MapScorer(Protocol):
@@ -54,8 +58,6 @@ class LearnedScorer:
 
     @classmethod
     def from_checkpoints(cls, reach_path, controller_path) -> "LearnedScorer":
-        from topodrake.fileio import file_sha1
-        from topodrake.learning.reachability.controllers import controller_identity
         from topodrake.learning.reachability.estimator import Reachability
 
         reach = Reachability.from_checkpoint(reach_path, controller_path)
@@ -137,9 +139,6 @@ def pair_geometry(world, a: np.ndarray, b: np.ndarray, sight_clearance_m: float 
     angle of the target off the source's heading), and for ``rows`` (default
     all; NaN / False elsewhere) ``overlap`` (the smaller mutual image
     overlap) and ``sight`` (a straight line keeping ``sight_clearance_m``)."""
-    from topodrake.expert.sight import segment_clear
-    from topodrake.sensing.overlap import mutual_overlap
-
     a = np.asarray(a, np.float64).reshape(-1, 3)
     b = np.asarray(b, np.float64).reshape(-1, 3)
     a, b = np.broadcast_arrays(a, b)
@@ -201,7 +200,6 @@ def geometric_reach(world, a: np.ndarray, b: np.ndarray, config: OracleConfig) -
 class OracleScorer:
     """Privileged reachability from the poses (``observation = "pose"``):
     reads the source pose and the context's centre pose only."""
-
     observation = "pose"
 
     def __init__(self, world, k: int = 5, frame_step: int = 3, config: OracleConfig | None = None):

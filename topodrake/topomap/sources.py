@@ -18,7 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake.demonstrations import collect, load_demos
 from topodrake.errors import TopodrakeError
+from topodrake.learning.reachability.controllers import controller_policy
+from topodrake.sensing.observe import lidar_scans, observe
+from topodrake.topomap.mapfile import load_map, read_map_meta
+from topodrake.topomap.plan_calibration import calibration_beside
+from topodrake.topomap.scorer import LearnedScorer, OracleScorer
+from topodrake.world import load_world
 
 ROOT = Path(__file__).resolve().parents[2]
 #: map kind -> (RE checkpoint folder, C_WP checkpoint folder or "registration") shipped in
@@ -125,7 +132,6 @@ def load_networks(controller, reach=None):
     """(C_WP, RE) a follower drives with: ``controller`` a C_WP checkpoint or
     ``"registration"``; ``reach`` the RE checkpoint trained for it (default:
     :func:`default_reach`). An RE of another controller is refused."""
-    from topodrake.learning.reachability.controllers import controller_policy
     from topodrake.learning.reachability.estimator import Reachability
 
     controller = controller_checkpoint(controller)
@@ -158,8 +164,6 @@ def _resolve(recorded: str):
 def make_scorer(modality: str, world=None, reach=None, controller=None):
     """The reachability to build a ``modality`` map with (``"oracle"`` needs
     ``world``; ``"lidar_reg"``: the registration C_WP's RE)."""
-    from topodrake.topomap.scorer import LearnedScorer, OracleScorer
-
     if modality == "oracle":
         if world is None:
             raise TopodrakeError("the oracle reachability needs the world")
@@ -188,7 +192,6 @@ def make_scorer(modality: str, world=None, reach=None, controller=None):
 @dataclass
 class LoadedMap:
     """A map file opened with what it was built for."""
-
     world: object           # the world it maps
     topomap: object         # the TopoMap
     scorer: object          # its reachability (learned, or the geometric oracle of a pose map)
@@ -202,10 +205,6 @@ def open_map(path, reach=None, controller=None) -> LoadedMap:
     """A map file with its world and the reachability it was built for: its
     recorded checkpoints, or the ones given, which must be the same files;
     and the plan calibration shipped beside that RE (none for oracle maps)."""
-    from topodrake.topomap.mapfile import load_map, read_map_meta
-    from topodrake.topomap.plan_calibration import calibration_beside
-    from topodrake.world import load_world
-
     meta = read_map_meta(path)
     world = load_world(meta["world"])
     if meta.get("modality") == "pose":
@@ -237,8 +236,6 @@ def demo_drives(world_spec: str, demos=None, progress: bool = True) -> tuple[Pat
     """The successful expert drives of a world, collected first (all ordered
     pairs of its places, seed 0) when ``demos`` is not given and the default
     folder holds none."""
-    from topodrake.demonstrations import collect, load_demos
-
     folder = demo_folder(world_spec, demos)
     if not (folder / "manifest.json").is_file():
         if demos:
@@ -274,7 +271,6 @@ def drive_observations(world, scorer, poses: np.ndarray) -> np.ndarray:
     """What ``scorer`` observes along a drive (poses for the oracle)."""
     if scorer.observation == "pose":
         return np.asarray(poses, np.float64)
-    from topodrake.sensing.observe import observe
 
     return observe(world, scorer.observation, poses, scorer.sensor)
 
@@ -285,6 +281,5 @@ def view_scans(world, topomap, poses: np.ndarray) -> np.ndarray | None:
     (:func:`topodrake.topomap.plan.link_scans`); None for other maps."""
     if topomap.modality != "camera" or topomap.bank.scans is None:
         return None
-    from topodrake.sensing.observe import lidar_scans
 
     return lidar_scans(world, poses)

@@ -24,6 +24,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from topodrake.errors import TopodrakeError
+from topodrake.world.houses import generate_house
 from topodrake.world.world import World
 
 #: name -> seed of :func:`topodrake.world.houses.generate_house`. Fixed: the
@@ -42,7 +43,6 @@ def catalogue_names() -> list[str]:
 
 @lru_cache(maxsize=None)
 def _catalogue_world(name: str) -> World:
-    from topodrake.world.houses import generate_house
     return generate_house(CATALOGUE[name], name)
 
 

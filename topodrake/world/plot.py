@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from topodrake.world.textures import texture_bank
+
 
 def plot_world(world, ax=None, *, places: bool = True, show_free: bool = True):
     """Draw a world on a matplotlib axis (created if not given); returns the axis."""
@@ -13,7 +15,6 @@ def plot_world(world, ax=None, *, places: bool = True, show_free: bool = True):
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection, PolyCollection
 
-    from topodrake.world.textures import texture_bank
 
     if ax is None:
         w, h = world.bbox[1] - world.bbox[0]

@@ -43,7 +43,18 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.fileio import atomic_write_json, file_sha1
 from topodrake.learning.onpolicy.platt import FORMAT, SIDECAR
+from topodrake.learning.onpolicy.states import OnPolicyConfig, collect_visited, pick_drives
+from topodrake.learning.reachability.calibration import auroc, ece, fit_platt
+from topodrake.learning.reachability.controllers import controller_identity, controller_policy
+from topodrake.learning.reachability.labels import (
+    ReachLabelConfig,
+    rollout_to_targets,
+    target_contexts,
+)
+from topodrake.learning.samples import collect_trajectories
+from topodrake.world import load_world
 
 
 @dataclass(frozen=True)
@@ -84,9 +95,6 @@ def label_visited_reach(world, trajs, visited, policy, reach, n: int, rng,
     toward the anchor each aimed at (``ahead``: the one after it, where
     there is one), under the labels' rules ``config`` (default
     :class:`~topodrake.learning.reachability.labels.ReachLabelConfig`)."""
-    from topodrake.learning.reachability.labels import (ReachLabelConfig, rollout_to_targets,
-                                                        target_contexts)
-
     pick = rng.permutation(len(visited))[:n]
     if len(pick) == 0:
         return StateLabels()
@@ -119,10 +127,6 @@ def collect_state_labels(policy, reach, config: FollowerCalibrationConfig, data=
     loaded: a calibration already beside the RE steers the follower) and
     label visited states; also returns the followed chains' cover per
     world."""
-    from topodrake.learning.onpolicy.states import OnPolicyConfig, collect_visited, pick_drives
-    from topodrake.learning.samples import collect_trajectories
-    from topodrake.world import load_world
-
     trajs = collect_trajectories(list(config.worlds), Path(data) / "demos" / "pairs-s0",
                                  progress=progress)
     cfg = OnPolicyConfig(drives_per_world=config.drives_per_world, next_anchor=False)
@@ -149,9 +153,6 @@ def calibrate_follower(cwp_path, re_path, config: FollowerCalibrationConfig | No
     the C_WP it was trained for (``cwp_path``: a checkpoint or
     ``"registration"``), and write it beside the RE checkpoint. Returns
     what was written."""
-    from topodrake.fileio import atomic_write_json, file_sha1
-    from topodrake.learning.reachability.calibration import auroc, ece, fit_platt
-    from topodrake.learning.reachability.controllers import controller_identity, controller_policy
     from topodrake.learning.reachability.estimator import Reachability
 
     config = (config or FollowerCalibrationConfig()).check()

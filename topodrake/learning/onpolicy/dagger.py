@@ -39,7 +39,17 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_json
 from topodrake.learning.config import TrainConfig
-from topodrake.learning.onpolicy.states import OnPolicyConfig
+from topodrake.learning.onpolicy.states import (
+    OnPolicyConfig,
+    collect_visited,
+    concat_samples,
+    label_visited,
+    pick_drives,
+    samples_from_fields,
+)
+from topodrake.learning.samples import SampleConfig, SampleSet, collect_trajectories
+from topodrake.typed_yaml import load_typed
+from topodrake.world import load_world
 
 N_TRAIN_HOUSES = 96
 STATE = "dagger.json"
@@ -94,8 +104,6 @@ class DaggerConfig:
 
 
 def load_dagger_config(path) -> DaggerConfig:
-    from topodrake.typed_yaml import load_typed
-
     return load_typed(DaggerConfig, path, "config").validate(f"config {path}")
 
 
@@ -110,7 +118,6 @@ def base_and_val_samples(cfg: DaggerConfig, data_dir: Path, progress: bool):
     are, with the default :class:`SampleConfig`, so errors compare)."""
     from dataclasses import replace
 
-    from topodrake.learning.samples import SampleConfig
     from topodrake.learning.waypoint.train import prepare_samples
 
     d = replace(cfg.train.data, train_samples=cfg.base_samples)
@@ -132,12 +139,8 @@ def collect_round(cfg: DaggerConfig, r: int, controller: Path, data_dir: Path, p
     ``controller``) and the mean cover of its chains."""
     import torch
 
-    from topodrake.learning.onpolicy.states import (collect_visited, label_visited, pick_drives,
-                                                    samples_from_fields)
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.learning.samples import collect_trajectories
     from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
-    from topodrake.world import load_world
 
     torch.set_num_threads(max(cfg.train.threads, 1))
     d = cfg.train.data
@@ -169,8 +172,6 @@ def run_dagger(cfg: DaggerConfig, out_dir, data_dir="data", *, progress: bool = 
     """Run (or resume) the rounds; returns the state (``dagger.json``)."""
     from dataclasses import replace
 
-    from topodrake.learning.onpolicy.states import concat_samples
-    from topodrake.learning.samples import SampleSet
     from topodrake.learning.waypoint.train import CARD, CHECKPOINT, train_waypoint
 
     cfg.validate()

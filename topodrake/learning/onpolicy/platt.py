@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.fileio import file_sha1
 
 SIDECAR = "follower_calibration.json"
 FORMAT = "topodrake-follower-calibration"
@@ -22,8 +23,6 @@ def load_follower_platt(re_path) -> tuple[float, float] | None:
     """The follower Platt (a, b) of ``follower_calibration.json`` beside
     the RE checkpoint ``re_path``; None when there is none. A file that is
     unreadable or made for other checkpoint contents is refused."""
-    from topodrake.fileio import file_sha1
-
     path = Path(re_path).parent / SIDECAR
     if not path.is_file():
         return None

@@ -28,9 +28,16 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.reachability.labels import (ReachLabelConfig, open_label_folder,
-                                                    rollout_to_targets, target_contexts,
-                                                    write_label_chunk)
+from topodrake.learning.onpolicy.states import OnPolicyConfig, collect_visited, pick_drives
+from topodrake.learning.reachability.labels import (
+    ReachLabelConfig,
+    open_label_folder,
+    rollout_to_targets,
+    target_contexts,
+    write_label_chunk,
+)
+from topodrake.montecarlo import trial_seeds
+from topodrake.navigation.follower import FollowerConfig
 
 
 @dataclass
@@ -69,9 +76,6 @@ def label_follower_states(trajs, policy, reach, out_dir, n: int, *, seed: int,
     (resumable by house; a folder made for other settings is refused)."""
     from tqdm import tqdm
 
-    from topodrake.learning.onpolicy.states import OnPolicyConfig, collect_visited, pick_drives
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.navigation.follower import FollowerConfig
 
     if load_world is None:
         from topodrake.world import load_world

@@ -27,8 +27,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.learning.samples import (_SAMPLE_FIELDS, SampleConfig, SampleSet, TrajectorySet,
-                                        _DTYPES, _SHAPES, _arclength, label_samples)
+from topodrake.learning.samples import (
+    _DTYPES,
+    _SAMPLE_FIELDS,
+    _SHAPES,
+    SampleConfig,
+    SampleSet,
+    TrajectorySet,
+    _arclength,
+    label_samples,
+)
+from topodrake.montecarlo import trial_seeds
+from topodrake.navigation.chains import follow_chains_once
+from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+from topodrake.navigation.follower import FollowerConfig
+from topodrake.rollout import RolloutConfig
 
 
 def _onpolicy_sample_config() -> SampleConfig:
@@ -104,12 +117,6 @@ def collect_visited(world, trajs: TrajectorySet, drives: np.ndarray, policy, rea
     ``world``) with ``policy`` and ``reach`` and record the states.
     ``chain_reach``: the RE that makes the chains when another than
     ``reach`` (e.g. the learned RE's chains followed by pose oracles)."""
-    from topodrake.montecarlo import trial_seeds
-    from topodrake.navigation.chains import follow_chains_once
-    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
-    from topodrake.navigation.follower import FollowerConfig
-    from topodrake.rollout import RolloutConfig
-
     cfg = (cfg or OnPolicyConfig()).validate()
     drives = np.asarray(drives, np.int64)
     chain_reach = chain_reach or reach

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import file_sha1
+from topodrake.learning.waypoint.noisy_oracle import NoisyOracle, is_oracle_spec
 
 #: The ``controller`` name of the registration C_WP (no checkpoint file).
 REGISTRATION = "registration"
@@ -32,8 +33,6 @@ def registration_identity(policy=None) -> dict:
     """The fingerprint of a registration C_WP (default settings when
     ``policy`` is None): ``{"checkpoint": "registration", "sha1": ...}``, the
     SHA-1 of its settings and lidar."""
-    from topodrake.registration.policy import RegistrationPolicy
-
     policy = policy or RegistrationPolicy()
     settings = {k: v for k, v in asdict(policy.config).items()
                 if k not in FOLLOWER_ONLY}
@@ -78,7 +77,6 @@ def controller_policy(path, world=None):
     (:mod:`topodrake.learning.waypoint.noisy_oracle`: it needs the world), else the
     C_WP checkpoint's network (a direct-control network is refused: RE
     needs a C_WP)."""
-    from topodrake.learning.waypoint.noisy_oracle import NoisyOracle, is_oracle_spec
     from topodrake.learning.waypoint.policy import LearnedWaypointPolicy
 
     if is_oracle_spec(path):

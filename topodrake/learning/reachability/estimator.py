@@ -27,9 +27,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from topodrake.contract.frames import context_frames
 from topodrake.errors import TopodrakeError
 from topodrake.learning.inference import ObservationNetwork
 from topodrake.learning.networks import mirrored
+from topodrake.learning.onpolicy.platt import load_follower_platt
+from topodrake.learning.reachability.controllers import checkpoint_temperature, load_reachability
+from topodrake.learning.reachability.sparsify import sparsify
 
 
 @dataclass
@@ -85,10 +89,6 @@ class Reachability(ObservationNetwork):
         none; anchor hops fall back to the temperature), and the follower's
         to a ``follower_calibration.json`` beside the checkpoint made for
         this file (:func:`~topodrake.learning.onpolicy.platt.load_follower_platt`)."""
-        from topodrake.learning.onpolicy.platt import load_follower_platt
-        from topodrake.learning.reachability.controllers import (checkpoint_temperature,
-                                                                 load_reachability)
-
         ck = load_reachability(path, controller_checkpoint)
         t = checkpoint_temperature(ck.meta) if temperature is None else temperature
         extra = ck.meta.get("extra") or {}
@@ -193,8 +193,6 @@ class Reachability(ObservationNetwork):
 
     def context_rows(self, n_frames: int, targets: np.ndarray) -> np.ndarray:
         """(M, 2k+1) clamped context frames of target frames ``targets`` of one trajectory."""
-        from topodrake.contract.frames import context_frames
-
         return context_frames(n_frames, np.asarray(targets, np.int64), self.k, self.frame_step)
 
     def sparsify(self, observations: np.ndarray, p: float = 0.99, window: int = 4,
@@ -203,8 +201,6 @@ class Reachability(ObservationNetwork):
         """Anchor frames of one trajectory's observations (T, ...) (with
         the anchor calibration, or ``platt``; ``slack``: see
         :func:`topodrake.learning.reachability.sparsify.sparsify`)."""
-        from topodrake.learning.reachability.sparsify import sparsify
-
         feats = feats or self.frame_features(observations)
         n = len(feats)
         return sparsify(n, lambda i, js: self.pairwise(feats, np.full(len(js), i),

@@ -43,8 +43,16 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import atomic_write_bytes, atomic_write_json
 from topodrake.fileio import read_manifest as _read_manifest
-from topodrake.learning.samples import (SampleConfig, TrajectorySet, _arclength, _snap_free,
-                                        apply_jitter, draw_jitter)
+from topodrake.learning.samples import (
+    SampleConfig,
+    TrajectorySet,
+    _arclength,
+    _snap_free,
+    apply_jitter,
+    draw_jitter,
+)
+from topodrake.montecarlo import trial_seeds
+from topodrake.rollout import SUCCESS, PolicyRollout, RolloutConfig
 
 FORMAT = "topodrake-reach-labels"
 VERSION = 1
@@ -206,8 +214,6 @@ def rollout_to_targets(world, policy, src_pose: np.ndarray, tgt_pose: np.ndarray
     With ``cfg.tracked_start``, a tracking policy starts the pairs marked in
     ``tracked`` (N,; default all) already tracking the target
     (:func:`tracked_starts`)."""
-    from topodrake.rollout import SUCCESS, PolicyRollout, RolloutConfig
-
     t_max = time_limits(world, src_pose, tgt_pose[:, :2], cfg)
     engine = PolicyRollout(world, policy, RolloutConfig(noise_std=cfg.noise_std),
                            overlap_success=cfg.overlap_success, overlap_lost=cfg.overlap_lost)
@@ -278,7 +284,6 @@ def label_reachability(trajs: TrajectorySet, policy, out_dir, n: int, *, seed: i
     names into worlds."""
     from tqdm import tqdm
 
-    from topodrake.montecarlo import trial_seeds
 
     if load_world is None:
         from topodrake.world import load_world
@@ -401,8 +406,6 @@ def concat_reach_labels(parts: list[ReachLabels]) -> ReachLabels:
     drives (which must be the same in every part), so parts may cover the
     same, other or partly shared houses; the pairs' trajectory indices move
     to match."""
-    from topodrake.learning.samples import TrajectorySet
-
     if not parts:
         raise TopodrakeError("no label sets to join")
     if len(parts) == 1:

@@ -52,13 +52,30 @@ from topodrake.learning.config import TrainConfig
 from topodrake.learning.data import ObservationSource, to_network_input
 from topodrake.learning.networks import NetworkConfig, mirrored
 from topodrake.learning.onpolicy.reach_labels import FollowerStateLabels, label_follower_states
-from topodrake.learning.reachability.calibration import calibration_summary
-from topodrake.learning.reachability.controllers import (REGISTRATION, controller_identity,
-                                                         controller_policy, load_reachability)
-from topodrake.learning.reachability.labels import (ReachLabelConfig, ReachLabels,
-                                                    concat_reach_labels, label_reachability,
-                                                    load_reach_labels)
+from topodrake.learning.reachability.calibration import (
+    calibration_summary,
+    fit_platt,
+    fit_temperature,
+)
+from topodrake.learning.reachability.controllers import (
+    REGISTRATION,
+    controller_identity,
+    controller_policy,
+    load_reachability,
+)
+from topodrake.learning.reachability.labels import (
+    ReachLabelConfig,
+    ReachLabels,
+    concat_reach_labels,
+    label_reachability,
+    load_reach_labels,
+)
+from topodrake.learning.samples import collect_trajectories
+from topodrake.navigation.follower import FollowerConfig
+from topodrake.sensing.config import LidarConfig
+from topodrake.sensing.overlap import mutual_overlap
 from topodrake.typed_yaml import load_typed
+from topodrake.world import load_world
 
 
 @dataclass
@@ -293,10 +310,7 @@ class ReachBatch:
 
 class ReachBatcher:
     """Batches of a :class:`ReachLabels` set, rendered on the fly."""
-
     def __init__(self, labels: ReachLabels, cfg, camera=None, lidar=None):
-        from topodrake.sensing.config import LidarConfig
-
         self.labels = labels
         self.cfg = cfg
         self.lidar = lidar or LidarConfig()
@@ -329,9 +343,6 @@ class ReachBatcher:
 def start_overlaps(labels: ReachLabels) -> np.ndarray:
     """(N, 2) geometric image overlaps (R_src->tgt, R_tgt->src) of every
     pair's jittered source and target pose, as the rollout starts."""
-    from topodrake.sensing.overlap import mutual_overlap
-    from topodrake.world import load_world
-
     t = labels.trajectories
     world = t.traj_world[labels.traj]
     tgt = t.poses[t.traj_offsets[labels.traj] + labels.tgt]
@@ -397,8 +408,6 @@ def fit_reach_temperature(model, batcher: ReachBatcher, mirror: bool = False) ->
     """Temperature scaling on the validation pairs, kept only if it lowers
     their BCE: ``{"temperature": T, "calibrated_metrics": ...}`` (T = 1
     when it does not help)."""
-    from topodrake.learning.reachability.calibration import fit_temperature
-
     z, y = reach_logits(model, batcher, mirror=mirror)
     t = fit_temperature(z.numpy(), y.numpy())
     before, after = _reach_metrics(z, y), _reach_metrics(z / t, y)
@@ -459,8 +468,6 @@ def _follower_set(cfg: ReachTrainConfig, data_dir, policy, ident: dict,
     """One set of follower-state labels (:mod:`topodrake.learning.onpolicy.reach_labels`),
     made once in ``data_dir/reach-labels/`` (resumable) and loaded."""
     from topodrake.learning.reachability.estimator import Reachability
-    from topodrake.learning.samples import collect_trajectories
-    from topodrake.navigation.follower import FollowerConfig
 
     d = cfg.data
     reach_path = extra.reach or cfg.init
@@ -487,8 +494,6 @@ def _label_set(cfg: ReachTrainConfig, data_dir, policy, ident: dict, split: str,
                seed: int, rollout: ReachLabelConfig, progress: bool) -> ReachLabels:
     """One label set of ``policy`` (identified by ``ident``) in ``worlds``,
     rolled out into its :func:`label_folder` once (resumable) and loaded."""
-    from topodrake.learning.samples import collect_trajectories
-
     d = cfg.data
     demo_root = _demo_root(cfg, data_dir)
     folder = label_folder(data_dir, ident, split, demo_root.name, worlds, n, seed, rollout)
@@ -519,8 +524,6 @@ def calibrate(model, val: ReachBatcher, anchors: ReachBatcher | None, scaling: b
     (under the temperature) and after), both of the mirror-averaged logit
     if ``mirror`` (recorded as ``mirror_average``, which
     :class:`~topodrake.learning.reachability.estimator.Reachability` follows)."""
-    from topodrake.learning.reachability.calibration import fit_platt
-
     out = {"mirror_average": bool(mirror)}
     if scaling:
         out.update(fit_reach_temperature(model, val, mirror=mirror))

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.sensing.overlap import mutual_overlap
 
 
 @dataclass
@@ -60,8 +61,6 @@ def sample_controller_pair(trajs, seed: int, worlds: dict, cfg: PairConfig = Pai
                            ) -> ControllerPair:
     """The pair of ``seed`` from a :class:`~topodrake.learning.samples.TrajectorySet`;
     ``worlds`` maps the set's world names to loaded worlds (for overlaps and A*)."""
-    from topodrake.sensing.overlap import mutual_overlap
-
     if trajs.count == 0:
         raise TopodrakeError("no expert trajectories to draw controller pairs from")
     rng = np.random.default_rng(int(seed))

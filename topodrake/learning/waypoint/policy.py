@@ -12,13 +12,19 @@ from typing import Any
 import numpy as np
 import torch
 
-from topodrake.contract.waypoint import (TargetContext, WaypointPolicy, WaypointPrediction,
-                                         target_input)
-from topodrake.errors import TopodrakeError
 from topodrake.contract.frames import centre_pose, context_frames
+from topodrake.contract.waypoint import (
+    TargetContext,
+    WaypointPolicy,
+    WaypointPrediction,
+    target_input,
+)
+from topodrake.errors import TopodrakeError
 from topodrake.learning.inference import ObservationNetwork
 from topodrake.learning.networks import CONTROL_SCALE
+from topodrake.learning.samples import expert_waypoint_labels, wrap_angle
 from topodrake.sensing.config import CameraConfig, LidarConfig
+from topodrake.sensing.overlap import mutual_overlap
 
 __all__ = ["AStarOracle", "LearnedWaypointPolicy", "TargetContext", "WaypointPolicy",
            "WaypointPrediction", "make_target_context", "target_input"]
@@ -99,9 +105,6 @@ class AStarOracle:
         return centre_pose(context, self.k)
 
     def predict(self, observation: np.ndarray, target) -> WaypointPrediction:
-        from topodrake.learning.samples import expert_waypoint_labels, wrap_angle
-        from topodrake.sensing.overlap import mutual_overlap
-
         poses = np.asarray(observation, np.float64).reshape(-1, 3)
         tgt = np.asarray(target, np.float64).reshape(-1, 3)
         if len(tgt) == 1 and len(poses) > 1:

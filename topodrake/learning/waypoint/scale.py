@@ -46,11 +46,22 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
+from topodrake.fileio import atomic_write_json
 from topodrake.learning.config import TrainConfig
 from topodrake.learning.networks import NetworkConfig
-from topodrake.learning.waypoint.scale_data import (DeviceBatcher, Pool, as_network_input,
-                                                    gather_frames, init_worker, make_shard,
-                                                    render_world, warm_kernels)
+from topodrake.learning.samples import SampleConfig, make_samples
+from topodrake.learning.trajpack import load_packed_trajectories
+from topodrake.learning.waypoint.scale_data import (
+    DeviceBatcher,
+    Pool,
+    as_network_input,
+    gather_frames,
+    init_worker,
+    make_shard,
+    render_world,
+    warm_kernels,
+)
+from topodrake.typed_yaml import load_typed
 
 
 @dataclass
@@ -99,8 +110,6 @@ class ScaleRunConfig:
 
 
 def load_scale_config(path) -> ScaleRunConfig:
-    from topodrake.typed_yaml import load_typed
-
     return load_typed(ScaleRunConfig, path, "config").validate(f"config {path}")
 
 
@@ -165,11 +174,13 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
     import torch
     from tqdm import tqdm
 
-    from topodrake.fileio import atomic_write_json
-    from topodrake.learning.checkpoint import RESUME, git_revision, save_checkpoint, save_resume_state
+    from topodrake.learning.checkpoint import (
+        RESUME,
+        git_revision,
+        save_checkpoint,
+        save_resume_state,
+    )
     from topodrake.learning.data import Batch, SampleBatcher
-    from topodrake.learning.samples import SampleConfig, make_samples
-    from topodrake.learning.trajpack import load_packed_trajectories
     from topodrake.learning.waypoint.train import CARD, CHECKPOINT, waypoint_loss
 
     t_start = time.perf_counter()

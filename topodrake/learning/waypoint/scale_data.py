@@ -13,6 +13,11 @@ import sys
 
 import numpy as np
 
+from topodrake.learning.samples import SampleConfig, _world_samples
+from topodrake.learning.trajpack import load_packed_trajectories
+from topodrake.sensing.config import CameraConfig, LidarConfig
+from topodrake.world import load_world
+
 # ---------------------------------------------------------------- shards (worker side)
 
 _W: dict = {}
@@ -26,10 +31,7 @@ def init_worker(traj_path: str, worlds: list[str], train: dict) -> None:
 
     numba.set_num_threads(1)
     torch.set_num_threads(1)
-    from topodrake.learning.trajpack import load_packed_trajectories
 
-    from topodrake.learning.samples import SampleConfig
-    from topodrake.sensing.config import CameraConfig, LidarConfig
 
     _W.update(trajs=load_packed_trajectories(traj_path).select_worlds(worlds), worlds=worlds,
               samples=SampleConfig(**train["data"]["samples"]),
@@ -40,9 +42,6 @@ def init_worker(traj_path: str, worlds: list[str], train: dict) -> None:
 
 def make_shard(j: int):
     """Shard ``j``: (j, sample fields, source observations in the pool's storage)."""
-    from topodrake.learning.samples import _world_samples
-    from topodrake.world import load_world
-
     worlds, trajs = _W["worlds"], _W["trajs"]
     w, s = j % len(worlds), j // len(worlds)
     if w not in _W["cache"]:
@@ -60,7 +59,6 @@ def make_shard(j: int):
 class _Sensor:
     """A world's sensor, observing in the pool's storage: lidar ranges as
     float16 in [0, 1], camera images as uint8 (H, W, 3)."""
-
     def __init__(self, world, modality: str, camera, lidar):
         self.modality, self.range_m = modality, lidar.range_m
         if modality == "camera":
@@ -113,7 +111,6 @@ def normalised(ranges: np.ndarray, range_m: float) -> np.ndarray:
 class Pool:
     """Samples on the device, grown shard by shard; once full, each shard
     replaces the oldest samples (a ring)."""
-
     def __init__(self, capacity: int, obs_shape: tuple, obs_dtype, frames: int, device):
         import torch
 
@@ -167,8 +164,6 @@ def frame_rows(trajs, w: int) -> np.ndarray:
 
 def render_world(w: int):
     """Worker side: (w, rows, observations) of every trajectory frame of world ``w``."""
-    from topodrake.world import load_world
-
     trajs = _W["trajs"]
     rows = frame_rows(trajs, w)
     sensor = _Sensor(load_world(_W["worlds"][w]), _W["modality"], _W["camera"], _W["lidar"])
