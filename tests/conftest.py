@@ -60,3 +60,24 @@ def small_map(tmp_path_factory):
             built[modality] = path
         return built[modality]
     return get
+
+
+@pytest.fixture
+def patch_everywhere(monkeypatch):
+    """``patch_everywhere("topodrake.module.name", value)``: monkeypatch a
+    function in its module and in every loaded topodrake module that imported
+    it by name (imports sit at module top, so a caller holds its own binding)."""
+    import importlib
+    import sys
+
+    def patch(target: str, value):
+        modname, attr = target.rsplit(".", 1)
+        module = importlib.import_module(modname)
+        original = getattr(module, attr)
+        monkeypatch.setattr(module, attr, value)
+        for other in list(sys.modules.values()):
+            name = getattr(other, "__name__", "") or ""
+            if other is not module and name.startswith("topodrake") and \
+                    getattr(other, "__dict__", {}).get(attr) is original:
+                monkeypatch.setattr(other, attr, value)
+    return patch

@@ -132,7 +132,7 @@ def test_training_folders_are_checked_first(capsys, argv):
     one_line(code, err, "/proc")
 
 
-def test_map_build_says_where_it_collects(capsys, tmp_path, monkeypatch):
+def test_map_build_says_where_it_collects(capsys, tmp_path, monkeypatch, patch_everywhere):
     """Without --demos the demonstrations go under ./data, said on stderr;
     a ./data that cannot hold them is refused before anything is made."""
     monkeypatch.chdir(tmp_path)
@@ -144,7 +144,7 @@ def test_map_build_says_where_it_collects(capsys, tmp_path, monkeypatch):
     def stop(*args, **kwargs):
         raise TopodrakeError("collection stopped here")
 
-    monkeypatch.setattr("topodrake.demonstrations.collect", stop)
+    patch_everywhere("topodrake.demonstrations.collect", stop)
     code, _, err = run(capsys, "map", "build", "test-0", "--modality", "oracle", "--out", "m.tdmap",
                        "--quiet")
     assert code == 2 and "collecting them into data/demos/pairs-s0/test-0" in err
@@ -181,7 +181,7 @@ def demos():
     return demo_drives("test-0", progress=False)[0].resolve()
 
 
-def test_a_failed_write_after_the_work_is_one_line(capsys, tmp_path, monkeypatch, demos):
+def test_a_failed_write_after_the_work_is_one_line(capsys, tmp_path, monkeypatch, demos, patch_everywhere):
     """The map is built, its file cannot be written: one line naming the
     failure and the place the map was kept."""
     monkeypatch.chdir(tmp_path)
@@ -191,7 +191,7 @@ def test_a_failed_write_after_the_work_is_one_line(capsys, tmp_path, monkeypatch
             raise OSError(28, "No space left on device", str(path))
         path.write_bytes(b"PK\x03\x04map")
 
-    monkeypatch.setattr("topodrake.topomap.mapfile.save_map", refuse)
+    patch_everywhere("topodrake.topomap.mapfile.save_map", refuse)
     code, out, err = run(capsys, "map", "build", "test-0", "--modality", "oracle", "--places", "4,9",
                          "--demos", demos, "--out", tmp_path / "m.tdmap", "--quiet")
     line = one_line(code, err, "No space left on device", "kept the map in")

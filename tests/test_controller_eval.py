@@ -121,7 +121,7 @@ def test_study_refuses_a_missing_checkpoint(tmp_path):
     assert "no checkpoint" in err
 
 
-def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatch):
+def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatch, patch_everywhere):
     import topodrake.montecarlo as mc
 
     calls = []
@@ -130,7 +130,7 @@ def test_study_blocks_are_reused_only_for_the_same_settings(tmp_path, monkeypatc
         calls.append(kw["noise_std"])
         return [{"outcome": "success", "time_s": 1.0, "seed": s} for s in seeds]
 
-    monkeypatch.setattr(mc, "run_trials", fake_run_trials)
+    patch_everywhere("topodrake.montecarlo.run_trials", fake_run_trials)
     args = {"seed": 0, "data": "data", "runs_dir": tmp_path, "workers": 1, "quiet": True}
     first = run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], **args)
     again = run_block("oracle", "clean", "oracle", 0.0, [1, 2, 3], **args)

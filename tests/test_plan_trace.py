@@ -104,13 +104,13 @@ def test_a_trace_refuses_what_it_cannot_drive_in_one_line(placed_box, monkeypatc
         trace_trials("placed-box", "sptm", [0], sc)
 
 
-def test_the_study_traces_one_method_in_one_house(placed_box, monkeypatch, tmp_path, capsys):
+def test_the_study_traces_one_method_in_one_house(placed_box, monkeypatch, tmp_path, capsys, patch_everywhere):
     import importlib.util
     from pathlib import Path
 
     world, topomap = placed_box
     _stub_house(monkeypatch, world, topomap)
-    monkeypatch.setattr("topodrake.world.load_world", lambda spec: world)
+    patch_everywhere("topodrake.world.load_world", lambda spec: world)
     spec = importlib.util.spec_from_file_location(
         "planning_study", Path(__file__).parents[1] / "studies" / "planning.py")
     study = importlib.util.module_from_spec(spec)

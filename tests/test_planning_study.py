@@ -483,7 +483,7 @@ def _scenario(tmp_path, **changed):
                                "pruned_fractions": [0.3, 0.6, 1.0], **changed})
 
 
-def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monkeypatch):
+def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monkeypatch, patch_everywhere):
     """The study's run with the houses' trials stubbed: it runs the library's
     house job, and planning.json records the scenario and describes each
     method's follower as its Method does."""
@@ -504,7 +504,7 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
                  "methods": {m: {"success": 0.5, "trials": 4} for m in scenario.methods}}
                 for s in seeds]
 
-    monkeypatch.setattr(mc, "run_trials", run_trials)
+    patch_everywhere("topodrake.montecarlo.run_trials", run_trials)
     doc = planning(_scenario(tmp_path, world="test-0", methods=["oracle_full", "lidar_reg"],
                              pruned_fractions=[]), "python studies/planning.py", quiet=True)
     assert jobs_run == [plan_study.house_job]
@@ -522,7 +522,7 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
 
     # other map settings reach the house jobs and the record
     seen = []
-    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, scenario, **kw:
+    patch_everywhere("topodrake.montecarlo.run_trials", lambda job, seeds, *, jobs, scenario, **kw:
                         seen.append(scenario.map_config()) or run_trials(
                             job, seeds, jobs=jobs, scenario=scenario, **kw))
     doc = planning(_scenario(tmp_path, world="test-0", methods=["lidar"], pruned_fractions=[],
@@ -532,7 +532,7 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
 
     # follower settings likewise; the engines drive with them
     seen.clear()
-    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, scenario, **kw:
+    patch_everywhere("topodrake.montecarlo.run_trials", lambda job, seeds, *, jobs, scenario, **kw:
                         seen.append(plan_study.navigation_config(scenario)) or run_trials(
                             job, seeds, jobs=jobs, scenario=scenario, **kw))
     doc = planning(_scenario(tmp_path, world="test-0", methods=["lidar"], pruned_fractions=[],
@@ -545,7 +545,7 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
 
     # the time limit likewise
     seen.clear()
-    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, scenario, **kw:
+    patch_everywhere("topodrake.montecarlo.run_trials", lambda job, seeds, *, jobs, scenario, **kw:
                         seen.append(scenario.time_limit) or run_trials(
                             job, seeds, jobs=jobs, scenario=scenario, **kw))
     doc = planning(_scenario(tmp_path, world="test-0", methods=["lidar"], pruned_fractions=[],
@@ -560,7 +560,7 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
 
     # the cars' odometry likewise: wheel odometry that drifts unless the true pose is asked for
     seen.clear()
-    monkeypatch.setattr(mc, "run_trials", lambda job, seeds, *, jobs, scenario, **kw:
+    patch_everywhere("topodrake.montecarlo.run_trials", lambda job, seeds, *, jobs, scenario, **kw:
                         seen.append(plan_study.navigation_config(scenario)) or run_trials(
                             job, seeds, jobs=jobs, scenario=scenario, **kw))
     doc = planning(_scenario(tmp_path, world="test-0", methods=["lidar"], pruned_fractions=[]),
@@ -694,7 +694,8 @@ def test_rescore_sets_the_shipped_calibration_against_recorded_trials(tmp_path):
         rescore(f"{src},{src}", "python studies/planning.py")
 
 
-def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monkeypatch):
+def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monkeypatch,
+                                                                          patch_everywhere):
     """A method's trials in rounds: round r is planned with the passed and
     failed edges of rounds < r, and the records keep each trial's round."""
     from types import SimpleNamespace
@@ -734,9 +735,9 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
 
     monkeypatch.setattr(plan_study, "plan_routes", plan_routes)
     monkeypatch.setattr(plan_study, "trial_time_limits", trial_time_limits)
-    monkeypatch.setattr(plan_trials, "follow_routes", follow_routes)
+    patch_everywhere("topodrake.experiments.plan_trials.follow_routes", follow_routes)
     monkeypatch.setattr(plan_study, "networks", lambda *a: (None, None))
-    monkeypatch.setattr("topodrake.navigation.engine.NavigationEngine",
+    patch_everywhere("topodrake.navigation.engine.NavigationEngine",
                         lambda *a, **k: SimpleNamespace())
     world = SimpleNamespace(places=np.zeros((3, 3)))
     pairs = np.array([[0, 1], [1, 2], [2, 0], [0, 2]])
@@ -844,7 +845,8 @@ def test_a_cached_map_plans_with_the_callers_planning_settings(tmp_path, monkeyp
     assert not again.config.links.direct_check and again.config.plan.switch_p == 1.0
 
 
-def test_a_cached_map_of_another_re_is_rebuilt_not_refused(tmp_path, monkeypatch, capsys):
+def test_a_cached_map_of_another_re_is_rebuilt_not_refused(tmp_path, monkeypatch, capsys,
+                                                            patch_everywhere):
     """A checkpoint retrained under the same path makes its cached maps
     stale: the cache builds the map again for the RE it is given."""
     from types import SimpleNamespace
@@ -866,7 +868,7 @@ def test_a_cached_map_of_another_re_is_rebuilt_not_refused(tmp_path, monkeypatch
         scorer.identity = {**scorer.identity, "retrained": True}
         return scorer
 
-    monkeypatch.setattr(sources, "make_scorer", retrained)
+    patch_everywhere("topodrake.topomap.sources.make_scorer", retrained)
     capsys.readouterr()
     again, build_s = map_cache.get_map("test-0", world, "oracle", [drive], [0], tmp_path, "all",
                                        False)

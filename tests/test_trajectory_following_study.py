@@ -124,7 +124,7 @@ def test_runs_picks_what_is_followed_and_refuses_unknown_runs(tmp_path):
     assert 0.0 <= summary["lidar_k5"]["cover_oracle"] <= 1.0
 
 
-def test_the_oracle_re_run_follows_with_the_controller_and_the_geometric_re(tmp_path, monkeypatch):
+def test_the_oracle_re_run_follows_with_the_controller_and_the_geometric_re(tmp_path, monkeypatch, patch_everywhere):
     """``--runs oracle_re``: the controller's own C_WP drives, the geometric
     oracle RE answers the follower, and the chains stay the learned RE's."""
     import topodrake.navigation.engine as engine_module
@@ -138,7 +138,7 @@ def test_the_oracle_re_run_follows_with_the_controller_and_the_geometric_re(tmp_
             made.append((type(policy).__name__, type(reach).__name__))
             super().__init__(world, policy, reach, config)
 
-    monkeypatch.setattr(engine_module, "NavigationEngine", Watched)
+    patch_everywhere("topodrake.navigation.engine.NavigationEngine", Watched)
     doc = _follow(tmp_path, runs=["re", "oracle_re"], odometry="perfect")
     assert len(made) == 2
     (cwp_re, re_re), (cwp_oracle, re_oracle) = made
@@ -150,7 +150,7 @@ def test_the_oracle_re_run_follows_with_the_controller_and_the_geometric_re(tmp_
     assert "lidar_k5-p0.99-oracle_re-test-0-0.json" in runs
 
 
-def test_another_re_places_the_anchors_while_the_controllers_re_answers(tmp_path, monkeypatch):
+def test_another_re_places_the_anchors_while_the_controllers_re_answers(tmp_path, monkeypatch, patch_everywhere):
     """``--chain-re``: the chains are the placing RE's sparsification, the
     follower asks the controller's RE, and both are recorded."""
     import topodrake.navigation.engine as engine_module
@@ -168,7 +168,7 @@ def test_another_re_places_the_anchors_while_the_controllers_re_answers(tmp_path
             super().__init__(world, policy, reach, config)
 
     monkeypatch.setattr(follow_trials, "chains_of", watched_chains)
-    monkeypatch.setattr(engine_module, "NavigationEngine", Watched)
+    patch_everywhere("topodrake.navigation.engine.NavigationEngine", Watched)
     dagger = "checkpoints/lidar_k5_dagger/checkpoint.pt"
     doc = _follow(tmp_path, runs=["re"], odometry="perfect", cwp={"lidar_k5": dagger},
                   re={"lidar_k5": "checkpoints/reach_lidar_k5_onpolicy/checkpoint.pt"},

@@ -8,6 +8,9 @@ from topodrake.apps import argtypes as at
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.scenarios import load_scenario, scenario_names, with_changes
 
+#: flags whose values every study checks the same way
+_CHECKED = {"seed": at.seed, "noise": at.nonnegative}
+
 
 def add_study_arguments(parser, data_help: str = "cache of demonstrations") -> None:
     """The options every Monte Carlo study shares: seed, data folder, noise,
@@ -71,7 +74,8 @@ def add_scenario_arguments(parser, schema, scenarios, default: str) -> None:
                         help=f"named scenario of {_shown(scenarios)}: "
                              f"{', '.join(scenario_names(scenarios))}")
     parser.add_argument("--scenario-text", default="", metavar="YAML",
-                        help="scenario fields to change, as YAML (e.g. '{trials: 10}')")
+                        help="scenario fields to change, as YAML "
+                             "(e.g. '{trials: 10}'; default: none)")
     parser.add_argument("--print-config", action="store_true",
                         help="print the scenario (with the flags given) as YAML and run nothing")
     defaults = schema()
@@ -85,7 +89,7 @@ def add_scenario_arguments(parser, schema, scenarios, default: str) -> None:
         if t is bool:
             kwargs["action"] = "store_true"
         else:
-            kwargs["type"] = _parser_of(t, name)
+            kwargs["type"] = _CHECKED.get(name) or _parser_of(t, name)
             if meta.get("choices"):
                 kwargs["choices"] = meta["choices"]
             else:
