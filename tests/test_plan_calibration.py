@@ -8,7 +8,7 @@ import pytest
 
 from cli_run import one_line, run
 from topodrake.errors import TopodrakeError
-from topodrake.experiments.plan_trials import calibration
+from topodrake.topomap.plan_calibration import calibration
 from topodrake.topomap.plan_calibration import (FILENAME, PlanCalibration, calibration_beside,
                                                 fit_from_records, fit_plan_calibration)
 

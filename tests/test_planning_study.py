@@ -10,6 +10,7 @@ import pytest
 from study_run import run_study
 from topodrake.errors import TopodrakeError
 from topodrake.experiments import plan_trials as pt
+from topodrake.topomap.plan_calibration import calibration
 
 
 # ---------------------------------------------------------------- trials
@@ -60,7 +61,7 @@ def test_pruned_subsets_are_seeded_sorted_nested_and_whole_at_one():
 def test_calibration_bins_and_ece_on_hand_made_data():
     p = [0.05, 0.05, 0.95, 0.95, 0.95, 0.95, 1.0, 0.55, float("nan")]
     s = [0, 0, 1, 1, 1, 0, 1, 1, 1]
-    rows, ece = pt.calibration(p, s, bins=10)
+    rows, ece = calibration(p, s, bins=10)
     assert len(rows) == 10 and rows[0]["lo"] == 0.0 and rows[-1]["hi"] == 1.0
     assert [r["count"] for r in rows] == [2, 0, 0, 0, 0, 1, 0, 0, 0, 5]   # nan left out, 1.0 in the last
     assert rows[0]["predicted"] == 0.05 and rows[0]["observed"] == 0.0
@@ -68,11 +69,11 @@ def test_calibration_bins_and_ece_on_hand_made_data():
     assert rows[1]["predicted"] is None
     want = (2 * 0.05 + 1 * 0.45 + 5 * 0.16) / 8
     assert ece == pytest.approx(want, abs=1e-4)
-    perfect, e0 = pt.calibration([0.25] * 4 + [0.75] * 4, [1, 0, 0, 0, 1, 1, 1, 0])
+    perfect, e0 = calibration([0.25] * 4 + [0.75] * 4, [1, 0, 0, 0, 1, 1, 1, 0])
     assert e0 == 0.0
-    assert pt.calibration([], [])[1] is None
+    assert calibration([], [])[1] is None
     with pytest.raises(TopodrakeError):
-        pt.calibration([0.5], [1, 0])
+        calibration([0.5], [1, 0])
 
 
 def test_summary_min_ours_margin_and_nulls():
@@ -323,7 +324,7 @@ def test_plan_and_follow_on_an_oracle_map_in_the_box_world(box_world):
     assert all(o in ("goal", "reached") for o in out.outcome[:2])
     if routes[2] is None:
         assert out.outcome[2] == "no_plan" and not out.success[2] and out.steps[2] == 0
-    rows, ece = pt.calibration([p.probability for p in plans if p.reachable],
+    rows, ece = calibration([p.probability for p in plans if p.reachable],
                                out.success[[p.reachable for p in plans]])
     assert ece is not None and 0.0 <= ece <= 1.0
 
@@ -686,7 +687,7 @@ def test_rescore_sets_the_shipped_calibration_against_recorded_trials(tmp_path):
                                                [r["plan_anchors"] for r in lidar])
     assert table["lidar"]["calibrated"] and not table["oracle_full"]["calibrated"]
     assert summary["plan_probability_ece_by_method"]["lidar"] == pytest.approx(
-        pt.calibration(np.round(want, 5), [r["success"] for r in lidar])[1], abs=1e-4)
+        calibration(np.round(want, 5), [r["success"] for r in lidar])[1], abs=1e-4)
     assert summary["planned_trials"] == {"lidar": 40, "oracle_full": 40}
     assert (out / "plan_calibration.png").stat().st_size > 10_000
     with pytest.raises(TopodrakeError, match="recorded twice"):

@@ -26,6 +26,7 @@ from typing import Callable
 import numpy as np
 
 from topodrake.control import controls_toward
+from topodrake.errors import TopodrakeError
 from topodrake.expert import ExpertConfig, PackedPaths, expert_waypoints, initial_memory
 from topodrake.expert.approach import (
     ApproachConfig,

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from topodrake.apps import argtypes as at
 from topodrake.apps.outputs import add_force_option, check_folder, check_output, check_output_folder
+from topodrake.errors import TopodrakeError
 from topodrake.experiments.bench_onpolicy import bench_follower, parse_controllers
 from topodrake.experiments.waypoint_anatomy import bench_waypoint
 from topodrake.learning.onpolicy.calibration import FollowerCalibrationConfig, calibrate_follower

@@ -31,6 +31,7 @@ from topodrake.topomap.graph import TopoMap, load_map_config
 from topodrake.topomap.mapfile import save_map
 from topodrake.topomap.retrieval import default_embedding
 from topodrake.topomap.sources import SHIPPED, drive_observations, make_scorer, shipped_checkpoint
+from topodrake.world import load_world
 
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from topodrake.experiments.plan_trials import calibration
+from topodrake.topomap.plan_calibration import calibration
 from topodrake.topomap.plan_calibration import FILENAME, PlanCalibration
 from topodrake.topomap.sources import (
     ROOT,

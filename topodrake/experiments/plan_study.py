@@ -36,7 +36,6 @@ from topodrake.experiments.plan_trials import (
 )
 from topodrake.navigation.engine import NavigationConfig, NavigationEngine
 from topodrake.navigation.replan import NEAREST, nearest_seen_vertex, route_traversals
-from topodrake.odometry import ODOMETRY_MODELS as ODOMETRY  # the models the cars can drive with
 from topodrake.odometry import odometry_model
 from topodrake.topomap.plan import plan_from_vertex, plan_path
 from topodrake.topomap.sources import drive_observations, view_scans

@@ -31,7 +31,6 @@ from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
 from topodrake.navigation.outcomes import SUCCESS_M, judge_outcome
 from topodrake.navigation.replan import Replanner
 from topodrake.sensing.observe import observe
-from topodrake.topomap.plan_calibration import calibration
 from topodrake.world.obstacles import boxes_on_path, with_boxes
 
 T_MAX_S = 150.0         # 1,500 control periods of 0.1 s

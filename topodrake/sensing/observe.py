@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from topodrake.sensing.lidar import Lidar
+
 
 def observe(world, modality: str, poses: np.ndarray, sensor=None) -> np.ndarray:
     """Camera images (N, H, W, 3) uint8 or lidar ranges (N, beams) at ``poses``

@@ -17,6 +17,7 @@ from pathlib import Path
 from topodrake.errors import TopodrakeError
 from topodrake.fileio import file_sha1
 from topodrake.learning.waypoint.noisy_oracle import NoisyOracle, is_oracle_spec
+from topodrake.registration.policy import RegistrationPolicy
 
 #: The ``controller`` name of the registration C_WP (no checkpoint file).
 REGISTRATION = "registration"

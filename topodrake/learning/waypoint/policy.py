@@ -5,9 +5,7 @@ Both implement :class:`topodrake.contract.waypoint.WaypointPolicy`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -19,7 +17,6 @@ from topodrake.contract.waypoint import (
     WaypointPrediction,
     target_input,
 )
-from topodrake.errors import TopodrakeError
 from topodrake.learning.inference import ObservationNetwork
 from topodrake.learning.networks import CONTROL_SCALE
 from topodrake.learning.samples import expert_waypoint_labels, wrap_angle
