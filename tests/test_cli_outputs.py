@@ -86,10 +86,13 @@ def test_force_overwrites_a_file_of_another_kind(capsys, tmp_path):
     assert sniff(target) == "png"
 
 
-def test_a_png_is_overwritten_by_a_png(capsys, tmp_path):
+def test_a_png_is_replaced_only_with_force(capsys, tmp_path):
     target = tmp_path / "plan.png"
     target.write_bytes(PNG)
-    assert run(capsys, "world", "plot", "test-0", "--out", target)[0] == 0
+    code, _, err = run(capsys, "world", "plot", "test-0", "--out", target)
+    one_line(code, err, "plan.png exists", "--force")
+    assert target.read_bytes() == PNG
+    assert run(capsys, "world", "plot", "test-0", "--out", target, "--force")[0] == 0
     assert target.stat().st_size > len(PNG)
 
 
@@ -144,7 +147,7 @@ def test_map_build_says_where_it_collects(capsys, tmp_path, monkeypatch):
     def stop(*args, **kwargs):
         raise TopodrakeError("collection stopped here")
 
-    monkeypatch.setattr("topodrake.demonstrations.collect", stop)
+    monkeypatch.setattr("topodrake.topomap.sources.collect", stop)
     code, _, err = run(capsys, "map", "build", "test-0", "--modality", "oracle", "--out", "m.tdmap",
                        "--quiet")
     assert code == 2 and "collecting them into data/demos/pairs-s0/test-0" in err
@@ -191,7 +194,7 @@ def test_a_failed_write_after_the_work_is_one_line(capsys, tmp_path, monkeypatch
             raise OSError(28, "No space left on device", str(path))
         path.write_bytes(b"PK\x03\x04map")
 
-    monkeypatch.setattr("topodrake.topomap.mapfile.save_map", refuse)
+    monkeypatch.setattr("topodrake.topomap.resumable.save_map", refuse)
     code, out, err = run(capsys, "map", "build", "test-0", "--modality", "oracle", "--places", "4,9",
                          "--demos", demos, "--out", tmp_path / "m.tdmap", "--quiet")
     line = one_line(code, err, "No space left on device", "kept the map in")

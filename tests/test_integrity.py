@@ -71,6 +71,13 @@ def test_integrity_navigate_refuses_a_damaged_checkpoint(capsys, tmp_path, optio
     assert out == ""
 
 
+def test_integrity_demo_refuses_a_damaged_controller(capsys, tmp_path):
+    bad = copy_of(CWP, tmp_path / "ck", damage=True, card=False)
+    code, _, err = run(capsys, "demo", "--controller", bad, "--out", tmp_path / "demo")
+    one_line(code, err, str(bad), "damaged")
+    assert not (tmp_path / "demo" / "plan.png").exists()
+
+
 @pytest.mark.parametrize("option", ["--reach", "--controller"])
 def test_integrity_map_build_refuses_a_damaged_checkpoint(capsys, tmp_path, option):
     bad = copy_of(REACH if option == "--reach" else CWP, tmp_path / "ck", damage=True,
