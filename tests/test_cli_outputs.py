@@ -86,10 +86,13 @@ def test_force_overwrites_a_file_of_another_kind(capsys, tmp_path):
     assert sniff(target) == "png"
 
 
-def test_a_png_is_overwritten_by_a_png(capsys, tmp_path):
+def test_a_png_is_replaced_only_with_force(capsys, tmp_path):
     target = tmp_path / "plan.png"
     target.write_bytes(PNG)
-    assert run(capsys, "world", "plot", "test-0", "--out", target)[0] == 0
+    code, _, err = run(capsys, "world", "plot", "test-0", "--out", target)
+    one_line(code, err, "plan.png exists", "--force")
+    assert target.read_bytes() == PNG
+    assert run(capsys, "world", "plot", "test-0", "--out", target, "--force")[0] == 0
     assert target.stat().st_size > len(PNG)
 
 

@@ -409,6 +409,8 @@ def test_tiny_training_reduces_loss_and_resumes(samples, tmp_path, capsys):
     card = json.loads((tmp_path / "card.json").read_text())
     assert card["samples_seen"] == 1280 and card["command"].endswith("--out x")
     assert card["data"]["train_samples"] == 240 and card["wall_time_s"] > 0
+    from topodrake.fileio import file_sha256
+    assert card["sha256"] == file_sha256(tmp_path / "checkpoint.pt")    # checked on load
     # the shipped file holds no optimizer state; resume.pt beside it does
     blob = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
     assert "optimizer" not in blob and (tmp_path / "resume.pt").is_file()

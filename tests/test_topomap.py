@@ -448,6 +448,8 @@ def test_a_map_written_before_the_slacks_and_the_resume_rule_loads_with_the_pape
     with np.load(path) as z:
         arrays = {name: z[name] for name in z.files}
     meta = json.loads(bytes(arrays.pop("meta")).decode())
+    meta["version"] = 4                 # a file of then: no checksum
+    arrays.pop("checksum")
     assert meta["config"].pop("sparsify_slack") == MapConfig().sparsify.slack
     assert meta["config"].pop("reuse_slack") == 0.0
     assert meta["config"].pop("reuse_rule") == MapConfig().reuse.rule == "resume"

@@ -16,7 +16,13 @@ from topodrake.apps import argtypes as at
 from topodrake.apps.demo import add_demo_parser
 from topodrake.apps.map_cli import add_map_bench_parser, add_map_parser
 from topodrake.apps.navigate_cli import add_navigate_parser
-from topodrake.apps.outputs import add_force_option, check_output, check_output_folder
+from topodrake.apps.outputs import (
+    add_force_option,
+    check_output,
+    check_output_folder,
+    lock_output,
+    release_locks,
+)
 from topodrake.apps.sparsify_cli import add_sparsify_parser
 from topodrake.apps.train_cli import add_bench_parser, add_train_parser
 from topodrake.demonstrations import CollectConfig, collect, load_demos
@@ -88,6 +94,7 @@ def cmd_trials(args) -> None:
 def cmd_collect(args) -> None:
     check_output_folder(args.out, marker="manifest.json", what="demonstrations (manifest.json)",
                         force=args.force)
+    lock_output(args.out)
 
     config = CollectConfig(protocol=args.protocol, count=args.count, seed=args.seed,
                            noise_std=args.noise, chunk_size=args.chunk_size)
@@ -117,6 +124,7 @@ def cmd_world_info(args) -> None:
 
 def cmd_world_plot(args) -> None:
     check_output(args.out, "image", force=args.force)
+    lock_output(args.out)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -246,6 +254,13 @@ def _welcome(parser) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; returns its exit status (see :data:`WORKFLOW`)."""
     args = build_parser().parse_args(argv)
+    try:
+        return _run(args)
+    finally:
+        release_locks()        # the outputs this command locked
+
+
+def _run(args) -> int:
     try:
         return args.func(args) or 0
     except TopodrakeError as e:

@@ -16,10 +16,15 @@ writes a top-down plan (walls, places, the A* path, the driven path, lidar
 hits along the way), a strip of camera frames re-rendered from the logged
 poses (the same renderer the CameraSensor runs), and with Meshcat a static
 HTML recording of the run.
+
+The demo keeps a record of the files it wrote in its folder, with their
+SHA-256 (:data:`OWN_OUTPUTS`): a later demo replaces those of them that
+are unchanged, and any other file there only with ``--force``.
 """
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -27,16 +32,22 @@ import numpy as np
 
 from topodrake.apps.drive import drive_route, plot_drive
 from topodrake.apps.navigate_cli import EXIT_HELP, chain_from_expert, plan_on_map, success_chance
-from topodrake.apps.outputs import add_force_option, check_output, check_output_folder, write_kept
+from topodrake.apps.outputs import (
+    add_force_option,
+    check_output,
+    check_output_folder,
+    lock_output,
+    write_kept,
+)
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_bytes
+from topodrake.fileio import atomic_write_bytes, atomic_write_json, file_sha256
 from topodrake.navigation.outcomes import SUCCESS_M, drive_outcome, exit_status, goal_distance
 from topodrake.odometry import ODOMETRY_MODELS, odometry_model
 from topodrake.sensing.camera import Camera
 from topodrake.sensing.lidar import Lidar
 from topodrake.systems.scenario import Scenario
 from topodrake.topomap.mapfile import read_map_meta
-from topodrake.topomap.sources import resolve_checkpoint
+from topodrake.topomap.sources import check_controller, resolve_checkpoint
 from topodrake.world import load_world
 from topodrake.world.plot import legend_below, plot_world, save_figure
 
@@ -206,19 +217,57 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
     return {"files": files, "summary": summary}
 
 
+#: the demo's record of the files it wrote in its folder (name -> SHA-256)
+OWN_OUTPUTS = ".topodrake-demo.json"
+_OWN_FORMAT = "topodrake-demo-outputs"
+
+
+def own_outputs(folder) -> dict:
+    """The files an earlier demo wrote in ``folder``, by name, with their
+    SHA-256 then (empty without a readable record)."""
+    try:
+        record = json.loads((Path(folder) / OWN_OUTPUTS).read_text())
+    except (OSError, ValueError):
+        return {}
+    files = record.get("files") if isinstance(record, dict) \
+        and record.get("format") == _OWN_FORMAT else None
+    return {k: v for k, v in files.items() if isinstance(v, str)} if isinstance(files, dict) \
+        else {}
+
+
+def is_own_output(path) -> bool:
+    """``path`` is a file an earlier demo wrote, unchanged since."""
+    path = Path(path)
+    want = own_outputs(path.parent).get(path.name)
+    return want is not None and path.is_file() and file_sha256(path) == want
+
+
+def record_outputs(folder, files) -> None:
+    """Add the files the demo wrote in ``folder`` to its record."""
+    folder = Path(folder)
+    own = own_outputs(folder)
+    for path in map(Path, files):
+        if path.is_file() and path.parent.resolve() == folder.resolve():
+            own[path.name] = file_sha256(path)
+    atomic_write_json(folder / OWN_OUTPUTS, {"format": _OWN_FORMAT, "version": 1,
+                                             "files": own})
+
+
 def check_outputs(args) -> None:
-    """The demo's folder and the files it writes there, checked before the drive."""
+    """The demo's folder and the files it writes there, checked (and the
+    folder locked) before the drive: a file there that an earlier demo did
+    not write, or that changed since, is replaced only with --force."""
     out = check_output_folder(args.out)
+    lock_output(out)
     files = ["plan.png"] + (["camera.png"] if args.expert else []) \
         + (["meshcat.html"] if args.meshcat or not args.expert else [])
     for name in files:
-        check_output(out / name, "image" if name.endswith(".png") else "html", force=args.force)
+        check_output(out / name, "image" if name.endswith(".png") else "html", force=args.force,
+                     replace=is_own_output(out / name))
 
 
 def cmd_demo(args) -> int:
-    import json
     import math
-
 
     if args.noise is not None and not (math.isfinite(args.noise) and args.noise >= 0):
         raise TopodrakeError(f"--noise must be finite and >= 0, got {args.noise}")
@@ -239,10 +288,12 @@ def cmd_demo(args) -> int:
         if args.map and (args.controller or args.reach):
             raise TopodrakeError("--controller and --reach go without --map (a map is followed "
                                  "by the controller it was built for)")
+        check_controller(args.controller, args.reach)       # present, and not damaged
         extra = {"controller": args.controller} if args.controller else {}
         result = run_learned_demo(args.world, args.start_place, args.goal_place, args.out,
                                   args.seed, args.noise or 0.0, map_path=map_path,
                                   reach=args.reach, odometry=args.odometry, **extra)
+    record_outputs(args.out, result["files"].values())
     if args.json:
         print(json.dumps(result["summary"]))
         return exit_status(result["summary"]["outcome"])
@@ -304,7 +355,10 @@ def add_demo_parser(sub) -> None:
                                            "the best shipped one with its own RE)")
     demo.add_argument("--reach", help="RE checkpoint trained for --controller (default: the "
                                       "controller's shipped RE)")
-    demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    demo.add_argument("--out", default="out/demo",
+                      help=f"output folder (default: out/demo); the demo's own earlier outputs "
+                           f"there (the files listed in its {OWN_OUTPUTS}, unchanged since) are "
+                           f"replaced, any other file only with --force")
     demo.add_argument("--json", action="store_true",
                       help="print only the summary as one JSON object (default: off)")
 

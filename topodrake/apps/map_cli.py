@@ -20,7 +20,13 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.apps import argtypes as at
-from topodrake.apps.outputs import add_force_option, check_output, check_output_folder, write_kept
+from topodrake.apps.outputs import (
+    add_force_option,
+    check_output,
+    check_output_folder,
+    lock_output,
+    write_kept,
+)
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.map_cache import house_key
 from topodrake.experiments.plan_methods import plan_calibration_path
@@ -31,7 +37,13 @@ from topodrake.topomap.plan import plan_path
 from topodrake.topomap.plan_calibration import fit_from_records, read_trial_records
 from topodrake.topomap.plot import plot_map_file
 from topodrake.topomap.recalibrate import PRIOR_WEIGHT, experience_summary, record_traversals
-from topodrake.topomap.resumable import MapBuild, interrupted_build, resume_file
+from topodrake.topomap.resumable import (
+    MapBuild,
+    build_key,
+    interrupted_build,
+    other_partials,
+    resume_file,
+)
 from topodrake.topomap.retrieval import default_embedding
 from topodrake.topomap.sources import (
     demo_drives,
@@ -64,7 +76,7 @@ def parse_pose(text: str, what: str) -> np.ndarray:
 
 def cmd_map_build(args) -> None:
     wall = time.perf_counter()
-    out = check_output(args.out, "map", force=args.force)
+    out = check_output(args.out, "map", force=args.force, replace=args.add, grow="--add")
     if args.add and not out.is_file():
         raise TopodrakeError(f"--add grows an existing map, and {out} does not exist")
     folder = demo_folder(args.world, args.demos)
@@ -73,6 +85,7 @@ def cmd_map_build(args) -> None:
         if args.demos:
             raise TopodrakeError(f"no demonstrations in {folder}")
         collect_into = check_output_folder(folder, option="demonstrations")
+    lock_output(out)          # the map and its interrupted builds beside it
     build = _start_build(args, out, collect_into)
     stats = build.run(progress=not args.quiet)
     write_kept(out, build.save, "the map")
@@ -115,12 +128,17 @@ def _start_build(args, out: Path, collect_into: Path | None):
         topomap = TopoMap(scorer, default_embedding(scorer.observation), config, world=args.world)
     if args.places is not None:
         drives_between(world, [], args.places)          # checks the place indices first
-    resume = resume_file(out)
-    resumed = interrupted_build(resume, scorer, topomap)
     if collect_into is not None:
         print(f"topodrake: no demonstrations of {args.world} yet: collecting them into "
               f"{collect_into} first (--demos DIR reads others)", file=sys.stderr, flush=True)
     folder, drives = demo_drives(args.world, args.demos, progress=not args.quiet)
+    resume = resume_file(out, build_key(args.places, topomap, folder))
+    resumed = interrupted_build(resume, scorer, topomap)
+    kept = other_partials(out, resume)
+    if kept and not args.quiet:
+        print(f"topodrake: {len(kept)} interrupted build(s) of other places or settings stay "
+              f"beside {out}, kept for their own rerun: {', '.join(p.name for p in kept)}",
+              file=sys.stderr, flush=True)
     names = [f"{folder.name}/{i}" for i in range(len(drives))]
     todo = [i for i, n in enumerate(names) if n not in base]
     if args.places is not None:
@@ -184,7 +202,7 @@ def cmd_map_info(args) -> None:
 
 def cmd_map_plot(args) -> None:
     check_output(args.out, "image", force=args.force)
-
+    lock_output(args.out)
     plot_map_file(args.file, args.out)
     print(f"wrote {args.out}")
 
@@ -192,6 +210,7 @@ def cmd_map_plot(args) -> None:
 def cmd_map_plan(args) -> None:
     check_output(args.plot, "image", force=args.force, option="--plot")
     start, goal = parse_pose(args.start, "start"), parse_pose(args.goal, "goal")
+    lock_output(args.plot, "--plot")
     loaded = open_map(args.file, args.reach, args.controller)
     world, topomap = loaded.world, loaded.topomap
     world.check_pose(start, "start")
@@ -237,6 +256,7 @@ def cmd_map_calibrate(args) -> None:
     if args.out is None:
         args.out = str(plan_calibration_path(name))
     check_output(args.out, "json", force=args.force)
+    lock_output(args.out)
     records, commands = read_trial_records(args.records)
     cal = fit_from_records(records, name, source=", ".join(map(str, args.records)),
                            command=" ; ".join(commands))
@@ -254,6 +274,7 @@ def cmd_map_calibrate(args) -> None:
 def cmd_map_refit(args) -> None:
     """Fold a planning study's recorded drives on a map into its edges."""
     out = check_output(args.out, "map", force=args.force)
+    lock_output(out)
     loaded = open_map(args.file)
     house = house_key(loaded.topomap.world)
     records, _ = read_trial_records(args.records)

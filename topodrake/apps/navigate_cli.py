@@ -26,7 +26,13 @@ import numpy as np
 
 from topodrake.apps.drive import chain_route, drive_route, plot_drive
 from topodrake.apps.map_cli import Unreachable
-from topodrake.apps.outputs import add_force_option, check_folder, check_output, write_kept
+from topodrake.apps.outputs import (
+    add_force_option,
+    check_folder,
+    check_output,
+    lock_output,
+    write_kept,
+)
 from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.plan_trials import SUCCESS_M
@@ -199,6 +205,10 @@ def check_outputs(args) -> None:
     check_output(args.meshcat, "html", force=args.force, option="--meshcat")
     if args.update_map:
         check_folder(Path(args.map).parent, "--update-map")
+    lock_output(args.plot, "--plot")
+    lock_output(args.meshcat, "--meshcat")
+    if args.update_map:
+        lock_output(args.map, "--update-map")
 
 
 def cmd_navigate(args) -> int:

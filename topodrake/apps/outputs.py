@@ -3,9 +3,13 @@
 :func:`check_output` refuses, in one :class:`~topodrake.errors.TopodrakeError`
 line, a target whose format is unknown, a folder where a file is expected,
 a parent that is a file or cannot be made or written, and (unless
-``force``) an existing file of another kind. :func:`check_output_folder`
-does the same for a folder a command fills. :func:`write_kept` writes a
-finished result and, when that fails, keeps it elsewhere and says where.
+``force``) an existing file of another kind, or an existing map, plot or
+recording at all. :func:`check_output_folder` does the same for a folder a
+command fills. :func:`lock_output` takes the lock of an output (a
+``filelock`` lock on ``.NAME.lock`` beside it, :func:`lock_path`) for the
+rest of the command, so that a second writer of the same output is refused
+while the first runs. :func:`write_kept` writes a finished result and, when
+that fails, keeps it elsewhere and says where.
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ KINDS = {
     "npz": {".npz": "zip"},
     "json": {".json": "json"},
 }
+#: kinds whose existing files are never replaced without --force: maps, plots, recordings
+KEPT = ("map", "image", "html")
 _DESCRIBE = {"png": "a PNG image", "pdf": "a PDF", "svg": "an SVG image", "jpeg": "a JPEG image",
              "zip": "a zip archive (a map or NumPy file)", "html": "an HTML page",
              "json": "JSON", None: "data of an unknown kind"}
@@ -76,10 +82,14 @@ def check_folder(folder, option: str = "--out") -> Path:
     return folder
 
 
-def check_output(path, kind: str, *, force: bool = False, option: str = "--out") -> Path | None:
+def check_output(path, kind: str, *, force: bool = False, option: str = "--out",
+                 replace: bool = False, grow: str = "") -> Path | None:
     """``path`` (None passes) is a file of ``kind`` (a key of :data:`KINDS`)
     that can be written; an existing non-empty file of another kind is
-    refused unless ``force``."""
+    refused unless ``force``, and one of its own kind too where ``kind`` is
+    one of :data:`KEPT`, unless ``force`` or ``replace`` (the command grows
+    it, or it is the command's own earlier output; ``grow`` names the option
+    that grows it, for the message)."""
     if path is None:
         return None
     path = Path(path)
@@ -101,7 +111,56 @@ def check_output(path, kind: str, *, force: bool = False, option: str = "--out")
         if have != formats[path.suffix.lower()]:
             raise TopodrakeError(f"{option} {path} exists and holds {_DESCRIBE[have]}; pass "
                                  f"--force to overwrite it")
+        if kind in KEPT and not replace:
+            how = f"{grow} to grow it or --force to replace it" if grow else \
+                "--force to replace it"
+            raise TopodrakeError(f"{option} {path} exists; pass {how}")
     return path
+
+
+def lock_path(path) -> Path:
+    """The lock file of output ``path`` (a file or a folder): ``.NAME.lock`` beside it."""
+    path = Path(os.path.abspath(path)) if Path(path).name in ("", ".", "..") else Path(path)
+    if not path.name:                               # the root folder
+        return path / ".topodrake.lock"
+    return path.with_name(f".{path.name}.lock")
+
+
+#: the locks this process holds, by lock file (released by :func:`release_locks`)
+_HELD: dict = {}
+
+
+def lock_output(path, option: str = "--out") -> Path | None:
+    """Take the lock of output ``path`` (None passes) for the rest of the
+    command (:func:`release_locks`); another process holding it is refused in
+    one line. The folder of ``path`` is made if needed, to hold the lock file."""
+    from filelock import FileLock, Timeout
+
+    if path is None:
+        return None
+    path = Path(path)
+    lock = lock_path(path)
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        key = str(lock.resolve())
+        if key in _HELD:
+            return path
+        held = FileLock(lock)
+        held.acquire(timeout=0)
+    except Timeout:
+        raise TopodrakeError(f"{option} {path} is being written by another process (it holds "
+                             f"{lock}); wait for it to end or choose another {option}") from None
+    except OSError as e:
+        raise TopodrakeError(f"{option}: cannot lock {path} ({_reason(e)})") from None
+    _HELD[key] = held
+    return path
+
+
+def release_locks() -> None:
+    """Release every lock :func:`lock_output` took (at the end of a command)."""
+    while _HELD:
+        _, held = _HELD.popitem()
+        held.release()
 
 
 def check_output_folder(path, *, marker: str | None = None, what: str = "",
@@ -141,7 +200,8 @@ def write_kept(path, write, what: str = "the result") -> Path:
 
 
 def add_force_option(parser) -> None:
-    """``--force``: overwrite existing files of another kind."""
+    """``--force``: replace existing outputs."""
     parser.add_argument("--force", action="store_true",
-                        help="overwrite an output file that holds something else, or fill a "
-                             "folder that holds other files")
+                        help="replace an existing output file (a map, plot or recording, or a "
+                             "file that holds something else), or fill a folder that holds "
+                             "other files")

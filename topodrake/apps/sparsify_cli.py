@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 
 from topodrake.apps import argtypes as at
-from topodrake.apps.outputs import add_force_option, check_output
+from topodrake.apps.outputs import add_force_option, check_output, lock_output
 from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
 from topodrake.topomap.sources import check_controller, demo_folder
@@ -38,6 +38,7 @@ def cmd_sparsify(args) -> None:
         raise TopodrakeError(f"--drive must be in 0..{len(demos) - 1} ({folder} has "
                              f"{len(demos)} successful drives)")
     poses = demos[args.drive].poses
+    lock_output(args.plot, "--plot")
     re = Reachability.from_checkpoint(args.reach, args.controller)
     anchors = re.sparsify(re.observe(world, poses), p=args.p)
     result = {"world": args.world, "drive": args.drive, "frames": len(poses),

@@ -17,7 +17,13 @@ import json
 from pathlib import Path
 
 from topodrake.apps import argtypes as at
-from topodrake.apps.outputs import add_force_option, check_folder, check_output, check_output_folder
+from topodrake.apps.outputs import (
+    add_force_option,
+    check_folder,
+    check_output,
+    check_output_folder,
+    lock_output,
+)
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.bench_onpolicy import bench_follower, parse_controllers
 from topodrake.experiments.waypoint_anatomy import bench_waypoint
@@ -33,6 +39,7 @@ def _check_folders(args, out=None) -> None:
     check_output_folder(out or args.out)
     if getattr(args, "data", None):
         check_output_folder(args.data, option="--data")
+    lock_output(out or args.out)
 
 
 def _command(args, verb: str) -> str:
@@ -188,6 +195,7 @@ def expand_worlds(spec: str) -> list[str]:
 def cmd_train_pack(args) -> None:
     check_output(args.out, "npz", force=args.force)
     check_output_folder(args.data, option="--data")
+    lock_output(args.out)
     worlds = expand_worlds(args.worlds)
     trajs = collect_trajectories(worlds, Path(args.data) / "demos" / "pairs-s0",
                                  progress=not args.quiet)

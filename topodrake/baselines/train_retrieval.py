@@ -46,7 +46,7 @@ from topodrake.baselines.retrieval_net import (
 )
 from topodrake.demonstrations import demo_poses
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_json
+from topodrake.fileio import atomic_write_json, file_sha256
 from topodrake.learning.networks import camera_input
 from topodrake.sensing.config import CameraConfig
 from topodrake.sensing.observe import observe
@@ -343,7 +343,8 @@ def train_retrieval(cfg: RetrievalTrainConfig, out_dir, data_dir="data", *, prog
     meta = {"train_config": asdict(cfg), "steps": steps, "wall_time_s": round(wall, 1),
             "git_revision": git_revision(), "metrics": metrics}
     ckpt = save_retrieval_checkpoint(out_dir / CHECKPOINT, model, cfg.camera, **meta)
-    card = {"checkpoint": CHECKPOINT, "parameters": int(sum(p.numel() for p in model.parameters())),
+    card = {"checkpoint": CHECKPOINT, "sha256": file_sha256(ckpt),
+            "parameters": int(sum(p.numel() for p in model.parameters())),
             "steps": steps, "samples_seen": steps * cfg.batch_size,
             "train_wall_time_s": round(wall, 1), "data_wall_time_s": round(t_data, 1),
             "git_revision": meta["git_revision"],

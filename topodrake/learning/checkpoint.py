@@ -15,6 +15,8 @@ A checkpoint is one ``torch.save`` file (read back with
     model                      state dict
     train_state                (optional) where training stands, to resume
     extra                      (optional) task data, e.g. the controller an RE measured
+    payload_sha256             SHA-256 of all of the above (:mod:`~topodrake.learning.sealed`;
+                               absent in checkpoints written before it existed)
 
 The optimizer state, twice the size of the weights, goes to ``resume.pt``
 beside the checkpoint (:func:`save_resume_state`), so the checkpoint that is
@@ -23,7 +25,13 @@ still read.
 
 Loading refuses, with one line naming the file and the mismatch, a file that
 is not a checkpoint, a corrupt one, or one trained for another sensor,
-context length or camera than the caller needs.
+context length or camera than the caller needs. A damaged file is refused
+before anything of it is used: one whose bytes differ from the SHA-256 its
+card records, whose archive fails its CRC-32, or whose payload differs from
+its ``payload_sha256`` (:func:`~topodrake.fileio.check_intact`,
+:func:`~topodrake.learning.sealed.check_seal`). Writing a checkpoint drops
+the ``sha256`` of a card beside it (the card no longer describes the new
+bytes); the trainer writes the card anew with the new checksum.
 """
 
 from __future__ import annotations
@@ -37,8 +45,9 @@ from pathlib import Path
 import torch
 
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_bytes
+from topodrake.fileio import atomic_write_bytes, check_intact, forget_card_sha256
 from topodrake.learning.networks import NetworkConfig, WaypointNetwork, input_size
+from topodrake.learning.sealed import SEAL, check_seal, seal
 from topodrake.sensing.config import CameraConfig, LidarConfig
 
 FORMAT = "topodrake-waypoint-net"
@@ -112,7 +121,8 @@ def save_checkpoint(path, model: WaypointNetwork, sensor: CameraConfig | LidarCo
     if extra:
         blob["extra"] = extra
     buf = io.BytesIO()
-    torch.save(blob, buf)
+    torch.save(seal(blob), buf)
+    forget_card_sha256(path)
     return atomic_write_bytes(path, buf.getvalue())
 
 
@@ -122,8 +132,8 @@ RESUME = "resume.pt"
 def save_resume_state(path, optimizer: dict, samples_seen: int) -> Path:
     """Write the optimizer state of a training run at ``samples_seen``."""
     buf = io.BytesIO()
-    torch.save({"format": FORMAT + "-resume", "samples_seen": int(samples_seen),
-                "optimizer": optimizer}, buf)
+    torch.save(seal({"format": FORMAT + "-resume", "samples_seen": int(samples_seen),
+                     "optimizer": optimizer}), buf)
     return atomic_write_bytes(path, buf.getvalue())
 
 
@@ -135,7 +145,10 @@ def load_resume_state(path, samples_seen) -> dict | None:
     if not path.is_file():
         return None
     try:
+        check_intact(path, "optimizer state")
         blob = torch.load(path, map_location="cpu", weights_only=True)
+        if isinstance(blob, dict):
+            check_seal(blob, path, "optimizer state")
     except Exception:
         return None
     if (not isinstance(blob, dict) or blob.get("format") != FORMAT + "-resume"
@@ -160,6 +173,7 @@ def load_checkpoint(path, *, modality: str | None = None, k: int | None = None,
     path = Path(path)
     if not path.is_file():
         raise TopodrakeError(f"checkpoint {path} does not exist")
+    check_intact(path, "checkpoint")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:
@@ -167,6 +181,7 @@ def load_checkpoint(path, *, modality: str | None = None, k: int | None = None,
                              f"({type(e).__name__})") from None
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         raise TopodrakeError(f"{path} is not a {FORMAT} checkpoint")
+    check_seal(blob, path, "checkpoint")
     if blob.get("version") != VERSION:
         raise TopodrakeError(f"checkpoint {path} has format version {blob.get('version')}; "
                              f"this topodrake reads {VERSION}")
@@ -215,6 +230,7 @@ def load_checkpoint(path, *, modality: str | None = None, k: int | None = None,
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise TopodrakeError(f"checkpoint {path}: weights do not fit its network config ({first})") from None
     model.eval()
-    meta = {key: v for key, v in blob.items() if key not in ("model", "optimizer", "train_state")}
+    meta = {key: v for key, v in blob.items()
+            if key not in ("model", "optimizer", "train_state", SEAL)}
     return Checkpoint(path, net_cfg, sensor, model, meta, blob.get("optimizer"),
                       blob.get("train_state"))

@@ -43,7 +43,7 @@ import torch
 
 from topodrake.demonstrations import demo_poses
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_json
+from topodrake.fileio import atomic_write_json, file_sha256
 from topodrake.sensing.config import CameraConfig, LidarConfig
 from topodrake.sensing.observe import observe
 from topodrake.sensing.overlap import mutual_overlap
@@ -343,7 +343,8 @@ def train_place(cfg: PlaceTrainConfig, out_dir, data_dir="data", *, progress: bo
     metrics = {"eval_world": cfg.data.eval_world, **study}
     save_place_checkpoint(ckpt, model, cfg.sensor, **meta, metrics=metrics)
     n_params = sum(p.numel() for p in model.parameters())
-    card = {"checkpoint": CHECKPOINT, "modality": cfg.network.modality, "dim": cfg.network.dim,
+    card = {"checkpoint": CHECKPOINT, "sha256": file_sha256(ckpt),
+            "modality": cfg.network.modality, "dim": cfg.network.dim,
             "parameters": int(n_params), "steps": steps, "train_wall_time_s": round(wall, 1),
             "data_wall_time_s": round(t_data, 1), "git_revision": meta["git_revision"],
             "data": {"train_worlds": cfg.data.train_worlds, "frames": int(len(data.poses)),

@@ -31,13 +31,23 @@ A map file is a compressed NumPy archive (zip) without pickled objects:
 ``chain_ids``       every trajectory's chain of vertices, concatenated;
 ``chain_offsets``   (trajectories + 1,) into it
 ``embeddings``      (V, D) the vertices' place embeddings
+``checksum``        (from version 5) the SHA-256 of every other entry
+                    (:func:`payload_sha256`: each entry's name, dtype, shape
+                    and bytes, in name order)
 ==================  ==========================================================
 
-:func:`load_map` refuses a truncated or foreign file, an unknown version, and
-a map built for another RE or controller than the one given, each with one
-line naming the file and the problem. Version 1 files (without legs) are
-read as maps without odometry on their edges, version 2 files as maps
-without junction edges. A stored config is read by
+Reading a map's arrays (:func:`load_map`, :func:`read_map_arrays`) refuses,
+each with one line naming the file and the problem: a truncated or foreign
+file, an unknown version, a damaged one (an entry that fails its CRC-32, a
+payload that differs from its ``checksum``, or bytes that differ from the
+SHA-256 a card beside it records, as ``checkpoints/demo_map/card.json``
+does), an inconsistent one (:func:`check_arrays`: arrays of unequal
+length, ids that refer to nothing, a probability outside [0, 1], a pose
+that is not finite), and a map built for another RE or controller than the
+one given. Files of versions 1 to 4 carry no checksum: they are checked
+for consistency (and against their card) only. Version 1 files (without
+legs) are read as maps without odometry on their edges, version 2 files as
+maps without junction edges. A stored config is read by
 :meth:`~topodrake.topomap.graph.MapConfig.from_dict` (``stored``): the
 settings it predates as :data:`~topodrake.topomap.graph.LATER_DEFAULTS`, a
 deleted rule's setting dropped.
@@ -45,6 +55,7 @@ deleted rule's setting dropped.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import zipfile
@@ -54,13 +65,16 @@ import numpy as np
 
 from topodrake.contract.route import LEG_POINTS
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_bytes
+from topodrake.fileio import atomic_write_bytes, check_card, damaged, forget_card_sha256, is_zip
 from topodrake.topomap.graph import EDGE_KINDS, LATER_DEFAULTS, MapConfig, TopoMap, Trajectory
 from topodrake.topomap.retrieval import default_embedding
 
 FORMAT = "topodrake-map"
-VERSION = 4
-READS = (1, 2, 3, 4)   # versions this topodrake reads
+VERSION = 5
+READS = (1, 2, 3, 4, 5)   # versions this topodrake reads
+#: the first version whose files carry the checksum of their payload
+CHECKSUM_SINCE = 5
+CHECKSUM = "checksum"
 _NO_HIT_MM = 65535
 
 
@@ -96,9 +110,8 @@ def save_map(topomap: TopoMap, path) -> Path:
             "raw_frames": m.raw_frames,
             "trajectories": [{"name": t.name, "frames": t.frames} for t in m.trajectories]}
     nan_leg, nan_path = np.full(3, np.nan), np.full((LEG_POINTS, 3), np.nan)
-    buf = io.BytesIO()
-    np.savez_compressed(
-        buf, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8),
+    arrays = dict(
+        meta=np.frombuffer(json.dumps(meta).encode(), np.uint8),
         observations=_encode_observations(m.modality, m.bank.observations),
         poses=m.bank.poses,
         **({} if m.bank.scans is None else {"scans": m.bank.scans.astype(np.float32)}),
@@ -119,7 +132,24 @@ def save_map(topomap: TopoMap, path) -> Path:
         chain_ids=np.array([v for c in chains for v in c], np.int64),
         chain_offsets=np.cumsum([0] + [len(c) for c in chains]).astype(np.int64),
         embeddings=emb)
+    arrays[CHECKSUM] = np.array(payload_sha256(arrays))
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    forget_card_sha256(path)
     return atomic_write_bytes(path, buf.getvalue())
+
+
+def payload_sha256(arrays: dict) -> str:
+    """SHA-256 of a map file's entries but its checksum: each entry's name,
+    dtype, shape and bytes, in name order."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        if name == CHECKSUM:
+            continue
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(memoryview(a.reshape(-1)).cast("B"))
+    return h.hexdigest()
 
 
 def _experience_arrays(edges) -> dict:
@@ -155,11 +185,16 @@ def read_map_arrays(path) -> tuple[dict, dict]:
 
 
 def _read(path, arrays: bool = True) -> tuple[dict, dict]:
+    """``(meta, arrays)``; with ``arrays`` the whole file is checked (its card,
+    every entry's CRC-32, the checksum, the arrays' consistency), else only
+    its meta is read."""
     path = Path(path)
     if path.is_dir():
         raise TopodrakeError(f"{path} is a folder, not a map file")
     if not path.is_file():
         raise TopodrakeError(f"map file {path} does not exist")
+    if arrays:
+        check_card(path, "map file")
     try:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(bytes(z["meta"]).decode())
@@ -169,16 +204,170 @@ def _read(path, arrays: bool = True) -> tuple[dict, dict]:
                 raise TopodrakeError(f"{path} has map format version {meta.get('version')}; "
                                      f"this topodrake reads versions "
                                      f"{', '.join(map(str, READS))}")
-            data = {name: z[name] for name in z.files if name != "meta"} if arrays else {}
+            data = {name: z[name] for name in z.files} if arrays else {}
     except TopodrakeError:
         raise
-    except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as e:
+    except Exception as e:      # zip, zlib, npy and JSON errors alike
+        what = f"{type(e).__name__}: {str(e).splitlines()[0]}" if str(e).strip() \
+            else type(e).__name__
+        if is_zip(path):
+            raise TopodrakeError(f"{path} is damaged or truncated ({what}); it was not "
+                                 f"loaded") from None
         raise TopodrakeError(f"{path} is truncated or not a topodrake map file "
                              f"({type(e).__name__})") from None
+    if arrays:
+        check_arrays(path, meta, data)
+        want = data.pop(CHECKSUM, None)
+        if meta["version"] >= CHECKSUM_SINCE:
+            if want is None:
+                raise damaged("map file", path, f"a version {meta['version']} map without "
+                                                f"its {CHECKSUM!r}")
+            have = payload_sha256(data)
+            if str(want) != have:
+                raise damaged("map file", path, f"its payload's SHA-256 {have[:12]}... "
+                                                f"differs from the {str(want)[:12]}... it "
+                                                f"was saved with")
+        data.pop("meta")
     return meta, data
 
 
-def _essence(identity: dict) -> dict:
+#: the arrays every map file holds
+REQUIRED = ("meta", "observations", "poses", "vertex_id", "vertex_center", "vertex_context",
+            "vertex_traj", "vertex_frame", "vertex_pos", "edge_src", "edge_dst", "edge_p",
+            "edge_kind", "chain_ids", "chain_offsets", "embeddings")
+
+
+def check_arrays(path, meta: dict, z: dict) -> None:
+    """A map file's metadata and arrays hold together: every entry there,
+    per-vertex and per-edge arrays of one length each, unique vertex ids
+    that every edge and chain refers to, frame rows inside the file,
+    finite poses and legs, edge probabilities in [0, 1], known edge kinds,
+    chains that cover the trajectories. Anything else raises one line
+    naming the file and the first problem."""
+    def bad(problem: str) -> TopodrakeError:
+        return TopodrakeError(f"{path} is an inconsistent map file: {problem}")
+
+    for key, kind in (("world", str), ("modality", str), ("k", int), ("raw_frames", int),
+                      ("trajectories", list), ("identity", dict), ("config", dict),
+                      ("embedding", dict)):
+        if not isinstance(meta.get(key), kind) or isinstance(meta.get(key), bool):
+            raise bad(f"its meta lacks {key!r} or it is no {kind.__name__}")
+    if meta["k"] < 0 or meta["raw_frames"] < 0:
+        raise bad("its meta has a negative k or raw_frames")
+    for t in meta["trajectories"]:
+        if not (isinstance(t, dict) and isinstance(t.get("name"), str)
+                and isinstance(t.get("frames"), int) and t["frames"] >= 0):
+            raise bad(f"its meta has a trajectory entry {str(t)[:60]!r} without a name and "
+                      f"frame count")
+    if not isinstance(meta["embedding"].get("name"), str):
+        raise bad("its meta lacks the embedding's name")
+    missing = [name for name in REQUIRED if name not in z]
+    if missing:
+        raise bad(f"it lacks the array {missing[0]!r}")
+
+    def ints(name):
+        a = z[name]
+        if a.dtype.kind not in "iu":
+            raise bad(f"{name} holds {a.dtype} values, not integers")
+        return a
+
+    def length(names, n, what):
+        for name in names:
+            if name in z and (z[name].ndim == 0 or len(z[name]) != n):
+                have = "a scalar" if z[name].ndim == 0 else f"{len(z[name])} entries"
+                raise bad(f"{name} has {have} for {n} {what}")
+
+    obs, poses = z["observations"], z["poses"]
+    if obs.ndim == 0:
+        raise bad("observations is a scalar")
+    n_frames = len(obs)
+    if poses.shape != (n_frames, 3):
+        raise bad(f"poses has shape {poses.shape}, not ({n_frames}, 3) for its {n_frames} frames")
+    if poses.dtype.kind != "f" or not np.all(np.isfinite(poses)):
+        raise bad("a frame's pose is not finite")
+    if "scans" in z and (z["scans"].ndim != 2 or len(z["scans"]) != n_frames):
+        raise bad(f"scans has shape {z['scans'].shape} for {n_frames} frames")
+
+    ids = ints("vertex_id")
+    if ids.ndim != 1:
+        raise bad(f"vertex_id has shape {ids.shape}")
+    n_v = len(ids)
+    length(("vertex_center", "vertex_context", "vertex_traj", "vertex_frame", "vertex_pos"),
+           n_v, "vertices")
+    for name in ("vertex_center", "vertex_traj", "vertex_frame", "vertex_pos"):
+        if ints(name).ndim != 1:
+            raise bad(f"{name} has shape {z[name].shape}")
+    ctx = ints("vertex_context")
+    if ctx.ndim != 2:
+        raise bad(f"vertex_context has shape {ctx.shape}, not (vertices, context)")
+    if n_v and (ids.min() < 0 or ids.max() >= 2 ** 31):
+        v = ids[(ids < 0) | (ids >= 2 ** 31)][0]
+        raise bad(f"vertex id {v} is out of range")
+    if len(np.unique(ids)) != n_v:
+        uniq, counts = np.unique(ids, return_counts=True)
+        raise bad(f"vertex id {uniq[counts > 1][0]} is given twice")
+    centers = z["vertex_center"]
+    outside = (centers < 0) | (centers >= n_frames)
+    if n_v and ctx.size:
+        outside |= np.any((ctx < 0) | (ctx >= n_frames), axis=1)
+    if np.any(outside):
+        raise bad(f"vertex {ids[np.argmax(outside)]} refers to frames outside the file")
+    n_traj = len(meta["trajectories"])
+    trajs = z["vertex_traj"]
+    if n_v and (trajs.min() < 0 or trajs.max() >= n_traj):
+        i = int(np.argmax((trajs < 0) | (trajs >= n_traj)))
+        raise bad(f"vertex {ids[i]} comes from trajectory {trajs[i]}; the map has {n_traj}")
+
+    src, dst = ints("edge_src"), ints("edge_dst")
+    if src.ndim != 1:
+        raise bad(f"edge_src has shape {src.shape}")
+    n_e = len(src)
+    length(("edge_dst", "edge_p", "edge_kind", "edge_leg", "edge_leg_path", "edge_p_re",
+            "edge_passed", "edge_failed"), n_e, "edges")
+    known = np.isin(src, ids) & np.isin(dst, ids)
+    if not np.all(known):
+        i = int(np.argmin(known))
+        v = src[i] if src[i] not in ids else dst[i]
+        raise bad(f"edge {i} ({src[i]} -> {dst[i]}) refers to vertex {v}, which the map "
+                  f"does not hold")
+    p = z["edge_p"]
+    if p.ndim != 1 or p.dtype.kind != "f":
+        raise bad(f"edge_p has shape {p.shape} and dtype {p.dtype}")
+    wrong = ~((p >= 0.0) & (p <= 1.0))            # NaN included
+    if np.any(wrong):
+        i = int(np.argmax(wrong))
+        raise bad(f"edge {i} ({src[i]} -> {dst[i]}) has probability {p[i]}, outside [0, 1]")
+    kinds = ints("edge_kind")
+    if n_e and int(kinds.max()) >= len(EDGE_KINDS):
+        raise bad(f"edge kind {int(kinds.max())} is unknown (known: {', '.join(EDGE_KINDS)})")
+    for name, shape in (("edge_leg", (n_e, 3)), ("edge_leg_path", (n_e, LEG_POINTS, 3))):
+        if name in z:
+            if z[name].shape != shape:
+                raise bad(f"{name} has shape {z[name].shape}, not {shape}")
+            if np.any(np.isinf(z[name])):
+                raise bad(f"{name} holds an infinite value")
+    if "edge_p_re" in z:
+        p_re = z["edge_p_re"]
+        if np.any(~np.isnan(p_re) & ~((p_re >= 0) & (p_re <= 1))):
+            raise bad("edge_p_re holds a probability outside [0, 1]")
+        for name in ("edge_passed", "edge_failed"):
+            if name not in z or ints(name).min(initial=0) < 0:
+                raise bad(f"{name} is missing or negative")
+
+    chain, off = ints("chain_ids"), ints("chain_offsets")
+    if off.shape != (n_traj + 1,):
+        raise bad(f"chain_offsets has shape {off.shape} for {n_traj} trajectories")
+    if off[0] != 0 or off[-1] != len(chain) or np.any(np.diff(off) < 0):
+        raise bad(f"chain_offsets do not run from 0 to the {len(chain)} chain entries")
+    held = np.isin(chain, ids)
+    if not np.all(held):
+        raise bad(f"a chain refers to vertex {chain[np.argmin(held)]}, which the map does "
+                  f"not hold")
+    if z["embeddings"].ndim != 2:
+        raise bad(f"embeddings has shape {z['embeddings'].shape}")
+
+
+def identity_essence(identity: dict) -> dict:
     """What must match: the checkpoints' content hashes, or a whole oracle's identity."""
     return {k: v for k, v in identity.items() if k.endswith("_sha1")} or identity
 
@@ -193,7 +382,7 @@ def _describe(identity: dict) -> str:
 def check_identity(path, meta: dict, identity: dict) -> None:
     """Refuse a map built for another RE or controller than ``identity``."""
     have = meta.get("identity", {})
-    if _essence(have) != _essence(identity):
+    if identity_essence(have) != identity_essence(identity):
         raise TopodrakeError(f"{path} was built for the reachability estimator and controller "
                              f"{_describe(have)}, not {_describe(identity)}")
 

@@ -4,25 +4,50 @@
 and adding), and saves the map so far beside the output (:func:`resume_file`)
 at most every :attr:`MapBuild.save_every_s` seconds;
 :func:`interrupted_build` reads such a file back when a build of the same
-map starts again, so that it resumes where it stopped.
+map starts again, so that it resumes where it stopped. Each build keeps its
+own file, named by the places it maps, its world, settings, estimators and
+demonstrations (:func:`build_key`): a build of other places or settings
+leaves another's interrupted build where it is (:func:`other_partials`).
 """
 
 from __future__ import annotations
 
+import glob
+import hashlib
+import json
 import time
 from pathlib import Path
 
 from topodrake.errors import TopodrakeError
 from topodrake.sensing.observe import camera_scans
 from topodrake.topomap.build import BuildStats, build_map
-from topodrake.topomap.mapfile import load_map, read_map_meta, save_map
+from topodrake.topomap.mapfile import identity_essence, load_map, read_map_meta, save_map
 from topodrake.topomap.sources import drive_observations
 
 
-def resume_file(out) -> Path:
-    """Where the build of map file ``out`` keeps its progress."""
+def resume_file(out, key: str = "") -> Path:
+    """Where the build of map file ``out`` keyed ``key`` (:func:`build_key`)
+    keeps its progress: ``.NAME.KEY.partial`` beside it."""
     out = Path(out)
-    return out.with_name(f".{out.name}.partial")
+    return out.with_name(f".{out.name}.{key}.partial" if key else f".{out.name}.partial")
+
+
+def build_key(places, topomap, demos) -> str:
+    """A build's key: the places it maps (``all``, or ``places-4-5-9``) and a
+    hash of the map's world, settings, estimators and the demonstrations
+    folder, so that builds of other drives keep their own progress."""
+    where = "all" if places is None else "places-" + "-".join(map(str, sorted(set(places))))
+    what = json.dumps({"world": topomap.world, "config": topomap.config.flat(),
+                       "identity": identity_essence(topomap.identity),
+                       "demos": str(Path(demos).resolve())}, sort_keys=True, default=str)
+    return f"{where}.{hashlib.sha1(what.encode()).hexdigest()[:8]}"
+
+
+def other_partials(out, mine: Path) -> list[Path]:
+    """The interrupted builds beside map file ``out`` other than ``mine``."""
+    out = Path(out)
+    return sorted(p for p in out.parent.glob(f".{glob.escape(out.name)}.*partial")
+                  if p.name != Path(mine).name)
 
 
 def interrupted_build(resume: Path, scorer, fresh):

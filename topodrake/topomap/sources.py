@@ -20,6 +20,7 @@ import numpy as np
 
 from topodrake.demonstrations import collect, load_demos
 from topodrake.errors import TopodrakeError
+from topodrake.fileio import check_intact
 from topodrake.learning.reachability.controllers import controller_policy
 from topodrake.sensing.observe import lidar_scans, observe
 from topodrake.topomap.mapfile import load_map, read_map_meta
@@ -84,8 +85,8 @@ def shipped_controllers() -> list[str]:
 
 def check_controller(controller, reach=None) -> None:
     """A given C_WP is ``"registration"`` or a checkpoint file, and a given
-    RE checkpoint exists; anything else is refused in one line (an unknown
-    controller with the known ones)."""
+    RE checkpoint exists, neither damaged; anything else is refused in one
+    line (an unknown controller with the known ones)."""
     if controller is not None and str(controller) != REGISTRATION \
             and not resolve_checkpoint(controller).is_file():
         from pathlib import Path
@@ -97,6 +98,11 @@ def check_controller(controller, reach=None) -> None:
                              f"one of {', '.join(shipped_controllers())}")
     if reach is not None and not resolve_checkpoint(reach).is_file():
         raise TopodrakeError(f"RE checkpoint {reach} does not exist")
+    # a damaged file is refused as such before anything reads what it records
+    if controller is not None and str(controller) != REGISTRATION:
+        check_intact(resolve_checkpoint(controller), "C_WP checkpoint")
+    if reach is not None:
+        check_intact(resolve_checkpoint(reach), "RE checkpoint")
 
 
 def reach_controller(reach):

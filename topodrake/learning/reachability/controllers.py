@@ -15,7 +15,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import file_sha1
+from topodrake.fileio import check_intact, file_sha1
 from topodrake.learning.waypoint.noisy_oracle import NoisyOracle, is_oracle_spec
 from topodrake.registration.policy import RegistrationPolicy
 
@@ -68,6 +68,7 @@ def controller_identity(path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise TopodrakeError(f"controller checkpoint {path} does not exist")
+    check_intact(path, "controller checkpoint")     # a damaged file is no controller
     return {"checkpoint": str(path), "sha1": file_sha1(path)}
 
 

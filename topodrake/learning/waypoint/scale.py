@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_json
+from topodrake.fileio import atomic_write_json, file_sha256
 from topodrake.learning.config import TrainConfig
 from topodrake.learning.networks import NetworkConfig
 from topodrake.learning.samples import SampleConfig, make_samples
@@ -338,7 +338,8 @@ def train_at_scale(run: ScaleRunConfig, out_dir, *, minutes: float, progress: bo
     rate = seen / max(state["wall_time_s"] - start_wall, 1e-9)
     cards = {}
     for net in nets:
-        card = {"checkpoint": CHECKPOINT, "modality": modality, "k": k, "output": net.cfg.network.output,
+        card = {"checkpoint": CHECKPOINT, "sha256": file_sha256(net.out / CHECKPOINT),
+                "modality": modality, "k": k, "output": net.cfg.network.output,
                 "samples_seen": state["samples_seen"], "wall_time_s": round(state["wall_time_s"], 1),
                 "train_samples_per_s": round(rate, 1), "git_revision": revision,
                 "data": {"train_worlds": net.cfg.data.train_worlds,

@@ -32,7 +32,7 @@ import torch
 from torch.nn import functional as F
 
 from topodrake.errors import TopodrakeError
-from topodrake.fileio import atomic_write_json, file_sha1
+from topodrake.fileio import atomic_write_json, file_sha1, file_sha256
 from topodrake.learning.checkpoint import (RESUME, git_revision, load_checkpoint, load_resume_state,
                                            save_checkpoint, save_resume_state)
 from topodrake.learning.config import TrainConfig
@@ -387,7 +387,8 @@ def train_network(cfg: TrainConfig, task: Task, out_dir, *, resume: bool = True,
     if seen == 0:      # a finished run rerun (e.g. to recalibrate): its overall rate
         seen, start_wall = state["samples_seen"], 0.0
     rate = seen / max(state["wall_time_s"] - start_wall, 1e-9)
-    card = {"checkpoint": CHECKPOINT, "modality": cfg.network.modality, "k": cfg.network.k,
+    card = {"checkpoint": CHECKPOINT, "sha256": file_sha256(ckpt_path),
+            "modality": cfg.network.modality, "k": cfg.network.k,
             "output": cfg.network.output, "samples_seen": state["samples_seen"],
             "wall_time_s": round(state["wall_time_s"], 1),
             "train_samples_per_s": round(rate, 1), "git_revision": revision,
