@@ -36,11 +36,11 @@ def placed_box():
 
 def _stub_house(monkeypatch, world, topomap):
     """The planning study's house and plans, in the placed box world."""
-    from topodrake.experiments import plan_study
+    from topodrake.experiments import plan_study, plan_trace
     from topodrake.topomap.plan import plan_path
 
-    monkeypatch.setattr(plan_study, "_house",
-                        lambda seed, jobs, sc, quiet=True: (jobs[seed], world, [], 0))
+    def house(seed, jobs, sc, quiet=True):
+        return jobs[seed], world, [], 0
 
     def plan_routes(method, spec, w, drives, indices, starts, places, goals, sc, tag,
                     limits=None, progress=False):
@@ -49,7 +49,9 @@ def _stub_house(monkeypatch, world, topomap):
         return ([p.route if p.reachable else None for p in plans],
                 np.array([p.probability if p.reachable else 0.0 for p in plans]), {}, None,
                 [None] * len(plans))
-    monkeypatch.setattr(plan_study, "plan_routes", plan_routes)
+    for module in (plan_study, plan_trace):      # each holds its own import of them
+        monkeypatch.setattr(module, "_house", house)
+        monkeypatch.setattr(module, "plan_routes", plan_routes)
     return plan_routes
 
 

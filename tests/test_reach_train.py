@@ -459,6 +459,7 @@ def test_sparsify_cli_end_to_end(tiny_re, tmp_path, capsys):
     other = tmp_path / "other.pt"
     other.write_bytes(b"o")
     args[5] = str(other)
+    args[args.index("--out") + 1] = str(tmp_path / "b.png")   # a.png exists: its check comes first
     assert main(args) == 2
     assert "trained for controller" in capsys.readouterr().err
     assert main(args[:4] + ["--controller", str(ctrl), "--demos", str(tmp_path / "none")]) == 2

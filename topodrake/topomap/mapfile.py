@@ -283,7 +283,9 @@ def check_arrays(path, meta: dict, z: dict) -> None:
     n_frames = len(obs)
     if poses.shape != (n_frames, 3):
         raise bad(f"poses has shape {poses.shape}, not ({n_frames}, 3) for its {n_frames} frames")
-    if poses.dtype.kind != "f" or not np.all(np.isfinite(poses)):
+    unknown = np.isnan(poses).all(axis=1) if poses.dtype.kind == "f" else None
+    # a frame without a pose (a map built from observations alone) is all NaN
+    if unknown is None or not np.all(np.isfinite(poses[~unknown])):
         raise bad("a frame's pose is not finite")
     if "scans" in z and (z["scans"].ndim != 2 or len(z["scans"]) != n_frames):
         raise bad(f"scans has shape {z['scans'].shape} for {n_frames} frames")
