@@ -33,7 +33,9 @@ def expert_trial(seed: int, world: str = "test-0", start_place: int = 0, goal_pl
     (without the wall and start-up times, so results compare across machines)."""
     runner = _runner(world, float(noise_std), bool(camera))
     w = runner.built.world
-    result = runner.run(start=w.places[start_place], goal=w.places[goal_place, :2],
+    start = w.place_pose(start_place, "start_place")
+    goal = w.place_pose(goal_place, "goal_place")
+    result = runner.run(start=start, goal=goal[:2],
                         seed=seed, t_max_s=t_max_s)
     summary = result.summary()
     summary.pop("wall_time_s")

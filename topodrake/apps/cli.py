@@ -46,7 +46,7 @@ The workflow, in order:
   topodrake world list                       the houses (or a ROS map YAML)
   topodrake collect WORLD --out DIR          expert drives between its places
   topodrake map build WORLD --out M.tdmap    sparsify them by RE into a map
-  topodrake map plan M.tdmap --start X,Y,YAW --goal X,Y,YAW
+  topodrake map plan M.tdmap --start X,Y,YAW --goal X,Y,YAW   (or --start-place N ...)
   topodrake navigate M.tdmap --start X,Y,YAW --goal X,Y,YAW --plot run.png
   topodrake train waypoint|reachability ...  your own C_WP and RE
 
@@ -76,6 +76,9 @@ def cmd_drive(args) -> int:
 
 
 def cmd_trials(args) -> None:
+    world = load_world(args.world)          # its places, checked before the trials start
+    world.place_pose(args.start_place, "--start-place")
+    world.place_pose(args.goal_place, "--goal-place")
     seeds = trial_seeds(args.seed, args.trials)
     results = run_trials(expert_trial, seeds, workers=args.workers, ray_address=args.ray,
                          desc="expert trials", world=args.world, start_place=args.start_place,
@@ -114,12 +117,20 @@ def cmd_world_list(args) -> None:
 
 
 def cmd_world_info(args) -> None:
-    info = load_world(args.world).info()
+    world = load_world(args.world)
+    info = world.info()
     if args.json:
         print(json.dumps(info))
-    else:
-        for k, v in info.items():
+        return
+    for k, v in info.items():
+        if k not in ("places", "place_names"):
             print(f"{k:<14} {v}")
+    places = world.place_list()
+    print(f"{'places':<14} {len(places)} (index: x m, y m, yaw rad; --start-place/--goal-place "
+          f"take the index)")
+    for row in places:
+        name = f"  {row['name']}" if "name" in row else ""
+        print(f"  {row['index']:>3}: {row['x']:8.3f} {row['y']:8.3f} {row['yaw']:7.3f}{name}")
 
 
 def cmd_world_plot(args) -> None:

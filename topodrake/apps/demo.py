@@ -30,7 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
+from topodrake.apps import argtypes as at
 from topodrake.apps.drive import drive_route, plot_drive
+from topodrake.apps.endpoints import source_world
 from topodrake.apps.navigate_cli import EXIT_HELP, chain_from_expert, plan_on_map, success_chance
 from topodrake.apps.outputs import (
     add_force_option,
@@ -158,13 +160,10 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
             raise TopodrakeError(f"map file {map_path} does not exist")
         world_name = read_map_meta(map_path)["world"]
     world = load_world(world_name)
-    n = len(world.places)
-    for what, i in (("start", start_place), ("goal", goal_place)):
-        if not 0 <= i < n:
-            raise TopodrakeError(f"--{what}-place must be in 0..{n - 1} for {world.name!r}, got {i}")
+    start = world.place_pose(start_place, "--start-place")
+    goal = world.place_pose(goal_place, "--goal-place")
     if start_place == goal_place:
         raise TopodrakeError("--start-place and --goal-place must differ")
-    start, goal = world.places[start_place].copy(), world.places[goal_place].copy()
     t0 = time.perf_counter()
     layers = planner = None
     if map_path is not None:
@@ -274,7 +273,13 @@ def cmd_demo(args) -> int:
     if args.seed < 0:
         raise TopodrakeError(f"--seed must be >= 0, got {args.seed}")
     check_outputs(args)
+    if not args.expert and args.map and (args.controller or args.reach):
+        raise TopodrakeError("--controller and --reach go without --map (a map is followed "
+                             "by the controller it was built for)")
     map_path = None if args.expert else demo_map(args)
+    world = source_world(map_path or args.world)       # its places, checked before the drive
+    world.place_pose(args.start_place, "--start-place")
+    world.place_pose(args.goal_place, "--goal-place")
     if not args.json:
         where = f" on {map_path}" if map_path else ""
         print(f"topodrake demo: {'the A* expert' if args.expert else 'the learned follower'} "
@@ -285,9 +290,6 @@ def cmd_demo(args) -> int:
         result = run_demo(args.world, args.start_place, args.goal_place, args.out, args.seed,
                           noise, args.meshcat)
     else:
-        if args.map and (args.controller or args.reach):
-            raise TopodrakeError("--controller and --reach go without --map (a map is followed "
-                                 "by the controller it was built for)")
         check_controller(args.controller, args.reach)       # present, and not damaged
         extra = {"controller": args.controller} if args.controller else {}
         result = run_learned_demo(args.world, args.start_place, args.goal_place, args.out,
@@ -334,9 +336,10 @@ def add_demo_parser(sub) -> None:
                                     f"(default: the shipped {DEMO_MAP} of test-0, followed by the "
                                     "controller it was built for; with --controller or --reach: "
                                     "none, the anchors of one expert drive)")
-    demo.add_argument("--start-place", type=int, default=3,
-                      help="index of the start place (default: 3)")
-    demo.add_argument("--goal-place", type=int, default=6,
+    demo.add_argument("--start-place", type=at.count0, default=3, metavar="N",
+                      help="index of the start place ('topodrake world info WORLD' lists them) "
+                           "(default: 3)")
+    demo.add_argument("--goal-place", type=at.count0, default=6, metavar="N",
                       help="index of the goal place (default: 6)")
     demo.add_argument("--seed", type=int, default=0, help="seed of the actuation noise (default: 0)")
     demo.add_argument("--noise", type=float, default=None,

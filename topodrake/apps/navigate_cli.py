@@ -1,6 +1,7 @@
 """``topodrake navigate``: plan, then follow the plan in the Drake diagram.
 
     topodrake navigate t0.tdmap --start 1.0,2.0,0 --goal 8.5,3.0,1.57 --json
+    topodrake navigate t0.tdmap --start-place 1 --goal-place 4
     topodrake navigate test-0 --start 1.0,2.0,0 --goal 8.5,3.0,1.57
     topodrake navigate data/demos/pairs-s0/test-0 --drive 3 --plot nav.png
 
@@ -25,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.apps.drive import chain_route, drive_route, plot_drive
+from topodrake.apps.endpoints import add_endpoint_options, resolve_endpoints
 from topodrake.apps.map_cli import Unreachable
 from topodrake.apps.outputs import (
     add_force_option,
@@ -61,16 +63,6 @@ EXIT_HELP = (f"Exit status: 0 when the car reached the goal (within {SUCCESS_M} 
              "other outcome (false_reached, collision, timeout, search_failed, "
              "dead_reckoning_gave_up), 1 when there is no plan, 2 for bad input or an output "
              "that cannot be written.")
-
-
-def _pose(text: str, what: str) -> np.ndarray:
-    try:
-        values = [float(v) for v in str(text).split(",")]
-    except ValueError:
-        values = []
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise TopodrakeError(f"--{what} must be X,Y,YAW (three finite numbers), got {text!r}")
-    return np.array(values)
 
 
 def check_args(args) -> None:
@@ -216,7 +208,7 @@ def cmd_navigate(args) -> int:
 
     check_args(args)
     check_outputs(args)
-    start, goal = _pose(args.start, "start"), _pose(args.goal, "goal")
+    start, goal = resolve_endpoints(args, args.map)
     check_controller(args.controller, args.reach)
     import torch
 
@@ -338,8 +330,7 @@ def add_navigate_parser(sub) -> None:
                                          "in the Drake diagram", epilog=EXIT_HELP)
     nv.add_argument("map", metavar="MAP", help="map file (.tdmap), demonstration folder, or world "
                                                "(one expert drive becomes the chain)")
-    nv.add_argument("--start", required=True, help="start pose X,Y,YAW (m, m, rad)")
-    nv.add_argument("--goal", required=True, help="goal pose X,Y,YAW (m, m, rad)")
+    add_endpoint_options(nv)
     nv.add_argument("--noise", type=float, default=0.0,
                     help="actuation noise std, 0 = off (default: 0)")
     nv.add_argument("--seed", type=int, default=0, help="seed of the actuation noise (default: 0)")

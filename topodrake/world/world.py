@@ -26,7 +26,8 @@ class World:
 
     ``regions`` is an int raster on the grid giving each cell's room index
     (-1 outside every room); ``floor_texture`` and ``ceiling_texture`` give a
-    texture id per room. ``places`` is (P, 3) of ``x, y, heading``.
+    texture id per room. ``places`` is (P, 3) of ``x, y, heading``;
+    ``place_names`` names them where the world has names (empty: none).
     """
 
     name: str
@@ -39,6 +40,7 @@ class World:
     wall_height: float = WALL_HEIGHT
     source: str = ""
     faces_override: Faces | None = None
+    place_names: tuple = ()
 
     def __post_init__(self) -> None:
         self.regions = np.asarray(self.regions, dtype=np.int32)
@@ -49,6 +51,7 @@ class World:
         self.floor_texture = np.asarray(self.floor_texture, dtype=np.int32)
         self.ceiling_texture = np.asarray(self.ceiling_texture, dtype=np.int32)
         self.places = np.asarray(self.places, dtype=np.float64).reshape(-1, 3)
+        self.place_names = tuple(str(n) for n in self.place_names)
         if not self.grid.reachable.any():
             raise TopodrakeError(f"world {self.name!r} has no free space for the car")
 
@@ -86,6 +89,28 @@ class World:
             raise TopodrakeError(
                 f"{what} ({pose[0]:.2f}, {pose[1]:.2f}) is in collision in {self.name!r}")
         return pose
+
+    def place_pose(self, index: int, what: str = "place") -> np.ndarray:
+        """A copy of place ``index``'s pose (x, y, heading); an index the
+        world does not have is refused in one line naming the world and how
+        many places it has (``what`` names the option, e.g. ``--goal-place``)."""
+        n = len(self.places)
+        if not 0 <= int(index) < n:
+            have = "no places" if n == 0 else ("1 place (0)" if n == 1 else
+                                               f"{n} places (0..{n - 1})")
+            raise TopodrakeError(f"{what} {index} is not a place of {self.name!r}: it has {have}")
+        return self.places[int(index)].copy()
+
+    def place_list(self) -> list[dict]:
+        """Each place as ``{"index", "x", "y", "yaw"}`` (rounded to the mm),
+        with its ``"name"`` where the world names its places."""
+        out = []
+        for i, (x, y, yaw) in enumerate(np.round(self.places, 3).tolist()):
+            row = {"index": i, "x": x, "y": y, "yaw": yaw}
+            if i < len(self.place_names) and self.place_names[i]:
+                row["name"] = self.place_names[i]
+            out.append(row)
+        return out
 
     # -- sampling and planning ------------------------------------------------
     def sample_free_pose(self, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
@@ -126,6 +151,7 @@ class World:
             "rooms": int(len(self.floor_texture)),
             "resolution_m": self.grid.resolution,
             "places": np.round(self.places, 3).tolist(),
+            **({"place_names": list(self.place_names)} if self.place_names else {}),
         }
 
 
