@@ -5,6 +5,8 @@
     topodrake map info t0.tdmap --json
     topodrake map plot t0.tdmap --out t0.png
     topodrake map plan t0.tdmap --start 1.0,2.0,0 --goal 8.5,3.0,1.57 --json
+    topodrake map plan t0.tdmap --start-place 1 --goal-place 4
+    topodrake map export t0.tdmap --format graphml --out t0.graphml
 
 A plan that finds no path prints why and exits with status 1; a bad map
 file, pose or option exits with status 2.
@@ -20,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.apps import argtypes as at
+from topodrake.apps.endpoints import add_endpoint_options, resolve_endpoints
 from topodrake.apps.outputs import (
     add_force_option,
     check_output,
@@ -31,6 +34,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.experiments.map_cache import house_key
 from topodrake.experiments.plan_methods import plan_calibration_path
 from topodrake.navigation.replan import traversals_of_records
+from topodrake.topomap.export import FORMATS, write_graphml
 from topodrake.topomap.graph import TopoMap, load_map_config
 from topodrake.topomap.mapfile import read_map_arrays, save_map
 from topodrake.topomap.plan import plan_path
@@ -61,17 +65,6 @@ class Unreachable(TopodrakeError):
     """The goal cannot be reached on the map (exit status 1)."""
 
     exit_code = 1
-
-
-def parse_pose(text: str, what: str) -> np.ndarray:
-    """``"X,Y,YAW"`` -> (3,) (metres, metres, radians)."""
-    try:
-        values = [float(v) for v in str(text).split(",")]
-    except ValueError:
-        values = []
-    if len(values) != 3 or not np.all(np.isfinite(values)):
-        raise TopodrakeError(f"--{what} must be X,Y,YAW (three finite numbers), got {text!r}")
-    return np.array(values)
 
 
 def cmd_map_build(args) -> None:
@@ -209,7 +202,7 @@ def cmd_map_plot(args) -> None:
 
 def cmd_map_plan(args) -> None:
     check_output(args.plot, "image", force=args.force, option="--plot")
-    start, goal = parse_pose(args.start, "start"), parse_pose(args.goal, "goal")
+    start, goal = resolve_endpoints(args, args.file)
     lock_output(args.plot, "--plot")
     loaded = open_map(args.file, args.reach, args.controller)
     world, topomap = loaded.world, loaded.topomap
@@ -244,6 +237,21 @@ def cmd_map_plan(args) -> None:
         write_kept(args.plot, lambda p: plot_plan(topomap, result, start, goal, p), "the plot")
     if not result.reachable:
         raise Unreachable(f"no plan: {result.reason}")
+
+
+def cmd_map_export(args) -> None:
+    """The map for other tools (GraphML: networkx, Gephi, yEd, ...)."""
+    out = check_output(args.out, args.format, force=args.force)
+    lock_output(out)
+    loaded = open_map(args.file, args.reach, args.controller)
+    topomap = loaded.topomap
+    write_kept(out, lambda p: write_graphml(topomap, p, source=str(args.file)), "the export")
+    summary = {"out": str(out), "format": args.format, "vertices": len(topomap),
+               "edges": topomap.n_edges, **{f"{k}_edges": n for k, n in
+                                             topomap.edge_counts().items()}}
+    print(json.dumps(summary) if args.json else
+          f"wrote {out}: {summary['vertices']} vertices, {summary['edges']} edges "
+          f"({', '.join(f'{n} {k}' for k, n in topomap.edge_counts().items())})")
 
 
 #: the planning study's methods as ``--method`` names them (camera: the study's "ours")
@@ -354,16 +362,27 @@ def add_map_parser(sub) -> None:
     add_force_option(pl)
     pl.set_defaults(func=cmd_map_plot)
 
-    pn = msub.add_parser("plan", help="plan between two poses (their observations) on a map")
+    pn = msub.add_parser("plan", help="plan between two poses or places (their observations) "
+                                      "on a map")
     pn.add_argument("file", help="map file")
-    pn.add_argument("--start", required=True, help="start pose X,Y,YAW (m, m, rad)")
-    pn.add_argument("--goal", required=True, help="goal pose X,Y,YAW (m, m, rad)")
+    add_endpoint_options(pn)
     pn.add_argument("--plot", metavar="PNG", help="also draw the plan over the map into this image")
     _checkpoint_options(pn)
     add_force_option(pn)
     pn.add_argument("--json", action="store_true",
                     help='print {"path": [...], "probability": p, ...}')
     pn.set_defaults(func=cmd_map_plan)
+
+    ex = msub.add_parser("export", help="write the map for other tools (GraphML for networkx, "
+                                        "Gephi, yEd: vertex poses, p and -log p on edges)")
+    ex.add_argument("file", help="map file")
+    ex.add_argument("--format", choices=FORMATS, default="graphml",
+                    help="the file format; formats accepted: graphml (default: graphml)")
+    ex.add_argument("--out", required=True, help="file to write (.graphml)")
+    _checkpoint_options(ex)
+    ex.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    add_force_option(ex)
+    ex.set_defaults(func=cmd_map_export)
 
     c = msub.add_parser("calibrate", help="fit a method's plan calibration (chance of success "
                                           "of a plan) on a planning study's trials")

@@ -27,18 +27,19 @@ KINDS = {
     "html": {".html": "html", ".htm": "html"},
     "npz": {".npz": "zip"},
     "json": {".json": "json"},
+    "graphml": {".graphml": "graphml"},
 }
 #: kinds whose existing files are never replaced without --force: maps, plots, recordings
-KEPT = ("map", "image", "html")
+KEPT = ("map", "image", "html", "graphml")
 _DESCRIBE = {"png": "a PNG image", "pdf": "a PDF", "svg": "an SVG image", "jpeg": "a JPEG image",
              "zip": "a zip archive (a map or NumPy file)", "html": "an HTML page",
-             "json": "JSON", None: "data of an unknown kind"}
+             "json": "JSON", "graphml": "a GraphML graph", None: "data of an unknown kind"}
 
 
 def sniff(path) -> str | None:
     """What an existing file holds, from its first bytes (None: unknown)."""
     with open(path, "rb") as f:
-        head = f.read(64)
+        head = f.read(512)
     text = head.lstrip().lower()
     for magic, kind in ((b"\x89PNG", "png"), (b"%PDF", "pdf"), (b"\xff\xd8\xff", "jpeg"),
                         (b"PK\x03\x04", "zip"), (b"PK\x05\x06", "zip")):
@@ -46,6 +47,8 @@ def sniff(path) -> str | None:
             return kind
     if text.startswith((b"<!doctype html", b"<html")):
         return "html"
+    if text.startswith(b"<?xml") and b"<graphml" in text:
+        return "graphml"
     if text.startswith((b"<?xml", b"<svg")):
         return "svg"
     if text.startswith((b"{", b"[")):
