@@ -30,10 +30,17 @@ import sys
 from pathlib import Path
 
 from topodrake.apps import argtypes as at
+from topodrake.apps.study_args import (
+    add_output_arguments,
+    add_scenario_arguments,
+    printed_config,
+    scenario_of,
+    study_main,
+)
+from topodrake.experiments.success_table import PAPER, SuccessTableStudy, success_table
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.success_table import (CONTROLLERS, PAPER, SuccessTableStudy,
-                                                  success_table)
-from topodrake.apps.study_args import add_study_arguments, study_main, typed_from_args
+
+SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "controller_success.yaml"
 
 
 def plot(summary: dict, details: dict, path: Path) -> None:
@@ -68,18 +75,20 @@ def plot(summary: dict, details: dict, path: Path) -> None:
 
 def main(argv=None) -> int:
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
-    ap.add_argument("--trials", type=at.count, default=400, help="trials per controller and noise setting")
-    ap.add_argument("--controllers", default=",".join(CONTROLLERS),
-                    help="comma-separated checkpoint folder names under --checkpoints "
-                         "('oracle' = the A* oracle, 'lidar_reg' = the registration C_WP)")
-    ap.add_argument("--checkpoints", default="checkpoints", help="folder of the checkpoints")
-    add_study_arguments(ap, "cache of the test houses' demonstrations")
-    return study_main(lambda a: _run(a, typed_from_args(SuccessTableStudy, a)), ap.parse_args(argv))
+    add_scenario_arguments(ap, SuccessTableStudy, SCENARIOS, "default",
+                           {"trials": at.count, "workers": at.count})
+    add_output_arguments(ap)
+    args = ap.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    return study_main(_run, args)
 
 
-def _run(args, study: SuccessTableStudy) -> int:
+def _run(args) -> int:
+    study = scenario_of(SuccessTableStudy, args, SCENARIOS)
+    if printed_config(study, args):
+        return 0
     summary, details = success_table(
-        study, "python studies/controller_success.py " + " ".join(sys.argv[1:]), args.out,
+        study, "python studies/controller_success.py " + " ".join(args.argv), args.out,
         quiet=args.quiet)
     names = list(summary)
     out = Path(args.out)

@@ -25,30 +25,34 @@ import sys
 from pathlib import Path
 
 from topodrake.apps import argtypes as at
+from topodrake.apps.study_args import (
+    add_output_arguments,
+    add_scenario_arguments,
+    printed_config,
+    scenario_of,
+    study_main,
+)
+from topodrake.experiments.joining import JoiningStudy, joining_study
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.joining import MODALITIES, JoiningStudy, joining_study
+
+SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "map_joining.yaml"
 
 
 def main(argv=None) -> int:
-    from topodrake.apps.study_args import study_main, typed_from_args
-
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
-    ap.add_argument("--houses", default="test-0,test-1,test-2,test-3,test-4",
-                    help="comma-separated houses (their demonstrations are collected once)")
-    ap.add_argument("--modalities", default="camera,lidar",
-                    help=f"comma-separated map kinds of {', '.join(MODALITIES)}")
-    ap.add_argument("--triples", type=at.count, default=40, help="ordered place triples per house")
-    ap.add_argument("--seed", type=at.seed, default=0, help="seed of the triples")
-    ap.add_argument("--config", help="map config YAML (default: the library's defaults)")
-    ap.add_argument("--out", default="results", help="folder of map_joining.json")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars")
-    ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    add_scenario_arguments(ap, JoiningStudy, SCENARIOS, "default",
+                           {"triples": at.count})
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
-    return study_main(lambda a: _run(a, typed_from_args(JoiningStudy, a)), args)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    return study_main(_run, args)
 
 
-def _run(args, study: JoiningStudy) -> int:
-    doc = joining_study(study, "python studies/map_joining.py " + " ".join(sys.argv[1:]),
+def _run(args) -> int:
+    study = scenario_of(JoiningStudy, args, SCENARIOS)
+    if printed_config(study, args):
+        return 0
+    doc = joining_study(study, "python studies/map_joining.py " + " ".join(args.argv),
                         quiet=args.quiet)
     out, summary = Path(args.out) / "map_joining.json", doc["summary"]
     atomic_write_json(out, doc)

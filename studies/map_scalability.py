@@ -46,8 +46,17 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.apps import argtypes as at
+from topodrake.apps.study_args import (
+    add_output_arguments,
+    add_scenario_arguments,
+    printed_config,
+    scenario_of,
+    study_main,
+)
+from topodrake.experiments.map_scalability import ScalabilityStudy, scalability
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.map_scalability import HOUSES, ScalabilityStudy, scalability
+
+SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "map_scalability.yaml"
 
 
 def plot(houses: dict, path: Path, modality: str) -> None:
@@ -77,40 +86,26 @@ def plot(houses: dict, path: Path, modality: str) -> None:
 
 
 def main(argv=None) -> int:
-    from topodrake.apps.study_args import study_main, typed_from_args
-
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
-    ap.add_argument("--worlds", default=HOUSES, help="comma-separated houses")
-    ap.add_argument("--modality", choices=["camera", "lidar", "oracle"], default="camera",
-                    help="the shipped RE the maps are built with")
-    ap.add_argument("--trajectories", type=at.count, default=90, help="drives per house")
-    ap.add_argument("--order", choices=["shuffled", "collected"], default="shuffled",
-                    help="the order drives are added in (shuffled: seeded by --seed)")
-    ap.add_argument("--recall-world", default="test-0", help="house where retrieval is audited")
-    ap.add_argument("--recall-trajectories", type=at.count0, default=30,
-                    help="drives audited against the exhaustive pass")
-    ap.add_argument("--dense-samples", type=at.count, default=20,
-                    help="source frames for the dense graph's edge estimate")
-    ap.add_argument("--hop-samples", type=at.count0, default=200,
-                    help="trajectory edges driven per map (0: no check)")
-    ap.add_argument("--hop-runs", type=at.count, default=2, help="noisy runs per hop")
-    ap.add_argument("--seed", type=at.seed, default=0, help="seed of every sample and noise")
-    ap.add_argument("--config", default=None,
-                    help="MapConfig YAML (default: the paper's settings, retrieval_k 64)")
-    ap.add_argument("--data", default="data", help="cache of demonstrations and maps")
-    ap.add_argument("--out", default="results", help="folder of the JSON and PNG results")
-    ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_scenario_arguments(ap, ScalabilityStudy, SCENARIOS, "default",
+                           {"trajectories": at.count, "recall_trajectories": at.count0,
+                            "dense_samples": at.count, "hop_samples": at.count0,
+                            "hop_runs": at.count})
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
-    return study_main(lambda a: _run(a, typed_from_args(ScalabilityStudy, a)), args)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    return study_main(_run, args)
 
 
-def _run(args, study: ScalabilityStudy) -> int:
-    doc = scalability(study, "python studies/map_scalability.py " + " ".join(sys.argv[1:]),
+def _run(args) -> int:
+    study = scenario_of(ScalabilityStudy, args, SCENARIOS)
+    if printed_config(study, args):
+        return 0
+    doc = scalability(study, "python studies/map_scalability.py " + " ".join(args.argv),
                       args.out, quiet=args.quiet)
     out, summary = Path(args.out), doc["summary"]
     atomic_write_json(out / "map_scalability.json", doc)
-    plot(doc["houses"], out / "map_scalability.png", args.modality)
+    plot(doc["houses"], out / "map_scalability.png", study.modality)
     if args.json:
         print(json.dumps(summary))
     else:

@@ -30,27 +30,33 @@ import sys
 from pathlib import Path
 
 from topodrake.apps import argtypes as at
+from topodrake.apps.study_args import (
+    add_output_arguments,
+    add_scenario_arguments,
+    printed_config,
+    scenario_of,
+    study_main,
+)
+from topodrake.experiments.oracle_reach import OracleReachStudy, oracle_study
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.oracle_reach import HOUSES, OracleReachStudy, oracle_study
+
+SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "oracle_reach.yaml"
 
 
 def main(argv=None) -> int:
-    from topodrake.apps.study_args import study_main, typed_from_args
-
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
-    ap.add_argument("--houses", default=HOUSES, help="test houses (catalogue names or map YAMLs)")
-    ap.add_argument("--pairs", type=at.count, default=800, help="labelled pairs per house")
-    ap.add_argument("--seed", type=at.seed, default=1, help="seed of the pairs and their noise")
-    ap.add_argument("--data", default="data", help="cache of demonstrations and pairs")
-    ap.add_argument("--out", default="results", help="folder of the JSON result")
-    ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_scenario_arguments(ap, OracleReachStudy, SCENARIOS, "default",
+                           {"pairs": at.count})
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
-    return study_main(lambda a: _run(a, typed_from_args(OracleReachStudy, a)), args)
+    return study_main(_run, args)
 
 
-def _run(args, study: OracleReachStudy) -> int:
+def _run(args) -> int:
+    study = scenario_of(OracleReachStudy, args, SCENARIOS)
+    if printed_config(study, args):
+        return 0
     doc = oracle_study(study, "python studies/oracle_reach.py " + " ".join(args.argv),
                        quiet=args.quiet)
     out, summary = Path(args.out), doc["summary"]

@@ -30,10 +30,17 @@ from pathlib import Path
 import numpy as np
 
 from topodrake.apps import argtypes as at
+from topodrake.apps.study_args import (
+    add_output_arguments,
+    add_scenario_arguments,
+    printed_config,
+    scenario_of,
+    study_main,
+)
+from topodrake.experiments.calibration_trials import CalibrationStudy, calibration_trials
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.calibration_trials import (DEFAULT_ESTIMATORS, CalibrationStudy,
-                                                      calibration_trials)
-from topodrake.apps.study_args import add_study_arguments, study_main, typed_from_args
+
+SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "reachability_calibration.yaml"
 
 
 def plot(details: dict, path: Path) -> None:
@@ -65,17 +72,21 @@ def plot(details: dict, path: Path) -> None:
 
 def main(argv=None) -> int:
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
-    ap.add_argument("--pairs", type=at.count, default=1000, help="labelled pairs per estimator")
-    ap.add_argument("--estimators", default=DEFAULT_ESTIMATORS, help="name=RE.pt:CWP.pt, comma-separated")
-    ap.add_argument("--p", type=at.probability, default=0.99, help="p_sparsify for keep_ratio")
-    ap.add_argument("--keep-drives", type=at.count, help="drives per house for keep_ratio (default all)")
-    add_study_arguments(ap, "cache of demonstrations (test houses)")
-    return study_main(lambda a: _run(a, typed_from_args(CalibrationStudy, a)), ap.parse_args(argv))
+    add_scenario_arguments(ap, CalibrationStudy, SCENARIOS, "default",
+                           {"pairs": at.count, "p": at.probability, "keep_drives": at.count,
+                            "workers": at.count})
+    add_output_arguments(ap)
+    args = ap.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    return study_main(_run, args)
 
 
-def _run(args, study: CalibrationStudy) -> int:
+def _run(args) -> int:
+    study = scenario_of(CalibrationStudy, args, SCENARIOS)
+    if printed_config(study, args):
+        return 0
     doc = calibration_trials(
-        study, "python studies/reachability_calibration.py " + " ".join(sys.argv[1:]),
+        study, "python studies/reachability_calibration.py " + " ".join(args.argv),
         quiet=args.quiet)
     out, summary = Path(args.out), doc["summary"]
     atomic_write_json(out / "reachability_calibration.json", doc)

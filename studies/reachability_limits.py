@@ -40,33 +40,35 @@ import sys
 from pathlib import Path
 
 from topodrake.apps import argtypes as at
+from topodrake.apps.study_args import (
+    add_output_arguments,
+    add_scenario_arguments,
+    printed_config,
+    scenario_of,
+    study_main,
+)
+from topodrake.experiments.reach_limits import ReachLimitsStudy, reach_limits
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.reach_limits import DEFAULT_ESTIMATORS, ReachLimitsStudy, reach_limits
+
+SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "reachability_limits.yaml"
 
 
 def main(argv=None) -> int:
-    from topodrake.apps.study_args import study_main, typed_from_args
-
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
-    ap.add_argument("--estimators", default=DEFAULT_ESTIMATORS, help="name=RE.pt:CWP.pt, comma-separated")
-    ap.add_argument("--pairs", type=at.count, default=1000, help="pairs for the noise ceiling")
-    ap.add_argument("--runs", type=at.count, default=8, help="noisy runs per pair")
-    ap.add_argument("--hop-pairs", type=at.count, default=2000, help="anchor hops (one run each)")
-    ap.add_argument("--keep-drives", type=at.count0, default=1,
-                    help="drives per house sparsified by the controller's own outcomes (0: skip)")
-    ap.add_argument("--keep-runs", type=at.count, default=16,
-                    help="noisy runs per candidate frame (all must be made) and per hop")
-    ap.add_argument("--seed", type=at.seed, default=0, help="base seed of the pairs and runs")
-    ap.add_argument("--data", default="data", help="cache of demonstrations (test houses)")
-    ap.add_argument("--out", default="results", help="folder of the JSON and PNG results")
-    ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_scenario_arguments(ap, ReachLimitsStudy, SCENARIOS, "default",
+                           {"pairs": at.count, "runs": at.count, "hop_pairs": at.count,
+                            "keep_drives": at.count0, "keep_runs": at.count})
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
-    return study_main(lambda a: _run(a, typed_from_args(ReachLimitsStudy, a)), args)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    return study_main(_run, args)
 
 
-def _run(args, study: ReachLimitsStudy) -> int:
-    doc = reach_limits(study, "python studies/reachability_limits.py " + " ".join(sys.argv[1:]),
+def _run(args) -> int:
+    study = scenario_of(ReachLimitsStudy, args, SCENARIOS)
+    if printed_config(study, args):
+        return 0
+    doc = reach_limits(study, "python studies/reachability_limits.py " + " ".join(args.argv),
                        quiet=args.quiet)
     summary = doc["summary"]
     atomic_write_json(Path(args.out) / "reachability_limits.json", doc)

@@ -26,9 +26,17 @@ import sys
 from pathlib import Path
 
 from topodrake.apps import argtypes as at
+from topodrake.apps.study_args import (
+    add_output_arguments,
+    add_scenario_arguments,
+    printed_config,
+    scenario_of,
+    study_main,
+)
+from topodrake.experiments.sparsify_compare import SparsifyStudy, compare_estimators, summarize
 from topodrake.fileio import atomic_write_json
-from topodrake.experiments.sparsify_compare import (DEFAULT_ESTIMATORS, SparsifyStudy,
-                                                    compare_estimators, summarize)
+
+SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "sparsification.yaml"
 
 
 def plot(world, poses, results: dict, path: Path, p: float) -> None:
@@ -49,34 +57,25 @@ def plot(world, poses, results: dict, path: Path, p: float) -> None:
 
 
 def main(argv=None) -> int:
-    from topodrake.apps.study_args import study_main, typed_from_args
-
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
-    ap.add_argument("--world", default="test-0", help="test house (its demonstrations must exist)")
-    ap.add_argument("--drive", type=at.count0, help="index among its successful drives (default: longest)")
-    ap.add_argument("--estimators", default=DEFAULT_ESTIMATORS, help="name=RE.pt:CWP.pt, comma-separated")
-    ap.add_argument("--p", type=at.probability, default=0.99, help="p_sparsify")
-    ap.add_argument("--hop-runs", type=at.count0, default=4,
-                    help="noisy rollouts of each anchor hop (0: do not check the hops)")
-    ap.add_argument("--seed", type=at.seed, default=0, help="noise seeds of the hop rollouts")
-    ap.add_argument("--check-drives", type=at.count0, default=0,
-                    help="also check the hops of the first N drives of every --check-worlds house")
-    ap.add_argument("--check-worlds", default="test-0,test-1,test-2,test-3,test-4",
-                    help="comma-separated houses for --check-drives")
-    ap.add_argument("--data", default="data", help="cache of demonstrations")
-    ap.add_argument("--demos", help="demonstration folder of the world (default: DATA/demos/pairs-s0/WORLD)")
-    ap.add_argument("--out", default="results", help="folder of the JSON and PNG results")
-    ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    add_scenario_arguments(ap, SparsifyStudy, SCENARIOS, "default",
+                           {"drive": at.count0, "p": at.probability, "hop_runs": at.count0,
+                            "check_drives": at.count0})
+    add_output_arguments(ap, quiet=False)
     args = ap.parse_args(argv)
-    return study_main(lambda a: _run(a, typed_from_args(SparsifyStudy, a)), args)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    return study_main(_run, args)
 
 
-def _run(args, study: SparsifyStudy) -> int:
+def _run(args) -> int:
+    study = scenario_of(SparsifyStudy, args, SCENARIOS)
+    if printed_config(study, args):
+        return 0
     doc, world, poses = compare_estimators(
-        study, "python studies/sparsification.py " + " ".join(sys.argv[1:]))
+        study, "python studies/sparsification.py " + " ".join(args.argv))
     out, results, check_worlds = Path(args.out), doc["results"], doc["check_worlds"]
     atomic_write_json(out / "sparsification.json", doc)
-    plot(world, poses, results, out / "sparsification.png", args.p)
+    plot(world, poses, results, out / "sparsification.png", study.p)
     summary = summarize(results)
     if args.json:
         print(json.dumps(summary))

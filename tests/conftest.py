@@ -53,7 +53,8 @@ def small_map(tmp_path_factory):
     def get(modality: str):
         if modality not in built:
             path = tmp_path_factory.mktemp(f"small-{modality}") / f"{modality}.tdmap"
-            with contextlib.redirect_stdout(io.StringIO()):     # not into a test's capsys
+            with contextlib.redirect_stdout(io.StringIO()), \
+                    contextlib.redirect_stderr(io.StringIO()):  # not into a test's capsys
                 code = main(["map", "build", "test-0", "--modality", modality, "--places",
                              "4,9", "--out", str(path), "--quiet"])
             assert code == 0

@@ -84,6 +84,7 @@ def test_lock_a_second_map_build_is_refused_while_the_first_runs(tmp_path):
 def test_lock_map_build_does_not_replace_a_map_without_add_or_force(capsys, tmp_path, small_map):
     out = tmp_path / "m.tdmap"
     out.write_bytes(small_map("oracle").read_bytes())
+    capsys.readouterr()             # building the fixture's map on first use may have spoken
     before = out.read_bytes()
     code, _, err = run(capsys, "map", "build", "test-0", "--modality", "oracle", "--places", "4,9",
                        "--out", out, "--quiet")

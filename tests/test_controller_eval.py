@@ -175,3 +175,13 @@ def test_study_runs_the_registration_controller_without_a_checkpoint(tmp_path):
     block = json.loads((out / "controller_success_runs" / "lidar_reg-clean.json").read_text())
     assert block["key"]["checkpoint"].startswith("registration-")
     assert len(block["results"]) == 3
+
+
+def test_the_default_scenario_is_the_table_i_run_and_every_named_scenario_loads():
+    from study_run import check_scenarios
+
+    from topodrake.experiments.success_table import SuccessTableStudy
+
+    check_scenarios("controller_success", SuccessTableStudy, ("default", "oracle_check"),
+                    {"default": ["--trials", "400", "--json"],
+                     "oracle_check": ["--controllers", "oracle"]})

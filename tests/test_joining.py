@@ -310,3 +310,11 @@ def test_a_lidar_junction_carries_the_departure_s_pose_registered_in_the_arrival
     np.testing.assert_allclose(path[-1], leg)
     m.config = MapConfig().updated(teach_odometry="none")      # a map that keeps no odometry
     assert _junction_legs(m, np.array([u]), np.array([x])) == [(None, None)]
+
+
+def test_the_default_scenario_is_the_figures_run():
+    from study_run import check_scenarios
+
+    from topodrake.experiments.joining import JoiningStudy
+
+    check_scenarios("map_joining", JoiningStudy, ("default",), {"default": ["--json"]})

@@ -53,3 +53,12 @@ def test_drives_are_added_in_a_seeded_random_order_unless_told(tmp_path):
     assert code == 0, err                                         # the same seed, the same order
     meta = read_map_meta(tmp_path / "data" / "maps" / "test-0-oracle-shuffled.tdmap")
     assert [t["name"] for t in meta["trajectories"]] == names["shuffled"]
+
+
+def test_the_default_scenario_is_the_figures_run_and_every_named_scenario_loads():
+    from study_run import check_scenarios
+
+    from topodrake.experiments.map_scalability import ScalabilityStudy
+
+    check_scenarios("map_scalability", ScalabilityStudy, ("default", "collected_order"),
+                    {"default": ["--json"], "collected_order": ["--order", "collected"]})

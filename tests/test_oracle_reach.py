@@ -82,3 +82,11 @@ def test_the_maps_oracle_rates_short_reverses_as_reachable():
     assert p[2] < 0.6
     fitted = reach_from_geometry(g, OracleConfig(reverse_m=0.0))
     assert fitted[0] < 0.6 and fitted[2] < 0.6
+
+
+def test_the_default_scenario_is_the_figures_run():
+    from study_run import check_scenarios
+
+    from topodrake.experiments.oracle_reach import OracleReachStudy
+
+    check_scenarios("oracle_reach", OracleReachStudy, ("default",), {"default": ["--json"]})

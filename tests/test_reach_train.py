@@ -810,3 +810,29 @@ def test_maps_and_followers_load_the_registration_controller_by_name(labels, tmp
         load_networks(cwp)
     with pytest.raises(TopodrakeError, match="missing.pt does not exist"):
         load_networks("registration", tmp_path / "missing.pt")
+
+
+def test_sparsification_scenarios_are_the_defaults_and_the_figures_command():
+    from study_run import check_scenarios
+
+    from topodrake.experiments.sparsify_compare import SparsifyStudy
+
+    check_scenarios("sparsification", SparsifyStudy, ("default", "figure"),
+                    {"figure": ["--check-drives", "3", "--json"]})
+
+
+def test_reachability_limits_default_scenario_is_the_defaults():
+    from study_run import check_scenarios
+
+    from topodrake.experiments.reach_limits import ReachLimitsStudy
+
+    check_scenarios("reachability_limits", ReachLimitsStudy)
+
+
+def test_reachability_calibration_default_scenario_is_the_figures_command():
+    from study_run import check_scenarios
+
+    from topodrake.experiments.calibration_trials import CalibrationStudy
+
+    check_scenarios("reachability_calibration", CalibrationStudy, ("default",),
+                    {"default": ["--pairs", "1000", "--json"]})

@@ -41,32 +41,16 @@ def study_main(run: Callable, args) -> int:
 
 # ---------------------------------------------------------------- typed scenarios
 
-def typed_from_args(schema, args):
-    """``schema`` (a study's settings dataclass) from the parsed options of
-    the same names: a comma-separated option fills a list field; options
-    the command line has no flag for keep the defaults."""
-    import dataclasses
-    import typing
-
-    hints = typing.get_type_hints(schema)
-    values = {}
-    for f in dataclasses.fields(schema):
-        if not hasattr(args, f.name):
-            continue
-        value = getattr(args, f.name)
-        if typing.get_origin(hints[f.name]) is list and isinstance(value, str):
-            value = [v for v in value.split(",") if v]
-        values[f.name] = value
-    return schema(**values)
-
-
-def add_scenario_arguments(parser, schema, scenarios, default: str) -> None:
+def add_scenario_arguments(parser, schema, scenarios, default: str,
+                           types: dict | None = None) -> None:
     """``--scenario NAME`` (of the YAML file ``scenarios``), ``--scenario-text
     YAML`` (fields over it, as Drake's hardware_sim takes them),
     ``--print-config`` (print the scenario as YAML and run nothing), and a
     flag for every field of ``schema`` that has one
     (:func:`topodrake.experiments.scenarios.option`): a flag given changes
-    its field over the scenario and the text (:func:`scenario_of`)."""
+    its field over the scenario and the text (:func:`scenario_of`).
+    ``types`` maps field names to their flags' parsers where the field's type
+    alone does not check enough (``{"trials": argtypes.count}``)."""
     import argparse
 
 
@@ -89,7 +73,7 @@ def add_scenario_arguments(parser, schema, scenarios, default: str) -> None:
         if t is bool:
             kwargs["action"] = "store_true"
         else:
-            kwargs["type"] = _CHECKED.get(name) or _parser_of(t, name)
+            kwargs["type"] = (types or {}).get(name) or _CHECKED.get(name) or _parser_of(t, name)
             if meta.get("choices"):
                 kwargs["choices"] = meta["choices"]
             else:
@@ -117,6 +101,26 @@ def scenario_of(schema, args, scenarios, changes: dict | None = None):
             given[key] = value
     sc = load_scenario(schema, scenarios, args.scenario, args.scenario_text)
     return with_changes(sc, given)
+
+
+def add_output_arguments(parser, json: bool = True, quiet: bool = True) -> None:
+    """``--out``, ``--json`` and ``--quiet``: where a study writes and how it prints."""
+    parser.add_argument("--out", default="results", help="folder of the JSON and PNG results")
+    if json:
+        parser.add_argument("--json", action="store_true",
+                            help="print the summary as one JSON object")
+    if quiet:
+        parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def printed_config(sc, args) -> bool:
+    """Whether ``--print-config`` was given; if so ``sc`` is printed as YAML."""
+    if not args.print_config:
+        return False
+    from topodrake.experiments.scenarios import to_yaml
+
+    print(to_yaml(sc), end="")
+    return True
 
 
 def json_object(flag: str, text: str | None) -> dict:

@@ -18,11 +18,13 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.hops import sparsify_houses
+from topodrake.experiments.scenarios import option
 from topodrake.learning.reachability.calibration import calibration_summary, reliability
 from topodrake.learning.reachability.labels import ReachLabelConfig
 from topodrake.learning.samples import collect_trajectories
 from topodrake.montecarlo import run_trials, trial_seeds
 from topodrake.systems.trials import reach_trial
+from topodrake.validate import check_count, check_nonnegative, check_probability, check_seed
 
 WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
 #: the REs the study calibrates by default (name=RE.pt:CWP.pt, comma-separated)
@@ -39,15 +41,27 @@ class CalibrationStudy:
     demonstration cache, the actuation noise of the noisy runs, and the
     local workers (None: all cores) or Ray cluster the trials run on."""
 
-    pairs: int = 1000
-    estimators: str = DEFAULT_ESTIMATORS
-    p: float = 0.99
-    keep_drives: int | None = None
-    seed: int = 0
-    data: str = "data"
-    noise: float = 0.33
-    workers: int | None = None
-    ray: str | None = None
+    pairs: int = option(1000, "labelled pairs per estimator")
+    estimators: str = option(DEFAULT_ESTIMATORS, "name=RE.pt:CWP.pt, comma-separated")
+    p: float = option(0.99, "p_sparsify for keep_ratio")
+    keep_drives: int | None = option(None, "drives per house for keep_ratio (default all)")
+    seed: int = option(0, "base seed of the trial seeds")
+    data: str = option("data", "cache of demonstrations (test houses)")
+    noise: float = option(0.33, "actuation noise std of the noisy runs")
+    workers: int | None = option(None, "local worker processes (default: all cores)")
+    ray: str | None = option(None, "run the trials on a Ray cluster")
+
+    def validate(self) -> "CalibrationStudy":
+        """Check the numbers; a bad one raises a one-line TopodrakeError."""
+        where = "reachability-calibration scenario"
+        check_count(f"{where}: pairs", self.pairs)
+        check_probability(f"{where}: p", self.p)
+        for name in ("keep_drives", "workers"):
+            if getattr(self, name) is not None:
+                check_count(f"{where}: {name}", getattr(self, name))
+        check_seed(f"{where}: seed", self.seed)
+        check_nonnegative(f"{where}: noise", self.noise)
+        return self
 
 
 def keep_ratios(reach: str, controller: str, data_dir: str, p: float,

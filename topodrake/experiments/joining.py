@@ -27,12 +27,13 @@ which is the planner skipping an anchor, not a look-alike.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.plan_trials import FALSE_LINK_M
+from topodrake.experiments.scenarios import option
 from topodrake.montecarlo import trial_seeds
 from topodrake.se2 import compose
 from topodrake.sensing.observe import camera_scans
@@ -41,6 +42,7 @@ from topodrake.topomap.graph import TopoMap, load_map_config
 from topodrake.topomap.plan import plan_path
 from topodrake.topomap.retrieval import default_embedding
 from topodrake.topomap.sources import demo_drives, drive_observations, make_scorer, place_of
+from topodrake.validate import check_count, check_seed
 from topodrake.world import load_world
 
 JOIN_STEP_M = 2.0     # a link or edge between drives longer than this in truth is false
@@ -222,11 +224,20 @@ class JoiningStudy:
     """The map-joining study's settings: its houses, the map kinds
     (:data:`MODALITIES`), ordered place triples per house, their seed, and
     the map settings (a MapConfig YAML; None: the library's defaults)."""
-    houses: list[str] = field(default_factory=lambda: [f"test-{i}" for i in range(5)])
-    modalities: list[str] = field(default_factory=lambda: ["camera", "lidar"])
-    triples: int = 40
-    seed: int = 0
-    config: str | None = None
+    houses: list[str] = option([f"test-{i}" for i in range(5)], "comma-separated houses (their "
+                               "demonstrations are collected once)")
+    modalities: list[str] = option(["camera", "lidar"], "comma-separated map kinds of "
+                                   + ", ".join(MODALITIES))
+    triples: int = option(40, "ordered place triples per house")
+    seed: int = option(0, "seed of the triples")
+    config: str | None = option(None, "map config YAML (default: the library's defaults)")
+
+    def validate(self) -> "JoiningStudy":
+        """Check the numbers (the houses and map kinds are checked as the
+        study starts); a bad one raises a one-line TopodrakeError."""
+        check_count("map-joining scenario: triples", self.triples)
+        check_seed("map-joining scenario: seed", self.seed)
+        return self
 
 
 def joining_study(study: JoiningStudy, command: str, quiet: bool = False) -> dict:

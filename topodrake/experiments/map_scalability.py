@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +24,7 @@ from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.hops import map_hop_success
 from topodrake.experiments.map_cache import config_tag
+from topodrake.experiments.scenarios import option
 from topodrake.fileio import atomic_write_json
 from topodrake.learning.samples import collect_trajectories
 from topodrake.topomap.build import BuildStats, add_trajectory
@@ -31,9 +32,13 @@ from topodrake.topomap.graph import TopoMap, load_map_config
 from topodrake.topomap.mapfile import save_map
 from topodrake.topomap.retrieval import default_embedding
 from topodrake.topomap.sources import SHIPPED, drive_observations, make_scorer, shipped_checkpoint
+from topodrake.validate import check_count, check_seed
 from topodrake.world import load_world
 
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
+#: the shipped REs a map can be built with, and the orders its drives are added in
+MODALITIES = ("camera", "lidar", "oracle")
+ORDERS = ("shuffled", "collected")
 
 
 def dense_edges(scorer, world, drives, p_edge: float, samples: int, seed: int,
@@ -76,18 +81,38 @@ class ScalabilityStudy:
     frames, the trajectory edges driven per map and the noisy runs of each,
     the seed of every sample and noise, the map settings (a MapConfig YAML;
     None: the defaults) and the cache of demonstrations and maps."""
-    worlds: list[str] = field(default_factory=lambda: HOUSES.split(","))
-    modality: str = "camera"
-    trajectories: int = 90
-    order: str = "shuffled"
-    recall_world: str = "test-0"
-    recall_trajectories: int = 30
-    dense_samples: int = 20
-    hop_samples: int = 200
-    hop_runs: int = 2
-    seed: int = 0
-    config: str | None = None
-    data: str = "data"
+    worlds: list[str] = option(HOUSES.split(","), "comma-separated houses")
+    modality: str = option("camera", "the shipped RE the maps are built with",
+                           choices=MODALITIES)
+    trajectories: int = option(90, "drives per house")
+    order: str = option("shuffled", "the order drives are added in (shuffled: seeded by --seed)",
+                        choices=ORDERS)
+    recall_world: str = option("test-0", "house where retrieval is audited")
+    recall_trajectories: int = option(30, "drives audited against the exhaustive pass")
+    dense_samples: int = option(20, "source frames for the dense graph's edge estimate")
+    hop_samples: int = option(200, "trajectory edges driven per map (0: no check)")
+    hop_runs: int = option(2, "noisy runs per hop")
+    seed: int = option(0, "seed of every sample and noise")
+    config: str | None = option(None, "MapConfig YAML (default: the paper's settings, "
+                                      "retrieval_k 64)")
+    data: str = option("data", "cache of demonstrations and maps")
+
+    def validate(self) -> "ScalabilityStudy":
+        """Check every field but the houses and files (read as the study
+        runs); a bad one raises a one-line TopodrakeError."""
+        where = "map-scalability scenario"
+        if self.modality not in MODALITIES:
+            raise TopodrakeError(f"{where}: modality takes {', '.join(MODALITIES)}, got "
+                                 f"{self.modality!r}")
+        if self.order not in ORDERS:
+            raise TopodrakeError(f"{where}: order takes {', '.join(ORDERS)}, got {self.order!r}")
+        check_count(f"{where}: trajectories", self.trajectories)
+        check_count(f"{where}: recall_trajectories", self.recall_trajectories, 0)
+        check_count(f"{where}: dense_samples", self.dense_samples)
+        check_count(f"{where}: hop_samples", self.hop_samples, 0)
+        check_count(f"{where}: hop_runs", self.hop_runs)
+        check_seed(f"{where}: seed", self.seed)
+        return self
 
 
 def run_house(house: str, study: ScalabilityStudy, policy_for, map_config, config_tag: str,

@@ -23,13 +23,14 @@ study's options, with its result document.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from topodrake.demonstrations import CollectConfig, collect, load_demos
 from topodrake.errors import TopodrakeError
+from topodrake.experiments.scenarios import option
 from topodrake.fileio import atomic_write_bytes
 from topodrake.learning.reachability.calibration import auroc, ece
 from topodrake.learning.reachability.labels import ReachLabelConfig, rollout_to_targets
@@ -44,6 +45,7 @@ from topodrake.topomap.scorer import (
     reach_from_geometry,
 )
 from topodrake.topomap.sources import demo_folder
+from topodrake.validate import check_count, check_seed
 from topodrake.world import load_world
 
 HOUSES = "test-0,test-1,test-2,test-3,test-4"
@@ -159,10 +161,16 @@ class OracleReachStudy:
     """The oracle-reach study's settings: its houses (catalogue names or map
     YAMLs), labelled pairs per house, the seed of the pairs and their
     noise, and the cache of demonstrations and pairs."""
-    houses: list[str] = field(default_factory=lambda: HOUSES.split(","))
-    pairs: int = 800
-    seed: int = 1
-    data: str = "data"
+    houses: list[str] = option(HOUSES.split(","), "test houses (catalogue names or map YAMLs)")
+    pairs: int = option(800, "labelled pairs per house")
+    seed: int = option(1, "seed of the pairs and their noise")
+    data: str = option("data", "cache of demonstrations and pairs")
+
+    def validate(self) -> "OracleReachStudy":
+        """Check the numbers; a bad one raises a one-line TopodrakeError."""
+        check_count("oracle-reach scenario: pairs", self.pairs)
+        check_seed("oracle-reach scenario: seed", self.seed)
+        return self
 
 
 def oracle_study(study: OracleReachStudy, command: str, quiet: bool = False) -> dict:

@@ -23,6 +23,7 @@ from topodrake.experiments.hops import (
     keep_ratio,
     share_made,
 )
+from topodrake.experiments.scenarios import option
 from topodrake.learning.reachability.calibration import auroc
 from topodrake.learning.reachability.labels import (
     ReachLabelConfig,
@@ -33,6 +34,7 @@ from topodrake.learning.reachability.labels import (
 from topodrake.learning.samples import _arclength, collect_trajectories
 from topodrake.montecarlo import trial_seeds
 from topodrake.sensing.overlap import mutual_overlap
+from topodrake.validate import check_count, check_seed
 from topodrake.world import load_world
 
 WORLDS = ("test-0", "test-1", "test-2", "test-3", "test-4")
@@ -50,14 +52,24 @@ class ReachLimitsStudy:
     house sparsified by the controller's own outcomes (0: none) and the runs
     per candidate frame and hop, the base seed and the demonstration cache."""
 
-    estimators: str = DEFAULT_ESTIMATORS
-    pairs: int = 1000
-    runs: int = 8
-    hop_pairs: int = 2000
-    keep_drives: int = 1
-    keep_runs: int = 16
-    seed: int = 0
-    data: str = "data"
+    estimators: str = option(DEFAULT_ESTIMATORS, "name=RE.pt:CWP.pt, comma-separated")
+    pairs: int = option(1000, "pairs for the noise ceiling")
+    runs: int = option(8, "noisy runs per pair")
+    hop_pairs: int = option(2000, "anchor hops (one run each)")
+    keep_drives: int = option(1, "drives per house sparsified by the controller's own outcomes "
+                                 "(0: skip)")
+    keep_runs: int = option(16, "noisy runs per candidate frame (all must be made) and per hop")
+    seed: int = option(0, "base seed of the pairs and runs")
+    data: str = option("data", "cache of demonstrations (test houses)")
+
+    def validate(self) -> "ReachLimitsStudy":
+        """Check the numbers; a bad one raises a one-line TopodrakeError."""
+        where = "reachability-limits scenario"
+        for name in ("pairs", "runs", "hop_pairs", "keep_runs"):
+            check_count(f"{where}: {name}", getattr(self, name))
+        check_count(f"{where}: keep_drives", self.keep_drives, 0)
+        check_seed(f"{where}: seed", self.seed)
+        return self
 HOP_BINS_M = (0.0, 0.25, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
 MAX_HOP_FRAMES = 40     # 2 m of expert drive: the controller-sparsified hops' cap
 

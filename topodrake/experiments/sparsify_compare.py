@@ -11,7 +11,7 @@ poses its figure draws.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +19,9 @@ import numpy as np
 from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.hops import anchor_hop_success, share_made, sparsify_houses
+from topodrake.experiments.scenarios import option
 from topodrake.learning.samples import collect_trajectories
+from topodrake.validate import check_count, check_probability, check_seed
 from topodrake.world import load_world
 
 #: the shipped REs the study compares by default (name=RE.pt:CWP.pt, comma-separated)
@@ -38,16 +40,30 @@ class SparsifyStudy:
     demonstration cache and the house's demonstration folder (None: its
     standard ones)."""
 
-    world: str = "test-0"
-    drive: int | None = None
-    estimators: str = DEFAULT_ESTIMATORS
-    p: float = 0.99
-    hop_runs: int = 4
-    seed: int = 0
-    check_drives: int = 0
-    check_worlds: list[str] = field(default_factory=lambda: [f"test-{i}" for i in range(5)])
-    data: str = "data"
-    demos: str | None = None
+    world: str = option("test-0", "test house (its demonstrations must exist)")
+    drive: int | None = option(None, "index among its successful drives (default: longest)")
+    estimators: str = option(DEFAULT_ESTIMATORS, "name=RE.pt:CWP.pt, comma-separated")
+    p: float = option(0.99, "p_sparsify")
+    hop_runs: int = option(4, "noisy rollouts of each anchor hop (0: do not check the hops)")
+    seed: int = option(0, "noise seeds of the hop rollouts")
+    check_drives: int = option(0, "also check the hops of the first N drives of every "
+                                  "--check-worlds house")
+    check_worlds: list[str] = option([f"test-{i}" for i in range(5)],
+                                     "comma-separated houses for --check-drives")
+    data: str = option("data", "cache of demonstrations")
+    demos: str | None = option(None, "demonstration folder of the world (default: "
+                                     "DATA/demos/pairs-s0/WORLD)")
+
+    def validate(self) -> "SparsifyStudy":
+        """Check every field; a bad one raises a one-line TopodrakeError."""
+        where = "sparsification scenario"
+        if self.drive is not None:
+            check_count(f"{where}: drive", self.drive, 0)
+        check_probability(f"{where}: p", self.p)
+        check_count(f"{where}: hop_runs", self.hop_runs, 0)
+        check_seed(f"{where}: seed", self.seed)
+        check_count(f"{where}: check_drives", self.check_drives, 0)
+        return self
 
 
 def pick_drive(lengths, drive: int | None) -> int:

@@ -14,13 +14,15 @@ import hashlib
 import json
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from topodrake.errors import TopodrakeError
+from topodrake.experiments.scenarios import option
 from topodrake.fileio import atomic_write_json
 from topodrake.montecarlo import run_trials, trial_seeds
 from topodrake.systems.trials import controller_trial
+from topodrake.validate import check_count, check_nonnegative, check_seed
 
 CONTROLLERS = ("camera_k0", "camera_k2", "camera_k5", "lidar_k5", "lidar_reg", "direct_k0")
 #: Controllers without a checkpoint folder: name -> what the trials run.
@@ -37,14 +39,25 @@ class SuccessTableStudy:
     demonstration cache, the actuation noise of the noisy blocks, and the
     local workers (None: all cores) or Ray cluster the trials run on."""
 
-    trials: int = 400
-    controllers: list[str] = field(default_factory=lambda: list(CONTROLLERS))
-    checkpoints: str = "checkpoints"
-    seed: int = 0
-    data: str = "data"
-    noise: float = 0.33
-    workers: int | None = None
-    ray: str | None = None
+    trials: int = option(400, "trials per controller and noise setting")
+    controllers: list[str] = option(list(CONTROLLERS), "comma-separated checkpoint folder names "
+                                    "under --checkpoints ('oracle' = the A* oracle, 'lidar_reg' "
+                                    "= the registration C_WP)")
+    checkpoints: str = option("checkpoints", "folder of the checkpoints")
+    seed: int = option(0, "base seed of the trial seeds")
+    data: str = option("data", "cache of the test houses' demonstrations")
+    noise: float = option(0.33, "actuation noise std of the noisy runs")
+    workers: int | None = option(None, "local worker processes (default: all cores)")
+    ray: str | None = option(None, "run the trials on a Ray cluster")
+
+    def validate(self) -> "SuccessTableStudy":
+        """Check every field; a bad one raises a one-line TopodrakeError."""
+        check_count("controller-success scenario: trials", self.trials)
+        check_seed("controller-success scenario: seed", self.seed)
+        check_nonnegative("controller-success scenario: noise", self.noise)
+        if self.workers is not None:
+            check_count("controller-success scenario: workers", self.workers)
+        return self
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
