@@ -76,10 +76,12 @@ class NavigationDiagram:
     scenario: object
     route: object
     odometry: object = None     # the OdometrySensor (None: the follower reads the true pose)
+    recorder: object = None     # the DriveRecorder (None: the drive's sensors are not kept)
 
 
 def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *, world=None,
-                            policy=None, reach=None, replanner=None) -> NavigationDiagram:
+                            policy=None, reach=None, replanner=None,
+                            record_sensors: bool = False) -> NavigationDiagram:
     """CarPlant + sensors + FollowerFsm + WaypointNet + RmpController +
     ActuationNoise following ``plan`` (a :class:`~topodrake.contract.route.Route`).
     ``policy`` and ``reach`` default to the scenario's checkpoints (pass
@@ -87,7 +89,9 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     :class:`~topodrake.navigation.replan.Replanner` of one car over
     ``[plan]`` (replanning while dead reckoning). Exported outputs: ``pose``,
     ``state``, ``ranges``, ``controls``, ``waypoint``, ``mode`` and (camera)
-    ``image``."""
+    ``image``. ``record_sensors``: keep each period's state, odometry,
+    ranges, camera image (the camera is added if the policy reads none) and
+    mode in a :class:`~topodrake.systems.recorder.DriveRecorder`."""
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput
     from topodrake.systems.control import ManoeuvreGuard, RmpController
@@ -103,7 +107,8 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     world = world or load_world(scenario.world)
     dt = scenario.vehicle.dt
     b = DiagramBuilder()
-    c = add_chassis(b, scenario, world, camera=policy.observation == "camera", meshcat=meshcat)
+    c = add_chassis(b, scenario, world, camera=policy.observation == "camera" or record_sensors,
+                    meshcat=meshcat)
     drifts = not scenario.odometry.is_perfect
     fsm = b.AddNamedSystem("follower", FollowerFsm(plan, policy, reach, scenario.follower, dt,
                                                    scenario.camera, scenario.lidar, replanner,
@@ -154,10 +159,21 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     b.ExportOutput(fsm.mode_port, "mode")
     mode_logger = LogVectorOutput(fsm.mode_port, b, dt)
     mode_logger.set_name("mode_log")
+    recorder = None
+    if record_sensors:
+        from topodrake.systems.recorder import DriveRecorder
+
+        recorder = b.AddNamedSystem("drive_recorder", DriveRecorder(c.lidar.lidar.config.beams,
+                                                                    dt))
+        b.Connect(c.hold.get_output_port(), recorder.state_port)
+        b.Connect(odo_port, recorder.odometry_port)
+        b.Connect(c.lidar.ranges_port, recorder.ranges_port)
+        b.Connect(fsm.mode_port, recorder.mode_port)
+        b.Connect(c.camera.image_port, recorder.image_port)
     diagram = b.Build()
     diagram.set_name("topodrake_navigation")
     return NavigationDiagram(diagram, c.car, fsm, net, c.pose_logger, c.noise_logger, mode_logger,
-                             world, scenario, plan, odometry)
+                             world, scenario, plan, odometry, recorder)
 
 
 @dataclass
@@ -212,6 +228,8 @@ class NavigationRunner(DiagramRunner):
         if replanner is not None:
             replanner.reset()
         b.mode_logger.FindMutableLog(context).Clear()
+        if b.recorder is not None:
+            b.recorder.clear()
         goal_xy = np.asarray(b.route.goal_pose, np.float64)[:2]
         watch = (lambda x: False) if goal_watch_m is None else \
             (lambda x: math.hypot(x[0] - goal_xy[0], x[1] - goal_xy[1]) <= goal_watch_m)

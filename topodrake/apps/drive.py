@@ -60,25 +60,29 @@ def make_recorder():
 
 def drive_route(scenario, route: Route, start, *, world=None, policy=None, reach=None,
                 record: bool = False, seed: int = 0, replanner=None,
-                goal_watch_m: float | None = None):
+                goal_watch_m: float | None = None, record_sensors: bool = False):
     """Follow ``route`` from ``start`` in the Drake navigation diagram
     (replanning while dead reckoning with ``replanner``, a
     :class:`~topodrake.navigation.replan.Replanner` over ``[route]``; ending
     within ``goal_watch_m`` of the goal as the planning study's trials do);
     returns the :class:`~topodrake.systems.navigation.NavigationRunResult`
     with ``build_s`` (diagram construction, including the route's features)
-    and ``recording`` (with ``record``, the drive as Meshcat HTML; else None)."""
+    and ``recording`` (with ``record``, the drive as Meshcat HTML; else None)
+    and ``frames`` (with ``record_sensors``, each period's sensor readings,
+    :meth:`~topodrake.systems.recorder.DriveRecorder.frames`; else None)."""
     from topodrake.systems.navigation import NavigationRunner, make_navigation_diagram
 
     viewer = make_recorder() if record else None
     t0 = time.perf_counter()
     built = make_navigation_diagram(scenario, route, viewer, world=world, policy=policy,
-                                    reach=reach, replanner=replanner)
+                                    reach=reach, replanner=replanner,
+                                    record_sensors=record_sensors)
     runner = NavigationRunner(built)
     build_s = time.perf_counter() - t0
     result = runner.run(start, seed=seed, goal_watch_m=goal_watch_m)
     result.build_s = build_s
     result.recording = None
+    result.frames = built.recorder.frames() if built.recorder is not None else None
     if viewer is not None:
         viewer.StopRecording()
         viewer.PublishRecording()

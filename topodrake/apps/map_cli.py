@@ -34,7 +34,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.experiments.map_cache import house_key
 from topodrake.experiments.plan_methods import plan_calibration_path
 from topodrake.navigation.replan import traversals_of_records
-from topodrake.topomap.export import FORMATS, write_graphml
+from topodrake.topomap.export import FORMATS, WRITERS
 from topodrake.topomap.graph import TopoMap, load_map_config
 from topodrake.topomap.mapfile import read_map_arrays, save_map
 from topodrake.topomap.plan import plan_path
@@ -240,12 +240,17 @@ def cmd_map_plan(args) -> None:
 
 
 def cmd_map_export(args) -> None:
-    """The map for other tools (GraphML: networkx, Gephi, yEd, ...)."""
+    """The map for other tools (GraphML: networkx, Gephi, yEd, ...; MCAP:
+    Foxglove, ROS 2)."""
+    if args.format is None:         # from --out's ending, else GraphML
+        args.format = next((f for f in FORMATS if str(args.out).lower().endswith(f".{f}")),
+                           "graphml")
     out = check_output(args.out, args.format, force=args.force)
     lock_output(out)
     loaded = open_map(args.file, args.reach, args.controller)
     topomap = loaded.topomap
-    write_kept(out, lambda p: write_graphml(topomap, p, source=str(args.file)), "the export")
+    write = WRITERS[args.format]
+    write_kept(out, lambda p: write(topomap, p, source=str(args.file)), "the export")
     summary = {"out": str(out), "format": args.format, "vertices": len(topomap),
                "edges": topomap.n_edges, **{f"{k}_edges": n for k, n in
                                              topomap.edge_counts().items()}}
@@ -374,11 +379,13 @@ def add_map_parser(sub) -> None:
     pn.set_defaults(func=cmd_map_plan)
 
     ex = msub.add_parser("export", help="write the map for other tools (GraphML for networkx, "
-                                        "Gephi, yEd: vertex poses, p and -log p on edges)")
+                                        "Gephi, yEd: vertex poses, p and -log p on edges; MCAP "
+                                        "for Foxglove: a ROS 2 bag of markers)")
     ex.add_argument("file", help="map file")
-    ex.add_argument("--format", choices=FORMATS, default="graphml",
-                    help="the file format; formats accepted: graphml (default: graphml)")
-    ex.add_argument("--out", required=True, help="file to write (.graphml)")
+    ex.add_argument("--format", choices=FORMATS, default=None,
+                    help="the file format; formats accepted: graphml, mcap (default: as "
+                         "--out ends, else graphml)")
+    ex.add_argument("--out", required=True, help="file to write (.graphml or .mcap, as --format)")
     _checkpoint_options(ex)
     ex.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     add_force_option(ex)

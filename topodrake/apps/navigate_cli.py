@@ -35,11 +35,13 @@ from topodrake.apps.outputs import (
     lock_output,
     write_kept,
 )
+from topodrake.bag import write_drive_mcap
 from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.plan_trials import SUCCESS_M
 from topodrake.fileio import atomic_write_bytes
 from topodrake.learning.reachability.controllers import controller_policy
+from topodrake.navigation.follower import MODES
 from topodrake.navigation.outcomes import drive_outcome, exit_status, goal_distance
 from topodrake.navigation.replan import route_traversals
 from topodrake.odometry import ODOMETRY_MODELS, odometry_model
@@ -195,10 +197,12 @@ def check_outputs(args) -> None:
     """Every file navigate writes, checked before the drive."""
     check_output(args.plot, "image", force=args.force, option="--plot")
     check_output(args.meshcat, "html", force=args.force, option="--meshcat")
+    check_output(args.record_mcap, "mcap", force=args.force, option="--record-mcap")
     if args.update_map:
         check_folder(Path(args.map).parent, "--update-map")
     lock_output(args.plot, "--plot")
     lock_output(args.meshcat, "--meshcat")
+    lock_output(args.record_mcap, "--record-mcap")
     if args.update_map:
         lock_output(args.map, "--update-map")
 
@@ -251,7 +255,8 @@ def cmd_navigate(args) -> int:
             pose, goal, excluded, time_limit_s=args.t_max, vertex=vertex)), [route],
             ReplanSchedule(max_replans=args.replan))
     result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach,
-                         record=bool(args.meshcat), seed=args.seed, replanner=replanner)
+                         record=bool(args.meshcat), seed=args.seed, replanner=replanner,
+                         record_sensors=bool(args.record_mcap))
     first_p, anchors = float(route.probability), len(route)
     chance = success_chance(planner, route)
     if chance is not None:
@@ -279,6 +284,11 @@ def cmd_navigate(args) -> int:
               + (f"; updated {len(extra['updated_edges'])} driven edges in {source}"
                  if "updated_edges" in extra else ""), flush=True)
     _write_drive_files(args, world, route, result, start, goal, layers, outcome, extra)
+    if args.record_mcap:
+        write_kept(args.record_mcap, lambda p: write_drive_mcap(p, result.frames, scenario.lidar,
+                                                                modes=MODES), "the recording")
+        if not args.json:
+            print(f"wrote {args.record_mcap}")
     return exit_status(outcome)
 
 
@@ -362,6 +372,11 @@ def add_navigate_parser(sub) -> None:
                     help="draw the map, the plan and the driven path (default: none)")
     nv.add_argument("--meshcat", metavar="HTML",
                     help="save a Meshcat recording of the drive (default: none)")
+    nv.add_argument("--record-mcap", metavar="MCAP",
+                    help="save the drive as a ROS 2 bag in MCAP for Foxglove: /scan "
+                         "(LaserScan), /odom (Odometry), /camera/image (Image, rgb8), "
+                         "/follower/mode (String) and /tf, one message per control period "
+                         "in sim time (default: none)")
     nv.add_argument("--json", action="store_true",
                     help="print the outcome as one JSON object (default: off)")
 

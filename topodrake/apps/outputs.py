@@ -28,12 +28,14 @@ KINDS = {
     "npz": {".npz": "zip"},
     "json": {".json": "json"},
     "graphml": {".graphml": "graphml"},
+    "mcap": {".mcap": "mcap"},
 }
 #: kinds whose existing files are never replaced without --force: maps, plots, recordings
-KEPT = ("map", "image", "html", "graphml")
+KEPT = ("map", "image", "html", "graphml", "mcap")
 _DESCRIBE = {"png": "a PNG image", "pdf": "a PDF", "svg": "an SVG image", "jpeg": "a JPEG image",
              "zip": "a zip archive (a map or NumPy file)", "html": "an HTML page",
-             "json": "JSON", "graphml": "a GraphML graph", None: "data of an unknown kind"}
+             "json": "JSON", "graphml": "a GraphML graph", "mcap": "an MCAP recording",
+             None: "data of an unknown kind"}
 
 
 def sniff(path) -> str | None:
@@ -42,7 +44,8 @@ def sniff(path) -> str | None:
         head = f.read(512)
     text = head.lstrip().lower()
     for magic, kind in ((b"\x89PNG", "png"), (b"%PDF", "pdf"), (b"\xff\xd8\xff", "jpeg"),
-                        (b"PK\x03\x04", "zip"), (b"PK\x05\x06", "zip")):
+                        (b"PK\x03\x04", "zip"), (b"PK\x05\x06", "zip"),
+                        (b"\x89MCAP0\r\n", "mcap")):
         if head.startswith(magic):
             return kind
     if text.startswith((b"<!doctype html", b"<html")):

@@ -1,4 +1,4 @@
-"""A map for other tools: networkx's GraphML.
+"""A map for other tools: networkx's GraphML, or a ROS 2 bag in MCAP.
 
 :func:`map_graph` turns a :class:`~topodrake.topomap.graph.TopoMap` into a
 plain ``networkx.DiGraph`` whose attributes are scalars (as GraphML holds
@@ -21,6 +21,11 @@ carries them, ``leg_dx``, ``leg_dy``, ``leg_dyaw`` (the end's pose in the
 start's frame: the drive's odometry or a junction's registration),
 ``passed``, ``failed`` and ``p_re`` (cars that drove it, and RE's own
 rating).
+
+:func:`write_mcap` writes the map as ``visualization_msgs/msg/MarkerArray``
+markers on ``/topodrake/map`` (see :mod:`topodrake.bag`): the vertices whose
+pose is known as one sphere list, the edges between them as one line list
+per kind.
 """
 
 from __future__ import annotations
@@ -31,11 +36,12 @@ import math
 import networkx as nx
 import numpy as np
 
+from topodrake.bag import map_mcap_bytes
 from topodrake.fileio import atomic_write_bytes
 from topodrake.topomap.graph import EDGE_KINDS
 
 #: the formats ``map export`` writes
-FORMATS = ("graphml",)
+FORMATS = ("graphml", "mcap")
 
 
 def map_graph(topomap, source: str = "") -> nx.DiGraph:
@@ -80,3 +86,24 @@ def graphml_bytes(topomap, source: str = "") -> bytes:
 def write_graphml(topomap, path, source: str = ""):
     """Write the map as GraphML to ``path``, atomically; returns the path."""
     return atomic_write_bytes(path, graphml_bytes(topomap, source))
+
+
+def mcap_bytes(topomap) -> bytes:
+    """The map's markers as a ROS 2 MCAP bag (see the module)."""
+    vertices = sorted(topomap.graph.nodes)
+    poses = topomap.pose(vertices) if vertices else np.zeros((0, 3))
+    known = {int(v): (float(p[0]), float(p[1])) for v, p in zip(vertices, poses)
+             if np.all(np.isfinite(p[:2]))}
+    edges = [(str(d["kind"]), known[int(u)], known[int(v)])
+             for u, v, d in topomap.graph.edges(data=True) if int(u) in known and int(v) in known]
+    return map_mcap_bytes(np.array(list(known.values())).reshape(-1, 2), edges, EDGE_KINDS)
+
+
+def write_mcap(topomap, path):
+    """Write the map as a ROS 2 MCAP bag to ``path``, atomically; returns the path."""
+    return atomic_write_bytes(path, mcap_bytes(topomap))
+
+
+#: format -> writer(topomap, path, source)
+WRITERS = {"graphml": write_graphml,
+           "mcap": lambda topomap, path, source="": write_mcap(topomap, path)}
