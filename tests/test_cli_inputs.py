@@ -98,3 +98,29 @@ def test_map_info_edge_kinds_sum_to_the_edges(capsys, small_map):
     info = __import__("json").loads(out)
     assert "junction_edges" in info
     assert info["trajectory_edges"] + info["cross_edges"] + info["junction_edges"] == info["edges"]
+
+
+@pytest.mark.parametrize("level", ["debug", "info", "warning", "error"])
+def test_log_level_configures_logging(capsys, level):
+    code, out, err = run(capsys, "--log-level", level, "world", "list")
+    assert code == 0, err
+    log = logging.getLogger("topodrake.test")
+    log.log(getattr(logging, level.upper()), "seen")
+    log.debug("debug line")
+    _, err = capsys.readouterr()
+    assert f"topodrake {level.upper()} topodrake.test: seen" in err
+    assert ("debug line" in err) == (level == "debug")
+
+
+def test_log_level_refuses_other_levels(capsys):
+    with pytest.raises(SystemExit) as e:
+        run(capsys, "--log-level", "loud", "world", "list")
+    assert e.value.code == 2
+    assert "--log-level" in capsys.readouterr().err
+
+
+def test_log_level_documented(capsys):
+    with pytest.raises(SystemExit):
+        run(capsys, "--help")
+    assert "--log-level" in capsys.readouterr().out
+    assert "--log-level" in open("docs/cli.md").read()
