@@ -121,11 +121,12 @@ def load_scenario(path) -> Scenario:
 
 
 def _check_one_form(path) -> None:
-    """An end is given by its place or by its pose, never both."""
+    """An end is given by its place or by its pose (a non-empty list), never both."""
     root = yaml.compose(Path(path).read_text(), Loader=yaml.SafeLoader)
     if not isinstance(root, yaml.MappingNode):
         return
-    keys = {k.value: k.start_mark.line + 1 for k, _ in root.value}
+    keys = {k.value: k.start_mark.line + 1 for k, v in root.value
+            if not (isinstance(v, yaml.SequenceNode) and not v.value)}   # start: [] is none
     for end in ("start", "goal"):
         if end in keys and f"{end}_place" in keys:
             raise TopodrakeError(
