@@ -15,8 +15,10 @@ Example YAML (every key optional)::
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
+import yaml
 
 from topodrake.errors import TopodrakeError
 from topodrake.expert import ExpertConfig
@@ -26,6 +28,8 @@ from topodrake.typed_yaml import load_typed
 from topodrake.validate import (check_count, check_finite, check_nonnegative, check_positive,
                                 check_seed)
 from topodrake.vehicle import VehicleConfig
+
+MAX_HEADING = 2 * np.pi       # a start heading beyond one turn either way is a typo
 
 
 @dataclass
@@ -54,9 +58,16 @@ class Scenario:
         naming it and its allowed range."""
         for name in ("start_place", "goal_place"):
             check_count(f"{where}: {name}", getattr(self, name), 0)
-        for name in ("start", "goal"):
-            for v in getattr(self, name):
+        for name, size, shape in (("start", 3, "[x, y, heading]"), ("goal", 2, "[x, y]")):
+            value = getattr(self, name)
+            if value and len(value) != size:
+                raise TopodrakeError(f"{where}: {name} must be {shape} ({size} numbers), "
+                                     f"got {list(value)}")
+            for v in value:
                 check_finite(f"{where}: {name}", v)
+        if self.start and not -MAX_HEADING <= self.start[2] <= MAX_HEADING:
+            raise TopodrakeError(f"{where}: start heading must be an angle in "
+                                 f"[-2pi, 2pi] rad, got {self.start[2]}")
         check_nonnegative(f"{where}: noise_std", self.noise_std)
         check_seed(f"{where}: seed", self.seed)
         check_positive(f"{where}: t_max_s", self.t_max_s)
@@ -87,10 +98,10 @@ class Scenario:
     @staticmethod
     def _endpoint(world, value, place, what, size) -> np.ndarray:
         if value:
+            if len(value) != size:
+                raise TopodrakeError(f"scenario {what} must have {size} numbers, got {value}")
             pose = np.zeros(3)
-            pose[:len(value)] = value
-            if len(value) not in (2, 3):
-                raise TopodrakeError(f"scenario {what} must be [x, y] or [x, y, heading], got {value}")
+            pose[:size] = value
         else:
             if not 0 <= place < len(world.places):
                 raise TopodrakeError(
@@ -103,5 +114,21 @@ class Scenario:
 
 def load_scenario(path) -> Scenario:
     """Read a Scenario YAML; a bad file or number gives a one-line
-    TopodrakeError naming the file."""
-    return load_typed(Scenario, path, "scenario").validate(f"scenario {path}")
+    TopodrakeError naming the file (and the key and its line)."""
+    scenario = load_typed(Scenario, path, "scenario")
+    _check_one_form(path)
+    return scenario.validate(f"scenario {path}")
+
+
+def _check_one_form(path) -> None:
+    """An end is given by its place or by its pose (a non-empty list), never both."""
+    root = yaml.compose(Path(path).read_text(), Loader=yaml.SafeLoader)
+    if not isinstance(root, yaml.MappingNode):
+        return
+    keys = {k.value: k.start_mark.line + 1 for k, v in root.value
+            if not (isinstance(v, yaml.SequenceNode) and not v.value)}   # start: [] is none
+    for end in ("start", "goal"):
+        if end in keys and f"{end}_place" in keys:
+            raise TopodrakeError(
+                f"scenario {path} line {keys[end]}: {end}: give {end}_place or {end}, not both "
+                f"({end}_place is on line {keys[end + '_place']})")

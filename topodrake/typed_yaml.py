@@ -4,6 +4,8 @@ import dataclasses
 import typing
 from pathlib import Path
 
+import yaml
+
 from topodrake.errors import TopodrakeError
 
 
@@ -51,11 +53,13 @@ def load_typed(schema, path, what: str, child_name: str | None = None, defaults=
         from pydrake.common.yaml import yaml_load_typed
     except ImportError:
         return _plain_load(schema, path.read_text(), f"{what} {path}", child_name, defaults)
+    text = path.read_text()
+    root = _compose(text, f"{what} {path}")
     try:
         return yaml_load_typed(schema=schema, filename=str(path), child_name=child_name,
                                defaults=defaults)
     except Exception as e:  # pydrake raises RuntimeError with a multi-line message
-        raise TopodrakeError(f"{what} {path}: {first_line(e)}") from None
+        raise TopodrakeError(_located(f"{what} {path}", schema, root, child_name, e)) from None
 
 
 def load_typed_data(schema, data: str, what: str, defaults=None):
@@ -65,10 +69,101 @@ def load_typed_data(schema, data: str, what: str, defaults=None):
         from pydrake.common.yaml import yaml_load_typed
     except ImportError:
         return _plain_load(schema, data, what, None, defaults)
+    root = _compose(data, what)
     try:
         return yaml_load_typed(schema=schema, data=data, defaults=defaults)
     except Exception as e:
-        raise TopodrakeError(f"{what}: {first_line(e)}") from None
+        raise TopodrakeError(_located(what, schema, root, None, e)) from None
+
+
+def yaml_error(where: str, e: yaml.YAMLError) -> str:
+    """One line for a YAML syntax error: ``where``, the line (and column)
+    of the problem, and what it is."""
+    mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
+    problem = getattr(e, "problem", None) or first_line(e)
+    if mark is None:
+        return f"{where}: {problem}"
+    return f"{where} line {mark.line + 1} column {mark.column + 1}: {problem}"
+
+
+def _compose(text: str, where: str):
+    """The YAML node tree of ``text`` (lines kept for the errors); broken
+    YAML raises a one-line TopodrakeError with its line."""
+    try:
+        return yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError as e:
+        raise TopodrakeError(yaml_error(where, e)) from None
+
+
+def _located(where: str, schema, root, child_name, e: Exception) -> str:
+    """The loader's error ``e`` with the key path and line of the first
+    value of ``root`` that does not fit ``schema``, where one is found."""
+    node = root
+    if child_name is not None and isinstance(node, yaml.MappingNode):
+        node = next((v for k, v in node.value if k.value == child_name), None)
+    found = None if node is None else _misfit(schema, node, "")
+    if found is None:
+        return f"{where}: {first_line(e)}"
+    key, line = found
+    return f"{where} line {line}: {key or 'the document'}: {first_line(e)}"
+
+
+def _fits_scalar(t, value: str) -> bool:
+    try:
+        if t is float:
+            float(value)
+        elif t is int:
+            int(value, 0)
+        elif t is bool:
+            return value.lower() in ("true", "false", "yes", "no", "on", "off")
+    except ValueError:
+        return False
+    return True
+
+
+def _misfit(t, node, key: str):
+    """(key path, line) of the first value under ``node`` that cannot be of
+    type ``t``; None where all fit (or the type is not one checked here)."""
+    line = node.start_mark.line + 1
+    origin, params = typing.get_origin(t), typing.get_args(t)
+    if isinstance(node, yaml.ScalarNode) and node.tag == "tag:yaml.org,2002:null":
+        return None if (type(None) in params or node.value == "") else (key, line)
+    if params and type(None) in params and origin not in (list, tuple, dict):
+        inner = [a for a in params if a is not type(None)]
+        return _misfit(inner[0], node, key) if len(inner) == 1 else None
+    if dataclasses.is_dataclass(t):
+        if not isinstance(node, yaml.MappingNode):
+            return key, line
+        fields = {f.name: f.type for f in dataclasses.fields(t)}
+        for k, v in node.value:
+            name = f"{key}.{k.value}" if key else str(k.value)
+            if k.value not in fields:
+                return name, k.start_mark.line + 1
+            found = _misfit(fields[k.value], v, name)
+            if found:
+                return found
+        return None
+    if origin in (list, tuple):
+        if not isinstance(node, yaml.SequenceNode):
+            return key, line
+        for i, v in enumerate(node.value):
+            found = _misfit(params[0], v, f"{key}[{i}]") if params else None
+            if found:
+                return found
+        return None
+    if origin is dict:
+        if not isinstance(node, yaml.MappingNode):
+            return key, line
+        for k, v in node.value:
+            found = _misfit(params[1], v, f"{key}.{k.value}") if len(params) == 2 else None
+            if found:
+                return found
+        return None
+    if t in (float, int, bool, str):
+        if not isinstance(node, yaml.ScalarNode):
+            return key, line
+        return None if _fits_scalar(t, node.value) else (key, line)
+    return None
 
 
 def _plain_load(schema, text: str, where: str, child_name: str | None = None, defaults=None):
@@ -76,13 +171,11 @@ def _plain_load(schema, text: str, where: str, child_name: str | None = None, de
     errors, missing keys keep their defaults (``defaults``' values where
     given), nested dataclasses (also in lists, dicts and optionals) are
     built recursively."""
-    import yaml
-
     resolve_field_types(schema)
     try:
         data = yaml.safe_load(text) or {}
     except yaml.YAMLError as e:
-        raise TopodrakeError(f"{where}: {first_line(e)}") from None
+        raise TopodrakeError(yaml_error(where, e)) from None
     if child_name is not None:
         if not isinstance(data, dict) or child_name not in data:
             raise TopodrakeError(f"{where}: no key {child_name!r}")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 
 from topodrake import __version__
@@ -53,6 +54,34 @@ The workflow, in order:
 Exit status: 0 done (a drive reached its goal), 1 no plan, 2 bad input or an
 output that cannot be written, 3 a drive that did not reach its goal.
 topodrake COMMAND --help for a command; docs/cli.md for the whole picture."""
+
+
+LOG_LEVELS = ("debug", "info", "warning", "error")
+
+
+class _StderrHandler(logging.StreamHandler):
+    """To whatever ``sys.stderr`` is when a record is logged."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+def configure_logging(level: str) -> None:
+    """Python's ``logging`` for the ``topodrake`` loggers: ``level`` and up
+    to stderr as ``topodrake LEVEL name: message``."""
+    logger = logging.getLogger("topodrake")
+    for handler in [h for h in logger.handlers if getattr(h, "_topodrake_cli", False)]:
+        logger.removeHandler(handler)
+    handler = _StderrHandler()
+    handler._topodrake_cli = True
+    handler.setFormatter(logging.Formatter("topodrake %(levelname)s %(name)s: %(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(level.upper())
 
 
 def _print_result(result: dict, as_json: bool) -> None:
@@ -169,6 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
                   formatter_class=at.RawEpilogFormatter)
     p.add_argument("--version", action="version", version=f"topodrake {__version__}",
                    help="print the version and exit")
+    p.add_argument("--log-level", choices=LOG_LEVELS, default="warning",
+                   help="the diagnostics the library logs to stderr (default: warning)")
     sub = at.subcommands(p, dest="command", metavar="COMMAND")
     p.set_defaults(func=lambda args: _welcome(p))
 
@@ -265,6 +296,7 @@ def _welcome(parser) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; returns its exit status (see :data:`WORKFLOW`)."""
     args = build_parser().parse_args(argv)
+    configure_logging(args.log_level)
     try:
         return _run(args)
     finally:

@@ -35,7 +35,7 @@ from topodrake.experiments.map_cache import house_key
 from topodrake.experiments.plan_methods import plan_calibration_path
 from topodrake.navigation.replan import traversals_of_records
 from topodrake.topomap.export import FORMATS, WRITERS
-from topodrake.topomap.graph import TopoMap, load_map_config
+from topodrake.topomap.graph import EDGE_KINDS, TopoMap, load_map_config
 from topodrake.topomap.mapfile import read_map_arrays, save_map
 from topodrake.topomap.plan import plan_path
 from topodrake.topomap.plan_calibration import fit_from_records, read_trial_records
@@ -50,6 +50,7 @@ from topodrake.topomap.resumable import (
 )
 from topodrake.topomap.retrieval import default_embedding
 from topodrake.topomap.sources import (
+    OBSERVES,
     demo_drives,
     demo_folder,
     drive_observations,
@@ -72,6 +73,12 @@ def cmd_map_build(args) -> None:
     out = check_output(args.out, "map", force=args.force, replace=args.add, grow="--add")
     if args.add and not out.is_file():
         raise TopodrakeError(f"--add grows an existing map, and {out} does not exist")
+    if args.add:
+        modality = read_map_arrays(out)[0]["modality"]
+        if OBSERVES.get(args.modality, modality) != modality:
+            raise TopodrakeError(f"{out} is a {modality} map: --add grows it with {modality} "
+                                 f"observations, not --modality {args.modality}")
+    args.modality = args.modality or "camera"
     folder = demo_folder(args.world, args.demos)
     collect_into = None
     if not (folder / "manifest.json").is_file():
@@ -174,10 +181,10 @@ def _place_list(text: str) -> list[int]:
 def map_info(path) -> dict:
     meta, z = read_map_arrays(path)
     v, e = len(z["vertex_id"]), len(z["edge_src"])
-    kinds = np.bincount(z["edge_kind"], minlength=2)
+    kinds = np.bincount(z["edge_kind"], minlength=len(EDGE_KINDS))
     return {"file": str(path), "version": meta["version"], "world": meta["world"],
             "modality": meta["modality"], "vertices": v, "edges": e,
-            "trajectory_edges": int(kinds[0]), "cross_edges": int(kinds[1]),
+            **{f"{kind}_edges": int(n) for kind, n in zip(EDGE_KINDS, kinds)},
             "trajectories": len(meta["trajectories"]), "raw_frames": meta["raw_frames"],
             "keep_ratio": round(v / meta["raw_frames"], 5) if meta["raw_frames"] else 0.0,
             "kept_frames": len(z["observations"]), "checkpoints": meta["identity"],
@@ -333,10 +340,9 @@ def add_map_parser(sub) -> None:
     b = msub.add_parser("build", help="build a map from a world's demonstrations (or grow one)")
     b.add_argument("world", help="catalogue name or ROS map YAML")
     b.add_argument("--modality", choices=["camera", "lidar", "lidar_reg", "oracle"],
-                   default="camera",
                    help="observations and RE: the shipped camera k=5 or lidar k=5 RE, the RE "
                         "of the registration C_WP (lidar_reg), or the geometric oracle "
-                        "(default: camera)")
+                        "(default: camera; with --add the map's own)")
     b.add_argument("--demos", help="demonstration folder (default: data/demos/pairs-s0/WORLD, "
                                    "collected first when missing)")
     b.add_argument("--trajectories", type=at.count,

@@ -238,6 +238,15 @@ def demo_folder(world_spec: str, demos=None) -> Path:
     return Path("data/demos/pairs-s0") / name
 
 
+def same_world(a, b) -> bool:
+    """Whether two world specs name one world (a catalogue name, or one map file)."""
+    if a == b:
+        return True
+    if a is None or b is None or Path(str(a)).suffix not in (".yaml", ".yml", ".json"):
+        return False
+    return Path(str(a)).resolve() == Path(str(b)).resolve()
+
+
 def demo_drives(world_spec: str, demos=None, progress: bool = True) -> tuple[Path, list]:
     """The successful expert drives of a world, collected first (all ordered
     pairs of its places, seed 0) when ``demos`` is not given and the default
@@ -247,7 +256,10 @@ def demo_drives(world_spec: str, demos=None, progress: bool = True) -> tuple[Pat
         if demos:
             raise TopodrakeError(f"no demonstrations in {folder}")
         collect(world_spec, folder, progress=progress)
-    _, drives = load_demos(folder, successful_only=True)
+    manifest, drives = load_demos(folder, successful_only=True)
+    if not same_world(manifest.get("world"), world_spec):
+        raise TopodrakeError(f"{folder} holds demonstrations of {manifest.get('world')!r}, "
+                             f"not of {world_spec!r}")
     if not drives:
         raise TopodrakeError(f"{folder} holds no successful drive")
     return folder, drives
