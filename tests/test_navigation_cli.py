@@ -98,6 +98,17 @@ def test_navigate_drives_the_registration_controller_with_its_re(capsys):
     assert code == 2 and "trained for controller" in err and len(err.splitlines()) == 1
 
 
+def test_navigate_takes_a_learned_controller_s_own_re(capsys):
+    """``--controller`` of a shipped C_WP drives with the RE that ships for it,
+    as ``demo`` does (a lidar C_WP never gets the camera RE)."""
+    code = main(["navigate", "test-0", "--start", "16.42,14.88,2.95", "--goal", "8.22,14.08,-0.2",
+                 "--controller", "checkpoints/lidar_k5/checkpoint.pt", "--t-max", "2", "--json"])
+    captured = capsys.readouterr()
+    assert code == 3, captured.err
+    out = json.loads(captured.out.strip().splitlines()[-1])
+    assert out["outcome"] == "timeout" and 0.0 < out["probability"] <= 1.0
+
+
 def test_demo_takes_the_controller_only_without_a_map(capsys):
     code = main(["demo", "--map", "t0.tdmap", "--controller", "registration",
                  "--out", "/tmp/unused-demo"])

@@ -60,7 +60,6 @@ from topodrake.topomap.sources import (
 from topodrake.world import load_world
 
 DEFAULT_CONTROLLER = "checkpoints/camera_k5/checkpoint.pt"
-DEFAULT_REACH = "checkpoints/reach_camera_k5/checkpoint.pt"
 EXIT_HELP = (f"Exit status: 0 when the car reached the goal (within {SUCCESS_M} m), 3 for any "
              "other outcome (false_reached, collision, timeout, search_failed, "
              "dead_reckoning_gave_up), 1 when there is no plan, 2 for bad input or an output "
@@ -233,7 +232,7 @@ def cmd_navigate(args) -> int:
         if args.replan:
             raise TopodrakeError("--replan needs a map file (.tdmap) as MAP")
         controller = args.controller or DEFAULT_CONTROLLER
-        reach = args.reach or (None if controller == "registration" else DEFAULT_REACH)
+        reach = args.reach          # None: the RE that ships for the controller, as demo takes
         policy, reach = _networks(controller, reach)
         if source.is_dir():
             world, route, drive = chain_from_demos(source, start, goal, args.drive, policy, reach,
@@ -353,8 +352,8 @@ def add_navigate_parser(sub) -> None:
     nv.add_argument("--controller", help=f"C_WP checkpoint, or 'registration' for the lidar "
                                          f"teach-and-repeat C_WP (default: the map's, else "
                                          f"{DEFAULT_CONTROLLER})")
-    nv.add_argument("--reach", help=f"RE checkpoint (default: the map's, else the controller's "
-                                    f"shipped RE for 'registration', else {DEFAULT_REACH})")
+    nv.add_argument("--reach", help="RE checkpoint (default: the map's, else the RE that ships "
+                                    "for the controller)")
     nv.add_argument("--drive", type=int, help="index of the demonstration folder's drive to follow "
                                               "(default: the one nearest the start and goal)")
     nv.add_argument("--p", type=float, default=0.99,
