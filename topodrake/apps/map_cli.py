@@ -73,6 +73,7 @@ def cmd_map_build(args) -> None:
     out = check_output(args.out, "map", force=args.force, replace=args.add, grow="--add")
     if args.add and not out.is_file():
         raise TopodrakeError(f"--add grows an existing map, and {out} does not exist")
+    lock_output(out)          # the map and its interrupted builds beside it, before reading it
     if args.add:
         modality = read_map_arrays(out)[0]["modality"]
         if OBSERVES.get(args.modality, modality) != modality:
@@ -85,7 +86,6 @@ def cmd_map_build(args) -> None:
         if args.demos:
             raise TopodrakeError(f"no demonstrations in {folder}")
         collect_into = check_output_folder(folder, option="demonstrations")
-    lock_output(out)          # the map and its interrupted builds beside it
     build = _start_build(args, out, collect_into)
     stats = build.run(progress=not args.quiet)
     write_kept(out, build.save, "the map")
