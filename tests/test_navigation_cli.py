@@ -218,7 +218,8 @@ def test_the_default_demo_plans_on_the_shipped_map_and_reaches(capsys, tmp_path,
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 1
     out = json.loads(lines[0])
-    assert code == 0 and out["outcome"] == "reached" and out["distance_to_goal_m"] <= 0.54
+    # it arrives with a margin inside the 0.54 m success rule
+    assert code == 0 and out["outcome"] == "reached" and out["distance_to_goal_m"] <= 0.44
     assert out["map"].endswith("checkpoints/demo_map/map.tdmap") and out["odometry"] == "wheel"
     assert out["controller"] == "registration" and 0.0 < out["probability"] < 1.0
     assert out["anchors"] > 10 and (tmp_path / "demo" / "plan.png").stat().st_size > 10_000

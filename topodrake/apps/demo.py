@@ -120,6 +120,9 @@ def run_demo(world_name: str = "test-0", start_place: int = 0, goal_place: int =
     return {"files": files, "summary": summary}
 
 
+#: the demo's drive ends this near the goal place (m), inside the success radius SUCCESS_M
+DEMO_STOP_M = 0.3
+
 #: the demo's C_WP without a map: of the shipped controllers with their own RE, the one that
 #: holds routes best
 DEMO_CONTROLLER = "checkpoints/lidar_k5/checkpoint.pt"
@@ -181,10 +184,11 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
                                   camera_enabled=policy.observation == "camera")
     out = Path(out_dir)
     files: dict[str, Path] = {}
-    # the drive ends within the success radius of the goal place, as the planning study's
-    # trials do: the follower's own arrival test often misses the goal view
+    # the drive ends near the goal place, as the planning study's trials end within its
+    # success radius (the follower's own arrival test often misses the goal view); the
+    # demo drives on to DEMO_STOP_M so that it arrives with a margin
     result = drive_route(scenario, route, start, world=world, policy=policy, reach=reach_net,
-                         record=meshcat, seed=seed, goal_watch_m=SUCCESS_M)
+                         record=meshcat, seed=seed, goal_watch_m=DEMO_STOP_M)
     goal_m = goal_distance(result.poses, goal)
     outcome = drive_outcome(result.outcome, goal_m)
     if meshcat:
