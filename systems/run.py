@@ -39,8 +39,14 @@ class RunResult:
     def outcome(self) -> str:
         return "success" if self.success else "collision" if self.collision else "timeout"
 
+    @property
+    def distance_m(self) -> float:
+        """The length of the driven path (m)."""
+        return float(np.hypot(*np.diff(self.poses[:, :2], axis=0).T).sum()) if len(self.poses) else 0.0
+
     def summary(self) -> dict:
         return {"outcome": self.outcome, "time_s": round(self.time_s, 2),
+                "distance_m": round(self.distance_m, 2),
                 "distance_to_goal_m": round(self.distance_to_goal_m, 3),
                 "wall_time_s": round(self.wall_time_s, 3), "startup_s": round(self.startup_s, 3)}
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from topodrake.apps.cli import main
+from topodrake.world import load_world
 
 MAPS = __import__("pathlib").Path(__file__).parent / "data" / "maps"
 
@@ -103,6 +104,9 @@ def test_drive_scenario_yaml(capsys, tmp_path):
     summary = json.loads(out)
     assert code == 0 and summary["outcome"] == "reached"
     assert summary["distance_to_goal_m"] < 0.27
+    # the driven length, as navigate and the learned demo print it
+    start, goal = (np.array(load_world("test-0").places[i][:2]) for i in (0, 5))
+    assert summary["distance_m"] >= np.hypot(*(goal - start)) - 0.6
 
 
 @pytest.mark.parametrize("text, words", [
@@ -129,6 +133,7 @@ def test_demo_writes_plan_camera_strip_and_meshcat_recording(capsys, tmp_path):
     assert code == 0
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["outcome"] == "reached" and summary["distance_to_goal_m"] < 0.27
+    assert summary["distance_m"] > 1.0
     for name in ("plan.png", "camera.png"):
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
     html = (tmp_path / "meshcat.html").read_text()
