@@ -14,6 +14,7 @@ from topodrake.systems.scenario import Scenario
 from topodrake.learning.reachability.labels import ReachLabelConfig, draw_pairs, time_limits
 from topodrake.learning.samples import collect_trajectories
 from topodrake.learning.waypoint.evaluation import sample_controller_pair
+from topodrake.navigation.outcomes import drive_outcome
 from topodrake.sensing.overlap import mutual_overlap
 from topodrake.world import load_world
 
@@ -40,6 +41,8 @@ def expert_trial(seed: int, world: str = "test-0", start_place: int = 0, goal_pl
     summary = result.summary()
     summary.pop("wall_time_s")
     summary.pop("startup_s")
+    # the CLI's vocabulary: reached, false_reached, collision, timeout
+    summary["outcome"] = drive_outcome(summary["outcome"], summary["distance_to_goal_m"])
     summary["seed"] = seed
     return summary
 
