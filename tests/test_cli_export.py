@@ -101,14 +101,25 @@ def test_export_help_names_the_formats(capsys):
     assert "formats accepted: graphml, mcap" in " ".join(out.split())
 
 
-def _markers(path):
+def _messages(path):
     with open(path, "rb") as f:
         msgs = list(make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
-    assert [channel.topic for _, channel, _, _ in msgs] == ["/topodrake/map"]
-    schema, channel, _, array = msgs[0]
+    assert [channel.topic for _, channel, _, _ in msgs] == ["/topodrake/map",
+                                                            "/topodrake/map/table"]
+    assert all(channel.message_encoding == "cdr" for _, channel, _, _ in msgs)
+    return msgs
+
+
+def _markers(path):
+    schema, _, _, array = _messages(path)[0]
     assert schema.name == "visualization_msgs/msg/MarkerArray"
-    assert channel.message_encoding == "cdr"
     return array.markers
+
+
+def _table(path):
+    schema, _, _, text = _messages(path)[1]
+    assert schema.name == "std_msgs/msg/String"
+    return json.loads(text.data)
 
 
 def test_export_mcap_reads_back_with_the_maps_counts(capsys, tmp_path, oracle_map):
@@ -139,6 +150,13 @@ def test_export_mcap_reads_back_with_the_maps_counts(capsys, tmp_path, oracle_ma
     assert {k: len(lines[f"edges/{k}"].points) // 2 for k in EDGE_KINDS} == \
         {k: want.get(k, 0) for k in EDGE_KINDS}
     assert sum(want.values()) == len(z["edge_src"])     # the small map's poses are all known
+    # the table: every vertex and edge, with p to 1e-6
+    table = _table(out)
+    assert sorted(table["vertices"]) == sorted(int(v) for v in z["vertex_id"])
+    got_p = {(u, v, k): p for u, v, k, p in table["edges"]}
+    assert len(got_p) == len(table["edges"]) == len(z["edge_src"])
+    for u, v, k, p in zip(z["edge_src"], z["edge_dst"], z["edge_kind"], z["edge_p"]):
+        assert got_p[(int(u), int(v), EDGE_KINDS[int(k)])] == pytest.approx(float(p), abs=1e-6)
 
 
 def test_export_mcap_format_from_the_ending_and_refused_without_force(capsys, tmp_path,

@@ -10,7 +10,9 @@ point).
 Topics of a map (:func:`map_mcap_bytes`): ``/topodrake/map``
 (``visualization_msgs/msg/MarkerArray``: namespace ``vertices``, one
 ``SPHERE_LIST`` of every vertex whose pose is known; namespace ``edges``,
-one ``LINE_LIST`` per edge kind, two points per edge between known poses).
+one ``LINE_LIST`` per edge kind, two points per edge between known poses)
+and ``/topodrake/map/table`` (``std_msgs/msg/String``: JSON of every vertex
+id and every edge as [source, target, kind, p]).
 
 Topics of a drive (:func:`drive_mcap_bytes`), one message per control
 period: ``/scan`` (``sensor_msgs/msg/LaserScan``), ``/odom``
@@ -25,6 +27,7 @@ odometry, and the car's speed and turn rate), ``/camera/image``
 from __future__ import annotations
 
 import io
+import json
 import math
 
 import numpy as np
@@ -72,6 +75,8 @@ _DEFS = {
 
 #: the map's topic; a drive's topics by what they carry
 MAP_TOPIC = "/topodrake/map"
+#: the map's vertices and edges with their p, as JSON (a ``String``)
+MAP_TABLE_TOPIC = "/topodrake/map/table"
 DRIVE_TOPICS = {"scan": "/scan", "odometry": "/odom", "image": "/camera/image",
                 "mode": "/follower/mode", "tf": "/tf"}
 #: edge kind -> RGBA of its line list
@@ -170,11 +175,15 @@ def map_markers(vertex_xy: np.ndarray, edges, kinds=tuple(EDGE_COLORS)) -> list[
     return out
 
 
-def map_mcap_bytes(vertex_xy, edges, kinds=tuple(EDGE_COLORS)) -> bytes:
-    """The map's markers (:func:`map_markers`) as one ``MarkerArray`` at t = 0."""
+def map_mcap_bytes(vertex_xy, edges, kinds=tuple(EDGE_COLORS), table: dict | None = None) -> bytes:
+    """The map's markers (:func:`map_markers`) as one ``MarkerArray`` at t = 0;
+    with ``table`` (every vertex id, and every edge as [source, target, kind,
+    p]) also that table as JSON in a ``String`` on :data:`MAP_TABLE_TOPIC`."""
     bag = _Bag()
     bag.write(MAP_TOPIC, "visualization_msgs/MarkerArray",
               {"markers": map_markers(np.asarray(vertex_xy).reshape(-1, 2), edges, kinds)}, 0)
+    if table is not None:
+        bag.write(MAP_TABLE_TOPIC, "std_msgs/String", {"data": json.dumps(table)}, 0)
     return bag.finish()
 
 

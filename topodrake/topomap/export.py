@@ -96,7 +96,10 @@ def mcap_bytes(topomap) -> bytes:
              if np.all(np.isfinite(p[:2]))}
     edges = [(str(d["kind"]), known[int(u)], known[int(v)])
              for u, v, d in topomap.graph.edges(data=True) if int(u) in known and int(v) in known]
-    return map_mcap_bytes(np.array(list(known.values())).reshape(-1, 2), edges, EDGE_KINDS)
+    table = {"vertices": [int(v) for v in vertices],
+             "edges": [[int(u), int(v), str(d["kind"]), float(d["p"])]
+                       for u, v, d in topomap.graph.edges(data=True)]}
+    return map_mcap_bytes(np.array(list(known.values())).reshape(-1, 2), edges, EDGE_KINDS, table)
 
 
 def write_mcap(topomap, path):
