@@ -33,7 +33,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.navigation.follower import REASONS, FollowerConfig, Mode
 from topodrake.odometry import OdometryConfig
 from topodrake.vehicle import in_collision
-from topodrake.world import load_world
+from topodrake.world import load_world, path_length
 
 
 @dataclass
@@ -256,7 +256,7 @@ class NavigationRunner(DiagramRunner):
             result == "reached", r["collision"], result == "timeout", r["time_s"],
             float(np.hypot(x[0] - goal[0], x[1] - goal[1])), poses, r["noise"], r["wall"],
             r["startup"], modes=modes, result=result,
-            distance_m=float(np.hypot(*np.diff(poses[:, :2], axis=0).T).sum()),
+            distance_m=path_length(poses[:, :2]),
             probability=float(b.route.probability), visited=int(fs.visited[0]),
             active=int(fs.active[0]), route=route,
             plans=1 if replanner is None else int(replanner.plans[0]))

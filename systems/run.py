@@ -21,6 +21,7 @@ from pydrake.systems.framework import EventStatus
 from topodrake.errors import TopodrakeError
 from topodrake.sensing.overlap import mutual_overlap
 from topodrake.vehicle import in_collision
+from topodrake.world import path_length
 
 
 @dataclass
@@ -42,7 +43,7 @@ class RunResult:
     @property
     def distance_m(self) -> float:
         """The length of the driven path (m)."""
-        return float(np.hypot(*np.diff(self.poses[:, :2], axis=0).T).sum()) if len(self.poses) else 0.0
+        return path_length(self.poses[:, :2]) if len(self.poses) else 0.0
 
     def summary(self) -> dict:
         return {"outcome": self.outcome, "time_s": round(self.time_s, 2),

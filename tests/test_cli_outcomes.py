@@ -7,8 +7,13 @@ import json
 import pytest
 
 from topodrake.apps.cli import main
-from topodrake.navigation.outcomes import EXIT_FAILED, drive_outcome, exit_status
-from topodrake.experiments.plan_trials import SUCCESS_M, judge_outcome
+from topodrake.navigation.outcomes import (
+    EXIT_FAILED,
+    SUCCESS_M,
+    drive_outcome,
+    exit_status,
+    judge_outcome,
+)
 
 
 @pytest.fixture

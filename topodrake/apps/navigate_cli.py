@@ -38,11 +38,10 @@ from topodrake.apps.outputs import (
 from topodrake.bag import write_drive_mcap
 from topodrake.demonstrations import load_demos
 from topodrake.errors import TopodrakeError
-from topodrake.experiments.plan_trials import SUCCESS_M
 from topodrake.fileio import atomic_write_bytes
 from topodrake.learning.reachability.controllers import controller_policy
 from topodrake.navigation.follower import MODES
-from topodrake.navigation.outcomes import drive_outcome, exit_status, goal_distance
+from topodrake.navigation.outcomes import SUCCESS_M, drive_outcome, exit_status, goal_distance
 from topodrake.navigation.replan import route_traversals
 from topodrake.odometry import ODOMETRY_MODELS, odometry_model
 from topodrake.rollout import ExpertRollout, RolloutConfig

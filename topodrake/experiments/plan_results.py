@@ -29,8 +29,9 @@ from topodrake.experiments.plan_methods import (
 )
 from topodrake.experiments.plan_scenario import PlanningScenario
 from topodrake.experiments.plan_study import house_job, house_seed, pruned_job, success_by_round
-from topodrake.experiments.plan_trials import SUCCESS_M, pruned_ratio, summarize
+from topodrake.experiments.plan_trials import pruned_ratio, summarize
 from topodrake.montecarlo import paired_difference, run_trials
+from topodrake.navigation.outcomes import SUCCESS_M
 from topodrake.topomap.plan_calibration import read_trial_records
 
 

@@ -30,9 +30,10 @@ from topodrake.experiments.plan_study import (
     plan_routes,
     trial_time_limits,
 )
-from topodrake.experiments.plan_trials import SUCCESS_M, follow_routes, jittered_starts, trial_pairs
+from topodrake.experiments.plan_trials import follow_routes, jittered_starts, trial_pairs
 from topodrake.navigation.engine import NavigationEngine
 from topodrake.navigation.follower import MODES
+from topodrake.navigation.outcomes import SUCCESS_M
 from topodrake.world.plot import plot_world, save_figure
 
 #: the colours of the follower's modes in :func:`plot_trace`
@@ -150,7 +151,6 @@ def plot_trace(world, trace: TrialTrace, out: str | Path) -> None:
     car's path coloured by the follower's mode, start and goal."""
     import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
 
