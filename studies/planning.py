@@ -10,6 +10,7 @@ place, the view at another as the goal. A run is a typed scenario
     python studies/planning.py --scenario paper_protocol
     python studies/planning.py --scenario real_buildings --scenario-text '{trials: 20}'
     python studies/planning.py --houses test-2 --methods oracle_full --trace 7,68
+    python studies/planning.py --changes boxes=3 --methods ours,lidar_reg,oracle_full
 
 and writes ``OUT/planning.json`` (command, scenario, per-trial records),
 ``planning.png``, ``plan_calibration.png`` and ``pruned_maps.png``.
@@ -23,7 +24,12 @@ from dataclasses import asdict
 from pathlib import Path
 
 from topodrake.apps import argtypes as at
-from topodrake.apps.study_args import add_scenario_arguments, json_object, scenario_of, study_main
+from topodrake.apps.study_args import (
+    add_scenario_arguments,
+    json_object,
+    scenario_of,
+    study_main,
+)
 from topodrake.errors import TopodrakeError
 from topodrake.experiments import plan_report as report
 from topodrake.experiments.plan_scenario import PlanningScenario
@@ -35,6 +41,10 @@ SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "planning.yaml"
 def main(argv=None) -> int:
     ap = at.Parser(description=at.plain(__doc__.split("\n\n")[0]))
     add_scenario_arguments(ap, PlanningScenario, SCENARIOS, "table2")
+    ap.add_argument("--changes", metavar="SPEC",
+                    help="drive every method also in a changed world, on the same trials: "
+                         "boxes=N unmapped boxes on the route, people=N walkers, blocked=1 a "
+                         "closed passage (replanning); e.g. boxes=3,people=2 (default: none)")
     ap.add_argument("--route-time", action="store_true", help="the same as --time-rule route")
     ap.add_argument("--map-config", metavar="YAML", help="map settings (a MapConfig YAML)")
     ap.add_argument("--follower", metavar="JSON", help="follower settings to change, as JSON")
@@ -62,6 +72,7 @@ def _scenario(args) -> PlanningScenario:
     """The scenario of the command line: the named one, the text, the flags."""
     from topodrake.navigation.replan import ReplanSchedule
     from topodrake.topomap.graph import load_map_config
+    from topodrake.world.changes import WorldChanges
 
     changes: dict = {}
     if hasattr(args, "world") != hasattr(args, "houses"):      # one replaces the other
@@ -75,6 +86,8 @@ def _scenario(args) -> PlanningScenario:
     if args.map_config:       # the file's settings where they are not the defaults
         base, given = load_map_config(None).flat(), load_map_config(args.map_config).flat()
         changes["map"] = {k: v for k, v in given.items() if base[k] != v}
+    if args.changes is not None:
+        changes["changes"] = asdict(WorldChanges.parse(args.changes))
     if args.follower:
         changes["follower"] = json_object("--follower", args.follower)
     if args.replan:

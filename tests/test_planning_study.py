@@ -6,12 +6,11 @@ import json
 
 import numpy as np
 import pytest
-
 from study_run import run_study
+
 from topodrake.errors import TopodrakeError
 from topodrake.experiments import plan_trials as pt
 from topodrake.topomap.plan_calibration import calibration
-
 
 # ---------------------------------------------------------------- trials
 
@@ -88,15 +87,26 @@ def test_summary_min_ours_margin_and_nulls():
     assert s["min_ours"] == 0.8
     assert s["min_margin_over_sptm"] == pytest.approx(0.3)
     assert s["plan_probability_ece"] == 0.12 and s["pruned_60_over_peak"] == 0.95
-    assert s["replanning_gain"] is None and s["unmapped_obstacles"] is None
+    assert s["replanning_gain"] is None and s["changed_world"] is None
     json.dumps(s)
-    with_obstacles = house(0.9, 0.4, 10)
-    with_obstacles["methods"]["ours_obstacles"] = {"success": 0.5, "trials": 10}
-    other = house(0.9, 0.4, 10)
-    other["methods"]["ours_obstacles"] = {"success": 0.8, "trials": 5}
-    s = pt.summarize({"a": with_obstacles, "b": other}, None, None)
-    assert s["unmapped_obstacles"] == pytest.approx(0.6)   # (5 + 4) / 15 trials
-    assert s["houses"]["a"]["ours_obstacles"] == 0.5
+    # a changed world: each method's trials driven as mapped and changed, paired
+    def rec(house, method, trial, success, outcome="goal"):
+        return {"house": house, "method": method, "trial": trial, "success": success,
+                "outcome": outcome}
+
+    a, b = house(0.9, 0.4, 10), house(0.9, 0.4, 10)
+    a["records"] = [rec("a", "ours_unchanged", t, True) for t in range(4)] + \
+        [rec("a", "ours", 0, True), rec("a", "ours", 1, False, "collision"),
+         rec("a", "ours", 2, False, "dead_reckoning_gave_up"), rec("a", "ours", 3, True)]
+    b["records"] = [rec("b", "ours_unchanged", 0, False), rec("b", "ours", 0, True),
+                    rec("b", "ours_unchanged", 1, True, "no_room"),
+                    rec("b", "ours", 1, False, "no_room")]
+    s = pt.summarize({"a": a, "b": b}, None, None)
+    cw = s["changed_world"]["ours"]
+    assert (cw["trials"], cw["success"], cw["unchanged"], cw["no_room"]) == (5, 0.6, 0.8, 1)
+    assert cw["ratio"] == pytest.approx(0.75) and cw["collisions"] == 0.2
+    assert cw["difference"]["mean"] == pytest.approx(-0.2) and cw["difference"]["pairs"] == 5
+    assert cw["outcomes"] == {"collision": 1, "dead_reckoning_gave_up": 1, "goal": 3}
     only_lidar = pt.summarize({"h": {"methods": {"lidar": {"success": 0.5}}}}, None, None)
     assert only_lidar["min_ours"] is None and only_lidar["min_margin_over_sptm"] is None
 
@@ -214,11 +224,18 @@ def test_table2_is_the_default_run_and_every_named_scenario_loads():
     # the text changes fields over the scenario, nested ones key by key
     sc = load_scenario(PlanningScenario, path, "table2",
                        "{trials: 7, changes: {boxes: 5}, follower: {legs_m: 0}}")
-    assert (sc.trials, sc.changes.boxes, sc.changes.trials, sc.houses) == (7, 5, 10, HOUSES)
+    assert (sc.trials, sc.changes.boxes, sc.changes.people, sc.houses) == (7, 5, 0, HOUSES)
+    for name, changed in (("boxes", "boxes"), ("people", "people"), ("blocked", "blocked")):
+        named = load_scenario(PlanningScenario, path, name)
+        assert getattr(named.changes, changed) > 0 and "oracle_full" in named.methods
+    with pytest.raises(TopodrakeError, match="blocked closes at most 1"):
+        load_scenario(PlanningScenario, path, "table2", "{changes: {blocked: 2}}")
     # a planning.json gives back the scenario it ran (one written before scenarios: its config)
     from dataclasses import asdict
 
     assert PlanningScenario.from_record({"scenario": asdict(real)}) == real
+    recorded = {**asdict(real), "changes": {"trials": 10, "boxes": 3}}   # ours_obstacles' boxes
+    assert PlanningScenario.from_record({"scenario": recorded}) == real
     old = PlanningScenario.from_record({"config": {"houses": ["test-1"], "t_max_s": 300.0,
                                                    "route_time": True, "trials": 7}})
     assert (old.specs, old.time_limit, old.route_time, old.trials) == (["test-1"], 300.0, True, 7)
@@ -249,12 +266,13 @@ def test_the_command_line_builds_its_scenario_and_flags_change_it(tmp_path):
         run_study("planning", "--scenario", "outcome_check", "--print-config")[1])
     code, out, err = run_study(
         "planning", "--scenario", "real_buildings", "--scenario-text", "{trials: 20}",
-        "--obstacles", "4", "--follower", '{"legs_m": 0}', "--replan", "paper", "--houses",
+        "--changes", "boxes=4", "--follower", '{"legs_m": 0}', "--replan", "paper", "--houses",
         "test-1", "--print-config")
     assert code == 0, err
     sc = yaml.safe_load(out)
     assert sc["world"] is None and sc["houses"] == ["test-1"] and sc["trials"] == 20
-    assert sc["changes"] == {"trials": 10, "boxes": 4} and sc["follower"] == {"legs_m": 0}
+    assert sc["changes"] == {"boxes": 4, "people": 0, "blocked": 0}
+    assert sc["follower"] == {"legs_m": 0}
     assert sc["replan"]["first"] == 5 and sc["time_rule"] == "route"
     (tmp_path / "off.yaml").write_text("scan_match: 0\n")
     code, out, err = run_study("planning", "--map-config", tmp_path / "off.yaml",
@@ -263,8 +281,8 @@ def test_the_command_line_builds_its_scenario_and_flags_change_it(tmp_path):
 
 
 def test_house_keys_and_seeds():
-    from topodrake.experiments.plan_study import house_seed
     from topodrake.experiments.map_cache import house_key
+    from topodrake.experiments.plan_study import house_seed
 
     assert house_key("/x/maps/willow/map.yaml") == "willow-map"
     assert house_seed(0, "test-0") == house_seed(0, "test-0") != house_seed(1, "test-0")
@@ -328,24 +346,20 @@ def test_plan_and_follow_on_an_oracle_map_in_the_box_world(box_world):
                                out.success[[p.reachable for p in plans]])
     assert ece is not None and 0.0 <= ece <= 1.0
 
-    # the same trials, each alone with 3 boxes the map never saw on its route
+    # the same trials with 3 boxes the map never saw on each route, batched
+    from topodrake.world.changes import WorldChanges, place_changes
     from topodrake.world.obstacles import _densify
 
-    worlds = []
-
-    def make_engine(w):
-        worlds.append(w)
-        return NavigationEngine(w, AStarOracle(w, k=5), GeometricReachability(w, k=5))
-
     seeds = [np.random.SeedSequence([0, t]) for t in range(len(pairs))]
-    obst, boxes = pt.follow_past_obstacles(box_world, make_engine, starts, routes, goals, seeds,
-                                           n_boxes=3, t_max_s=60.0)
+    changes, placed = place_changes(box_world, pt.route_paths(starts, routes, goals),
+                                    WorldChanges(boxes=3), seeds, starts)
+    obst = pt.follow_routes(engine, starts, routes, goals, t_max_s=60.0, batch=2,
+                            changes=changes)
     planned = [t for t in range(len(pairs)) if routes[t] is not None]
-    assert len(worlds) == len(planned)
-    assert all(len(w.walls) == len(box_world.walls) + 3 for w in worlds)
     for t in planned:
-        assert boxes[t].shape == (3, 4)
-        centres = 0.5 * (boxes[t][:, :2] + boxes[t][:, 2:])
+        boxes = np.array(placed[t]["boxes"])
+        assert boxes.shape == (3, 4)
+        centres = 0.5 * (boxes[:, :2] + boxes[:, 2:])
         route_xy = _densify(np.vstack([starts[t][:2], routes[t].poses[:, :2], goals[t][:2]]), 0.05)
         gap = np.hypot(*(centres[:, None] - route_xy[None]).transpose(2, 0, 1)).min(axis=1)
         assert (gap < 0.2).all()                       # on the planned route
@@ -353,7 +367,7 @@ def test_plan_and_follow_on_an_oracle_map_in_the_box_world(box_world):
     assert set(obst.outcome[:2]) <= {"goal", "reached", "timeout", "collision",
                                      "dead_reckoning_gave_up", "search_failed"}
     if routes[2] is None:
-        assert boxes[2] is None and obst.outcome[2] == "no_plan"
+        assert placed[2] is None and obst.outcome[2] == "no_plan"
 
 
 def test_summary_reports_the_oracle_ablations():
@@ -376,10 +390,10 @@ def test_summary_reports_the_oracle_ablations():
 def test_pose_oracles_follow_a_route_of_images_by_its_anchor_poses(box_world):
     """ours_oracle_follow: a route planned on a camera map carries images; the
     oracles read its anchors' poses instead, and the engine drives it."""
+    from topodrake.contract.route import Route
     from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.navigation.engine import NavigationEngine
     from topodrake.navigation.evaluate import GeometricReachability, encode_routes
-    from topodrake.contract.route import Route
 
     poses = np.array([[2.0, 2.0, 0.0], [3.0, 2.0, 0.0], [4.0, 2.5, 0.5]])
     images = np.zeros((3, 11, 8, 8, 3), np.uint8)          # stands for camera contexts
@@ -437,11 +451,16 @@ def test_false_links_count_links_only_and_long_steps_count_every_step():
 def test_the_method_registry_names_each_method_s_map_follower_and_drive():
     from dataclasses import FrozenInstanceError
 
-    from topodrake.experiments.plan_methods import (FOLLOWERS, MAP_KINDS, METHODS,
-                                                   ORACLE_METHODS, Method)
+    from topodrake.experiments.plan_methods import (
+        FOLLOWERS,
+        MAP_KINDS,
+        METHODS,
+        ORACLE_METHODS,
+        Method,
+    )
 
     assert list(METHODS) == ["ours", "lidar", "lidar_reg", "sptm", "oracle", "ours_replan",
-                             "ours_obstacles", "oracle_full", "ours_oracle_follow", "oracle_cwp",
+                             "oracle_full", "ours_oracle_follow", "oracle_cwp",
                              "lidar_scale", "ours_scale", "lidar_oracle_follow",
                              "lidar_scale_oracle_re", "lidar_oracle_cwp", "lidar_replan",
                              "lidar_reg_replan", "oracle_full_replan", "lidar_reg_oracle_follow",
@@ -454,7 +473,7 @@ def test_the_method_registry_names_each_method_s_map_follower_and_drive():
         assert m.followed_by == FOLLOWERS[m.follower]
         assert m.oracle == (name in ORACLE_METHODS)
     assert {n: m.drive for n, m in METHODS.items() if m.drive != "plain"} == \
-        {"ours_replan": "replan", "ours_obstacles": "obstacles", "lidar_replan": "replan",
+        {"ours_replan": "replan", "lidar_replan": "replan",
          "lidar_reg_replan": "replan", "oracle_full_replan": "replan"}
     for name in ("ours_replan", "lidar_replan", "lidar_reg_replan", "oracle_full_replan"):
         plain = METHODS[name[:-len("_replan")]]
@@ -487,11 +506,10 @@ def test_the_study_writes_each_method_s_follower_into_its_config(tmp_path, monke
     """The study's run with the houses' trials stubbed: it runs the library's
     house job, and planning.json records the scenario and describes each
     method's follower as its Method does."""
-    import topodrake.montecarlo as mc
     from topodrake.experiments import plan_study
     from topodrake.experiments.plan_methods import METHODS
-    from topodrake.navigation.follower import FollowerConfig
     from topodrake.experiments.plan_results import planning
+    from topodrake.navigation.follower import FollowerConfig
 
     jobs_run = []
 
@@ -599,8 +617,8 @@ def test_a_map_written_before_a_setting_it_reads_is_not_the_default_map():
 
 
 def test_maps_of_other_settings_are_cached_under_names_of_their_own(tmp_path):
-    from topodrake.topomap.graph import MapConfig
     from topodrake.experiments.map_cache import config_tag, map_path
+    from topodrake.topomap.graph import MapConfig
 
     assert config_tag("all", None) == config_tag("all", MapConfig()) == "all"
     off = config_tag("all", MapConfig(scan_match=0.0))
@@ -647,7 +665,11 @@ def test_ours_scale_drives_the_camera_c_wp_at_scale_on_the_camera_map():
     C_WP trained at scale; its plan calibration ships beside that C_WP."""
     import torch
 
-    from topodrake.experiments.plan_methods import METHODS, networks, plan_calibration_path
+    from topodrake.experiments.plan_methods import (
+        METHODS,
+        networks,
+        plan_calibration_path,
+    )
 
     assert METHODS["ours_scale"].map == METHODS["ours"].map == "camera"
     cwp, reach = networks("camera_scale")
@@ -700,7 +722,7 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
     failed edges of rounds < r, and the records keep each trial's round."""
     from types import SimpleNamespace
 
-    from topodrake.experiments import plan_study, plan_trials
+    from topodrake.experiments import plan_study
     from topodrake.experiments.plan_scenario import PlanningScenario
     from topodrake.experiments.plan_trials import FollowResult
 
@@ -760,9 +782,9 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
 
 
 def test_the_lidar_ablations_swap_one_network_for_its_oracle():
+    from topodrake.experiments.plan_methods import networks
     from topodrake.learning.waypoint.policy import AStarOracle
     from topodrake.navigation.evaluate import GeometricReachability
-    from topodrake.experiments.plan_methods import networks
     from topodrake.world import load_world
 
     world = load_world("test-0")
@@ -885,12 +907,12 @@ def test_a_map_keeps_its_drives_lidar_scans_and_one_cached_without_is_rebuilt(
     lidar scan as the drive's lidar took it (the route tracker's scan fixes;
     a route planned on it carries them); a cached map without scans is
     built again rather than planned without scan fixes."""
-    from topodrake.topomap.plan import plan_path
     from types import SimpleNamespace
 
-    from topodrake.sensing.lidar import Lidar
     from topodrake.experiments import map_cache
+    from topodrake.sensing.lidar import Lidar
     from topodrake.topomap.mapfile import save_map
+    from topodrake.topomap.plan import plan_path
     from topodrake.world import load_world
 
     world = load_world("test-0")

@@ -3,8 +3,9 @@
 A :class:`Method` names a map kind (the RE a map is built with, the
 geometric oracle, or SPTM's graph), the networks its plans are followed
 with (:func:`networks`), whether it is one of the fast oracle ablations
-(run with ``--oracle-trials`` trials), and how its plans are driven: plainly,
-replanning in dead reckoning, or past unmapped obstacles. :data:`METHODS`
+(run with ``--oracle-trials`` trials), and how its plans are driven: plainly
+or replanning in dead reckoning (every method also drives in a changed
+world when a scenario's ``changes`` say so). :data:`METHODS`
 holds them in the order the study runs and reports them. Here too is each
 method's shipped plan calibration (:func:`plan_calibration_of`) and the
 calibration table of a study's records (:func:`calibration_table`).
@@ -41,9 +42,9 @@ FOLLOWERS = {"camera": "camera k5 C_WP + learned camera k5 RE",
              "lidar_reg_oracle_re": "registration C_WP (lidar teach and repeat) + geometric "
                                     "oracle RE",
              "oracle_cwp_lidar": "A* oracle C_WP + learned lidar k5 RE"}
-#: how a method's plans are driven: followed, followed with replanning in
-#: dead reckoning, or followed one trial at a time past unmapped boxes
-DRIVES = ("plain", "replan", "obstacles")
+#: how a method's plans are driven: followed, or followed with replanning in
+#: dead reckoning
+DRIVES = ("plain", "replan")
 
 
 @dataclass(frozen=True)
@@ -99,9 +100,6 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("ours_replan", map="camera", follower="camera", drive="replan",
            description="ours with replanning: a car in Dead reckoning plans again from where "
                        "it stands, without the edge it fails on (the scenario's replan)"),
-    Method("ours_obstacles", map="camera", follower="camera", drive="obstacles",
-           description="ours in a changed world: unmapped boxes on the planned route (the "
-                       "scenario's changes)"),
     Method("oracle_full", map="oracle", follower="oracle", oracle=True,
            description="perfect perception, the design's ceiling: the oracle map followed by "
                        "the A* oracle C_WP and the geometric oracle RE"),
@@ -141,9 +139,9 @@ METHODS: dict[str, Method] = {m.name: m for m in (
 ORACLE_METHODS = tuple(name for name, m in METHODS.items() if m.oracle)
 #: the planning study's default run: the paper's Table II (ours, lidar, SPTM), the
 #: lidar system with its C_WP trained at scale, the registration controller, the
-#: ceiling, replanning and unmapped obstacles; the other ablations run when named
+#: ceiling and replanning; the other ablations run when named
 DEFAULT_METHODS = ("ours", "lidar", "lidar_scale", "lidar_reg", "sptm", "oracle_full",
-                   "ours_replan", "lidar_replan", "ours_obstacles")
+                   "ours_replan", "lidar_replan")
 
 _NETWORKS: dict = {}
 #: followers with a C_WP trained at scale: (its checkpoint folder, the map

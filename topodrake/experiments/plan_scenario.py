@@ -6,8 +6,8 @@ world), methods, trial counts, the maps' settings (``map``: changes to a
 (``follower``: changes to a :class:`~topodrake.navigation.follower.FollowerConfig`),
 their odometry, the replanning schedule (a
 :class:`~topodrake.navigation.replan.ReplanSchedule`), the time rule, the pruned maps, the
-experience rounds, the changed world of ``ours_obstacles`` (``changes``),
-the seed and where it runs. Named scenarios live in
+experience rounds, the changed world every method also drives in
+(``changes``), the seed and where it runs. Named scenarios live in
 ``studies/scenarios/planning.yaml``; the dataclass's defaults are its
 ``table2`` (the default run). :meth:`PlanningScenario.resolved` fills in
 what depends on the houses (the time rule, the pruned fractions);
@@ -31,6 +31,7 @@ from topodrake.topomap.recalibrate import PRIOR_WEIGHT
 from topodrake.typed_yaml import load_typed_data
 from topodrake.validate import check_count, check_finite, check_positive, check_seed
 from topodrake.world import load_world
+from topodrake.world.changes import WorldChanges
 
 #: the test houses of the default run
 HOUSES = ["test-0", "test-1", "test-2", "test-3", "test-4"]
@@ -53,16 +54,6 @@ def map_config(changes: dict) -> MapConfig:
 
 
 @dataclass
-class Changes:
-    """The world changed after it was mapped: ``ours_obstacles`` runs its
-    first ``trials`` trials of a house, each alone in a copy of the house
-    with ``boxes`` unmapped boxes (0.3-0.6 m) on its planned route."""
-    trials: int = option(10, "trials per house of ours_obstacles (the first of the trials)",
-                         flag="--obstacle-trials")
-    boxes: int = option(3, "unmapped boxes per ours_obstacles trial", flag="--obstacles")
-
-
-@dataclass
 class PlanningScenario:
     """A planning run (the paper's Table II and our ablations); every field
     has the default of the ``table2`` scenario."""
@@ -74,7 +65,10 @@ class PlanningScenario:
     trials: int = option(100, "trials per method and house (paper: 1000)")
     oracle_trials: int = option(100, "trials per house of the oracle ablations")
     trajectories: int | None = option(None, "drives per map, in order (default: all 90)")
-    changes: Changes = option(Changes, "the changed world of ours_obstacles", nested=True)
+    changes: WorldChanges = option(WorldChanges, "what changed in the world since it was "
+                                                 "mapped, on each trial's planned route: boxes, "
+                                                 "people, blocked (each method then runs with "
+                                                 "and without them)", flag="")
     batch: int = option(32, "cars per navigation-engine batch")
     time_limit: float = option(T_MAX_S, "seconds a trial may drive before it times out")
     time_rule: str = option("auto", "'fixed': every trial gets time_limit; 'route': each trial "
@@ -122,8 +116,7 @@ class PlanningScenario:
             check_count(f"{where}: {name}", getattr(self, name))
         if self.trajectories is not None:
             check_count(f"{where}: trajectories", self.trajectories)
-        check_count(f"{where}: changes.trials", self.changes.trials)
-        check_count(f"{where}: changes.boxes", self.changes.boxes)
+        self.changes.check(f"{where}: changes")
         check_positive(f"{where}: time_limit", self.time_limit)
         w = check_finite(f"{where}: experience_prior_weight", self.experience_prior_weight)
         if not w > 0:
@@ -207,7 +200,10 @@ class PlanningScenario:
 
 
         if "scenario" in doc:
-            return load_typed_data(cls, yaml.safe_dump(doc["scenario"]), "recorded scenario")
+            recorded = dict(doc["scenario"])
+            if "trials" in (recorded.get("changes") or {}):     # the boxes of ours_obstacles
+                recorded["changes"] = {}
+            return load_typed_data(cls, yaml.safe_dump(recorded), "recorded scenario")
         c = doc.get("config", {})
         names = {f for f in cls.__dataclass_fields__}
         kept = {k: v for k, v in c.items()
@@ -215,8 +211,7 @@ class PlanningScenario:
         sc = cls(**kept, odometry=c.get("odometry", "perfect"),
                  paper_plans=not c.get("plan_within_time", False),
                  time_limit=float(c.get("t_max_s") or T_MAX_S),
-                 time_rule="route" if c.get("route_time", False) else "fixed",
-                 changes=Changes(c.get("obstacle_trials", 10), c.get("obstacles", 3)))
+                 time_rule="route" if c.get("route_time", False) else "fixed")
         sc.houses = list(c.get("houses", HOUSES))
         defaults = MapConfig().flat()
         recorded = MapConfig.from_dict(c.get("map_config", {}), "recorded map config",

@@ -32,6 +32,7 @@ from topodrake.experiments.plan_trials import (
     longest_link_m,
     pruned_subset,
     render_pose_route,
+    route_paths,
     trial_pairs,
 )
 from topodrake.navigation.engine import NavigationConfig, NavigationEngine
@@ -40,6 +41,7 @@ from topodrake.odometry import odometry_model
 from topodrake.topomap.plan import plan_from_vertex, plan_path
 from topodrake.topomap.sources import drive_observations, view_scans
 from topodrake.world import load_world
+from topodrake.world.changes import place_changes
 
 SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
 
@@ -181,12 +183,15 @@ def plan_time_limit(sc: PlanningScenario) -> float | None:
 
 
 def run_method(method: str, spec: str, world, drives, indices, pairs, starts,
-               sc: PlanningScenario, tag: str = "all", bar=None, progress: bool = False
-               ) -> tuple[dict, list[dict]]:
-    """One method's trials in one house: (stats, per-trial records)."""
+               sc: PlanningScenario, tag: str = "all", bar=None, progress: bool = False,
+               changed: bool = False) -> tuple[dict, list[dict]] | list[tuple]:
+    """One method's trials in one house: (stats, per-trial records). With
+    ``changed`` (and the scenario's ``changes``), the same plans driven
+    twice, as the world was mapped and as it changed: a list of
+    ``(name, stats, records)``, ``<method>_unchanged`` and ``<method>``."""
     places = np.asarray(world.places, np.float64)
     meth = METHODS[method]
-    rounds = experience_rounds(method, sc)
+    rounds = 1 if changed else experience_rounds(method, sc)
     first = len(pairs) if rounds == 1 else round_bounds(len(pairs), rounds)[1]
     round_of = None
     t0 = time.perf_counter()
@@ -197,65 +202,82 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts,
     plan_s = time.perf_counter() - t0
     policy, reach = networks(meth.follower, world)
     odo_seeds = odometry_seeds(sc, spec, len(pairs))
-    if meth.drive == "obstacles":
-        from topodrake.experiments.plan_trials import follow_past_obstacles
-
-        n = min(sc.changes.trials, len(pairs))
-        pairs, starts, routes, prob = pairs[:n], starts[:n], routes[:n], prob[:n]
-        seeds = [np.random.SeedSequence([sc.seed, zlib.crc32(house_key(spec).encode()), t])
-                 for t in range(n)]
-        res, boxes = follow_past_obstacles(
-            world, lambda w: NavigationEngine(w, policy, reach, navigation_config(sc)), starts,
-            routes, places[pairs[:, 1]], seeds, sc.changes.boxes, limits[:n], SUCCESS_M,
-            odometry_seeds=odo_seeds)
-        if bar is not None:
-            bar.update(n)
-    elif meth.drive == "replan":
-        engine = NavigationEngine(world, policy, reach, navigation_config(sc))
-        res = follow_routes(engine, starts, routes, places[pairs[:, 1]], limits,
-                            sc.batch, SUCCESS_M, replan=replan, schedule=sc.replan.check(),
-                            odometry_seeds=odo_seeds)
+    engine = NavigationEngine(world, policy, reach, navigation_config(sc))
+    goals = places[pairs[:, 1]]
+    if meth.drive == "replan":
+        res = follow_routes(engine, starts, routes, goals, limits, sc.batch, SUCCESS_M,
+                            replan=replan, schedule=sc.replan.check(), odometry_seeds=odo_seeds)
         if bar is not None:
             bar.update(len(pairs))
     else:
-        engine = NavigationEngine(world, policy, reach, navigation_config(sc))
-        res = follow_routes(engine, starts[:first], routes, places[pairs[:first, 1]],
-                            limits[:first], sc.batch, SUCCESS_M,
-                            progress=None if bar is None else bar.update,
+        res = follow_routes(engine, starts[:first], routes, goals[:first], limits[:first],
+                            sc.batch, SUCCESS_M, progress=None if bar is None else bar.update,
                             odometry_seeds=odo_seeds[:first])
         if rounds > 1:
             routes, prob, false_links, res, round_of = _later_rounds(
                 method, spec, world, drives, indices, pairs, starts, places, sc, tag, engine,
                 routes, prob, false_links, res, rounds, bar, odo_seeds, limits, progress)
-    key = house_key(spec)
-    records = [{"house": key, "method": method, "map": tag, "trial": t,
-                "start_place": int(a), "goal_place": int(b),
-                "start_pose": [round(float(v), 4) for v in starts[t]],
-                "planned": routes[t] is not None,
-                "plan_probability": None if not np.isfinite(prob[t]) else round(float(prob[t]), 5),
-                "on_time_probability": None if routes[t] is None else
-                round(float(getattr(routes[t], "on_time", 1.0)), 5),
-                "plan_anchors": 0 if routes[t] is None else len(routes[t]),
-                "longest_link_m": None if routes[t] is None else
-                round(longest_link_m(starts[t], routes[t], places[b]), 3),
-                "false_link_m": None if false_links[t] is None else round(false_links[t], 3),
-                "outcome": res.outcome[t], "success": bool(res.success[t]),
-                "final_distance_m": round(float(res.final_distance_m[t]), 3),
-                "steps": int(res.steps[t]), "time_limit_s": round(float(limits[t]), 1),
-                **({"plan_vertices": [int(v) for v in routes[t].vertices],
-                    "visited": int(res.visited[t]), "active": int(res.active[t])}
-                   if routes[t] is not None and meth.map != "sptm" else {}),
-                **({"round": int(round_of[t])} if round_of is not None else {}),
-                **({"plans": int(res.plans[t]), "returns": int(res.returns[t])}
-                   if getattr(res, "plans", None) is not None else {}),
-                **({"boxes": None if boxes[t] is None else np.round(boxes[t], 3).tolist()}
-                   if meth.drive == "obstacles" else {})}
-               for t, (a, b) in enumerate(pairs)]
-    rated = [r for r in records if r["outcome"] != "no_room"]
-    stats = {**size, **_rates(rated or records), "no_room": len(records) - len(rated),
-             "map_and_plan_s": round(plan_s, 1),
-             "follow_s": round(time.perf_counter() - t0 - plan_s, 1)}
-    return stats, records
+    follow_s = time.perf_counter() - t0 - plan_s
+
+    def records_of(res, placed=None):
+        key = house_key(spec)
+        return [{"house": key, "method": method, "map": tag, "trial": t,
+                 "start_place": int(a), "goal_place": int(b),
+                 "start_pose": [round(float(v), 4) for v in starts[t]],
+                 "planned": routes[t] is not None,
+                 "plan_probability": None if not np.isfinite(prob[t]) else
+                 round(float(prob[t]), 5),
+                 "on_time_probability": None if routes[t] is None else
+                 round(float(getattr(routes[t], "on_time", 1.0)), 5),
+                 "plan_anchors": 0 if routes[t] is None else len(routes[t]),
+                 "longest_link_m": None if routes[t] is None else
+                 round(longest_link_m(starts[t], routes[t], places[b]), 3),
+                 "false_link_m": None if false_links[t] is None else round(false_links[t], 3),
+                 "outcome": res.outcome[t], "success": bool(res.success[t]),
+                 "final_distance_m": round(float(res.final_distance_m[t]), 3),
+                 "steps": int(res.steps[t]), "time_limit_s": round(float(limits[t]), 1),
+                 **({"plan_vertices": [int(v) for v in routes[t].vertices],
+                     "visited": int(res.visited[t]), "active": int(res.active[t])}
+                    if routes[t] is not None and meth.map != "sptm" else {}),
+                 **({"round": int(round_of[t])} if round_of is not None else {}),
+                 **({"plans": int(res.plans[t]), "returns": int(res.returns[t])}
+                    if getattr(res, "plans", None) is not None else {}),
+                 **({"changes": placed[t]} if placed is not None else {})}
+                for t, (a, b) in enumerate(pairs)]
+
+    def stats_of(records, seconds):
+        rated = [r for r in records if r["outcome"] != "no_room"]
+        return {**size, **_rates(rated or records), "no_room": len(records) - len(rated),
+                "map_and_plan_s": round(plan_s, 1), "follow_s": round(seconds, 1)}
+
+    records = records_of(res)
+    if not (changed and sc.changes.any):
+        return stats_of(records, follow_s), records
+    t1 = time.perf_counter()
+    seeds = [np.random.SeedSequence([sc.seed, zlib.crc32(house_key(spec).encode()), t])
+             for t in range(len(pairs))]
+    changes, placed = place_changes(world, route_paths(starts, routes, goals), sc.changes,
+                                    seeds, starts)
+    drive = [r if p is not None else None for r, p in zip(routes, placed)]
+    replans = (meth.drive == "replan" or sc.changes.blocked) and replan is not None
+    after = follow_routes(engine, starts, drive, goals, limits, sc.batch, SUCCESS_M,
+                          progress=None if bar is None or replans else bar.update,
+                          replan=replan if replans else None,
+                          schedule=sc.replan.check() if replans else None,
+                          odometry_seeds=odo_seeds, changes=changes)
+    if bar is not None and replans:
+        bar.update(len(pairs))
+    for t, p in enumerate(placed):
+        if routes[t] is not None and p is None:
+            after.outcome[t] = "no_room"
+    changed_records = records_of(after, placed)
+    for r in records:
+        r["method"] = f"{method}_unchanged"
+    for r, c in zip(records, changed_records):       # the same trials as the changed ones
+        if c["outcome"] == "no_room":
+            r["outcome"] = "no_room"
+    return [(f"{method}_unchanged", stats_of(records, follow_s), records),
+            (method, stats_of(changed_records, time.perf_counter() - t1), changed_records)]
 
 
 def experience_rounds(method: str, sc: PlanningScenario) -> int:
@@ -390,10 +412,11 @@ def house_job(seed: int, jobs: dict, scenario: PlanningScenario, quiet: bool = T
               disable=quiet, unit="trial", leave=False) as bar:
         for method in sc.methods:
             t = n_trials[method]
-            stats, records = run_method(method, spec, world, drives, indices, pairs[:t],
-                                        starts[:t], sc, tag=tag, bar=bar, progress=not quiet)
-            out["methods"][method] = stats
-            out["records"].extend(records)
+            ran = run_method(method, spec, world, drives, indices, pairs[:t], starts[:t], sc,
+                             tag=tag, bar=bar, progress=not quiet, changed=sc.changes.any)
+            for name, stats, records in ran if sc.changes.any else [(method, *ran)]:
+                out["methods"][name] = stats
+                out["records"].extend(records)
     if any(METHODS[m].map == "oracle" for m in sc.methods):
         out["oracle_unplanned_pairs"] = unplanned_pairs(spec, world, drives, indices, sc, tag,
                                                         not quiet)

@@ -31,7 +31,6 @@ from topodrake.navigation.engine import NAV_COLLISION, NAV_OUTCOMES
 from topodrake.navigation.outcomes import SUCCESS_M, judge_outcome
 from topodrake.navigation.replan import Replanner
 from topodrake.sensing.observe import observe
-from topodrake.world.obstacles import boxes_on_path, with_boxes
 
 T_MAX_S = 150.0         # 1,500 control periods of 0.1 s
 FALSE_LINK_M = 5.0      # a plan step longer than this in truth joins look-alike places
@@ -126,7 +125,7 @@ class FollowResult:
 def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
                   t_max_s: float = T_MAX_S, batch: int = 32, radius: float = SUCCESS_M,
                   progress=None, replan=None, schedule=None, odometry_seeds=None,
-                  runs: list | None = None) -> FollowResult:
+                  runs: list | None = None, changes=None) -> FollowResult:
     """Drive cars from ``starts`` along ``routes`` (None: no plan, a failed
     trial that is not driven) toward the goal places ``goals`` (n, 3), in
     engine batches of ``batch``, each trial within ``t_max_s`` seconds (one
@@ -139,7 +138,9 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     engine's odometry drifts (default: the trial's index), so a trial's
     odometry does not depend on the batch it drives in. ``runs``: a list
     that gets each batch's (trial indices, engine
-    :class:`~topodrake.navigation.engine.NavigationResult`), for traces."""
+    :class:`~topodrake.navigation.engine.NavigationResult`), for traces.
+    ``changes``: a :class:`~topodrake.world.changes.CarChanges` of the n
+    trials, what each car meets that its map lacks."""
     n = len(starts)
     out = FollowResult.not_driven(starts, goals)
     outcome, dist, success, steps = out.outcome, out.final_distance_m, out.success, out.steps
@@ -159,7 +160,8 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
         seeds = [int(odometry_seeds[i]) if odometry_seeds is not None else i for i in part]
         limit = t_max_s if np.ndim(t_max_s) == 0 else np.asarray(t_max_s, np.float64)[part]
         res = engine.run(np.asarray(starts)[part], [routes[i] for i in part], t_max_s=limit,
-                         watch=watch, replanner=replanner, odometry_seeds=seeds)
+                         watch=watch, replanner=replanner, odometry_seeds=seeds,
+                         changes=None if changes is None else changes.take(part))
         if runs is not None:
             runs.append((part, res))
         for j, i in enumerate(part):
@@ -179,41 +181,14 @@ def follow_routes(engine, starts: np.ndarray, routes: list, goals: np.ndarray,
     return out
 
 
-def follow_past_obstacles(world, make_engine, starts: np.ndarray, routes: list,
-                          goals: np.ndarray, seeds, n_boxes: int = 3, t_max_s: float = T_MAX_S,
-                          radius: float = SUCCESS_M,
-                          odometry_seeds=None) -> tuple[FollowResult, list]:
-    """Each planned trial alone, in its own copy of ``world`` with
-    ``n_boxes`` boxes that the map never saw placed on its planned route
-    (:func:`topodrake.world.obstacles.boxes_on_path` over the start, the
-    route's anchor poses and the goal place, seeded by ``seeds[i]``);
-    ``make_engine(world)`` gives the engine. Returns the follow result and
-    each trial's boxes (None without a plan, or where the route leaves no
-    room to place them without closing the way: outcome ``no_room``, not
-    driven and left out of the success rate by the caller). ``odometry_seeds``
-    as for :func:`follow_routes`."""
-    n = len(starts)
-    out = FollowResult.not_driven(starts, goals)
-    boxes: list = [None] * n
-    for i in range(n):
-        if routes[i] is None:
-            continue
-        path = np.vstack([np.asarray(starts[i])[None, :2], np.asarray(routes[i].poses)[:, :2],
-                          np.asarray(goals[i])[None, :2]])
-        try:
-            boxes[i] = boxes_on_path(world, path, n_boxes, np.random.default_rng(seeds[i]))
-        except TopodrakeError:
-            out.outcome[i] = "no_room"
-            continue
-        res = follow_routes(make_engine(with_boxes(world, boxes[i])), np.asarray(starts)[[i]],
-                            [routes[i]], np.asarray(goals)[[i]],
-                            t_max_s if np.ndim(t_max_s) == 0 else np.asarray(t_max_s)[[i]], 1,
-                            radius,
-                            odometry_seeds=None if odometry_seeds is None else
-                            [odometry_seeds[i]])
-        out.outcome[i], out.final_distance_m[i] = res.outcome[0], res.final_distance_m[0]
-        out.success[i], out.steps[i] = res.success[0], res.steps[0]
-    return out, boxes
+def route_paths(starts: np.ndarray, routes: list, goals: np.ndarray) -> list:
+    """Each planned trial's path in truth (None without a plan): its start,
+    its route's anchor poses and its goal place, (K, 2); where the
+    changes of a changed world are put."""
+    return [None if r is None else
+            np.vstack([np.asarray(s)[None, :2], np.asarray(r.poses)[:, :2],
+                       np.asarray(g)[None, :2]])
+            for s, r, g in zip(starts, routes, goals)]
 
 
 def longest_link_m(start, route, goal) -> float:
@@ -295,12 +270,41 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
             if st.get("false_link_plans") is not None:
                 shares.setdefault(m, []).append(st["false_link_plans"])
     out["false_link_plans"] = {m: round(float(np.mean(v)), 4) for m, v in shares.items()}
-    # unmapped obstacles: the success over all such trials of all houses
-    obst = [h["methods"]["ours_obstacles"] for h in houses.values()
-            if "ours_obstacles" in h["methods"] and h["methods"]["ours_obstacles"]["trials"]]
-    n_obst = sum(o["trials"] for o in obst)
-    out["unmapped_obstacles"] = (round(sum(o["success"] * o["trials"] for o in obst) / n_obst, 4)
-                                 if n_obst else None)
+    records = [r for h in houses.values() for r in h.get("records", [])]
+    out["changed_world"] = changed_world(records) if any(
+        r["method"].endswith("_unchanged") for r in records) else None
+    return out
+
+
+def changed_world(records: list[dict]) -> dict:
+    """Per method driven in a changed world and as mapped (``<m>`` and
+    ``<m>_unchanged`` records of the same trials, ``no_room`` trials left
+    out): its success pooled over the houses both ways, their ratio, the
+    paired difference (95 % interval resampled within houses), the changed
+    drives' outcome mix and collision share."""
+    from topodrake.montecarlo import paired_difference
+
+    out = {}
+    for name in sorted({r["method"][:-len("_unchanged")] for r in records
+                        if r["method"].endswith("_unchanged")}):
+        before = {(r["house"], r["trial"]): r for r in records
+                  if r["method"] == f"{name}_unchanged" and r["outcome"] != "no_room"}
+        after = {(r["house"], r["trial"]): r for r in records
+                 if r["method"] == name and r["outcome"] != "no_room"}
+        keys = sorted(set(before) & set(after))
+        if not keys:
+            continue
+        b = np.array([before[k]["success"] for k in keys], float)
+        a = np.array([after[k]["success"] for k in keys], float)
+        outcomes = [after[k]["outcome"] for k in keys]
+        out[name] = {"trials": len(keys), "success": round(float(a.mean()), 4),
+                     "unchanged": round(float(b.mean()), 4),
+                     "ratio": round(float(a.mean() / b.mean()), 4) if b.mean() > 0 else None,
+                     "difference": paired_difference(b, a, np.array([k[0] for k in keys])),
+                     "collisions": round(outcomes.count("collision") / len(keys), 4),
+                     "outcomes": {o: outcomes.count(o) for o in sorted(set(outcomes))},
+                     "no_room": sum(r["method"] == name and r["outcome"] == "no_room"
+                                    for r in records)}
     return out
 
 

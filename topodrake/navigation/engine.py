@@ -41,7 +41,13 @@ from topodrake.navigation.evaluate import (
     initial_track,
     stack_features,
 )
-from topodrake.navigation.follower import FollowerConfig, FollowerState, Mode, Reason, follower_step
+from topodrake.navigation.follower import (
+    FollowerConfig,
+    FollowerState,
+    Mode,
+    Reason,
+    follower_step,
+)
 from topodrake.navigation.manoeuvre import Manoeuvres
 from topodrake.navigation.replan import kept_features, search_would_start
 from topodrake.odometry import Odometry, OdometryConfig, odometry_to_world
@@ -49,6 +55,7 @@ from topodrake.rollout import RolloutConfig, standard_normal_noise
 from topodrake.sensing.camera import Camera
 from topodrake.sensing.lidar import Lidar
 from topodrake.vehicle import in_collision, vehicle_step
+from topodrake.world.changes import CarChanges
 
 RUNNING, NAV_REACHED, NAV_COLLISION, NAV_TIMEOUT, NAV_SEARCH_FAILED, NAV_DR_GAVE_UP, NAV_DIVERGED = \
     range(7)
@@ -117,9 +124,10 @@ class NavigationEngine:
         if self.kind == "camera":
             self.camera = Camera(world, getattr(policy, "sensor", None) or cfg.camera)
 
-    def observe(self, states: np.ndarray, ranges: np.ndarray) -> np.ndarray | None:
+    def observe(self, states: np.ndarray, ranges: np.ndarray,
+                extra: np.ndarray | None = None) -> np.ndarray | None:
         if self.kind == "camera":
-            return self.camera.render(states[:, :3])
+            return self.camera.render(states[:, :3], extra)
         return ranges if self.kind == "lidar" else None
 
     def _startable(self, observations, states, odometry, ranges, encoded: dict):
@@ -141,7 +149,8 @@ class NavigationEngine:
     def run(self, starts: np.ndarray, routes, *, features: RouteFeatures | None = None,
             seeds=None, noise: np.ndarray | None = None, t_max_s=None,
             watch: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
-            progress=None, replanner=None, odometry_seeds=None) -> NavigationResult:
+            progress=None, replanner=None, odometry_seeds=None,
+            changes: CarChanges | None = None) -> NavigationResult:
         """Drive cars from ``starts`` (N, 3) along ``routes`` (N routes;
         ``features``: their :func:`encode_routes`, computed if not given).
         Noise as in :meth:`topodrake.rollout.ExpertRollout.run`. ``t_max_s``:
@@ -150,7 +159,9 @@ class NavigationEngine:
         :class:`~topodrake.navigation.replan.Replanner` over these N cars
         and routes (its bookkeeping is the caller's to read afterwards).
         ``odometry_seeds`` (N,) draw each car's odometry errors (default:
-        the car's index)."""
+        the car's index). ``changes``: what each car meets that its map
+        lacks (boxes, walkers, a closed door), seen by its sensors and
+        counted in collisions; the walkers move every period."""
         cfg = self.config.rollout
         veh = cfg.vehicle
         starts = np.asarray(starts, np.float64).reshape(-1, 3)
@@ -191,12 +202,13 @@ class NavigationEngine:
             if cars.size == 0:
                 break
             st = state[cars]
-            ranges = self.lidar.scan(st[:, :3])
+            extra = None if changes is None else changes.faces(cars)
+            ranges = self.lidar.scan(st[:, :3], extra)
             fs = follower.take(cars)
             odo = st.copy()
             odo[:, :3] = odometry.poses[cars]
             ev = Evaluator(self.policy, self.reach, features, route_of[cars],
-                           self.observe(st, ranges), poses=st[:, :3], track=fs.track,
+                           self.observe(st, ranges, extra), poses=st[:, :3], track=fs.track,
                            odometry=odo[:, :3], lidar=cfg.lidar, ranges=ranges)
             fs, out = follower_step(fs, n_anchors[cars], odo, ev, self.config.follower)
             if manoeuvres is not None:
@@ -230,6 +242,9 @@ class NavigationEngine:
             active_log[cars, k] = fs.active
             poses[cars, k + 1:] = state[cars, None, :3]
             hit = in_collision(state[cars], clearance, veh)
+            if changes is not None:
+                hit |= changes.touching(cars, state[cars], veh)
+                changes.step(veh.dt, cars, state[cars, :2])
             outcome[cars[hit]] = NAV_COLLISION
             ended = follower_outcome(fs)
             fin = ~hit & (ended != RUNNING)

@@ -17,7 +17,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.sensing.config import CameraConfig
-from topodrake.sensing.raycast import cast
+from topodrake.sensing.raycast import cast, cast_extra, extra_faces
 from topodrake.sensing.scene import scene_of
 from topodrake.world.textures import TEXELS, TILE_M
 
@@ -51,9 +51,10 @@ def _plane_texel(tex_grid, fine, textures, px, py):
 
 @nb.njit(cache=True, fastmath=True)
 def _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine, textures,
-                 poses, k, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb, rgb_out,
+                 poses, k, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb, extra, rgb_out,
                  depth_out):
-    """Render image ``k`` of the batch (one column ray, then the rows)."""
+    """Render image ``k`` of the batch (one column ray, then the rows);
+    ``extra[k]``: the faces image ``k`` sees besides the scene's."""
     width = xn.shape[0]
     height = yn.shape[0]
     wall_h = grid[5]
@@ -67,11 +68,15 @@ def _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine,
         dy = st - xn[j] * ct
         inv_norm = 1.0 / math.sqrt(dx * dx + dy * dy)
         t, f, s = cast(faces, cell_start, cell_faces, grid, ox, oy, dx, dy, max_depth)
-        if f >= 0:
-            u = faces[f, 4] + s * faces[f, 5]
+        if extra.shape[1] > 0:
+            t, f, s = cast_extra(extra[k], ox, oy, dx, dy, max_depth, t, f, s)
+        row = faces[f] if f >= 0 else extra[k, -2 - f] if f <= -2 else faces[0]
+        if f != -1:
+            u = row[4] + s * row[5]
             tu = int(math.floor(u * scale)) % TEXELS
-            tid = int(faces[f, 7])
-            wall_shade = faces[f, 6] * math.exp(-FOG * t / inv_norm)
+            tid = int(row[7])
+            wall_shade = row[6] * math.exp(-FOG * t / inv_norm)
+            f = 0
         for i in range(height):
             y = yn[i]
             z = cam_h - y * t if f >= 0 else (cam_h - y * 1e9)
@@ -118,22 +123,22 @@ def _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine,
 # so numba's on-disk cache keeps them apart.
 @nb.njit(cache=True)
 def _render_serial(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine, textures,
-                   poses, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb, rgb_out,
-                     depth_out):
+                   poses, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb, extra, rgb_out,
+                   depth_out):
     for k in range(poses.shape[0]):
         _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine,
                      textures, poses, k, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb,
-                     rgb_out, depth_out)
+                     extra, rgb_out, depth_out)
 
 
 @nb.njit(cache=True, parallel=True)
 def _render_parallel(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine, textures,
-                     poses, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb, rgb_out,
+                     poses, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb, extra, rgb_out,
                      depth_out):
     for k in nb.prange(poses.shape[0]):
         _render_pose(faces, cell_start, cell_faces, grid, floor_tex, ceil_tex, fine,
                      textures, poses, k, xn, yn, plane_shade, fwd, cam_h, max_depth, want_rgb,
-                     rgb_out, depth_out)
+                     extra, rgb_out, depth_out)
 
 
 from topodrake.sensing.raycast import SERIAL_BELOW  # noqa: E402
@@ -157,21 +162,23 @@ class Camera:
         ray_len = np.sqrt(1.0 + self._xn ** 2)
         self._plane_shade = np.exp(-FOG * plane_t[:, None] * ray_len[None, :])
 
-    def _run(self, poses, want_rgb: bool):
+    def _run(self, poses, want_rgb: bool, extra=None):
         c = self.config
         poses = check_poses(poses)
         n = len(poses)
+        extra = extra_faces(extra, n)
         rgb = np.empty((n, c.height, c.width, 3) if want_rgb else (1, 1, 1, 3), np.uint8)
         depth = np.empty((1, 1, 1) if want_rgb else (n, c.height, c.width), np.float32)
         kernel = _render_serial if n < SERIAL_BELOW else _render_parallel
         kernel(*self._scene, poses, self._xn, self._yn, self._plane_shade, c.forward_m, c.height_m,
-               c.max_depth_m, want_rgb, rgb, depth)
+               c.max_depth_m, want_rgb, extra, rgb, depth)
         return rgb if want_rgb else depth
 
-    def render(self, poses) -> np.ndarray:
-        """RGB images (N, H, W, 3) uint8 for car poses (N, 3) (or one pose -> (1, H, W, 3))."""
-        return self._run(poses, True)
+    def render(self, poses, extra: np.ndarray | None = None) -> np.ndarray:
+        """RGB images (N, H, W, 3) uint8 for car poses (N, 3) (or one pose -> (1, H, W, 3));
+        ``extra`` (N, F, 8): each car's faces that the world lacks."""
+        return self._run(poses, True, extra)
 
-    def render_depth(self, poses) -> np.ndarray:
+    def render_depth(self, poses, extra: np.ndarray | None = None) -> np.ndarray:
         """z-depth images (N, H, W) float32 in metres; ``inf`` beyond ``max_depth_m``."""
-        return self._run(poses, False)
+        return self._run(poses, False, extra)

@@ -24,12 +24,14 @@ class Lidar:
         f = self.config.forward_m
         return poses[:, :2] + f * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
 
-    def scan(self, poses) -> np.ndarray:
-        """Ranges (N, beams) float32 in metres; ``inf`` where a beam hits nothing in range."""
+    def scan(self, poses, extra: np.ndarray | None = None) -> np.ndarray:
+        """Ranges (N, beams) float32 in metres; ``inf`` where a beam hits nothing in range.
+        ``extra`` (N, F, 8): each car's faces that the world lacks
+        (:meth:`topodrake.world.changes.CarChanges.faces`)."""
         poses = check_poses(poses)
         return cast_fan(*self._scene, np.ascontiguousarray(self.origins(poses)),
                         np.ascontiguousarray(poses[:, 2]), self._offsets,
-                        float(self.config.range_m))
+                        float(self.config.range_m), extra)
 
     def points(self, poses, ranges: np.ndarray | None = None):
         """World hit points (N, beams, 2) and a validity mask (N, beams)."""
