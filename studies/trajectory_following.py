@@ -20,13 +20,20 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 from topodrake.apps import argtypes as at
-from topodrake.apps.study_args import add_scenario_arguments, json_object, scenario_of, study_main
+from topodrake.apps.study_args import (
+    add_scenario_arguments,
+    json_object,
+    scenario_of,
+    study_main,
+)
 from topodrake.experiments.follow_scenario import FollowingScenario
 from topodrake.experiments.follow_study import following
 from topodrake.fileio import atomic_write_json
+from topodrake.world.changes import WorldChanges
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "trajectory_following.yaml"
 
@@ -41,6 +48,9 @@ def main(argv=None) -> int:
                                       "answers the follower")):
         ap.add_argument(flag, action="append", metavar="NAME=CHECKPOINT", help=what + "; repeatable")
     ap.add_argument("--follower", metavar="JSON", help="follower settings to change, as JSON")
+    ap.add_argument("--changes", metavar="SPEC",
+                    help="also follow each drive in a changed world: boxes=N, people=N, "
+                         "blocked=1 (e.g. boxes=3; default: none)")
     ap.add_argument("--out", default="results", help="output folder")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -58,6 +68,8 @@ def _scenario(args) -> FollowingScenario:
             changes[key] = dict(o.partition("=")[::2] for o in items)
     if args.follower:
         changes["follower"] = json_object("--follower", args.follower)
+    if args.changes is not None:
+        changes["changes"] = asdict(WorldChanges.parse(args.changes))
     return scenario_of(FollowingScenario, args, SCENARIOS, changes)
 
 

@@ -45,10 +45,14 @@ def summary_lines(summary: dict, tables: dict) -> list[str]:
     """Each controller's covers at the headline p, then each sensitivity table."""
     out = []
     for name, s in summary.items():
-        f = {k: "-" if v is None else f"{v:.3f}" for k, v in s.items()}
+        f = {k: "-" if v is None else f"{v:.3f}" for k, v in s.items()
+             if not isinstance(v, dict)}
         out.append(f"{name:<10} cover {f['cover']}, oracle {f['cover_oracle']}, "
                    f"oracle RE {f['cover_oracle_re']}, noisy {f['cover_noisy']}, every n-th "
                    f"{f['cover_subsampled']} at {s['anchors_per_m']:.2f} anchors/m")
+        if "cover_changed" in s:
+            out.append(f"{'':<10} changed world: cover {f['cover_changed']}, oracle "
+                       f"{f['cover_changed_oracle']}")
     for name, t in tables.items():
         out.append(f"{name} RE chains at p = {t['p_sparsify']}, oracle C_WP with {t['key']}:")
         for row in t["rows"]:

@@ -20,7 +20,13 @@ from topodrake.experiments.follow_trials import CONTROLLERS
 from topodrake.experiments.plan_scenario import HOUSES, Setting, follower_config
 from topodrake.experiments.scenarios import option
 from topodrake.odometry import odometry_model
-from topodrake.validate import check_count, check_fraction, check_nonnegative, check_seed
+from topodrake.validate import (
+    check_count,
+    check_fraction,
+    check_nonnegative,
+    check_seed,
+)
+from topodrake.world.changes import WorldChanges
 
 #: the kinds of run a controller's chains can be followed in
 RUNS = ("re", "subsampled", "noisy", "oracle", "oracle_re")
@@ -49,6 +55,10 @@ class FollowingScenario:
                              "runs to make, of " + ", ".join(RUNS) + " (noisy, oracle and "
                              "oracle_re at the headline p only); figures of runs left out are "
                              "null")
+    changes: WorldChanges = option(WorldChanges, "what the cars meet on their drives that the "
+                                                 "routes never saw (boxes, people, blocked): "
+                                                 "runs 'changed' (and 'changed_oracle' beside "
+                                                 "'oracle') at the headline p", flag="")
     follower: dict[str, Setting] = option({}, "follower settings to change (FollowerConfig "
                                               "fields)", flag="")
     odometry: str = option("wheel", "the cars' and the drives' odometry: the true pose, or "
@@ -68,6 +78,7 @@ class FollowingScenario:
         check_seed(f"{where}: seed", self.seed)
         check_nonnegative(f"{where}: noise", self.noise)
         check_fraction(f"{where}: slack", self.slack)
+        self.changes.check(f"{where}: changes")
         if not self.p or any(not 0 < p < 1 for p in self.p):
             raise TopodrakeError(f"{where}: p values must be in (0, 1), got {self.p}")
         if not 0 < self.headline_p < 1:

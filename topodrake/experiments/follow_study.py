@@ -93,6 +93,8 @@ def following(scenario: FollowingScenario, command: str, out: str | Path = "resu
     headline = any(abs(p - sc.headline_p) < 1e-9 for p in ps)
     per_p = ("re" in runs) + ("subsampled" in runs)
     at_headline = len(runs & {"noisy", "oracle", "oracle_re"}) if headline else 0
+    if headline and sc.changes.any:
+        at_headline += 1 + ("oracle" in runs)
     steps = len(specs) * (per_p * len(ps) + at_headline + (len(table[1]) if table else 0))
     results = {}
     with tqdm(total=steps, desc="trajectory following", disable=quiet, unit="sweep") as bar:
@@ -108,6 +110,10 @@ def following(scenario: FollowingScenario, command: str, out: str | Path = "resu
         summary[name] = {k: (round(q[k], 4) if k in q else None)
                          for k in ("cover", "cover_noisy", "cover_subsampled", "cover_oracle",
                                    "cover_oracle_re")}
+        if sc.changes.any:          # the same drives in the changed world
+            summary[name].update({k: (round(q[k], 4) if q.get(k) is not None else None)
+                                  for k in ("cover_changed", "cover_changed_oracle")})
+            summary[name]["outcomes_changed"] = q.get("outcomes_changed")
         summary[name]["anchors_per_m"] = q["anchors_per_m"]
     tables = {name: r["sensitivity"] for name, r in results.items() if "sensitivity" in r}
     return {

@@ -31,7 +31,12 @@ from topodrake.learning.reachability.controllers import (
 from topodrake.learning.waypoint import noisy_oracle
 from topodrake.learning.waypoint.noisy_oracle import is_oracle_spec, parse_oracle_spec
 from topodrake.montecarlo import trial_seeds
-from topodrake.navigation.chains import DIVERGE_M, TOLERANCE_M, follow_chains_once, path_length
+from topodrake.navigation.chains import (
+    DIVERGE_M,
+    TOLERANCE_M,
+    follow_chains_once,
+    path_length,
+)
 from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
 from topodrake.navigation.follower import FollowerConfig
 from topodrake.rollout import ExpertRollout, RolloutConfig
@@ -210,7 +215,7 @@ def every_nth(n_frames: int, n: int) -> np.ndarray:
 def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, seed, batch,
                   noisy, follower=None, cache: RunCache | None = None, tag: str = "",
                   oracle: bool = False, key: dict | None = None, odometry=None,
-                  oracle_re: bool = False) -> tuple[np.ndarray, list[str]]:
+                  oracle_re: bool = False, changes=None) -> tuple[np.ndarray, list[str]]:
     """Cover (M,) and outcomes of following chains[m] of trajs[m] (one
     engine batch per world and chunk of ``batch`` chains; finished batches
     are kept in ``cache`` under ``tag``). ``policy``: a C_WP, or a function
@@ -222,7 +227,10 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
     geometric oracle RE in the follower's place (the chains stay those of
     ``reach``: what RE's answers cost the follower). ``key``: more settings
     the cached batches depend on.
-    ``odometry``: the cars' (and the drives') odometry model (default perfect)."""
+    ``odometry``: the cars' (and the drives') odometry model (default perfect).
+    ``changes``: a :class:`~topodrake.world.changes.WorldChanges` each car
+    meets on its drive (a drive with no room for them: cover NaN, outcome
+    ``no_room``)."""
     m_all = len(chains)
     cover = np.zeros(m_all)
     outcomes = [""] * m_all
@@ -256,14 +264,16 @@ def follow_chains(world_of, trajs, obs, chains, policy, reach, wide, noise_std, 
                 continue
             engine = NavigationEngine(world, policy(world) if per_world and not oracle else cwp,
                                       re, config)
-            res, watch = follow_chains_once(
+            res, watch, *placed = follow_chains_once(
                 engine, [trajs[m]["poses"] for m in part],
                 [trajs[m]["poses"] if oracle else obs[m] for m in part],
                 [chains[m] for m in part], wide.k, wide.frame_step, [seeds[m] for m in part],
-                noisy=noisy)
+                noisy=noisy, changes=changes)
             for j, m in enumerate(part):
                 cover[m] = watch.cover(j)
                 outcomes[m] = NAV_OUTCOMES[int(res.outcome[j])]
+                if placed and placed[0][j] is None:
+                    cover[m], outcomes[m] = np.nan, "no_room"
             if cache:
                 cache.put(f"{tag}{name}-{lo}", block, {"cover": [float(cover[m]) for m in part],
                                                      "outcomes": [outcomes[m] for m in part]})
@@ -323,15 +333,20 @@ def run_controller(name, spec, trajs, world_of, sc, bar, *, runs_dir, trajectori
         out["chain_reach"] = chain_path
     runs = set(sc.runs)
 
+    if sc.changes.any:            # the changed world, beside the runs it changes
+        runs |= {"changed"} | ({"changed_oracle"} if "oracle" in runs else set())
+
     def follow(kind, tag, p, chain_list, noisy=False):
         """One kind of run of ``chain_list``: (covers, outcomes); None when not asked for."""
         if kind not in runs:
             return None
+        changed = kind.startswith("changed")
         got = follow_chains(world_of, trajs, obs, chain_list, policy, reach, wide, sc.noise,
                             sc.seed, sc.batch, noisy=noisy, follower=follower,
                             odometry=odometry, cache=cache,
-                            tag=f"{name}-p{p}-{tag}-", oracle=kind == "oracle",
-                            oracle_re=kind == "oracle_re")
+                            tag=f"{name}-p{p}-{tag}-", oracle=kind in ("oracle", "changed_oracle"),
+                            oracle_re=kind == "oracle_re",
+                            changes=sc.changes if changed else None)
         bar.update()
         return got
 
@@ -349,12 +364,19 @@ def run_controller(name, spec, trajs, world_of, sc, bar, *, runs_dir, trajectori
                 ("subsampled", f"every{n}", "_subsampled", sub, False, True),
                 ("noisy", "noisy", "_noisy", chains[p], True, headline),
                 ("oracle", "oracle", "_oracle", chains[p], False, headline),
-                ("oracle_re", "oracle_re", "_oracle_re", chains[p], False, headline)):
+                ("oracle_re", "oracle_re", "_oracle_re", chains[p], False, headline),
+                ("changed", f"changed-{sc.changes.label}", "_changed", chains[p], False,
+                 headline),
+                ("changed_oracle", f"changed-oracle-{sc.changes.label}", "_changed_oracle",
+                 chains[p], False, headline)):
             got = follow(kind, tag, p, chain_list, noisy) if asked else None
             if got is not None:
                 c, o = got
-                point.update({f"cover{suffix}": float(c.mean()), f"outcomes{suffix}": _count(o),
-                              f"covers{suffix}": c.round(4).tolist()})
+                rated = np.isfinite(c)
+                point.update({f"cover{suffix}": float(c[rated].mean()) if rated.any() else None,
+                              f"outcomes{suffix}": _count(o),
+                              f"covers{suffix}": [None if not ok else v for v, ok
+                                                  in zip(c.round(4).tolist(), rated)]})
         out["points"].append(point)
         bar.set_postfix_str(f"{name} p={p}: cover {point.get('cover', float('nan')):.3f}")
     if sensitivity_of:

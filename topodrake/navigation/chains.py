@@ -16,6 +16,7 @@ from topodrake.contract.route import route_from_observations
 from topodrake.rollout import standard_normal_noise
 from topodrake.sensing.observe import camera_scans
 from topodrake.vehicle import VehicleConfig, in_collision
+from topodrake.world.changes import place_changes
 
 TOLERANCE_M = 0.5      # a reference sample is covered when the robot comes this close
 DIVERGE_M = 1.0        # the robot is stopped this far from the reference path
@@ -69,7 +70,8 @@ class PathWatch:
 
 
 def follow_chains_once(engine, references: list[np.ndarray], observations: list, chains: list,
-                       k: int, frame_step: int, seeds, *, noisy: bool = False, record=None):
+                       k: int, frame_step: int, seeds, *, noisy: bool = False, record=None,
+                       changes=None):
     """Follow ``chains[m]`` (anchor frames) of ``references[m]`` (poses of
     an expert drive in ``engine.world``, whose frames' observations for the
     route's anchors are ``observations[m]``; poses for a pose oracle) with
@@ -79,9 +81,12 @@ def follow_chains_once(engine, references: list[np.ndarray], observations: list,
     than ``DIVERGE_M`` from their drive. Under the engine's odometry model the
     routes' legs come from the drive's own drifting odometry (seeds[m] + 2)
     and each car's from seeds[m] + 3. ``record(k, cars, states)``, if
-    given, sees every car's state after each period. Returns the engine's
-    :class:`~topodrake.navigation.engine.NavigationResult` and the
-    :class:`PathWatch` (its ``cover(m)``)."""
+    given, sees every car's state after each period. ``changes``: a
+    :class:`~topodrake.world.changes.WorldChanges` placed on each drive
+    (seeds[m] + 4) that the cars meet and the routes never saw. Returns the
+    engine's :class:`~topodrake.navigation.engine.NavigationResult`, the
+    :class:`PathWatch` (its ``cover(m)``) and, with ``changes``, what was
+    placed per car (None where the drive had no room for it)."""
     modality = engine.kind         # a pose oracle beside a sensor network reads the anchors' poses
     # the legs as the teach drive's odometry measured them (seed + 2), the repeat's own
     # odometry errors from seed + 3
@@ -104,6 +109,10 @@ def follow_chains_once(engine, references: list[np.ndarray], observations: list,
             record(step, cars, states)
         return watch(step, cars, states)
 
+    placed = car_changes = None
+    if changes is not None and changes.any:
+        car_changes, placed = place_changes(engine.world, [np.asarray(r)[:, :2] for r in references],
+                                            changes, [int(s) + 4 for s in seeds], starts)
     res = engine.run(starts, routes, noise=noise, t_max_s=limits, watch=watch_and_record,
-                     odometry_seeds=[int(s) + 3 for s in seeds])
-    return res, watch
+                     odometry_seeds=[int(s) + 3 for s in seeds], changes=car_changes)
+    return (res, watch) if changes is None else (res, watch, placed)
