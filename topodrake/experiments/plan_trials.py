@@ -273,6 +273,14 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
     records = [r for h in houses.values() for r in h.get("records", [])]
     out["changed_world"] = changed_world(records) if any(
         r["method"].endswith("_unchanged") for r in records) else None
+    for name, row in (out["changed_world"] or {}).items():   # what the changes cost to run
+        secs = [sum(h["methods"][m].get("follow_s", 0.0) for h in houses.values()
+                    if m in h["methods"]) for m in (name, f"{name}_unchanged")]
+        steps = [sum(r.get("steps", 0) for r in records if r["method"] == m)
+                 for m in (name, f"{name}_unchanged")]
+        row["follow_s"], row["follow_s_unchanged"] = round(secs[0], 1), round(secs[1], 1)
+        row["seconds_per_step_ratio"] = (round((secs[0] / steps[0]) / (secs[1] / steps[1]), 3)
+                                         if min(secs) > 0 and min(steps) > 0 else None)
     return out
 
 
