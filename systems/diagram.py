@@ -8,6 +8,7 @@ from pydrake.common import RandomDistribution
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, RandomSource, ZeroOrderHold
 from topodrake.systems.car import ActuationNoise, CarPlant
+from topodrake.systems.changes import WorldChangesSource
 from topodrake.systems.control import ExpertWaypoints, RmpController
 from topodrake.systems.scenario import Scenario
 from topodrake.systems.sensors import CameraSensor, LidarSensor
@@ -35,7 +36,9 @@ class Chassis:
     ``CarPlant --state--> ZeroOrderHold`` (``hold``), ``CarPlant --pose-->
     LidarSensor`` (and ``CameraSensor`` when asked), ``RandomSource -->
     ActuationNoise --> CarPlant``, Meshcat when given, and 10 Hz loggers of
-    the pose and of the noise samples. The caller connects something to
+    the pose and of the noise samples; with ``changes``, ``CarPlant --pose-->
+    WorldChangesSource --faces--> LidarSensor, CameraSensor`` (the car's
+    changed world; a run sets it). The caller connects something to
     ``noise.controls_port`` and builds."""
 
     builder: DiagramBuilder
@@ -46,10 +49,11 @@ class Chassis:
     noise: ActuationNoise
     pose_logger: object
     noise_logger: object
+    changes: WorldChangesSource | None = None
 
 
 def add_chassis(b: DiagramBuilder, scenario: Scenario, world, *, camera: bool,
-                meshcat=None) -> Chassis:
+                meshcat=None, changes: bool = False) -> Chassis:
     dt = scenario.vehicle.dt
     car = b.AddNamedSystem("car", CarPlant(scenario.vehicle))
     hold = b.AddNamedSystem("state_hold", ZeroOrderHold(dt, 5))
@@ -69,8 +73,15 @@ def add_chassis(b: DiagramBuilder, scenario: Scenario, world, *, camera: bool,
         cam = b.AddNamedSystem("camera", CameraSensor(world, scenario.camera, dt))
         b.Connect(car.pose_port, cam.pose_port)
         b.ExportOutput(cam.image_port, "image")
+    source = None
+    if changes:
+        source = b.AddNamedSystem("world_changes", WorldChangesSource(dt))
+        b.Connect(car.pose_port, source.pose_port)
+        for sensor in (lidar, cam):
+            if sensor is not None:
+                b.Connect(source.faces_port, sensor.extra_port)
     if meshcat is not None:
-        from topodrake.systems.visualization import MeshcatCar
+        from topodrake.systems.visualization import MeshcatCar, MeshcatChanges
 
         from topodrake.sensing.scenegraph import add_meshcat_world, frame_whole_world
 
@@ -79,11 +90,15 @@ def add_chassis(b: DiagramBuilder, scenario: Scenario, world, *, camera: bool,
         viz = b.AddNamedSystem("meshcat_car", MeshcatCar(meshcat, dt, scenario.lidar))
         b.Connect(car.pose_port, viz.pose_port)
         b.Connect(lidar.ranges_port, viz.ranges_port)
+        if source is not None:
+            shown = b.AddNamedSystem("meshcat_changes", MeshcatChanges(
+                meshcat, dt, float(world.wall_height)))
+            b.Connect(source.changes_port, shown.changes_port)
     pose_logger = LogVectorOutput(car.pose_port, b, dt)
     pose_logger.set_name("pose_log")
     noise_logger = LogVectorOutput(rand.get_output_port(), b, dt)
     noise_logger.set_name("noise_log")
-    return Chassis(b, car, hold, lidar, cam, noise, pose_logger, noise_logger)
+    return Chassis(b, car, hold, lidar, cam, noise, pose_logger, noise_logger, source)
 
 
 def build_expert_diagram(scenario: Scenario, world=None, meshcat=None) -> ExpertDiagram:

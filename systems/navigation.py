@@ -9,6 +9,8 @@
     WaypointSelect --> ManoeuvreGuard --> RmpController <--ranges-- LidarSensor
     (ManoeuvreGuard: the expert's manoeuvres on the car's recent scans; left
     out when the follower's ``manoeuvres`` is off)
+    with a changed world (the scenario's ``changes``):
+    CarPlant --pose--> WorldChangesSource --faces--> LidarSensor, CameraSensor
     with odometry that drifts (the scenario's ``odometry``):
     ZeroOrderHold --> OdometrySensor --odometry--> FollowerFsm, WaypointNet, ManoeuvreGuard,
     and the waypoint goes through OdometryFrame (odometry frame -> world) to the RmpController
@@ -17,7 +19,7 @@
 FollowerFsm runs RE itself (on the route's cached anchor features), so no
 separate ReachabilityEstimator system is wired. :class:`NavigationRunner`
 runs it until the follower ends the run (reached, or gave up), a collision
-or the time limit.
+(with the world or with what changed in it) or the time limit.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from topodrake.navigation.follower import REASONS, FollowerConfig, Mode
 from topodrake.odometry import OdometryConfig
 from topodrake.vehicle import in_collision
 from topodrake.world import load_world, path_length
+from topodrake.world.changes import CarChanges, WorldChanges, place_changes
 
 
 @dataclass
@@ -42,18 +45,33 @@ class NavigationScenario(Scenario):
     checkpoints, the follower's thresholds and what the car's odometry reads
     (YAML keys ``controller``, ``reach``, ``follower``, ``odometry``: an
     :class:`~topodrake.odometry.OdometryConfig`, all zero for the true pose;
-    each run's errors come from its odometry seed)."""
+    each run's errors come from its odometry seed), and ``changes``: what
+    the car meets that its map lacks (a
+    :class:`~topodrake.world.changes.WorldChanges`; each run places them on
+    its route, from its seed)."""
 
     controller: str = "checkpoints/camera_k5/checkpoint.pt"
     reach: str = "checkpoints/reach_camera_k5/checkpoint.pt"
     follower: FollowerConfig = field(default_factory=FollowerConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig.perfect)
     t_max_s: float = 150.0
+    changes: WorldChanges = field(default_factory=WorldChanges)
 
     def validate(self, where: str = "scenario") -> "NavigationScenario":
         super().validate(where)
         self.odometry.check()
+        self.changes.check(f"{where}: changes")
         return self
+
+    def place_changes(self, world, route, start, seed: int) -> tuple[CarChanges, dict | None]:
+        """A run's changes on its planned path (``start``, then the route's
+        anchors, the last its goal), drawn from ``seed``
+        (:func:`~topodrake.world.changes.place_changes`): the changes of
+        the car, and what was placed (None: no room on this route)."""
+        start = np.asarray(start, np.float64)
+        path = np.vstack([start[None, :2], np.asarray(route.poses, np.float64)[:, :2]])
+        changes, placed = place_changes(world, [path], self.changes, [seed], start[None, :3])
+        return changes, placed[0]
 
 
 def load_networks(scenario: NavigationScenario):
@@ -77,6 +95,7 @@ class NavigationDiagram:
     route: object
     odometry: object = None     # the OdometrySensor (None: the follower reads the true pose)
     recorder: object = None     # the DriveRecorder (None: the drive's sensors are not kept)
+    changes: object = None      # the WorldChangesSource (None: the world as mapped)
 
 
 def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *, world=None,
@@ -91,7 +110,10 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     ``state``, ``ranges``, ``controls``, ``waypoint``, ``mode`` and (camera)
     ``image``. ``record_sensors``: keep each period's state, odometry,
     ranges, camera image (the camera is added if the policy reads none) and
-    mode in a :class:`~topodrake.systems.recorder.DriveRecorder`."""
+    mode in a :class:`~topodrake.systems.recorder.DriveRecorder`. With the
+    scenario's ``changes``, a
+    :class:`~topodrake.systems.changes.WorldChangesSource` feeds the sensors
+    (and Meshcat) the car's changed world, which each run places."""
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import LogVectorOutput
     from topodrake.systems.control import ManoeuvreGuard, RmpController
@@ -108,7 +130,7 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     dt = scenario.vehicle.dt
     b = DiagramBuilder()
     c = add_chassis(b, scenario, world, camera=policy.observation == "camera" or record_sensors,
-                    meshcat=meshcat)
+                    meshcat=meshcat, changes=scenario.changes.any)
     drifts = not scenario.odometry.is_perfect
     fsm = b.AddNamedSystem("follower", FollowerFsm(plan, policy, reach, scenario.follower, dt,
                                                    scenario.camera, scenario.lidar, replanner,
@@ -173,7 +195,7 @@ def make_navigation_diagram(scenario: NavigationScenario, plan, meshcat=None, *,
     diagram = b.Build()
     diagram.set_name("topodrake_navigation")
     return NavigationDiagram(diagram, c.car, fsm, net, c.pose_logger, c.noise_logger, mode_logger,
-                             world, scenario, plan, odometry, recorder)
+                             world, scenario, plan, odometry, recorder, c.changes)
 
 
 @dataclass
@@ -189,6 +211,7 @@ class NavigationRunResult(RunResult):
     active: int = -1           # ... and its active anchor
     route: object = None       # the route driven at the end (a replanned one, or the plan)
     plans: int = 1             # routes driven (1 + accepted replans)
+    changes: dict | None = None    # what was placed in the car's world (None: unchanged)
 
     @property
     def outcome(self) -> str:
@@ -211,7 +234,10 @@ class NavigationRunner(DiagramRunner):
         reached, once the car is that close to the route's goal pose (the
         planning study's goal watch), whether or not the follower has
         declared arrival yet. Where the scenario's odometry drifts, its
-        errors come from ``odometry_seed`` (default: ``seed``)."""
+        errors come from ``odometry_seed`` (default: ``seed``). The
+        scenario's changes are placed on the route from ``seed``
+        (:meth:`NavigationScenario.place_changes`); a route with no room
+        for them raises."""
         b = self.built
         world = b.world
         start = world.check_pose(start, "start", free=False)
@@ -223,6 +249,13 @@ class NavigationRunner(DiagramRunner):
         if b.odometry is not None:
             b.odometry.set_start(b.odometry.GetMyMutableContextFromRoot(context), start,
                                  seed if odometry_seed is None else odometry_seed)
+        placed = None
+        if b.changes is not None:
+            changes, placed = b.scenario.place_changes(world, b.route, start, seed)
+            if placed is None:
+                raise TopodrakeError(f"no room for {b.scenario.changes.label} on the route "
+                                     f"from ({start[0]:.2f}, {start[1]:.2f})")
+            b.changes.set_changes(b.changes.GetMyMutableContextFromRoot(context), changes)
         startup = 0.0 if self.warm else self._warm_up()
         replanner = b.follower.replanner
         if replanner is not None:
@@ -259,4 +292,4 @@ class NavigationRunner(DiagramRunner):
             distance_m=path_length(poses[:, :2]),
             probability=float(b.route.probability), visited=int(fs.visited[0]),
             active=int(fs.active[0]), route=route,
-            plans=1 if replanner is None else int(replanner.plans[0]))
+            plans=1 if replanner is None else int(replanner.plans[0]), changes=placed)

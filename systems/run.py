@@ -55,7 +55,10 @@ class RunResult:
 class DiagramRunner:
     """A simulator over one built diagram, reused across runs (a Monte Carlo
     trial only resets the context). ``built`` has ``diagram``, ``car``,
-    ``pose_logger``, ``noise_logger``, ``world`` and ``scenario``."""
+    ``pose_logger``, ``noise_logger``, ``world`` and ``scenario``, and may
+    have ``changes`` (a
+    :class:`~topodrake.systems.changes.WorldChangesSource`: touching what
+    changed is a collision too)."""
 
     def __init__(self, built):
         self.built = built
@@ -81,19 +84,26 @@ class DiagramRunner:
     def _simulate(self, reached, t_max: float, lost=None) -> dict:
         """Advance to ``t_max`` or until ``reached(state)`` (success), a
         collision or ``lost(state)`` (a failure that ends the run early);
-        returns the outcome flags, final state, poses and wall time."""
+        returns the outcome flags, final state, poses and wall time. The
+        check runs after each control period's step, before the next
+        period's updates (the engine's order)."""
         b = self.built
         diagram = b.diagram
         clearance = b.world.grid.clearance_at
         vehicle = b.scenario.vehicle
+        changes = getattr(b, "changes", None)
         flags = {"success": False, "collision": False, "lost": False}
+
+        def touching(root, x) -> bool:
+            return changes is not None and changes.touching(
+                changes.GetMyContextFromRoot(root), x, vehicle)
 
         def monitor(root):
             x = b.car.GetMyContextFromRoot(root).get_continuous_state_vector().CopyToVector()
             if reached(x):
                 flags["success"] = True
                 return EventStatus.ReachedTermination(diagram, "goal reached")
-            if in_collision(x[None], clearance, vehicle)[0]:
+            if in_collision(x[None], clearance, vehicle)[0] or touching(root, x):
                 flags["collision"] = True
                 return EventStatus.ReachedTermination(diagram, "collision")
             if lost is not None and lost(x):

@@ -107,3 +107,79 @@ def test_the_engine_drives_each_car_in_its_own_changed_world(box_world, route, o
     path = hit.poses[0, :int(hit.steps[0]) + 1, :2]
     assert not ((path[:, 0] > 1.5) & (path[:, 0] < 1.9) & (path[:, 1] > 1.0)
                 & (path[:, 1] < 3.0)).any()           # never drives through the box
+
+
+# -- the same changes in the Drake diagram -----------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["lidar", "camera"])
+def test_drake_sensors_see_extra_faces_only_where_connected(box_world, kind):
+    """Unconnected, the ``extra`` port changes nothing: the world alone, as before."""
+    from pydrake.common.value import AbstractValue
+    from pydrake.systems.analysis import Simulator
+
+    from topodrake.sensing.camera import Camera
+    from topodrake.sensing.lidar import Lidar
+    from topodrake.systems.sensors import CameraSensor, LidarSensor
+
+    pose = np.array([2.0, 5.0, 0.0])
+    extra = CarChanges.of([np.array([[3.0, 4.7, 3.6, 5.3]])]).faces([0])
+
+    def sample(connected: bool) -> np.ndarray:
+        sensor = LidarSensor(box_world) if kind == "lidar" else CameraSensor(box_world)
+        context = sensor.CreateDefaultContext()
+        sensor.pose_port.FixValue(context, pose)
+        if connected:
+            sensor.extra_port.FixValue(context, AbstractValue.Make(extra[0]))
+        Simulator(sensor, context).AdvanceTo(0.05)      # the sample of t = 0, held
+        port = sensor.ranges_port if kind == "lidar" else sensor.image_port
+        return np.array(port.Eval(context))
+
+    direct = Lidar(box_world).scan if kind == "lidar" else Camera(box_world).render
+    plain, seen = sample(False), sample(True)
+    np.testing.assert_array_equal(plain, direct(pose[None])[0])
+    np.testing.assert_array_equal(seen, direct(pose[None], extra)[0])
+    assert not np.array_equal(plain, seen)
+
+
+class _Spy:
+    """A Meshcat that notes each call it forwards."""
+
+    def __init__(self, real):
+        self.real, self.calls = real, []
+
+    def __getattr__(self, name):
+        def call(*args, **kwargs):
+            self.calls.append((name, args))
+            return getattr(self.real, name)(*args, **kwargs)
+        return call
+
+
+def test_drake_meshcat_draws_the_box_and_a_walker_that_walks(box_world, route, oracles):
+    import base64
+    import re
+
+    from topodrake.apps.drive import make_recorder
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+
+    viewer = _Spy(make_recorder())
+    sc = NavigationScenario(world="box", camera_enabled=False, t_max_s=8.0,
+                            changes=WorldChanges(boxes=1, people=1))
+    built = make_navigation_diagram(sc, route, viewer, world=box_world, policy=oracles[0],
+                                    reach=oracles[1])
+    result = NavigationRunner(built).run([1.0, 1.8, 0.5], seed=4)
+    drawn = {args[0]: type(args[1]).__name__ for name, args in viewer.calls if name == "SetObject"}
+    assert drawn["/topodrake/changes/still/0"] == "Box"
+    assert drawn["/topodrake/changes/walkers/0/body"] == "Cylinder"
+    steps = [(args[2], args[1].translation()[:2]) for name, args in viewer.calls
+             if name == "SetTransform" and args[0] == "/topodrake/changes/walkers/0"]
+    times = [t for t, _ in steps]
+    assert times[-1] == pytest.approx(result.time_s) and len(steps) > 70
+    walked = np.array([xy for _, xy in steps])
+    assert np.hypot(*(walked[-1] - walked[0])) > 0.5          # it moves in the recording
+    viewer.StopRecording()
+    viewer.PublishRecording()
+    html = viewer.StaticHtml()
+    blobs = b"".join(base64.b64decode(b) for b in
+                     re.findall(r"octet-binary;base64,([A-Za-z0-9+/=]+)", html))
+    assert b"/topodrake/changes/walkers/0" in blobs and b"/topodrake/changes/still/0" in blobs

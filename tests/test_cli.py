@@ -140,6 +140,48 @@ def test_demo_writes_plan_camera_strip_and_meshcat_recording(capsys, tmp_path):
     assert "<html" in html.lower() and len(html) > 10_000
 
 
+def test_demo_with_people_reports_the_changes_and_records_the_walker(capsys, tmp_path,
+                                                                   monkeypatch):
+    """The learned demo in a changed house (cut to 5 s of driving)."""
+    import base64
+    import re
+
+    import topodrake.apps.demo as demo
+
+    drive = demo.drive_route
+
+    def short(scenario, *args, **kwargs):
+        scenario.t_max_s = 5.0
+        return drive(scenario, *args, **kwargs)
+
+    monkeypatch.setattr(demo, "drive_route", short)
+    code, out, _ = run(capsys, "demo", "--people", "1", "--json", "--out", str(tmp_path))
+    summary = json.loads(out)
+    assert summary["changes"] == "people=1"
+    assert summary["placed"] == {"boxes": None, "block": None}
+    assert summary["outcome"] == "timeout" and code == 3
+    html = (tmp_path / "meshcat.html").read_text()
+    blobs = b"".join(base64.b64decode(b) for b in
+                     re.findall(r"octet-binary;base64,([A-Za-z0-9+/=]+)", html))
+    assert b"/topodrake/changes/walkers/0" in blobs
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--people", "-1"], ["--people", ">= 0", "-1"]),
+    (["--boxes", "two"], ["--boxes", "two"]),
+    (["--expert", "--people", "1"], ["--people", "--expert"])])
+def test_demo_refuses_bad_changes_in_one_line(capsys, tmp_path, argv, words):
+    try:
+        code = main(["demo", "--out", str(tmp_path), *argv])
+    except SystemExit as e:        # an option's type: argparse's own exit
+        code = e.code
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "error:" in lines[0]
+    for w in words:
+        assert w in lines[0]
+
+
 def test_trials_on_a_local_pool(capsys):
     code, out, _ = run(capsys, "trials", "--trials", "2", "--workers", "2", "--json",
                        "--start-place", "2", "--goal-place", "8")

@@ -174,12 +174,86 @@ def test_drake_diagram_and_engine_drive_the_same_path(box_world, route, oracles,
     assert not manoeuvres or res.manoeuvres[0] >= 1
 
 
+@pytest.mark.parametrize("seed,outcome", [(0, "timeout"), (4, "collision")])
+def test_drake_diagram_and_engine_drive_the_same_path_in_a_changed_world(box_world, route,
+                                                                         oracles, seed, outcome):
+    """One box and one walker placed on the route from the run's seed: the
+    WorldChangesSource moves the walker as the engine does, the sensors of
+    each period (the lidar and the recorded camera) see them where the
+    engine's do, and (seed 4) the car runs into the walker, a collision in
+    both.
+    (Manoeuvres off: their search breaks near ties on the last bits of the
+    pose, so changed worlds with manoeuvres agree only up to such a tie.)"""
+    from topodrake.navigation.engine import NAV_OUTCOMES, NavigationConfig, NavigationEngine
+    from topodrake.navigation.follower import FollowerConfig
+    from topodrake.rollout import RolloutConfig
+    from topodrake.sensing.camera import Camera
+    from topodrake.sensing.lidar import Lidar
+    from topodrake.systems.navigation import (NavigationRunner, NavigationScenario,
+                                              make_navigation_diagram)
+    from topodrake.vehicle import in_collision
+    from topodrake.world.changes import CarChanges, WorldChanges
+
+    follower = FollowerConfig(manoeuvres=False)
+    start = np.array([1.0, 1.8, 0.5])
+    sc = NavigationScenario(world="box", camera_enabled=False, t_max_s=40.0, follower=follower,
+                            changes=WorldChanges(boxes=1, people=1))
+    built = make_navigation_diagram(sc, route, world=box_world, policy=oracles[0],
+                                    reach=oracles[1], record_sensors=True)
+    runner = NavigationRunner(built)
+    drake = runner.run(start, seed=seed)
+    frames = built.recorder.frames()
+    held = built.changes.held(built.changes.GetMyContextFromRoot(runner.simulator.get_context()))
+    engine = NavigationEngine(box_world, *oracles, NavigationConfig(
+        follower=follower, rollout=RolloutConfig(t_max_s=40.0)))
+    changes, placed = sc.place_changes(box_world, route, start, seed)
+    walker_start = changes.walkers.xy[0, 0].copy()
+    assert drake.changes == placed and len(placed["boxes"]) == 1
+    seen = [changes.faces([0])[0]]          # what the engine's sensors see in each period
+    res = engine.run(start[None], [route], changes=changes,
+                     progress=lambda k, n: seen.append(changes.faces([0])[0]))
+    k = int(res.steps[0])
+    assert k == round(drake.time_s / 0.1) and k > 100
+    dev = np.linalg.norm(drake.poses[:k + 1, :2] - res.poses[0, :k + 1, :2], axis=1)
+    assert dev.max() <= 1e-9
+    assert drake.outcome == NAV_OUTCOMES[int(res.outcome[0])] == outcome
+    np.testing.assert_array_equal(drake.modes[:k], res.modes[0, :k])
+    # the diagram's sensors of period j saw the walker where the engine's did
+    assert len(frames["t"]) == k
+    poses, extra = frames["state"][:, :3], np.stack(seen[:k])
+    np.testing.assert_array_equal(frames["ranges"], Lidar(box_world, sc.lidar).scan(poses, extra))
+    np.testing.assert_array_equal(frames["image"], Camera(box_world, sc.camera).render(poses,
+                                                                                       extra))
+    # the walker walked, and the same way in both
+    np.testing.assert_allclose(held.walkers.xy, changes.walkers.xy, atol=1e-9)
+    assert np.hypot(*(held.walkers.xy[0, 0] - walker_start)) > 0.5
+    plain = engine.run(start[None], [route])
+    assert not np.allclose(plain.poses[0, :k + 1], res.poses[0, :k + 1])
+    if outcome == "collision":          # with the walker, not the walls or the box
+        x = np.r_[drake.poses[-1], 0.0, 0.0][None]
+        assert not in_collision(x, box_world.grid.clearance_at, sc.vehicle)[0]
+        assert not CarChanges.of([np.array(placed["boxes"])]).touching([0], x, sc.vehicle)[0]
+        assert held.touching([0], x, sc.vehicle)[0]
+
+
 def test_a_navigation_scenario_refuses_bad_odometry():
     from topodrake.odometry import OdometryConfig
     from topodrake.systems.navigation import NavigationScenario
 
     with pytest.raises(TopodrakeError, match="odometry scale_std"):
         NavigationScenario(world="box", odometry=OdometryConfig(scale_std=-0.1))
+
+
+def test_a_navigation_scenario_takes_changes_from_yaml_and_refuses_bad_ones(tmp_path):
+    from topodrake.systems.navigation import NavigationScenario
+    from topodrake.typed_yaml import load_typed
+    from topodrake.world.changes import WorldChanges
+
+    (tmp_path / "s.yaml").write_text("world: box\nchanges: {boxes: 1, people: 2}\n")
+    sc = load_typed(NavigationScenario, tmp_path / "s.yaml", "scenario").validate()
+    assert sc.changes == WorldChanges(boxes=1, people=2) and not NavigationScenario().changes.any
+    with pytest.raises(TopodrakeError, match="changes: people must be a whole number >= 0"):
+        NavigationScenario(world="box", changes=WorldChanges(people=-1))
 
 
 def test_runner_refuses_a_start_in_a_wall(box_world, route, oracles):

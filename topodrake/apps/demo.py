@@ -7,9 +7,12 @@ observation to the goal place's, and the car drives the plan in the Drake
 navigation diagram with the controller the map was built for. With
 ``--controller`` (or ``--reach``, or another world) the route is instead one
 expert drive between the places, sparsified by the controller's RE into a
-chain of anchors. It writes the drive over the
+chain of anchors. With ``--boxes`` and ``--people`` the car meets a
+changed house (unmapped boxes on its route, people walking along and across
+it; :mod:`topodrake.world.changes`). It writes the drive over the
 floor plan (the anchors, the map, and the path coloured by the follower's
-mode) and a Meshcat HTML recording whose camera frames the whole house.
+mode) and a Meshcat HTML recording whose camera frames the whole house
+(and shows the boxes and the people walking).
 
 The expert demo (:func:`run_demo`) drives the expert between the places and
 writes a top-down plan (walls, places, the A* path, the driven path, lidar
@@ -51,6 +54,7 @@ from topodrake.systems.scenario import Scenario
 from topodrake.topomap.mapfile import read_map_meta
 from topodrake.topomap.sources import check_controller, resolve_checkpoint
 from topodrake.world import load_world
+from topodrake.world.changes import WorldChanges
 from topodrake.world.plot import legend_below, plot_world, save_figure
 
 
@@ -135,18 +139,21 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
                      out_dir: str = "out/demo", seed: int = 0, noise_std: float = 0.0,
                      p: float = 0.99, controller: str = DEMO_CONTROLLER,
                      reach: str | None = None, meshcat: bool = True, map_path=None,
-                     odometry: str = "wheel") -> dict:
+                     odometry: str = "wheel", changes: WorldChanges | None = None) -> dict:
     """The learned follower between two places: a plan on ``map_path``
     (followed by the controller it was built for), or without a map a chain
     of anchors from one expert drive, followed by ``controller`` (a C_WP
     checkpoint or ``"registration"``) and ``reach`` (default: the RE
     shipped for it), on ``odometry`` (a model of
-    :data:`topodrake.odometry.ODOMETRY_MODELS`, its errors drawn from ``seed``); returns the written files
-    and a summary (outcome, times, real-time factor warm and cold)."""
+    :data:`topodrake.odometry.ODOMETRY_MODELS`, its errors drawn from ``seed``),
+    in a house changed by ``changes`` (placed on the plan from ``seed``);
+    returns the written files and a summary (outcome, times, real-time
+    factor warm and cold, the changes and where they were put)."""
     from topodrake.systems.navigation import NavigationScenario, load_networks
 
     wall = time.perf_counter()
     odometry_cfg = odometry_model(odometry)
+    changes = (changes or WorldChanges()).check("demo")
     import torch
 
     if reach is None and map_path is None:
@@ -181,7 +188,7 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
     map_s = time.perf_counter() - t0
     scenario = NavigationScenario(world=world_name, noise_std=noise_std, seed=seed,
                                   controller=controller, reach=reach, odometry=odometry_cfg,
-                                  camera_enabled=policy.observation == "camera")
+                                  camera_enabled=policy.observation == "camera", changes=changes)
     out = Path(out_dir)
     files: dict[str, Path] = {}
     # the drive ends near the goal place, as the planning study's trials end within its
@@ -209,6 +216,7 @@ def run_learned_demo(world_name: str = "test-0", start_place: int = 3, goal_plac
                or ("the map's" if map_path else str(controller)),
                "world": world.name, "start_place": start_place,
                "goal_place": goal_place, "seed": seed, "noise": noise_std, "odometry": odometry,
+               "changes": changes.label, **({"placed": result.changes} if changes.any else {}),
                "map_s": round(map_s, 2), "startup_s": round(result.startup_s, 2),
                "realtime_factor": round(result.time_s / max(result.wall_time_s, 1e-9), 1),
                "realtime_factor_cold": round(result.time_s / max(result.wall_time_s
@@ -276,6 +284,9 @@ def cmd_demo(args) -> int:
         raise TopodrakeError(f"--noise must be finite and >= 0, got {args.noise}")
     if args.seed < 0:
         raise TopodrakeError(f"--seed must be >= 0, got {args.seed}")
+    if args.expert and (args.boxes or args.people):
+        raise TopodrakeError("--boxes and --people change the house of the learned demo, "
+                             "not --expert's")
     check_outputs(args)
     if not args.expert and args.map and (args.controller or args.reach):
         raise TopodrakeError("--controller and --reach go without --map (a map is followed "
@@ -298,7 +309,9 @@ def cmd_demo(args) -> int:
         extra = {"controller": args.controller} if args.controller else {}
         result = run_learned_demo(args.world, args.start_place, args.goal_place, args.out,
                                   args.seed, args.noise or 0.0, map_path=map_path,
-                                  reach=args.reach, odometry=args.odometry, **extra)
+                                  reach=args.reach, odometry=args.odometry,
+                                  changes=WorldChanges(boxes=args.boxes, people=args.people),
+                                  **extra)
     record_outputs(args.out, result["files"].values())
     if args.json:
         print(json.dumps(result["summary"]))
@@ -313,7 +326,8 @@ def cmd_demo(args) -> int:
               f"probability {s['probability']}"
               + (f", calibrated chance of success {s['success_probability']}"
                  if "success_probability" in s else "")
-              + f"); real-time factor {s['realtime_factor']} "
+              + ")" + (f" with {s['changes']}" if s.get("changes", "none") != "none" else "")
+              + f"; real-time factor {s['realtime_factor']} "
               f"after start-up, {s['realtime_factor_cold']} with it; demo took {s['demo_wall_s']} s")
     return exit_status(s["outcome"])
 
@@ -351,6 +365,12 @@ def add_demo_parser(sub) -> None:
     demo.add_argument("--odometry", choices=ODOMETRY_MODELS, default="wheel",
                       help="what the learned follower's odometry reads: wheel odometry that "
                            "drifts (errors drawn from --seed) or the true pose (default: wheel)")
+    demo.add_argument("--boxes", type=at.count0, default=0, metavar="N",
+                      help="unmapped boxes (0.3-0.6 m) on the learned follower's route, placed "
+                           "from --seed (default: 0)")
+    demo.add_argument("--people", type=at.count0, default=0, metavar="N",
+                      help="people walking along and across the learned follower's route, "
+                           "placed from --seed; the recording shows them (default: 0)")
     demo.add_argument("--expert", action="store_true",
                       help="drive the A* expert instead of the learned follower (default: off)")
     demo.add_argument("--meshcat", action="store_true",

@@ -229,6 +229,14 @@ class CarChanges:
             rows = np.concatenate([rows, face_table(seg, WALKER_TEXTURE)], axis=1)
         return rows
 
+    def solids(self, car: int) -> tuple[np.ndarray, np.ndarray]:
+        """Car ``car``'s still changes as quadrilaterals, for drawing: corners
+        (Q, 4, 2) counter-clockwise and textures (Q,) (:data:`BOX_TEXTURE`
+        for a box, :data:`BLOCK_TEXTURE` for a closed passage)."""
+        rows = self.fixed[int(car)]
+        rows = rows[np.isfinite(rows[:, 0])]
+        return rows[:, :2].reshape(-1, 4, 2).copy(), rows[::4, 7].astype(np.int64)
+
     def step(self, dt: float, cars, car_xy: np.ndarray) -> None:
         """Move the walkers of cars ``cars`` by ``dt`` s (cars at ``car_xy``)."""
         if self.moving:
