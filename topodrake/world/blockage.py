@@ -29,6 +29,7 @@ INTO_WALL_M = 0.05        # how far the block reaches into the walls at its ends
 MIN_DETOUR_M = 1.0        # the shortest way must grow by this much
 STEP_M = 0.05             # spacing of candidate points along the path
 PIECE_M = 1.0             # a narrow stretch longer than this offers several candidates
+RAY_M = 4.0               # rays reach this far looking for the walls of a passage
 ANGLES = np.deg2rad(np.arange(-45.0, 46.0, 15.0))   # chords tried around the normal
 _GEODESIC = AStarConfig(wall_weight=0.0)
 
@@ -103,9 +104,6 @@ def _chords(world: World, xy: np.ndarray) -> np.ndarray:
     within 45 degrees of the path's normal, whose centre line and both
     edges (``THICKNESS_M`` apart) reach walls, extended ``INTO_WALL_M``
     into them; NaN where a ray meets nothing."""
-    from topodrake.sensing.raycast import cast_rays
-    from topodrake.sensing.scene import scene_of
-
     k = max(1, round(0.2 / STEP_M))          # tangent over +-0.2 m of path
     ahead = xy[np.minimum(np.arange(len(xy)) + k, len(xy) - 1)]
     behind = xy[np.maximum(np.arange(len(xy)) - k, 0)]
@@ -117,9 +115,9 @@ def _chords(world: World, xy: np.ndarray) -> np.ndarray:
     origins = xy[:, None, None] + offsets[None, None, :, None] * side[:, :, None]   # (N, A, 3, 2)
     origins = np.broadcast_to(origins[None], (2, *origins.shape))
     dirs = np.stack([u, -u])[:, :, :, None].repeat(3, axis=3)        # (2, N, A, 3, 2)
-    t, _, _ = cast_rays(scene_of(world), origins.reshape(-1, 2), dirs.reshape(-1, 2),
-                        tmax=1e3)
-    reach = t.reshape(2, len(xy), len(ANGLES), 3).max(axis=3) + INTO_WALL_M   # (2, N, A)
+    t = _grid_rays(world.grid, origins.reshape(-1, 2), dirs.reshape(-1, 2), RAY_M)
+    # the walls as the grid holds them (a cell is a wall), reached into by INTO_WALL_M
+    reach = t.reshape(2, len(xy), len(ANGLES), 3).max(axis=3) + INTO_WALL_M + world.grid.resolution
     best = np.argmin(np.nan_to_num(reach.sum(axis=0), nan=np.inf), axis=1)
     rows = np.arange(len(xy))
     ub = u[rows, best]
@@ -127,6 +125,26 @@ def _chords(world: World, xy: np.ndarray) -> np.ndarray:
     seg = np.concatenate(ends, axis=1)
     seg[~np.isfinite(seg).all(axis=1)] = np.nan
     return seg
+
+
+def _grid_rays(grid, origins: np.ndarray, dirs: np.ndarray, tmax: float) -> np.ndarray:
+    """(R,) distance along each unit ray (R, 2) from ``origins`` (R, 2) to
+    the first occupied cell of ``grid``, sampled every half cell; inf
+    where none lies within ``tmax``."""
+    step = 0.5 * grid.resolution
+    t = np.arange(0.0, tmax + step, step)
+    out = np.full(len(origins), np.inf)
+    for lo in range(0, len(origins), 4096):          # bounded memory on long routes
+        o, d = origins[lo:lo + 4096], dirs[lo:lo + 4096]
+        pts = o[:, None, :] + t[None, :, None] * d[:, None, :]
+        rc = grid.to_cell(pts.reshape(-1, 2))
+        inside = grid.in_bounds(rc)
+        occ = np.ones(len(rc), bool)                 # off the grid counts as a wall
+        occ[inside] = grid.occupied[rc[inside, 0], rc[inside, 1]]
+        occ = occ.reshape(len(o), len(t))
+        hit = occ.any(axis=1)
+        out[lo:lo + 4096][hit] = t[np.argmax(occ[hit], axis=1)]
+    return out
 
 
 def _pieces(ok: np.ndarray, segs: np.ndarray, rng: np.random.Generator):

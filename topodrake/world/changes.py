@@ -19,8 +19,10 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.vehicle import VehicleConfig, car_to_world
+from topodrake.world.blockage import block_on_path
 from topodrake.world.obstacles import boxes_on_path
 from topodrake.world.textures import FURNITURE_TEXTURES
+from topodrake.world.walkers import Walkers
 
 BOX_TEXTURE = FURNITURE_TEXTURES[0]
 BLOCK_TEXTURE = FURNITURE_TEXTURES[5]
@@ -100,8 +102,6 @@ def place_changes(world, paths: list, spec: WorldChanges, seeds: list,
             if spec.boxes:
                 boxes[i] = boxes_on_path(world, path, spec.boxes, np.random.default_rng(seeds[i]))
             if spec.blocked:
-                from topodrake.world.blockage import block_on_path
-
                 blocks[i] = block_on_path(world, path,
                                           np.random.default_rng(_child(seeds[i], 1)))
         except TopodrakeError:
@@ -111,8 +111,6 @@ def place_changes(world, paths: list, spec: WorldChanges, seeds: list,
                      "block": None if blocks[i] is None else np.round(blocks[i], 3).tolist()}
     walkers = None
     if spec.people and any(p is not None for p in paths):
-        from topodrake.world.walkers import Walkers
-
         live = [None if p is None else np.asarray(p, np.float64)[:, :2] for p in paths]
         stand_in = next(p for p in live if p is not None)     # undriven trials' walkers idle
         walkers = Walkers.on_paths(world, [stand_in if p is None else p for p in live],
