@@ -746,3 +746,41 @@ def test_a_car_lost_on_a_hop_returns_to_its_anchor_and_drives_a_plan_from_it(box
     plain = Replanner(plan, [bad], ReplanSchedule(first=20, every=3))
     res = engine.run(start[None], [bad], t_max_s=80.0, replanner=plain)
     assert NAV_OUTCOMES[int(res.outcome[0])] == "dead_reckoning_gave_up" and plain.plans[0] == 1
+
+
+def test_a_car_that_stands_still_in_follow_tries_a_new_plan_without_its_edge():
+    """A closed door: a car that moved less than stall_m for stall_periods
+    periods, in Follow or Dead reckoning, asks for a plan that leaves out
+    the edge it is on (every ``every`` periods after), and not before."""
+    from topodrake.contract.route import Route
+    from topodrake.navigation.follower import FollowerState, Mode
+    from topodrake.navigation.replan import Replanner, ReplanSchedule
+
+    route = Route(np.zeros((3, 1, 1)), np.zeros((3, 3)), vertices=np.array([4, 5, 6]),
+                  modality="lidar", start_probability=0.99, probability=0.9)
+    new = Route(np.zeros((2, 1, 1)), np.zeros((2, 3)), vertices=np.array([4, 7]),
+                modality="lidar", start_probability=0.99, probability=0.8)
+    asked = []
+
+    def plan(i, pose, excluded):
+        asked.append(list(excluded))
+        return new
+
+    schedule = ReplanSchedule(stall_periods=10, stall_m=0.3, every=3)
+    rp = Replanner(plan, [route], schedule)
+    state = FollowerState.initial(1, np.zeros((1, 0)))
+    state.mode[:], state.visited[:], state.active[:] = Mode.FOLLOW, 0, 1
+    pose = np.array([[1.0, 1.0, 0.0]])
+    for k in range(30):                     # driving 5 cm a period: no try
+        assert rp.step(np.zeros(1, np.int64), state, pose + [0.05 * k, 0, 0]) == []
+    assert asked == []
+    still = pose + [2.0, 0, 0]
+    taken = [rp.step(np.zeros(1, np.int64), state, still) for _ in range(12)]
+    # the 11th period at one place is the 10th without moving: one try, taken
+    assert asked == [[(4, 5)]] and [bool(t) for t in taken] == [False] * 10 + [True, False]
+    assert [r for _, r, _ in taken[10]] == [new]
+    assert rp.plans[0] == 2 and rp.excluded[0] == [(4, 5)]
+    with pytest.raises(TopodrakeError, match="stall"):
+        ReplanSchedule(stall_periods=-1).check()
+    off = Replanner(plan, [route], ReplanSchedule(stall_periods=0))
+    assert all(off.step(np.zeros(1, np.int64), state, pose) == [] for _ in range(300))

@@ -279,8 +279,9 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
         steps = [sum(r.get("steps", 0) for r in records if r["method"] == m)
                  for m in (name, f"{name}_unchanged")]
         row["follow_s"], row["follow_s_unchanged"] = round(secs[0], 1), round(secs[1], 1)
-        row["seconds_per_step_ratio"] = (round((secs[0] / steps[0]) / (secs[1] / steps[1]), 3)
-                                         if min(secs) > 0 and min(steps) > 0 else None)
+        row["wall_ratio"] = round(secs[0] / secs[1], 3) if min(secs) > 0 else None
+        # car-periods driven: failing cars drive longer, apart from what a period costs
+        row["periods_ratio"] = round(steps[0] / steps[1], 3) if min(steps) > 0 else None
     return out
 
 
