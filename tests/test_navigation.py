@@ -760,10 +760,11 @@ def test_a_car_that_stands_still_in_follow_tries_a_new_plan_without_its_edge():
                   modality="lidar", start_probability=0.99, probability=0.9)
     new = Route(np.zeros((2, 1, 1)), np.zeros((2, 3)), vertices=np.array([4, 7]),
                 modality="lidar", start_probability=0.99, probability=0.8)
-    asked = []
+    asked, blocked = [], []
 
-    def plan(i, pose, excluded):
+    def plan(i, pose, excluded, blocked_at=None, **kw):
         asked.append(list(excluded))
+        blocked.append(kw.get("blocked"))
         return new
 
     schedule = ReplanSchedule(stall_periods=10, stall_m=0.3, every=3)
@@ -779,6 +780,7 @@ def test_a_car_that_stands_still_in_follow_tries_a_new_plan_without_its_edge():
     # the 11th period at one place is the 10th without moving: one try, taken
     assert asked == [[(4, 5)]] and [bool(t) for t in taken] == [False] * 10 + [True, False]
     assert [r for _, r, _ in taken[10]] == [new]
+    assert blocked == [[(3.0, 1.0)]]           # where it stood, for the planner to avoid
     assert rp.plans[0] == 2 and rp.excluded[0] == [(4, 5)]
     with pytest.raises(TopodrakeError, match="stall"):
         ReplanSchedule(stall_periods=-1).check()

@@ -38,7 +38,7 @@ from topodrake.experiments.plan_trials import (
 from topodrake.navigation.engine import NavigationConfig, NavigationEngine
 from topodrake.navigation.replan import NEAREST, nearest_seen_vertex, route_traversals
 from topodrake.odometry import odometry_model
-from topodrake.topomap.plan import plan_from_vertex, plan_path
+from topodrake.topomap.plan import edges_near, plan_from_vertex, plan_path
 from topodrake.topomap.sources import drive_observations, view_scans
 from topodrake.world import load_world
 from topodrake.world.changes import place_changes
@@ -116,8 +116,10 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         elif limits is None:
             limits = trial_time_limits(sc, world, starts, places[goal_idx])
 
-        def replan(t, pose, excluded, vertex=None):
+        def replan(t, pose, excluded, vertex=None, blocked=None):
             limit = limits[t]
+            if blocked:             # a car stood still there: no way through it
+                excluded = list(excluded) + edges_near(m, blocked)
             if vertex == NEAREST:       # the oracle locates the car at a vertex it sees
                 vs = np.array(sorted(m.graph.nodes), np.int64)
                 k = nearest_seen_vertex(m.pose(vs), pose, world.grid.clearance_at)

@@ -64,7 +64,7 @@ class ReplanSchedule:
                                      # names the vertex it sees nearest in truth and the car
                                      # drives a plan from it (an ablation; see Replanner.step)
     stall_periods: int = 150  # a car that moved less than stall_m in this many periods (in
-    stall_m: float = 0.3      # Follow or Dead reckoning: a closed door, a blocked passage)
+    stall_m: float = 0.5      # Follow or Dead reckoning: a closed door, a blocked passage)
                               # tries too, then every `every` periods (0: off)
 
     @classmethod
@@ -187,6 +187,8 @@ def traversals_of_records(records: list[dict]) -> tuple[list, list]:
     return passed, failed
 
 
+#: ``plan(car, pose, excluded_edges, vertex=None, blocked=None) -> Route | None``:
+#: ``blocked``, where the car stood still on its way: places the plan avoids
 PlanCallback = Callable[..., object]
 
 
@@ -314,6 +316,7 @@ class Replanner:
         self.excluded: list[list[tuple[int, int]]] = [[] for _ in range(n)]
         self.still_at = np.full((n, 2), np.nan)   # where each car was when it last moved
         self.still = np.zeros(n, np.int64)        # ... and periods since
+        self.blocked: list[list[tuple[float, float]]] = [[] for _ in range(n)]   # stalled at
 
     def step(self, cars: np.ndarray, state, poses: np.ndarray, p_start: float = 0.0,
              startable: Callable[[int, object], bool] | None = None,
@@ -351,9 +354,11 @@ class Replanner:
         moved = ~(np.hypot(*(xy - self.still_at[cars]).T) < self.schedule.stall_m)
         self.still_at[cars[moved]] = xy[moved]
         self.still[cars] = np.where(moved | ~moving, 0, self.still[cars] + 1)
+        stalled = moving & self.schedule.stalled(self.still[cars])
+        for r in np.flatnonzero(stalled & (self.still[cars] == self.schedule.stall_periods)):
+            self.blocked[int(cars[r])].append(tuple(float(v) for v in xy[r]))
         due = np.flatnonzero(((state.mode == Mode.DEAD_RECKONING)
-                              & self.schedule.due(state.dr_count))
-                             | (moving & self.schedule.stalled(self.still[cars])))
+                              & self.schedule.due(state.dr_count)) | stalled)
         taken = []
         for r in due:
             i = int(cars[r])
@@ -364,7 +369,8 @@ class Replanner:
             if edge is not None and edge not in excluded:
                 excluded.append(edge)
             self.tries[i] += 1
-            new = self.plan(i, np.array(poses[r], np.float64), excluded)
+            new = self.plan(i, np.array(poses[r], np.float64), excluded,
+                            **({"blocked": list(self.blocked[i])} if self.blocked[i] else {}))
             start = None
             if new is not None and self._accepts(new, i) and \
                     (startable(int(r), new) if startable is not None
