@@ -41,6 +41,7 @@ from topodrake.odometry import odometry_model
 from topodrake.topomap.plan import edges_near, plan_from_vertex, plan_path
 from topodrake.topomap.sources import drive_observations, view_scans
 from topodrake.world import load_world
+from topodrake.world.blockage import blocked_world
 from topodrake.world.changes import place_changes
 
 SPTM_CHECKPOINT = "checkpoints/sptm_retrieval/checkpoint.pt"
@@ -178,6 +179,24 @@ def trial_time_limits(sc: PlanningScenario, world, starts, goals) -> np.ndarray:
     return out
 
 
+def detour_time_limits(sc: PlanningScenario, world, starts, goals, limits, placed) -> np.ndarray:
+    """Each trial's time limit in its changed world: where a passage of its
+    route is closed, at least the A* length of the way left open at the RE
+    labels' least speed (the replanned way is longer by construction), plus
+    the time a car stands still before it replans."""
+    from topodrake.learning.reachability.labels import ReachLabelConfig, time_limits
+
+    out = np.array(limits, np.float64)
+    stall_s = sc.replan.stall_periods * 0.1
+    for t, p in enumerate(placed):
+        if p is not None and p.get("block") is not None:
+            open_way = blocked_world(world, np.asarray(p["block"]))
+            need = time_limits(open_way, np.asarray(starts)[[t]], np.asarray(goals)[[t], :2],
+                               ReachLabelConfig())[0]
+            out[t] = max(out[t], need + stall_s)
+    return out
+
+
 def plan_time_limit(sc: PlanningScenario) -> float | None:
     """The time limit the plans are made for: the trials' own, or None for
     the paper's most probable paths (``paper_plans``)."""
@@ -221,7 +240,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts,
                 routes, prob, false_links, res, rounds, bar, odo_seeds, limits, progress)
     follow_s = time.perf_counter() - t0 - plan_s
 
-    def records_of(res, placed=None):
+    def records_of(res, placed=None, limits=limits):
         key = house_key(spec)
         return [{"house": key, "method": method, "map": tag, "trial": t,
                  "start_place": int(a), "goal_place": int(b),
@@ -262,7 +281,8 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts,
                                     seeds, starts)
     drive = [r if p is not None else None for r, p in zip(routes, placed)]
     replans = (meth.drive == "replan" or sc.changes.blocked) and replan is not None
-    after = follow_routes(engine, starts, drive, goals, limits, sc.batch, SUCCESS_M,
+    changed_limits = detour_time_limits(sc, world, starts, goals, limits, placed)
+    after = follow_routes(engine, starts, drive, goals, changed_limits, sc.batch, SUCCESS_M,
                           progress=None if bar is None or replans else bar.update,
                           replan=replan if replans else None,
                           schedule=sc.replan.check() if replans else None,
@@ -272,7 +292,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts,
     for t, p in enumerate(placed):
         if routes[t] is not None and p is None:
             after.outcome[t] = "no_room"
-    changed_records = records_of(after, placed)
+    changed_records = records_of(after, placed, changed_limits)
     for r in records:
         r["method"] = f"{method}_unchanged"
     for r, c in zip(records, changed_records):       # the same trials as the changed ones

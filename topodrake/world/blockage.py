@@ -175,8 +175,9 @@ def _as_wall(corners: np.ndarray) -> WallSet:
         c = c[::-1]
     p0, p1 = 0.5 * (c[0] + c[3]), 0.5 * (c[1] + c[2])
     side, across = c[1] - c[0], c[3] - c[0]
-    if (not np.allclose(c[2] - c[1], across, atol=1e-6)
-            or abs(side @ across) > 1e-6 * max(1.0, np.hypot(*side) * np.hypot(*across))):
+    # corners as recorded (to the millimetre) still make their rectangle
+    if (not np.allclose(c[2] - c[1], across, atol=2e-3)
+            or abs(side @ across) > 2e-3 * max(1.0, np.hypot(*side) * np.hypot(*across))):
         raise TopodrakeError("a block's corners must be those of a rectangle, in order")
     texture = np.array([FURNITURE_TEXTURES[0]], np.int32)
     return WallSet(np.concatenate([p0, p1])[None], np.array([np.hypot(*across)]), texture)
