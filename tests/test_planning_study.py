@@ -348,7 +348,7 @@ def test_plan_and_follow_on_an_oracle_map_in_the_box_world(box_world):
 
     # the same trials with 3 boxes the map never saw on each route, batched
     from topodrake.world.changes import WorldChanges, place_changes
-    from topodrake.world.obstacles import _densify
+    from topodrake.world.obstacles import densify
 
     seeds = [np.random.SeedSequence([0, t]) for t in range(len(pairs))]
     changes, placed = place_changes(box_world, pt.route_paths(starts, routes, goals),
@@ -360,7 +360,7 @@ def test_plan_and_follow_on_an_oracle_map_in_the_box_world(box_world):
         boxes = np.array(placed[t]["boxes"])
         assert boxes.shape == (3, 4)
         centres = 0.5 * (boxes[:, :2] + boxes[:, 2:])
-        route_xy = _densify(np.vstack([starts[t][:2], routes[t].poses[:, :2], goals[t][:2]]), 0.05)
+        route_xy = densify(np.vstack([starts[t][:2], routes[t].poses[:, :2], goals[t][:2]]), 0.05)
         gap = np.hypot(*(centres[:, None] - route_xy[None]).transpose(2, 0, 1)).min(axis=1)
         assert (gap < 0.2).all()                       # on the planned route
     assert obst.success[:2].any()                      # the A* oracle passes boxes

@@ -11,17 +11,15 @@ occupied on the grid) for A* and oracles.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 from scipy import ndimage
 
 from topodrake.errors import TopodrakeError
 from topodrake.world.astar import AStarConfig, astar, path_length
 from topodrake.world.grid import OccupancyGrid, rasterize_walls
-from topodrake.world.obstacles import _densify
+from topodrake.world.obstacles import densify, with_walls
 from topodrake.world.textures import FURNITURE_TEXTURES
-from topodrake.world.walls import Faces, WallSet
+from topodrake.world.walls import WallSet
 from topodrake.world.world import World
 
 THICKNESS_M = 0.1
@@ -52,7 +50,7 @@ def block_on_path(world: World, path: np.ndarray, rng: np.random.Generator,
             and np.isfinite(keep_clear_m) and keep_clear_m >= 0):
         raise TopodrakeError(f"max_width_m must be > 0 and keep_clear_m >= 0, got "
                              f"{max_width_m} and {keep_clear_m}")
-    xy = _densify(path[:, :2], STEP_M)
+    xy = densify(path[:, :2], STEP_M)
     start = world.check_pose(xy[0], "the path's start")[:2]
     goal = world.check_pose(xy[-1], "the path's end")[:2]
     before = path_length(astar(world.grid, start, goal, _GEODESIC))
@@ -82,15 +80,7 @@ def block_on_path(world: World, path: np.ndarray, rng: np.random.Generator,
 def blocked_world(world: World, corners: np.ndarray) -> World:
     """A copy of ``world`` with the block ``corners`` (4, 2) added as a wall
     (rendered, ray-cast and occupied on the grid)."""
-    extra = _as_wall(corners)
-    faces = None
-    if world.faces_override is not None:
-        new = Faces.from_walls(extra)
-        old = world.faces_override
-        faces = Faces(np.concatenate([old.a, new.a]), np.concatenate([old.b, new.b]),
-                      np.concatenate([old.texture, new.texture]), np.concatenate([old.u0, new.u0]))
-    return replace(world, walls=world.walls.concat(extra),
-                   grid=_blocked_grid(world.grid, corners), faces_override=faces)
+    return with_walls(world, _as_wall(corners))
 
 
 def block_faces(corners: np.ndarray) -> np.ndarray:
@@ -176,8 +166,8 @@ def _as_wall(corners: np.ndarray) -> WallSet:
     p0, p1 = 0.5 * (c[0] + c[3]), 0.5 * (c[1] + c[2])
     side, across = c[1] - c[0], c[3] - c[0]
     # corners as recorded (to the millimetre) still make their rectangle
-    if (not np.allclose(c[2] - c[1], across, atol=2e-3)
-            or abs(side @ across) > 2e-3 * max(1.0, np.hypot(*side) * np.hypot(*across))):
+    if (not np.allclose(c[2] - c[1], across, atol=5e-3)
+            or abs(side @ across) > 5e-3 * max(1.0, np.hypot(*side), np.hypot(*across))):
         raise TopodrakeError("a block's corners must be those of a rectangle, in order")
     texture = np.array([FURNITURE_TEXTURES[0]], np.int32)
     return WallSet(np.concatenate([p0, p1])[None], np.array([np.hypot(*across)]), texture)

@@ -16,8 +16,8 @@ from dataclasses import replace
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.world.textures import FURNITURE_TEXTURES
 from topodrake.world.grid import OccupancyGrid, rasterize_walls
+from topodrake.world.textures import FURNITURE_TEXTURES
 from topodrake.world.walls import Faces, WallSet
 from topodrake.world.world import World
 
@@ -34,7 +34,12 @@ def with_boxes(world: World, boxes: np.ndarray, texture: int | None = None) -> W
     if not np.all(np.isfinite(boxes)) or np.any(boxes[:, 2:] <= boxes[:, :2]):
         raise TopodrakeError("an obstacle box needs finite xmin < xmax and ymin < ymax")
     tex = np.full(len(boxes), FURNITURE_TEXTURES[0] if texture is None else texture, np.int32)
-    extra = WallSet.from_boxes(boxes, tex)
+    return with_walls(world, WallSet.from_boxes(boxes, tex))
+
+
+def with_walls(world: World, extra: WallSet) -> World:
+    """``world`` with the walls ``extra`` added (rendered, ray-cast and
+    occupied on the grid)."""
     grid = world.grid
     occupied = grid.occupied | rasterize_walls(extra, grid.origin, grid.shape, grid.resolution)
     faces = None
@@ -60,7 +65,7 @@ def boxes_on_path(world: World, path: np.ndarray, n: int, rng: np.random.Generat
     path = np.asarray(path, np.float64)
     if path.ndim != 2 or path.shape[1] < 2 or len(path) < 2:
         raise TopodrakeError(f"a path for obstacles must be (K >= 2, 2), got {path.shape}")
-    xy = _densify(path[:, :2], 0.05)      # uniform in arc length, not at the path's points
+    xy = densify(path[:, :2], 0.05)      # uniform in arc length, not at the path's points
     ends = np.stack([xy[0], xy[-1]])
     far = np.min(np.hypot(*(xy[:, None, :] - ends[None]).transpose(2, 0, 1)), axis=1) > keep_clear_m
     candidates = xy[far]
@@ -85,7 +90,7 @@ def boxes_on_path(world: World, path: np.ndarray, n: int, rng: np.random.Generat
     return np.array(boxes).reshape(-1, 4)
 
 
-def _densify(xy: np.ndarray, step: float) -> np.ndarray:
+def densify(xy: np.ndarray, step: float) -> np.ndarray:
     """Points every ``step`` metres along the polyline ``xy``."""
     seg = np.hypot(*np.diff(xy, axis=0).T)
     s = np.concatenate([[0.0], np.cumsum(seg)])
