@@ -162,6 +162,19 @@ def test_follows_taught_routes_in_the_house(house, drives, policy):
     cover = np.array([watch.cover(i) for i in range(len(drives))])
     assert cover.mean() >= 0.8, cover
     assert (cover > 0.95).sum() >= len(drives) // 2, cover
+    # the same drives past a box each, placed on each drive from its own seed
+    from topodrake.world.changes import WorldChanges
+
+    res2, watch2, placed = follow_chains_once(engine, drives, obs, chains, K, STEP,
+                                              list(range(len(drives))),
+                                              changes=WorldChanges(boxes=1))
+    assert len(placed) == len(drives)
+    for d, p in zip(drives, placed):
+        if p is not None:                 # on the drive, away from its ends
+            c = np.mean(np.reshape(p["boxes"], (2, 2)), axis=0)
+            assert np.hypot(*(d[:, :2] - c).T).min() < 0.2
+            assert np.hypot(*(d[[0, -1], :2] - c).T).min() > 0.9
+    assert not np.array_equal(res2.poses, res.poses)
 
 
 def _box_route(box_world):
