@@ -184,22 +184,3 @@ def test_drake_meshcat_draws_the_box_and_a_walker_that_walks(box_world, route, o
                      re.findall(r"octet-binary;base64,([A-Za-z0-9+/=]+)", html))
     assert b"/topodrake/changes/walkers/0" in blobs and b"/topodrake/changes/still/0" in blobs
 
-
-def test_edges_near_a_place_where_a_car_stood_still():
-    """The map edges through a closed door: those whose line between their
-    vertices' poses passes within the radius of where the car stopped."""
-    from types import SimpleNamespace
-
-    import networkx as nx
-
-    from topodrake.topomap.plan import edges_near
-
-    g = nx.DiGraph()
-    poses = {0: (0.0, 0.0), 1: (4.0, 0.0), 2: (4.0, 4.0), 3: (0.0, 4.0)}
-    g.add_nodes_from(poses)
-    g.add_edges_from([(0, 1), (1, 0), (1, 2), (2, 3), (3, 0)])
-    m = SimpleNamespace(graph=g, pose=lambda vs: np.array([[*poses[int(v)], 0.0] for v in vs]))
-    assert sorted(edges_near(m, [(2.0, 0.5)])) == [(0, 1), (1, 0)]     # the door on 0-1
-    assert sorted(edges_near(m, [(2.0, 0.5), (4.2, 2.0)])) == [(0, 1), (1, 0), (1, 2)]
-    assert edges_near(m, [(2.0, 2.0)]) == [] and edges_near(m, []) == []
-

@@ -38,7 +38,7 @@ from topodrake.experiments.plan_trials import (
 from topodrake.navigation.engine import NavigationConfig, NavigationEngine
 from topodrake.navigation.replan import NEAREST, nearest_seen_vertex, route_traversals
 from topodrake.odometry import odometry_model
-from topodrake.topomap.plan import edges_near, plan_from_vertex, plan_path
+from topodrake.topomap.plan import plan_from_vertex, plan_path
 from topodrake.topomap.sources import drive_observations, view_scans
 from topodrake.world import load_world
 from topodrake.world.blockage import blocked_world
@@ -117,10 +117,8 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         elif limits is None:
             limits = trial_time_limits(sc, world, starts, places[goal_idx])
 
-        def replan(t, pose, excluded, vertex=None, blocked=None):
+        def replan(t, pose, excluded, vertex=None):
             limit = limits[t]
-            if blocked:             # a car stood still there: no way through it
-                excluded = list(excluded) + edges_near(m, blocked)
             if vertex == NEAREST:       # the oracle locates the car at a vertex it sees
                 vs = np.array(sorted(m.graph.nodes), np.int64)
                 k = nearest_seen_vertex(m.pose(vs), pose, world.grid.clearance_at)
@@ -182,18 +180,16 @@ def trial_time_limits(sc: PlanningScenario, world, starts, goals) -> np.ndarray:
 def detour_time_limits(sc: PlanningScenario, world, starts, goals, limits, placed) -> np.ndarray:
     """Each trial's time limit in its changed world: where a passage of its
     route is closed, at least the A* length of the way left open at the RE
-    labels' least speed (the replanned way is longer by construction), plus
-    the time a car stands still before it replans."""
+    labels' least speed (the replanned way is longer by construction)."""
     from topodrake.learning.reachability.labels import ReachLabelConfig, time_limits
 
     out = np.array(limits, np.float64)
-    stall_s = sc.replan.stall_periods * 0.1
     for t, p in enumerate(placed):
         if p is not None and p.get("block") is not None:
             open_way = blocked_world(world, np.asarray(p["block"]))
             need = time_limits(open_way, np.asarray(starts)[[t]], np.asarray(goals)[[t], :2],
                                ReachLabelConfig())[0]
-            out[t] = max(out[t], need + stall_s)
+            out[t] = max(out[t], need)
     return out
 
 

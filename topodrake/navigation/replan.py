@@ -63,9 +63,6 @@ class ReplanSchedule:
     oracle_relocalize: bool = False  # where no plan starts from the car's view, an oracle
                                      # names the vertex it sees nearest in truth and the car
                                      # drives a plan from it (an ablation; see Replanner.step)
-    stall_periods: int = 150  # a car that moved less than stall_m in this many periods (in
-    stall_m: float = 0.5      # Follow or Dead reckoning: a closed door, a blocked passage)
-                              # tries too, then every `every` periods (0: off)
 
     @classmethod
     def paper(cls) -> "ReplanSchedule":
@@ -86,18 +83,7 @@ class ReplanSchedule:
                                      f"{getattr(self, name)!r}")
         if self.max_replans < 0:
             raise TopodrakeError(f"max_replans must be >= 0, got {self.max_replans}")
-        if self.stall_periods < 0 or not self.stall_m > 0:
-            raise TopodrakeError(f"replanning needs stall_periods >= 0 and stall_m > 0, got "
-                                 f"{self.stall_periods} and {self.stall_m}")
         return self
-
-    def stalled(self, periods: np.ndarray) -> np.ndarray:
-        """Whether a car that has not moved for ``periods`` tries now."""
-        periods = np.asarray(periods)
-        if self.stall_periods <= 0:
-            return np.zeros(periods.shape, bool)
-        late = periods - self.stall_periods
-        return (late >= 0) & (late % self.every == 0)
 
     @classmethod
     def from_json(cls, text: str | None) -> "ReplanSchedule":
@@ -187,8 +173,6 @@ def traversals_of_records(records: list[dict]) -> tuple[list, list]:
     return passed, failed
 
 
-#: ``plan(car, pose, excluded_edges, vertex=None, blocked=None) -> Route | None``:
-#: ``blocked``, where the car stood still on its way: places the plan avoids
 PlanCallback = Callable[..., object]
 
 
@@ -314,9 +298,6 @@ class Replanner:
         self.plans = np.ones(n, np.int64)
         self.returns = np.zeros(n, np.int64)      # of them plans from a vertex driven back to
         self.excluded: list[list[tuple[int, int]]] = [[] for _ in range(n)]
-        self.still_at = np.full((n, 2), np.nan)   # where each car was when it last moved
-        self.still = np.zeros(n, np.int64)        # ... and periods since
-        self.blocked: list[list[tuple[float, float]]] = [[] for _ in range(n)]   # stalled at
 
     def step(self, cars: np.ndarray, state, poses: np.ndarray, p_start: float = 0.0,
              startable: Callable[[int, object], bool] | None = None,
@@ -349,16 +330,8 @@ class Replanner:
         odometry = poses if odometry is None else odometry
         if fresh is None:
             fresh = lambda: FollowerState.initial(1, state.track.shape[1])   # noqa: E731
-        moving = (state.mode == Mode.FOLLOW) | (state.mode == Mode.DEAD_RECKONING)
-        xy = np.asarray(poses, np.float64)[:, :2]
-        moved = ~(np.hypot(*(xy - self.still_at[cars]).T) < self.schedule.stall_m)
-        self.still_at[cars[moved]] = xy[moved]
-        self.still[cars] = np.where(moved | ~moving, 0, self.still[cars] + 1)
-        stalled = moving & self.schedule.stalled(self.still[cars])
-        for r in np.flatnonzero(stalled & (self.still[cars] == self.schedule.stall_periods)):
-            self.blocked[int(cars[r])].append(tuple(float(v) for v in xy[r]))
-        due = np.flatnonzero(((state.mode == Mode.DEAD_RECKONING)
-                              & self.schedule.due(state.dr_count)) | stalled)
+        due = np.flatnonzero((state.mode == Mode.DEAD_RECKONING)
+                             & self.schedule.due(state.dr_count))
         taken = []
         for r in due:
             i = int(cars[r])
@@ -369,8 +342,7 @@ class Replanner:
             if edge is not None and edge not in excluded:
                 excluded.append(edge)
             self.tries[i] += 1
-            new = self.plan(i, np.array(poses[r], np.float64), excluded,
-                            **({"blocked": list(self.blocked[i])} if self.blocked[i] else {}))
+            new = self.plan(i, np.array(poses[r], np.float64), excluded)
             start = None
             if new is not None and self._accepts(new, i) and \
                     (startable(int(r), new) if startable is not None
@@ -390,7 +362,6 @@ class Replanner:
                 continue
             self.routes[i], self.excluded[i] = new, excluded
             self.tries[i] = 0
-            self.still[i] = 0
             self.plans[i] += 1
             taken.append((i, new, start))
         return taken

@@ -430,28 +430,3 @@ def plan_from_vertex(topomap: TopoMap, vertex: int, goal_observation: np.ndarray
     kwargs.setdefault("start_pose", m.pose([vertex])[0])
     return plan_path(m, start_obs, goal_observation, view_scans=scans, start_vertex=vertex,
                      **kwargs)
-
-
-BLOCKED_M = 1.0     # an edge passing this close to where a car was stopped counts as blocked
-
-
-def edges_near(m, points, radius_m: float = BLOCKED_M) -> list[tuple[int, int]]:
-    """The map's edges (u, v) whose straight line between their vertices'
-    poses passes within ``radius_m`` of any of ``points`` (K, 2): the ways
-    through a place where a car stood still (a closed door). Edges of a
-    vertex without a pose are kept."""
-    pts = np.asarray(points, np.float64).reshape(-1, 2)
-    edges = np.array(list(m.graph.edges), np.int64).reshape(-1, 2)
-    if not len(pts) or not len(edges):
-        return []
-    nodes = np.array(sorted(m.graph.nodes), np.int64)
-    xy = m.pose(nodes)[:, :2]
-    index = {int(v): i for i, v in enumerate(nodes)}
-    a = xy[[index[int(u)] for u in edges[:, 0]]]
-    b = xy[[index[int(v)] for v in edges[:, 1]]]
-    e = b - a
-    t = np.clip(np.einsum("ekd,ed->ek", pts[None] - a[:, None], e)
-                / np.maximum((e * e).sum(1), 1e-12)[:, None], 0.0, 1.0)
-    d = np.linalg.norm(a[:, None] + t[..., None] * e[:, None] - pts[None], axis=-1)
-    near = np.nan_to_num(d, nan=np.inf).min(axis=1) < radius_m
-    return [(int(u), int(v)) for u, v in edges[near]]
