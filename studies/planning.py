@@ -45,6 +45,11 @@ def main(argv=None) -> int:
                     help="drive every method also in a changed world, on the same trials: "
                          "boxes=N unmapped boxes on the route, people=N walkers, blocked=1 a "
                          "closed passage (replanning); e.g. boxes=3,people=2 (default: none)")
+    ap.add_argument("--worlds", metavar="FOLDER|MAP.yaml,...",
+                    help="several buildings at once: every */map.yaml under a folder (e.g. "
+                         "../shared/maps), or map YAMLs and catalogue names, comma-separated; "
+                         "each timed by its route, no pruned maps; a per-building table and a "
+                         "pooled block")
     ap.add_argument("--route-time", action="store_true", help="the same as --time-rule route")
     ap.add_argument("--map-config", metavar="YAML", help="map settings (a MapConfig YAML)")
     ap.add_argument("--follower", metavar="JSON", help="follower settings to change, as JSON")
@@ -75,7 +80,12 @@ def _scenario(args) -> PlanningScenario:
     from topodrake.world.changes import WorldChanges
 
     changes: dict = {}
-    if hasattr(args, "world") != hasattr(args, "houses"):      # one replaces the other
+    if args.worlds:
+        if hasattr(args, "world") or hasattr(args, "houses"):
+            raise TopodrakeError("give --worlds, --world or --houses, not two of them")
+        changes.update({"houses": building_specs(args.worlds), "world": None,
+                        "time_rule": "route", "pruned_fractions": []})
+    elif hasattr(args, "world") != hasattr(args, "houses"):      # one replaces the other
         changes.update({"houses": []} if hasattr(args, "world") else {"world": None})
     elif hasattr(args, "world"):
         raise TopodrakeError("give --world or --houses, not both")
@@ -94,6 +104,18 @@ def _scenario(args) -> PlanningScenario:
         changes["replan"] = asdict(ReplanSchedule.paper()) if args.replan == "paper" else \
             json_object("--replan", args.replan)
     return scenario_of(PlanningScenario, args, SCENARIOS, changes)
+
+
+def building_specs(text: str) -> list[str]:
+    """The worlds ``--worlds`` names: every ``*/map.yaml`` under a folder,
+    sorted, or the comma-separated specs as given."""
+    path = Path(text)
+    if path.is_dir():
+        specs = sorted(str(p) for p in path.glob("*/map.yaml"))
+        if not specs:
+            raise TopodrakeError(f"--worlds {text}: no */map.yaml under that folder")
+        return specs
+    return [s.strip() for s in text.split(",") if s.strip()]
 
 
 def _run(args) -> int:

@@ -1006,3 +1006,39 @@ def test_a_building_s_trials_get_their_route_time_and_the_houses_a_fixed_limit(t
     code, _, err = run_study("planning", "--route-time", "--time-rule", "fixed", "--out", tmp_path)
     assert code == 2 and "contradict" in err
 
+
+
+def test_several_buildings_run_as_one_study_with_a_pooled_block(tmp_path):
+    """``--worlds FOLDER`` takes every */map.yaml under it, timed by route
+    and without pruned maps; the summary pools each method's trials over
+    the buildings (each trial once, no_room left out)."""
+    import yaml
+
+    from topodrake.experiments import plan_trials as pt
+
+    for name in ("b_two", "a_one"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "map.yaml").write_text("image: map.pgm\n")
+    code, out, err = run_study("planning", "--worlds", tmp_path, "--methods", "oracle_full",
+                               "--print-config")
+    assert code == 0, err
+    sc = yaml.safe_load(out)
+    assert sc["houses"] == [str(tmp_path / "a_one" / "map.yaml"), str(tmp_path / "b_two" / "map.yaml")]
+    assert sc["world"] is None and sc["time_rule"] == "route" and sc["pruned_fractions"] == []
+    code, _, err = run_study("planning", "--worlds", tmp_path, "--houses", "test-0")
+    assert code == 2 and "not two of them" in err
+    (tmp_path / "empty").mkdir()
+    code, _, err = run_study("planning", "--worlds", tmp_path / "empty")
+    assert code == 2 and "no */map.yaml" in err
+
+    def rec(house, trial, success, link=None, outcome="goal"):
+        return {"house": house, "method": "m", "trial": trial, "success": success,
+                "outcome": outcome, "planned": link is not None, "false_link_m": link}
+
+    houses = {"a": {"methods": {"m": {"success": 1.0}}, "records": [rec("a", 0, True, 0.0)]},
+              "b": {"methods": {"m": {"success": 0.33}},
+                    "records": [rec("b", 0, False, 6.0), rec("b", 1, True, 0.0),
+                                rec("b", 2, False, None), rec("b", 3, False, 0.0, "no_room")]}}
+    s = pt.summarize(houses, None, None)
+    assert s["pooled"]["m"] == {"trials": 4, "success": 0.5, "false_link_plans": round(1 / 3, 4)}
+    assert pt.summarize({"a": houses["a"]}, None, None)["pooled"] is None

@@ -271,6 +271,7 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
                 shares.setdefault(m, []).append(st["false_link_plans"])
     out["false_link_plans"] = {m: round(float(np.mean(v)), 4) for m, v in shares.items()}
     records = [r for h in houses.values() for r in h.get("records", [])]
+    out["pooled"] = pooled(records) if len(houses) > 1 else None
     out["changed_world"] = changed_world(records) if any(
         r["method"].endswith("_unchanged") for r in records) else None
     for name, row in (out["changed_world"] or {}).items():   # what the changes cost to run
@@ -282,6 +283,23 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
         row["wall_ratio"] = round(secs[0] / secs[1], 3) if min(secs) > 0 else None
         # car-periods driven: failing cars drive longer, apart from what a period costs
         row["periods_ratio"] = round(steps[0] / steps[1], 3) if min(steps) > 0 else None
+    return out
+
+
+def pooled(records: list[dict]) -> dict:
+    """Per method over all houses' trials together (each trial counts once,
+    ``no_room`` ones left out): ``trials``, ``success`` and the share of
+    plans with a false link (``false_link_plans``, of the planned trials
+    whose link lengths are known)."""
+    out: dict = {}
+    for m in dict.fromkeys(r["method"] for r in records):
+        rs = [r for r in records if r["method"] == m and r["outcome"] != "no_room"]
+        if not rs:
+            continue
+        false = [r["false_link_m"] > 0 for r in rs
+                 if r.get("planned") and r.get("false_link_m") is not None]
+        out[m] = {"trials": len(rs), "success": round(float(np.mean([r["success"] for r in rs])), 4),
+                  "false_link_plans": round(float(np.mean(false)), 4) if false else None}
     return out
 
 
