@@ -195,7 +195,18 @@ def line_world():
         second = p[:, 1] > 0.005
         return np.column_stack([second, np.where(second, p[:, 0] - 9, p[:, 0])]).astype(int)
 
-    return SimpleNamespace(places=places), drives, observe
+    return SimpleNamespace(places=places, grid=open_grid(-2.0, -2.0, 24.0, 8.0)), drives, observe
+
+
+def open_grid(x0, y0, w, h, wall_x=None):
+    """An open floor of ``w`` x ``h`` m from (x0, y0), with a wall across
+    it at ``wall_x`` where given."""
+    from topodrake.world.grid import OccupancyGrid
+
+    occupied = np.zeros((int(h / 0.1), int(w / 0.1)), bool)
+    if wall_x is not None:
+        occupied[:, int((wall_x - x0) / 0.1)] = True
+    return OccupancyGrid(occupied, np.array([x0, y0]), 0.1)
 
 
 def test_a_map_of_two_drives_through_a_place_plans_across_it():
@@ -257,29 +268,48 @@ def test_a_start_link_to_a_look_alike_far_along_the_map_is_a_false_step():
 
 
 def test_a_hop_through_a_vertex_reused_in_a_look_alike_place_is_a_false_step():
-    """A drive's own hop is false where its vertex lies far from where the
-    drive's odometry (the hop's leg) puts it, or, without a leg, far away."""
+    """A drive's own hop is false where its vertex is not within reach of
+    where the drive's odometry (the hop's leg) puts it, or, without a leg,
+    of the vertex before."""
     import networkx as nx
 
     from topodrake.experiments.joining import plan_links
 
+    world = SimpleNamespace(grid=open_grid(-2.0, -2.0, 26.0, 10.0))
     poses = {0: [0.0, 0.0, 0.0], 1: [1.0, 0.0, 0.0], 2: [20.0, 5.0, 0.0], 3: [21.0, 5.0, 0.0]}
     g = nx.DiGraph()
     g.add_edge(0, 1, kind="trajectory", leg=np.array([1.0, 0.0, 0.0]))
     g.add_edge(1, 2, kind="trajectory", leg=np.array([1.0, 0.0, 0.0]))   # the drive went 1 m
     g.add_edge(2, 3, kind="trajectory", leg=np.array([1.0, 0.0, 0.0]))
     m = SimpleNamespace(graph=g, pose=lambda vs: np.array([poses[v] for v in vs]))
-    links = plan_links(m, SimpleNamespace(vertices=[0, 1, 2, 3]), [0, 0, 0], [21.0, 5.0, 0.0])
+    plan = SimpleNamespace(vertices=[0, 1, 2, 3])
+    links = plan_links(world, m, plan, [0, 0, 0], [21.0, 5.0, 0.0])
     assert links["false_link_kind"] == "reuse"
     assert links["false_link_m"] == pytest.approx(np.hypot(18.0, 5.0))
     assert links["longest_link_m"] == pytest.approx(0.0)        # the start and goal links are true
-    del g.edges[1, 2]["leg"]                                     # no leg: the hop's own length
-    links = plan_links(m, SimpleNamespace(vertices=[0, 1, 2, 3]), [0, 0, 0], [21.0, 5.0, 0.0])
+    del g.edges[1, 2]["leg"]                                     # no leg: from the vertex before
+    links = plan_links(world, m, plan, [0, 0, 0], [21.0, 5.0, 0.0])
     assert links["false_link_m"] == pytest.approx(np.hypot(19.0, 5.0))
     poses[2], poses[3] = [2.0, 0.0, 0.0], [3.0, 0.0, 0.0]      # where the drive went: no false step
     g.edges[1, 2]["leg"] = np.array([1.0, 0.0, 0.0])
-    assert plan_links(m, SimpleNamespace(vertices=[0, 1, 2, 3]), [0, 0, 0],
-                      [3.0, 0.0, 0.0])["false_link_m"] == 0.0
+    assert plan_links(world, m, plan, [0, 0, 0], [3.0, 0.0, 0.0])["false_link_m"] == 0.0
+
+
+def test_a_link_is_false_where_its_ends_are_out_of_reach_not_where_it_is_long():
+    """Ends 7 m apart across an open floor are within reach; 3 m apart
+    through a wall with no door they are not; farther than the oracle's
+    reach they never are."""
+    from topodrake.experiments.link_truth import REACH_M, within_reach
+
+    open_floor = SimpleNamespace(grid=open_grid(-1.0, -3.0, 14.0, 6.0))
+    assert within_reach(open_floor, [0.0, 0.0], [7.0, 0.0])
+    assert not within_reach(open_floor, [0.0, 0.0], [REACH_M + 0.5, 0.0])
+    walled = SimpleNamespace(grid=open_grid(-1.0, -3.0, 14.0, 6.0, wall_x=1.5))
+    assert not within_reach(walled, [0.0, 0.0], [3.0, 0.0])
+    assert within_reach(walled, [0.0, 0.0], [1.0, 1.0])       # the same side of the wall
+    door = open_grid(-1.0, -3.0, 14.0, 6.0, wall_x=1.5)
+    door.occupied[25:35, :] = False                             # a 1 m door in the wall at y -0.5..0.5
+    assert within_reach(SimpleNamespace(grid=door), [0.0, 1.0], [3.0, 1.0])
 
 
 def test_a_lidar_junction_carries_the_departure_s_pose_registered_in_the_arrival_s_frame():

@@ -742,7 +742,7 @@ def test_experience_rounds_plan_each_round_with_the_drives_before_folded_in(monk
         given.append(list(limits))
         routes = [Planned([1, 2, 3]) for _ in starts]
         return routes, np.full(len(starts), 0.9), {"vertices": 3, "edges": 2}, None, \
-            [0.0] * len(starts)
+            [{"false_link_m": 0.0}] * len(starts)
 
     def follow_routes(engine, starts, routes, goals, *a, **k):
         n = len(starts)

@@ -226,6 +226,8 @@ def cmd_map_plan(args) -> None:
            "query_s": round(query_s, 3)}
     if not result.reachable:
         out["reason"] = result.reason
+        if result.uncovered:
+            out["uncovered"] = result.uncovered
     calib = loaded.calibration
     if calib is not None and result.reachable:
         out["success_probability"] = round(float(calib.predict(result.probability,
@@ -444,12 +446,14 @@ def cmd_bench_map(args) -> None:
     places = world.places
     say(f"rendering the observations at {len(places)} places")
     obs = drive_observations(world, topomap.scorer, places)
+    scans = view_scans(world, topomap, places)      # a camera map checks its links by them
     pairs = [(i, j) for i in range(len(places)) for j in range(len(places)) if i != j]
     times, reached, probs, why = [], 0, [], Counter()
     for i, j in tqdm(pairs[:args.queries], desc="plan queries", unit="query",
                      disable=args.quiet):
         t = time.perf_counter()
-        r = plan_path(topomap, obs[i], obs[j])
+        r = plan_path(topomap, obs[i], obs[j],
+                      view_scans=None if scans is None else (scans[i], scans[j]))
         times.append(time.perf_counter() - t)
         reached += r.reachable
         probs.append(r.probability)

@@ -11,13 +11,14 @@ every house and map kind of a study's options, with its result document.
 
 A plan's steps are judged in truth (privileged poses, evaluation only).
 Every step that is not one of the drives' own hops (a start, goal or
-direct link, a cross or junction edge) is a link. A link longer than
-:data:`~topodrake.experiments.plan_trials.FALSE_LINK_M` (5 m, the planning
-study's rule) joins places that only look alike: a ``false step``. So
-does a drive's own hop into or out of a vertex that the drive reused in a
-look-alike place: the vertex lies more than that from where the hop's leg
-(the drive's odometry) puts it, or, for a hop without a leg, the hop is
-longer than that (kind ``reuse``).
+direct link, a cross or junction edge) is a link. A link whose two ends are
+not within the controller's reach of each other in truth
+(:func:`~topodrake.experiments.link_truth.within_reach`: a short way that
+does not wind round walls) joins places that only look alike: a ``false
+step``. So does a drive's own hop into or out of a vertex that the drive
+reused in a look-alike place: the vertex is not within reach of where the
+hop's leg (the drive's odometry) puts it, or, for a hop without a leg, of
+the vertex before (kind ``reuse``).
 ``strict`` figures count every link longer than :data:`JOIN_STEP_M` (2 m)
 instead; they also count a start link to an anchor one clear hop along
 its drive (3-6 m on a lidar map, whose RE trusts long hops in the open),
@@ -32,7 +33,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from topodrake.errors import TopodrakeError
-from topodrake.experiments.plan_trials import FALSE_LINK_M
+from topodrake.experiments.link_truth import within_reach
 from topodrake.experiments.scenarios import option
 from topodrake.montecarlo import trial_seeds
 from topodrake.se2 import compose
@@ -41,7 +42,12 @@ from topodrake.topomap.build import BuildStats, add_trajectory
 from topodrake.topomap.graph import TopoMap, load_map_config
 from topodrake.topomap.plan import plan_path
 from topodrake.topomap.retrieval import default_embedding
-from topodrake.topomap.sources import demo_drives, drive_observations, make_scorer, place_of
+from topodrake.topomap.sources import (
+    demo_drives,
+    drive_observations,
+    make_scorer,
+    place_of,
+)
 from topodrake.validate import check_count, check_seed
 from topodrake.world import load_world
 
@@ -99,12 +105,12 @@ def joining_triples(n_places: int, n: int, seed: int) -> np.ndarray:
                      for s in trial_seeds(seed, n)], np.int64).reshape(n, 3)
 
 
-def plan_links(topomap, result, start_pose, goal_pose) -> dict:
+def plan_links(world, topomap, result, start_pose, goal_pose) -> dict:
     """The steps of a plan ``result`` from ``start_pose`` to ``goal_pose``
-    in truth: ``longest_step_m`` (every step), ``longest_link_m`` and
-    ``longest_link_kind`` (steps that are not trajectory edges),
-    ``false_link_m`` and ``false_link_kind`` (the longest false link; 0 and
-    "" for none)."""
+    in truth (in ``world``): ``longest_step_m`` (every step),
+    ``longest_link_m`` and ``longest_link_kind`` (steps that are not
+    trajectory edges), ``false_link_m`` and ``false_link_kind`` (the longest
+    false link, by its straight length; 0 and "" for none)."""
     vs = list(result.vertices)
     poses = topomap.pose(vs).reshape(-1, 3)
     xy = np.vstack([np.asarray(start_pose, np.float64)[None, :2], poses[:, :2],
@@ -112,16 +118,16 @@ def plan_links(topomap, result, start_pose, goal_pose) -> dict:
     steps = np.hypot(*np.diff(xy, axis=0).T)
     edges = [topomap.graph.edges[u, v] for u, v in zip(vs[:-1], vs[1:])]
     kinds = (["start"] + [e["kind"] for e in edges] + ["goal"]) if vs else ["direct"]
-    links = [(float(d), kind) for d, kind in zip(steps, kinds) if kind != "trajectory"]
-    false = [(d, kind) for d, kind in links if d > FALSE_LINK_M]
+    links = [(float(d), kind, i) for i, (d, kind) in enumerate(zip(steps, kinds))
+             if kind != "trajectory"]
+    false = [(d, kind) for d, kind, i in links if not within_reach(world, xy[i], xy[i + 1])]
     for i, e in enumerate(edges):      # a drive's own hop, through a vertex reused elsewhere
         if e["kind"] != "trajectory":
             continue
-        off = (float(np.hypot(*(compose(poses[i], e["leg"])[0, :2] - poses[i + 1, :2])))
-               if "leg" in e else float(steps[i + 1]))
-        if off > FALSE_LINK_M:
-            false.append((off, "reuse"))
-    link_m, link_kind = max(links)
+        end = compose(poses[i], e["leg"])[0, :2] if "leg" in e else poses[i, :2]
+        if not within_reach(world, end, poses[i + 1, :2]):
+            false.append((float(np.hypot(*(end - poses[i + 1, :2]))), "reuse"))
+    link_m, link_kind, _ = max(links)
     false_m, false_kind = max(false, default=(0.0, ""))
     return {"longest_step_m": float(steps.max()), "longest_link_m": link_m,
             "longest_link_kind": link_kind, "false_link_m": false_m,
@@ -156,7 +162,7 @@ def join_trial(world, make_map, drive_of, observe, triple, scan=None) -> JoinRes
         return JoinResult((a, b, c), len(topomap), stats.junctions, False, 0.0, np.nan, np.nan,
                           reason=plan.reason)
     return JoinResult((a, b, c), len(topomap), stats.junctions, True, plan.probability,
-                      **plan_links(topomap, plan, places[a], places[c]))
+                      **plan_links(world, topomap, plan, places[a], places[c]))
 
 
 def summarize(results: list[JoinResult]) -> dict:

@@ -143,13 +143,8 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
                            (s_scans[t], g_scans[g]))
                  for t, g in enumerate(goal_idx)]
     routes = [p.route if p.reachable else None for p in plans]
-    if meth.map != "sptm":        # each plan's false steps (links, hops into look-alikes), in truth
-        from topodrake.experiments.joining import plan_links
-
-        links = [plan_links(m, p, starts[t], places[g])["false_link_m"] if p.reachable else None
-                 for t, (p, g) in enumerate(zip(plans, goal_idx))]
-    else:
-        links = [None] * len(plans)
+    links = plan_notes(world, m, plans, starts, places[goal_idx]) if meth.map != "sptm" \
+        else [{}] * len(plans)
     if meth.renders_routes:      # the learned camera RE reads images
         policy, _ = networks("camera")
         routes = [None if r is None else render_pose_route(world, r, getattr(policy, "sensor", None))
@@ -159,6 +154,26 @@ def plan_routes(method: str, spec: str, world, drives, indices, starts, places, 
         prob[:] = np.nan
         replan = None
     return routes, prob, size, replan, links
+
+
+def plan_notes(world, topomap, plans, starts, goals) -> list[dict]:
+    """What each plan's record tells of it beside its outcome: a plan's
+    false link in truth (``false_link_m``, 0 for none, and its kind; links
+    into look-alike places or hops through them, :func:`plan_links`); for
+    no plan, the end the map does not cover (``uncovered``), where that was
+    the reason."""
+    from topodrake.experiments.joining import plan_links
+
+    out = []
+    for p, s, g in zip(plans, starts, goals):
+        if p.reachable:
+            links = plan_links(world, topomap, p, s, g)
+            out.append({"false_link_m": round(links["false_link_m"], 3),
+                        **({"false_link_kind": links["false_link_kind"]}
+                           if links["false_link_kind"] else {})})
+        else:
+            out.append({"uncovered": p.uncovered} if p.uncovered else {})
+    return out
 
 
 def trial_time_limits(sc: PlanningScenario, world, starts, goals) -> np.ndarray:
@@ -213,7 +228,7 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts,
     round_of = None
     t0 = time.perf_counter()
     limits = trial_time_limits(sc, world, starts, places[pairs[:, 1]])
-    routes, prob, size, replan, false_links = plan_routes(
+    routes, prob, size, replan, notes = plan_routes(
         method, spec, world, drives, indices, starts[:first], places, pairs[:first, 1], sc, tag,
         limits=limits[:first], progress=progress)
     plan_s = time.perf_counter() - t0
@@ -231,9 +246,9 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts,
                             sc.batch, SUCCESS_M, progress=None if bar is None else bar.update,
                             odometry_seeds=odo_seeds[:first])
         if rounds > 1:
-            routes, prob, false_links, res, round_of = _later_rounds(
+            routes, prob, notes, res, round_of = _later_rounds(
                 method, spec, world, drives, indices, pairs, starts, places, sc, tag, engine,
-                routes, prob, false_links, res, rounds, bar, odo_seeds, limits, progress)
+                routes, prob, notes, res, rounds, bar, odo_seeds, limits, progress)
     follow_s = time.perf_counter() - t0 - plan_s
 
     def records_of(res, placed=None, limits=limits):
@@ -249,7 +264,9 @@ def run_method(method: str, spec: str, world, drives, indices, pairs, starts,
                  "plan_anchors": 0 if routes[t] is None else len(routes[t]),
                  "longest_link_m": None if routes[t] is None else
                  round(longest_link_m(starts[t], routes[t], places[b]), 3),
-                 "false_link_m": None if false_links[t] is None else round(false_links[t], 3),
+                 "false_link_m": notes[t].get("false_link_m"),
+                 **{k: notes[t][k] for k in ("false_link_kind", "uncovered")
+                    if k in notes[t]},
                  "outcome": res.outcome[t], "success": bool(res.success[t]),
                  "final_distance_m": round(float(res.final_distance_m[t]), 3),
                  "steps": int(res.steps[t]), "time_limit_s": round(float(limits[t]), 1),
@@ -315,14 +332,14 @@ def round_bounds(n: int, rounds: int) -> np.ndarray:
 
 
 def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, sc, tag, engine,
-                  routes, prob, false_links, res, rounds, bar, odo_seeds, limits, progress):
+                  routes, prob, notes, res, rounds, bar, odo_seeds, limits, progress):
     """Rounds 2.. of a method's trials: each planned with every earlier
     round's drives folded into the map's edges (``odo_seeds``, ``limits``:
     every trial's odometry seed and time limit). Returns the whole run's
     routes, probabilities, false links, follow result and each trial's round."""
     bounds = round_bounds(len(pairs), rounds)
     passed, failed = [], []
-    routes, prob, false_links = list(routes), list(prob), list(false_links)
+    routes, prob, notes = list(routes), list(prob), list(notes)
     parts = [res]
 
     def learn(rs, result):
@@ -346,7 +363,7 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, s
         learn(rs, out)
         routes += rs
         prob += list(pr)
-        false_links += links
+        notes += links
         parts.append(out)
     whole = FollowResult([o for p in parts for o in p.outcome],
                          *(np.concatenate([getattr(p, k) for p in parts])
@@ -354,7 +371,7 @@ def _later_rounds(method, spec, world, drives, indices, pairs, starts, places, s
                          visited=np.concatenate([p.visited for p in parts]),
                          active=np.concatenate([p.active for p in parts]))
     round_of = np.repeat(np.arange(rounds), np.diff(bounds))
-    return routes, np.asarray(prob, np.float64), false_links, whole, round_of
+    return routes, np.asarray(prob, np.float64), notes, whole, round_of
 
 
 def success_by_round(records: list[dict]) -> dict:
@@ -370,9 +387,12 @@ def success_by_round(records: list[dict]) -> dict:
 
 def _rates(records: list[dict]) -> dict:
     """Success, plan and outcome counts of some trials' records; the share
-    of plans with a false link (a link, not a drive's own hop, longer than
-    FALSE_LINK_M in truth; SPTM: any step) and of plans with any step that
-    long (``long_step_plans``: also the lidar maps' long anchor hops)."""
+    of plans with a false link (a link or a hop whose ends are not within
+    the controller's reach in truth, :func:`plan_notes`; SPTM: any step
+    longer than FALSE_LINK_M), of plans with any step that long
+    (``long_step_plans``: also the lidar maps' long anchor hops) and of
+    trials refused because the map does not cover the start or goal
+    (``uncovered``)."""
     outcomes = [r["outcome"] for r in records]
     planned = [r for r in records if r["planned"]]
     probs = [r["plan_probability"] for r in planned if r["plan_probability"] is not None]
@@ -385,6 +405,7 @@ def _rates(records: list[dict]) -> dict:
             "planned": round(len(planned) / len(records), 4),
             "mean_plan_probability": round(float(np.mean(probs)), 4) if probs else None,
             "false_link_plans": round(float(np.mean(false)), 4) if false else None,
+            "uncovered": round(sum("uncovered" in r for r in records) / len(records), 4),
             "long_step_plans": (round(float(np.mean(np.array(links) > FALSE_LINK_M)), 4)
                                 if links else None),
             "outcomes": {o: outcomes.count(o) for o in sorted(set(outcomes))}}

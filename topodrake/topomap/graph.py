@@ -118,6 +118,9 @@ class LinkConfig:
                                # the start's scan registers onto within this, metres (0: off) ...
     near_deg: float = 60.0     # ... facing the car's way within this, degrees ...
     near_behind_m: float = 0.3  # ... and at most this far behind the car, metres
+    cover: float = 0.7         # maps that check links by scans: a link's view must register onto
+                               # its vertex's scan pairing this share of both scans' points; an
+                               # end with no such link is not covered (0: off; topomap/coverage.py)
 
 
 @dataclass
@@ -197,7 +200,7 @@ class MapConfig:
 
         check(("sparsify.p", "reuse.p", "cross.p", "links.p", "junction.p"),
               lambda v: number(v) and 0.0 < v < 1.0, "in (0, 1)")
-        check(("sparsify.slack", "scan_match", "junction.scan_match"),
+        check(("sparsify.slack", "scan_match", "junction.scan_match", "links.cover"),
               lambda v: number(v) and 0.0 <= v < 1.0, "in [0, 1)")
         for place, choices in (("reuse.rule", REUSE_RULES), ("teach_odometry", TEACH_ODOMETRY)):
             check((place,), lambda v, c=choices: v in c, f"one of {', '.join(choices)}")
@@ -241,7 +244,8 @@ FLAT = {
     "loop_check_per_m": "reuse.loop_check_per_m", "reuse_pinned": "reuse.pinned",
     "cross_legs": "cross.legs", "goal_leg": "links.goal_leg", "legless_p": "plan.legless_p",
     "switch_p": "plan.switch_p", "start_near_m": "links.near_m",
-    "start_near_deg": "links.near_deg", "start_near_behind_m": "links.near_behind_m"}
+    "start_near_deg": "links.near_deg", "start_near_behind_m": "links.near_behind_m",
+    "link_cover": "links.cover"}
 
 #: the settings of deleted rules (docs/history.md) at the value every map is
 #: now built with; the flat form keeps them, so that stored configs and the
@@ -330,7 +334,7 @@ CAMERA_ONLY = ("camera_scans", "camera_legs", "camera_junction_scans")
 SCANS_ONLY = ("cross_legs",)
 #: flat settings only planning reads, not building (a map is built alike whatever they say)
 PLAN_ONLY = ("link_order", "direct_check", "goal_leg", "legless_p", "switch_p", "start_near_m",
-             "start_near_deg", "start_near_behind_m")
+             "start_near_deg", "start_near_behind_m", "link_cover")
 # (the tuples keep the deleted rules' names: they shape the map caches' keys)
 
 

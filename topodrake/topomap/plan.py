@@ -40,6 +40,7 @@ from topodrake.contract.route import LEG_POINTS, Route
 from topodrake.errors import TopodrakeError
 from topodrake.se2 import invert, relative
 from topodrake.topomap.build import join_legs, joins_carry_legs
+from topodrake.topomap.coverage import registered_links, uncovered_reason
 from topodrake.topomap.graph import EDGE_KINDS, TopoMap
 from topodrake.topomap.route_time import DrivingTime, edge_metres, path_metres
 from topodrake.topomap.scan_match import checks_scans, joins_by_scans, scans_match, vertex_scans
@@ -63,12 +64,14 @@ class PlanResult:
     start_links: int = 0
     goal_links: int = 0
     on_time: float = 1.0          # probability of driving it within the time limit (1: no limit)
+    uncovered: str = ""           # "start" or "goal": the end the map does not cover (no plan)
 
     def summary(self) -> dict:
         return {"reachable": self.reachable, "path": [int(v) for v in self.vertices],
                 "probability": round(self.probability, 6), "start_links": self.start_links,
                 "goal_links": self.goal_links, "on_time": round(self.on_time, 6),
-                **({"reason": self.reason} if self.reason else {})}
+                **({"reason": self.reason} if self.reason else {}),
+                **({"uncovered": self.uncovered} if self.uncovered else {})}
 
 
 def _check_observation(topomap: TopoMap, obs: np.ndarray, what: str) -> np.ndarray:
@@ -345,6 +348,20 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
         if start_vertex is not None:      # the car returns to a vertex it saw: no start link
             links_s, p_direct = [(int(start_vertex), 1.0)], 0.0
         result = PlanResult(False, start_links=len(links_s), goal_links=len(links_g))
+        if scans is not None and cfg.cover > 0:
+            ends = [("goal", links_g, scans[1])]
+            if start_vertex is None:
+                ends.insert(0, ("start", links_s, scans[0]))
+            for end, links, scan in ends:
+                kept, best = registered_links(m, links, scan, cfg.cover)
+                if links and not kept and p_direct <= cfg.p:
+                    result.reason = uncovered_reason(end, len(links), best, cfg.cover)
+                    result.uncovered = end
+                    return result
+                if end == "start":
+                    links_s = kept
+                else:
+                    links_g = kept
         if not links_s and p_direct <= cfg.p:
             result.reason = (f"no map vertex is reachable from the start (best RE "
                              f"{max(p_start, default=0.0):.2f} <= {cfg.p})")
