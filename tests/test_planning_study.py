@@ -1033,12 +1033,18 @@ def test_several_buildings_run_as_one_study_with_a_pooled_block(tmp_path):
 
     def rec(house, trial, success, link=None, outcome="goal"):
         return {"house": house, "method": "m", "trial": trial, "success": success,
-                "outcome": outcome, "planned": link is not None, "false_link_m": link}
+                "outcome": outcome, "planned": link is not None, "false_link_m": link,
+                "plan_probability": 0.8 if link is not None else 0.0}
 
+    refused = {**rec("b", 2, False, None), "uncovered": "goal"}
     houses = {"a": {"methods": {"m": {"success": 1.0}}, "records": [rec("a", 0, True, 0.0)]},
               "b": {"methods": {"m": {"success": 0.33}},
                     "records": [rec("b", 0, False, 6.0), rec("b", 1, True, 0.0),
-                                rec("b", 2, False, None), rec("b", 3, False, 0.0, "no_room")]}}
+                                refused, rec("b", 3, False, 0.0, "no_room")]}}
     s = pt.summarize(houses, None, None)
-    assert s["pooled"]["m"] == {"trials": 4, "success": 0.5, "false_link_plans": round(1 / 3, 4)}
+    # three plans at 0.8, two of them succeeded: ECE |0.8 - 2/3|
+    assert s["pooled"]["m"] == {"trials": 4, "success": 0.5, "false_link_plans": round(1 / 3, 4),
+                                "uncovered": 0.25, "plan_probability_ece": round(0.8 - 2 / 3, 4)}
+    assert s["by_house"]["b"]["m"]["trials"] == 3 and s["by_house"]["a"]["m"]["success"] == 1.0
+    assert s["by_house"]["a"]["m"]["plan_probability_ece"] == round(0.2, 4)
     assert pt.summarize({"a": houses["a"]}, None, None)["pooled"] is None

@@ -272,6 +272,8 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
     out["false_link_plans"] = {m: round(float(np.mean(v)), 4) for m, v in shares.items()}
     records = [r for h in houses.values() for r in h.get("records", [])]
     out["pooled"] = pooled(records) if len(houses) > 1 else None
+    out["by_house"] = {name: pooled(h.get("records", [])) for name, h in houses.items()} \
+        if len(houses) > 1 else None
     out["changed_world"] = changed_world(records) if any(
         r["method"].endswith("_unchanged") for r in records) else None
     for name, row in (out["changed_world"] or {}).items():   # what the changes cost to run
@@ -287,19 +289,31 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
 
 
 def pooled(records: list[dict]) -> dict:
-    """Per method over all houses' trials together (each trial counts once,
-    ``no_room`` ones left out): ``trials``, ``success`` and the share of
+    """Per method over some trials (all houses' together: each trial counts
+    once, ``no_room`` ones left out): ``trials``, ``success``, the share of
     plans with a false link (``false_link_plans``, of the planned trials
-    whose link lengths are known)."""
+    whose links are judged), of trials refused as not covered
+    (``uncovered``) and the plans' ECE (``plan_probability_ece``: the
+    calibrated chance of success where the records carry one, else the raw
+    plan probability, against success)."""
+    from topodrake.topomap.plan_calibration import calibration
+
     out: dict = {}
     for m in dict.fromkeys(r["method"] for r in records):
         rs = [r for r in records if r["method"] == m and r["outcome"] != "no_room"]
         if not rs:
             continue
-        false = [r["false_link_m"] > 0 for r in rs
-                 if r.get("planned") and r.get("false_link_m") is not None]
+        planned = [r for r in rs if r.get("planned")]
+        false = [r["false_link_m"] > 0 for r in planned if r.get("false_link_m") is not None]
+        probs = [r.get("success_probability") if r.get("success_probability") is not None
+                 else r.get("plan_probability") for r in planned]
+        ece = None
+        if planned and all(p is not None for p in probs):
+            _, ece = calibration(probs, [r["success"] for r in planned])
         out[m] = {"trials": len(rs), "success": round(float(np.mean([r["success"] for r in rs])), 4),
-                  "false_link_plans": round(float(np.mean(false)), 4) if false else None}
+                  "false_link_plans": round(float(np.mean(false)), 4) if false else None,
+                  "uncovered": round(sum("uncovered" in r for r in rs) / len(rs), 4),
+                  "plan_probability_ece": None if ece is None else round(float(ece), 4)}
     return out
 
 
