@@ -40,6 +40,7 @@ from topodrake.fileio import read_manifest as _read_manifest
 from topodrake.montecarlo import trial_seeds
 from topodrake.rollout import ExpertRollout, RolloutConfig
 from topodrake.world import load_world
+from topodrake.world.catalogue import same_world
 
 FORMAT = "topodrake-demos"
 VERSION = 2
@@ -95,7 +96,8 @@ def collect(world_spec: str, out_dir, config: CollectConfig | None = None,
                 "chunk_size": config.chunk_size, "chunks": []}
     if (out / "manifest.json").exists():
         old = read_manifest(out)
-        if _comparable(old["config"]) != _comparable(manifest["config"]) or old["world"] != world_spec:
+        if _comparable(old["config"]) != _comparable(manifest["config"]) \
+                or not same_world(old["world"], world_spec):
             raise TopodrakeError(
                 f"{out} holds demonstrations of another world or config; use a new folder")
         manifest["chunks"] = old["chunks"]

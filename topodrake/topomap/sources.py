@@ -27,6 +27,7 @@ from topodrake.topomap.mapfile import load_map, read_map_meta
 from topodrake.topomap.plan_calibration import calibration_beside
 from topodrake.topomap.scorer import LearnedScorer, OracleScorer
 from topodrake.world import load_world
+from topodrake.world.catalogue import same_world
 
 ROOT = Path(__file__).resolve().parents[2]
 #: map kind -> (RE checkpoint folder, C_WP checkpoint folder or "registration") shipped in
@@ -236,15 +237,6 @@ def demo_folder(world_spec: str, demos=None) -> Path:
     p = Path(world_spec)
     name = f"{p.parent.name}-{p.stem}" if p.suffix in (".yaml", ".yml", ".json") else world_spec
     return Path("data/demos/pairs-s0") / name
-
-
-def same_world(a, b) -> bool:
-    """Whether two world specs name one world (a catalogue name, or one map file)."""
-    if a == b:
-        return True
-    if a is None or b is None or Path(str(a)).suffix not in (".yaml", ".yml", ".json"):
-        return False
-    return Path(str(a)).resolve() == Path(str(b)).resolve()
 
 
 def demo_drives(world_spec: str, demos=None, progress: bool = True) -> tuple[Path, list]:

@@ -73,3 +73,13 @@ def unknown_world_message(spec: str) -> str:
     hint = f" (close: {', '.join(close)})" if close else ""
     return (f"unknown world {shown!r}{hint}; 'topodrake world list' names all {len(CATALOGUE)}, "
             f"or give a ROS map .yaml or HouseExpo .json")
+
+
+def same_world(a, b) -> bool:
+    """Whether two world specs name one world (a catalogue name, or one map
+    file however its path is written)."""
+    if a == b:
+        return True
+    if a is None or b is None or Path(str(a)).suffix not in (".yaml", ".yml", ".json"):
+        return False
+    return Path(str(a)).resolve() == Path(str(b)).resolve()
