@@ -6,10 +6,12 @@ readily as to its own. The lidar scans tell them apart: a link end is
 *registered* where the view's scan registers onto the vertex's scan with
 the wide search a map's joins use (:func:`~topodrake.topomap.build.join_icp`,
 metres and half a right angle apart) and the fit pairs at least
-``links.cover`` of both scans' points. A plan keeps only registered links
-(:func:`registered_links`); a start or goal whose RE links none of them
-register onto is not covered, and the plan refuses it with that reason
-(:func:`uncovered_reason`). Maps that check no scans (a camera map without
+``links.cover`` of both scans' points (:func:`registered_links`). A start
+or goal none of whose RE links is registered is not covered, and the plan
+refuses it with that reason (:func:`uncovered_reason`); where one is, the
+plan chooses among all its links as before (keeping only registered ones
+cost test-house plans whose true goal link registers below the share:
+docs/coverage.md). Maps that check no scans (a camera map without
 its drives' scans, a pose oracle map) keep every link.
 """
 

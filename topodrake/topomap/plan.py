@@ -353,15 +353,13 @@ def plan_path(topomap: TopoMap, start_observation: np.ndarray, goal_observation:
             if start_vertex is None:
                 ends.insert(0, ("start", links_s, scans[0]))
             for end, links, scan in ends:
+                if not links or p_direct > cfg.p:
+                    continue
                 kept, best = registered_links(m, links, scan, cfg.cover)
-                if links and not kept and p_direct <= cfg.p:
+                if not kept:
                     result.reason = uncovered_reason(end, len(links), best, cfg.cover)
                     result.uncovered = end
                     return result
-                if end == "start":
-                    links_s = kept
-                else:
-                    links_g = kept
         if not links_s and p_direct <= cfg.p:
             result.reason = (f"no map vertex is reachable from the start (best RE "
                              f"{max(p_start, default=0.0):.2f} <= {cfg.p})")
