@@ -7,8 +7,10 @@ it) is built from only the expert drive a -> b and the drive b -> c, and a
 plan is made from the view at place a to the view at place c
 (:func:`topodrake.experiments.joining.join_trial`). A triple is joined when the
 plan exists without a false step: no link (a start, goal or direct link,
-a cross or junction edge; not the drives' own hops) longer than 5 m in
-truth; ``strict_`` figures hold every link to 2 m.
+a cross or junction edge; not the drives' own hops) whose ends are out of
+the controller's reach of each other in truth
+(:mod:`topodrake.experiments.link_truth`); ``strict_`` figures hold every
+link to 2 m.
 
     python studies/map_joining.py --json
 

@@ -15,7 +15,9 @@ plans' calibrated chance of success against success).
     python studies/partial_maps.py --json
 
 writes ``results/partial_maps.json`` (per house, per count of places, every
-query's record, the command).
+query's record, the command); ``--paired BEFORE.json,AFTER.json`` compares
+two runs query by query (e.g. with and without the coverage check,
+``--scenario-text '{map: {link_cover: 0}}'``).
 """
 
 from __future__ import annotations
@@ -32,7 +34,12 @@ from topodrake.apps.study_args import (
     scenario_of,
     study_main,
 )
-from topodrake.experiments.partial_maps import PartialMapsStudy, partial_maps_study
+from topodrake.errors import TopodrakeError
+from topodrake.experiments.partial_maps import (
+    PartialMapsStudy,
+    paired_runs,
+    partial_maps_study,
+)
 from topodrake.fileio import atomic_write_json
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "partial_maps.yaml"
@@ -43,12 +50,24 @@ def main(argv=None) -> int:
     add_scenario_arguments(ap, PartialMapsStudy, SCENARIOS, "default",
                            {"maps_per_count": at.count, "batch": at.count})
     add_output_arguments(ap)
+    ap.add_argument("--paired", metavar="BEFORE.json,AFTER.json",
+                    help="run no queries: two recorded runs' paired differences (95 %% interval)")
     args = ap.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     return study_main(_run, args)
 
 
 def _run(args) -> int:
+    if args.paired:
+        sides = [p for p in args.paired.split(",") if p]
+        if len(sides) != 2:
+            raise TopodrakeError(f"--paired {args.paired!r}: give BEFORE.json,AFTER.json")
+        doc = paired_runs(*sides)
+        print(json.dumps(doc) if args.json else "\n".join(
+            f"{m:<10} {name:<19} {v['before']} -> {v['after']}  {v['difference']['mean']:+.4f} "
+            f"[{v['difference']['ci95'][0]:+.4f}, {v['difference']['ci95'][1]:+.4f}]"
+            for m, row in doc.items() for name, v in row.items() if name != "queries"))
+        return 0
     study = scenario_of(PartialMapsStudy, args, SCENARIOS)
     if printed_config(study, args):
         return 0

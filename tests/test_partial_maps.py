@@ -61,3 +61,27 @@ def test_the_study_refuses_bad_settings_by_name():
     with pytest.raises(TopodrakeError, match="links.cover|link_cover"):
         PartialMapsStudy(map={"link_cover": 2.0}).validate()
     assert PartialMapsStudy().validate().places == [4, 5, 6, 7]
+
+
+def test_two_runs_compare_query_by_query(tmp_path):
+    import json
+
+    from topodrake.experiments.partial_maps import paired_runs
+
+    def run(name, refuse):
+        trials = [{"method": "m", "house": "h", "map_places": [1, 2], "trial": t,
+                   "success": t == 0, "planned": not (refuse and t == 1),
+                   **({"uncovered": "goal"} if refuse and t == 1 else
+                      {"false_link_kind": "goal"} if t == 1 else {})} for t in range(3)]
+        path = tmp_path / name
+        path.write_text(json.dumps({"trials": trials}))
+        return path
+
+    doc = paired_runs(run("a.json", False), run("b.json", True))["m"]
+    assert doc["queries"] == 3
+    assert doc["covered_link_false"]["before"] == round(1 / 3, 4)
+    assert doc["covered_link_false"]["after"] == 0.0 and doc["refused"]["after"] == round(1 / 3, 4)
+    assert doc["success"]["difference"]["mean"] == 0.0
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(TopodrakeError, match="not a partial-maps result"):
+        paired_runs(tmp_path / "bad.json", tmp_path / "a.json")

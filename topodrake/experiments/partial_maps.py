@@ -207,3 +207,42 @@ def _bins(records: list[dict], counts: list[int]) -> dict:
                                                               for r in mine])), 4)
                        if mine else None, **coverage_figures(mine)}
     return out
+
+
+def paired_runs(before_path, after_path) -> dict:
+    """Two recorded runs (``partial_maps.json``) set side by side on their
+    common queries, per method: success, plans with a false start or goal
+    link (of all queries: a query without a plan has none) and refusals,
+    each before, after and the paired difference (95 % interval resampled
+    within houses)."""
+    import json
+
+    from topodrake.montecarlo import paired_difference
+
+    runs = []
+    for path in (before_path, after_path):
+        try:
+            with open(path, encoding="utf-8") as f:
+                trials = json.load(f)["trials"]
+            runs.append({(r["method"], r["house"], tuple(r["map_places"]), r["trial"]): r
+                         for r in trials})
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise TopodrakeError(f"--paired: {path} is not a partial-maps result ({e})") from None
+    keys = sorted(set(runs[0]) & set(runs[1]))
+    if not keys:
+        raise TopodrakeError("--paired: the two runs share no queries")
+    measures = {"success": lambda r: r["success"],
+                "covered_link_false": lambda r: r.get("false_link_kind") in END_LINKS,
+                "refused": lambda r: "uncovered" in r}
+    out = {}
+    for method in dict.fromkeys(k[0] for k in keys):
+        mine = [k for k in keys if k[0] == method]
+        houses = np.array([k[1] for k in mine])
+        row = {"queries": len(mine)}
+        for name, of in measures.items():
+            a = np.array([float(of(runs[0][k])) for k in mine])
+            b = np.array([float(of(runs[1][k])) for k in mine])
+            row[name] = {"before": round(float(a.mean()), 4), "after": round(float(b.mean()), 4),
+                         "difference": paired_difference(a, b, houses)}
+        out[method] = row
+    return out
