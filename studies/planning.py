@@ -34,6 +34,7 @@ from topodrake.errors import TopodrakeError
 from topodrake.experiments import plan_report as report
 from topodrake.experiments.plan_scenario import PlanningScenario
 from topodrake.fileio import atomic_write_json
+from topodrake.world.catalogue import map_files
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios" / "planning.yaml"
 
@@ -107,15 +108,11 @@ def _scenario(args) -> PlanningScenario:
 
 
 def building_specs(text: str) -> list[str]:
-    """The worlds ``--worlds`` names: every ``*/map.yaml`` under a folder,
-    sorted, or the comma-separated specs as given."""
-    path = Path(text)
-    if path.is_dir():
-        specs = sorted(str(p) for p in path.glob("*/map.yaml"))
-        if not specs:
-            raise TopodrakeError(f"--worlds {text}: no */map.yaml under that folder")
-        return specs
-    return [s.strip() for s in text.split(",") if s.strip()]
+    """The worlds ``--worlds`` names (:func:`topodrake.world.catalogue.map_files`)."""
+    try:
+        return map_files(text)
+    except TopodrakeError as e:
+        raise TopodrakeError(f"--worlds {e}") from None
 
 
 def _run(args) -> int:

@@ -33,6 +33,21 @@ def test_world_list(capsys):
     assert names[:2] == ["train-00", "train-01"] and "test-4" in names
 
 
+def test_world_list_adds_the_maps_of_a_folder(capsys, tmp_path):
+    for name in ("lab", "attic"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "map.yaml").write_text("image: map.pgm\n")
+    (tmp_path / "notes").mkdir()
+    code, out, _ = run(capsys, "world", "list", "--maps", str(tmp_path), "--json")
+    names = json.loads(out)
+    assert code == 0 and len(names) == 108 and names[-2:] == [
+        str(tmp_path / "attic" / "map.yaml"), str(tmp_path / "lab" / "map.yaml")]
+    code, _, err = run(capsys, "world", "list", "--maps", str(tmp_path / "notes"))
+    assert code == 2 and "no */map.yaml" in err
+    code, _, err = run(capsys, "world", "list", "--maps", str(tmp_path / "gone"))
+    assert code == 2 and "no such folder" in err
+
+
 def test_world_info_json(capsys):
     code, out, _ = run(capsys, "world", "info", "test-1", "--json")
     info = json.loads(out)

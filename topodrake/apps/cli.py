@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 import sys
+from pathlib import Path
 
 from topodrake import __version__
 from topodrake.apps import argtypes as at
@@ -34,7 +35,7 @@ from topodrake.navigation.outcomes import drive_outcome, exit_status
 from topodrake.systems.scenario import load_scenario
 from topodrake.systems.trials import expert_trial
 from topodrake.world import load_world
-from topodrake.world.catalogue import catalogue_names
+from topodrake.world.catalogue import catalogue_names, map_files
 from topodrake.world.plot import plot_world, save_figure
 
 DESCRIPTION = ("topodrake: visual topological navigation on Drake. Drive, collect "
@@ -138,7 +139,9 @@ def cmd_collect(args) -> None:
 
 
 def cmd_world_list(args) -> None:
-    names = catalogue_names()
+    if args.maps and not Path(args.maps).is_dir():
+        raise TopodrakeError(f"--maps {args.maps}: no such folder")
+    names = catalogue_names() + (map_files(args.maps) if args.maps else [])
     if args.json:
         print(json.dumps(names))
     else:
@@ -243,7 +246,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     world = sub.add_parser("world", help="list, inspect and plot worlds")
     wsub = at.subcommands(world, dest="world_command")
-    wl = wsub.add_parser("list", help="the catalogue of procedural houses")
+    wl = wsub.add_parser("list", help="the catalogue of procedural houses, and the ROS maps "
+                                      "of a folder")
+    wl.add_argument("--maps", metavar="FOLDER", help="also every */map.yaml under this folder "
+                                                     "(e.g. a folder of building maps); each "
+                                                     "works wherever a world is asked for")
     wl.add_argument("--json", action="store_true", help="print the names as one JSON list")
     wl.set_defaults(func=cmd_world_list)
     wi = wsub.add_parser("info", help="summary of a world (catalogue name or map file)")

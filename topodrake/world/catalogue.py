@@ -83,3 +83,16 @@ def same_world(a, b) -> bool:
     if a is None or b is None or Path(str(a)).suffix not in (".yaml", ".yml", ".json"):
         return False
     return Path(str(a)).resolve() == Path(str(b)).resolve()
+
+
+def map_files(text: str) -> list[str]:
+    """The ROS map YAMLs ``text`` names: every ``*/map.yaml`` under a folder
+    (sorted; a folder without one is refused), or comma-separated specs as
+    given."""
+    path = Path(text)
+    if path.is_dir():
+        specs = sorted(str(p) for p in path.glob("*/map.yaml"))
+        if not specs:
+            raise TopodrakeError(f"{text}: no */map.yaml under that folder")
+        return specs
+    return [s.strip() for s in text.split(",") if s.strip()]
