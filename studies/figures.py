@@ -50,6 +50,12 @@ FIGURES = {
     "map_scalability": (["results/map_scalability.json", "results/map_scalability.png"],
                         f"{PY} studies/map_scalability.py --json"),
     "map_joining": (["results/map_joining.json"], f"{PY} studies/map_joining.py --json"),
+    "partial_maps": (["results/partial_maps/partial_maps.json"],
+                     f"{PY} studies/partial_maps.py --out results/partial_maps --json"),
+    "partial_maps_no_check": (["results/partial_maps_no_check/partial_maps.json"],
+                              f"{PY} studies/partial_maps.py --scenario-text "
+                              "'{map: {link_cover: 0}}' --out results/partial_maps_no_check "
+                              "--json"),
     "following_lidar_reg": (["results/following/lidar_reg/trajectory_following.json"],
                             f"{TF} --controllers lidar_reg --out results/following/lidar_reg --json"),
     "following_lidar_scale": (["results/following/lidar_k5_scale/trajectory_following.json"],
