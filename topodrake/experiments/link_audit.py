@@ -21,7 +21,7 @@ import numpy as np
 
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.map_cache import house_drives, house_key
-from topodrake.experiments.plan_methods import METHODS
+from topodrake.experiments.plan_methods import check_map_methods
 from topodrake.experiments.plan_scenario import PlanningScenario, Setting, map_config
 from topodrake.experiments.plan_study import house_seed, plan_routes
 from topodrake.experiments.plan_trials import jittered_starts, trial_pairs
@@ -44,10 +44,7 @@ class LinkAuditStudy:
 
     def validate(self) -> "LinkAuditStudy":
         """Check every field; a bad one raises a one-line TopodrakeError."""
-        bad = [m for m in self.methods if m not in METHODS or METHODS[m].map == "sptm"]
-        if bad or not self.methods:
-            raise TopodrakeError(f"link audit: methods must be map methods of the planning "
-                                 f"study (not sptm), got {','.join(self.methods)!r}")
+        check_map_methods("link audit", self.methods)
         if not self.houses:
             raise TopodrakeError("link audit: houses names no building")
         check_count("link audit: trials", self.trials)

@@ -36,12 +36,15 @@ import numpy as np
 from topodrake.errors import TopodrakeError
 from topodrake.experiments.link_truth import within_reach
 from topodrake.experiments.map_cache import get_map, house_drives, house_key
-from topodrake.experiments.plan_methods import METHODS, attach_success_probability
+from topodrake.experiments.plan_methods import (
+    METHODS,
+    attach_success_probability,
+    check_map_methods,
+)
 from topodrake.experiments.plan_scenario import PlanningScenario, Setting, map_config
 from topodrake.experiments.plan_study import house_seed, run_method
-from topodrake.experiments.plan_trials import jittered_starts
+from topodrake.experiments.plan_trials import jittered_starts, plans_ece
 from topodrake.experiments.scenarios import option
-from topodrake.topomap.plan_calibration import calibration
 from topodrake.topomap.sources import drives_between
 from topodrake.validate import check_count, check_seed
 from topodrake.world import load_world
@@ -68,10 +71,7 @@ class PartialMapsStudy:
 
     def validate(self) -> "PartialMapsStudy":
         """Check every field; a bad one raises a one-line TopodrakeError."""
-        bad = [m for m in self.methods if m not in METHODS or METHODS[m].map == "sptm"]
-        if bad or not self.methods:
-            raise TopodrakeError(f"partial maps: methods must be map methods of the planning "
-                                 f"study (not sptm), got {','.join(self.methods)!r}")
+        check_map_methods("partial maps", self.methods)
         if not self.houses:
             raise TopodrakeError("partial maps: houses names no house")
         if not self.places or any(isinstance(k, bool) or not isinstance(k, int) or k < 2
@@ -154,9 +154,7 @@ def coverage_figures(records: list[dict]) -> dict:
     def share(xs, of):
         return round(sum(xs) / len(of), 4) if of else None
 
-    probs = [r["success_probability"] if r.get("success_probability") is not None
-             else r["plan_probability"] for r in planned]
-    _, ece = calibration(probs, [r["success"] for r in planned])
+    ece = plans_ece(planned)
     return {"queries": len(records), "planned": share([True] * len(planned), records),
             "covered_in_truth": share([True] * len(truly), records),
             "covered_link_false": share([r.get("false_link_kind") in END_LINKS

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from topodrake.errors import TopodrakeError
 from topodrake.topomap.plan_calibration import calibration
 from topodrake.topomap.plan_calibration import FILENAME, PlanCalibration
 from topodrake.topomap.sources import (
@@ -262,3 +263,11 @@ def calibration_houses(methods: list[str]) -> dict:
             out[m] = list(c.fitted_on.get("houses", []))
     return out
 
+
+def check_map_methods(where: str, methods: list[str]) -> None:
+    """Refuse, naming ``where``, a list of methods that is empty or holds
+    one that is not a map method of the planning study (SPTM has no map)."""
+    bad = [m for m in methods if m not in METHODS or METHODS[m].map == "sptm"]
+    if bad or not methods:
+        raise TopodrakeError(f"{where}: methods must be map methods of the planning study "
+                             f"(not sptm), got {','.join(methods)!r}")

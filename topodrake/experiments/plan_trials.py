@@ -288,6 +288,19 @@ def summarize(houses: dict, ece: float | None, pruned_60_over_peak: float | None
     return out
 
 
+def plans_ece(planned: list[dict]) -> float | None:
+    """The ECE of some planned trials' records: each plan's calibrated
+    chance of success where the record carries one, else its raw plan
+    probability, against success (None without trials or probabilities)."""
+    from topodrake.topomap.plan_calibration import calibration
+
+    probs = [r.get("success_probability") if r.get("success_probability") is not None
+             else r.get("plan_probability") for r in planned]
+    if not planned or any(p is None for p in probs):
+        return None
+    return calibration(probs, [r["success"] for r in planned])[1]
+
+
 def pooled(records: list[dict]) -> dict:
     """Per method over some trials (all houses' together: each trial counts
     once, ``no_room`` ones left out): ``trials``, ``success``, the share of
@@ -296,8 +309,6 @@ def pooled(records: list[dict]) -> dict:
     (``uncovered``) and the plans' ECE (``plan_probability_ece``: the
     calibrated chance of success where the records carry one, else the raw
     plan probability, against success)."""
-    from topodrake.topomap.plan_calibration import calibration
-
     out: dict = {}
     for m in dict.fromkeys(r["method"] for r in records):
         rs = [r for r in records if r["method"] == m and r["outcome"] != "no_room"]
@@ -305,11 +316,7 @@ def pooled(records: list[dict]) -> dict:
             continue
         planned = [r for r in rs if r.get("planned")]
         false = [r["false_link_m"] > 0 for r in planned if r.get("false_link_m") is not None]
-        probs = [r.get("success_probability") if r.get("success_probability") is not None
-                 else r.get("plan_probability") for r in planned]
-        ece = None
-        if planned and all(p is not None for p in probs):
-            _, ece = calibration(probs, [r["success"] for r in planned])
+        ece = plans_ece(planned)
         out[m] = {"trials": len(rs), "success": round(float(np.mean([r["success"] for r in rs])), 4),
                   "false_link_plans": round(float(np.mean(false)), 4) if false else None,
                   "uncovered": round(sum("uncovered" in r for r in rs) / len(rs), 4),
